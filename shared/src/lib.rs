@@ -1,0 +1,33 @@
+//! # maobi-shared: the Maobi brush model
+//!
+//! A virtual Chinese-calligraphy brush (Liang 2009, "A Calligraphy Writing System Based on
+//! Using a Force-Reflection Joystick"), written once over a [`Scalar`] type so that the pen's
+//! microcontroller (fixed point, [`Fx`]), the host simulation and the tests (`f32`, `f64`) run
+//! the same code. `no_std`, no allocator, no panics on the substep path.
+//!
+//! * [`scalar`]: the number types and the fixed-point format's error budget.
+//! * [`vec`], [`quat`]: vectors, unit quaternions, the handle [`Pose`].
+//! * [`params`], [`presets`]: validated run-time parameters and the brush presets.
+//! * [`brush`]: spine dynamics, virtual skeleton, plasticity, surface.
+//! * [`footprint`]: the part of the surface that touches the paper, as convex polygons.
+//! * [`energy`]: the brush's mechanical energy, for stability checks.
+//!
+//! Coordinates: millimetres, the paper is the plane z = 0 with +z up, the pose is the
+//! ferrule's, and the identity orientation holds the brush pointing straight down.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod brush;
+pub mod energy;
+pub mod footprint;
+pub mod params;
+pub mod presets;
+pub mod quat;
+pub mod scalar;
+pub mod vec;
+
+pub use brush::{Brush, Layer};
+pub use params::{BrushParams, ParamError, ParamId};
+pub use quat::{Pose, Quat};
+pub use scalar::{Fx, Scalar};
+pub use vec::{Vec2, Vec3};

@@ -1,0 +1,328 @@
+//! Brush parameters: every one can change at run time and is validated before it is stored.
+//!
+//! Units are the ones a user thinks in: millimetres, grams, newtons per metre, seconds. The
+//! model turns them into dimensionless per-substep coefficients (see [`crate::brush`]) when a
+//! parameter changes; nothing here is on the substep path.
+
+use core::fmt;
+
+/// Most layers (spine masses, including the ferrule mass S_0) a brush may have.
+pub const MAX_LAYERS: usize = 24;
+/// Most surface nodes per layer ring.
+pub const MAX_RING_NODES: usize = 32;
+/// The force loop's tick: the model always advances in 1 ms ticks, split into substeps.
+pub const TICK_HZ: u32 = 1000;
+/// Rate at which the thesis states its per-step rates D and SDF (25 kHz, Liang 2009 4.2.1).
+pub const REFERENCE_SUBSTEP_HZ: u32 = 25_000;
+
+/// Names of the run-time parameters, for `set` / `get` and error messages.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum ParamId {
+    Layers = 0,
+    RingNodes,
+    LengthMm,
+    RadiusMm,
+    TipRadiusMm,
+    Belly,
+    MassG,
+    AxialStiffness,
+    AxialDamping,
+    TieStiffness,
+    TieDamping,
+    PaperDrag,
+    Plasticity,
+    JacobiIterations,
+    SubstepsPerTick,
+    SpreadTf,
+    SpreadRate,
+    SpreadMax,
+    Wetness,
+    FootprintEpsMm,
+}
+
+impl ParamId {
+    pub const ALL: [ParamId; 20] = [
+        ParamId::Layers,
+        ParamId::RingNodes,
+        ParamId::LengthMm,
+        ParamId::RadiusMm,
+        ParamId::TipRadiusMm,
+        ParamId::Belly,
+        ParamId::MassG,
+        ParamId::AxialStiffness,
+        ParamId::AxialDamping,
+        ParamId::TieStiffness,
+        ParamId::TieDamping,
+        ParamId::PaperDrag,
+        ParamId::Plasticity,
+        ParamId::JacobiIterations,
+        ParamId::SubstepsPerTick,
+        ParamId::SpreadTf,
+        ParamId::SpreadRate,
+        ParamId::SpreadMax,
+        ParamId::Wetness,
+        ParamId::FootprintEpsMm,
+    ];
+
+    /// The parameter's name as the CLI, the GUI and the wire protocol spell it.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ParamId::Layers => "layers",
+            ParamId::RingNodes => "ring_nodes",
+            ParamId::LengthMm => "length_mm",
+            ParamId::RadiusMm => "radius_mm",
+            ParamId::TipRadiusMm => "tip_radius_mm",
+            ParamId::Belly => "belly",
+            ParamId::MassG => "mass_g",
+            ParamId::AxialStiffness => "axial_stiffness_n_per_m",
+            ParamId::AxialDamping => "axial_damping_ns_per_m",
+            ParamId::TieStiffness => "tie_stiffness_n_per_m",
+            ParamId::TieDamping => "tie_damping_ns_per_m",
+            ParamId::PaperDrag => "paper_drag_ns_per_m",
+            ParamId::Plasticity => "plasticity_d",
+            ParamId::JacobiIterations => "jacobi_iterations",
+            ParamId::SubstepsPerTick => "substeps_per_tick",
+            ParamId::SpreadTf => "spread_tf",
+            ParamId::SpreadRate => "spread_sdf",
+            ParamId::SpreadMax => "spread_max",
+            ParamId::Wetness => "wetness",
+            ParamId::FootprintEpsMm => "footprint_eps_mm",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<ParamId> {
+        ParamId::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// Valid range (inclusive) and whether the value must be a whole number.
+    pub const fn range(self) -> (f32, f32, bool) {
+        match self {
+            ParamId::Layers => (3.0, MAX_LAYERS as f32, true),
+            ParamId::RingNodes => (4.0, MAX_RING_NODES as f32, true),
+            ParamId::LengthMm => (2.0, 120.0, false),
+            ParamId::RadiusMm => (0.2, 30.0, false),
+            ParamId::TipRadiusMm => (0.01, 5.0, false),
+            ParamId::Belly => (0.0, 2.0, false),
+            ParamId::MassG => (0.005, 50.0, false),
+            ParamId::AxialStiffness => (1.0, 1.0e7, false),
+            ParamId::AxialDamping => (0.0, 1.0e4, false),
+            ParamId::TieStiffness => (0.01, 1.0e6, false),
+            ParamId::TieDamping => (0.0, 1.0e4, false),
+            ParamId::PaperDrag => (0.0, 100.0, false),
+            ParamId::Plasticity => (0.0, 0.5, false),
+            ParamId::JacobiIterations => (1.0, 16.0, true),
+            ParamId::SubstepsPerTick => (1.0, 100.0, true),
+            ParamId::SpreadTf => (0.0, 10.0, false),
+            ParamId::SpreadRate => (0.0, 0.5, false),
+            ParamId::SpreadMax => (1.0, 4.0, false),
+            ParamId::Wetness => (0.0, 1.0, false),
+            ParamId::FootprintEpsMm => (0.001, 2.0, false),
+        }
+    }
+}
+
+impl fmt::Display for ParamId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Why a parameter value was rejected. The old value stays in force.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum ParamError {
+    NotFinite { param: ParamId },
+    OutOfRange { param: ParamId, value: f32, min: f32, max: f32 },
+    NotWholeNumber { param: ParamId, value: f32 },
+    /// Values that are each valid but not together (e.g. a tip wider than the root).
+    Inconsistent { param: ParamId, why: &'static str },
+    /// `ring_nodes` must divide the 32-entry trigonometric table.
+    RingNodesNotPowerOfTwo { value: f32 },
+}
+
+impl fmt::Display for ParamError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            ParamError::NotFinite { param } => write!(f, "{param}: value is not a finite number"),
+            ParamError::OutOfRange {
+                param,
+                value,
+                min,
+                max,
+            } => write!(f, "{param}: {value} is outside the valid range {min} ..= {max}"),
+            ParamError::NotWholeNumber { param, value } => {
+                write!(f, "{param}: {value} is not a whole number")
+            }
+            ParamError::Inconsistent { param, why } => write!(f, "{param}: {why}"),
+            ParamError::RingNodesNotPowerOfTwo { value } => write!(
+                f,
+                "ring_nodes: {value} is not one of 4, 8, 16, 32"
+            ),
+        }
+    }
+}
+
+/// Everything that defines a brush. Construct from a [`crate::presets`] entry and change
+/// with [`BrushParams::set`], which validates.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct BrushParams {
+    /// N: spine masses including the ferrule mass S_0.
+    pub layers: u8,
+    /// K: surface nodes around each layer's ellipse.
+    pub ring_nodes: u8,
+    /// Length of the hair from the ferrule to the tip.
+    pub length_mm: f32,
+    /// Radius of the hair bundle where it leaves the ferrule.
+    pub radius_mm: f32,
+    /// Radius of the last layer (the tip).
+    pub tip_radius_mm: f32,
+    /// How much the bundle swells below the ferrule before it tapers (0: a straight cone).
+    pub belly: f32,
+    /// Mass of the wet hair, spread evenly over the N - 1 free masses.
+    pub mass_g: f32,
+    /// k_s between neighbouring spine masses (eq. 2.1).
+    pub axial_stiffness: f32,
+    /// k_d between neighbouring spine masses (eq. 2.27).
+    pub axial_damping: f32,
+    /// Zero-length spring from S_i to the virtual skeleton node VS_i (Liang 3.1.2).
+    pub tie_stiffness: f32,
+    /// Damper in parallel with the tie.
+    pub tie_damping: f32,
+    /// C_f of the viscous paper drag on masses lying on the paper (eq. 4.1).
+    pub paper_drag: f32,
+    /// D of eq. 3-2, per step at the reference 25 kHz (0: perfectly elastic).
+    pub plasticity: f32,
+    /// k: Jacobi iterations of the implicit solve (eq. 2.33).
+    pub jacobi_iterations: u8,
+    /// Substeps in each 1 ms tick (25 = the thesis's 25 kHz).
+    pub substeps_per_tick: u8,
+    /// TF of eq. 3-17: weight of a layer's own bend in its spread.
+    pub spread_tf: f32,
+    /// SDF of eq. 3-19, per step at the reference 25 kHz.
+    pub spread_rate: f32,
+    /// RL_max,i / RL_initial,i.
+    pub spread_max: f32,
+    /// Initial wetness W_i of every layer (1: saturated with ink; eq. 3-17).
+    pub wetness: f32,
+    /// Surface within this height of the paper leaves ink (SPEC D).
+    pub footprint_eps_mm: f32,
+}
+
+impl BrushParams {
+    /// Reads one parameter as `f32`.
+    pub fn get(&self, id: ParamId) -> f32 {
+        match id {
+            ParamId::Layers => self.layers as f32,
+            ParamId::RingNodes => self.ring_nodes as f32,
+            ParamId::LengthMm => self.length_mm,
+            ParamId::RadiusMm => self.radius_mm,
+            ParamId::TipRadiusMm => self.tip_radius_mm,
+            ParamId::Belly => self.belly,
+            ParamId::MassG => self.mass_g,
+            ParamId::AxialStiffness => self.axial_stiffness,
+            ParamId::AxialDamping => self.axial_damping,
+            ParamId::TieStiffness => self.tie_stiffness,
+            ParamId::TieDamping => self.tie_damping,
+            ParamId::PaperDrag => self.paper_drag,
+            ParamId::Plasticity => self.plasticity,
+            ParamId::JacobiIterations => self.jacobi_iterations as f32,
+            ParamId::SubstepsPerTick => self.substeps_per_tick as f32,
+            ParamId::SpreadTf => self.spread_tf,
+            ParamId::SpreadRate => self.spread_rate,
+            ParamId::SpreadMax => self.spread_max,
+            ParamId::Wetness => self.wetness,
+            ParamId::FootprintEpsMm => self.footprint_eps_mm,
+        }
+    }
+
+    /// Sets one parameter after validating it; on error nothing changes.
+    pub fn set(&mut self, id: ParamId, value: f32) -> Result<(), ParamError> {
+        let mut next = *self;
+        next.store_unchecked(id, check_value(id, value)?);
+        next.validate()?;
+        *self = next;
+        Ok(())
+    }
+
+    fn store_unchecked(&mut self, id: ParamId, v: f32) {
+        match id {
+            ParamId::Layers => self.layers = v as u8,
+            ParamId::RingNodes => self.ring_nodes = v as u8,
+            ParamId::LengthMm => self.length_mm = v,
+            ParamId::RadiusMm => self.radius_mm = v,
+            ParamId::TipRadiusMm => self.tip_radius_mm = v,
+            ParamId::Belly => self.belly = v,
+            ParamId::MassG => self.mass_g = v,
+            ParamId::AxialStiffness => self.axial_stiffness = v,
+            ParamId::AxialDamping => self.axial_damping = v,
+            ParamId::TieStiffness => self.tie_stiffness = v,
+            ParamId::TieDamping => self.tie_damping = v,
+            ParamId::PaperDrag => self.paper_drag = v,
+            ParamId::Plasticity => self.plasticity = v,
+            ParamId::JacobiIterations => self.jacobi_iterations = v as u8,
+            ParamId::SubstepsPerTick => self.substeps_per_tick = v as u8,
+            ParamId::SpreadTf => self.spread_tf = v,
+            ParamId::SpreadRate => self.spread_rate = v,
+            ParamId::SpreadMax => self.spread_max = v,
+            ParamId::Wetness => self.wetness = v,
+            ParamId::FootprintEpsMm => self.footprint_eps_mm = v,
+        }
+    }
+
+    /// Checks every field and the relations between them.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        for id in ParamId::ALL {
+            check_value(id, self.get(id))?;
+        }
+        if self.tip_radius_mm > self.radius_mm {
+            return Err(ParamError::Inconsistent {
+                param: ParamId::TipRadiusMm,
+                why: "the tip cannot be wider than the root",
+            });
+        }
+        Ok(())
+    }
+
+    /// Substep length in seconds.
+    pub fn substep_s(&self) -> f64 {
+        1.0 / (TICK_HZ as f64 * self.substeps_per_tick as f64)
+    }
+
+    /// Resting length of one spine segment (mm).
+    pub fn segment_mm(&self) -> f64 {
+        self.length_mm as f64 / (self.layers as f64 - 1.0)
+    }
+
+    /// Long-axis radius RL_initial,i of layer i at rest: swells by `belly` and tapers to the
+    /// tip radius. `t = i / (N-1)` runs from the ferrule (0) to the tip (1).
+    pub fn rest_radius_mm(&self, i: usize) -> f64 {
+        let t = i as f64 / (self.layers as f64 - 1.0);
+        let r0 = self.radius_mm as f64;
+        let rt = self.tip_radius_mm as f64;
+        // Swells by (1 + b t) below the ferrule, tapers as (1 - t^2) to the tip: the "belly"
+        // of a calligraphy brush sits about a third of the way down for b around 0.5.
+        rt + (r0 - rt) * (1.0 + self.belly as f64 * t) * (1.0 - t * t)
+    }
+}
+
+fn check_value(id: ParamId, value: f32) -> Result<f32, ParamError> {
+    if !value.is_finite() {
+        return Err(ParamError::NotFinite { param: id });
+    }
+    let (min, max, whole) = id.range();
+    if value < min || value > max {
+        return Err(ParamError::OutOfRange {
+            param: id,
+            value,
+            min,
+            max,
+        });
+    }
+    if whole && value != (value as u32) as f32 {
+        return Err(ParamError::NotWholeNumber { param: id, value });
+    }
+    if id == ParamId::RingNodes && !(value as u32).is_power_of_two() {
+        return Err(ParamError::RingNodesNotPowerOfTwo { value });
+    }
+    Ok(value)
+}

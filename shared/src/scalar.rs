@@ -1,0 +1,363 @@
+//! The number type the model is written over.
+//!
+//! Every piece of the model is generic over [`Scalar`], so the device's fixed-point arithmetic
+//! ([`Fx`]) and the `f32` / `f64` references run *the same code path*. Only the handful of
+//! operations below may differ between implementations, and each one documents its rounding
+//! and overflow behaviour.
+//!
+//! # The fixed-point format: why `I32F32`, millimetres and "per substep" velocities
+//!
+//! Quantities the model must carry (large brush, N = 16, substep h = 40 us, see
+//! `../shared/notes/fixed-point-magnitudes.md` for the derivation):
+//!
+//! | quantity | smallest that matters | largest |
+//! |---|---|---|
+//! | position (mm) | 1 um for the rest test, 5 um fixed-vs-f64 | a few hundred mm of canvas |
+//! | velocity as displacement per substep (mm) | 0.38 mm/s creep = 1.5e-5 mm | 500 mm/s stroke = 0.02 mm |
+//! | coefficient h^2 k / W' (dimensionless) | soft skeleton tie: 1.3e-3, wanted to 1e-4 relative | stiff 1000x springs: ~0.5 |
+//!
+//! * **Units.** Positions are millimetres. Velocities are stored as the displacement per
+//!   substep `u = v h` (mm), so the position update is a plain add `x += u` with no `h`
+//!   multiplication. Every spring, damper and friction term enters only through
+//!   dimensionless coefficients such as `h^2 k / W'` and `h k_d / W'` that are computed when a
+//!   parameter changes (in `f64` on every target, once, off the hot path): `h^2` itself
+//!   (1.6e-9 s^2) never appears in fixed point.
+//! * **Format.** `I32F32`: 32 integer bits (range +-2.1e9 mm, so no product of positions or
+//!   coefficients the model forms can overflow) and 32 fraction bits (resolution 2.3e-10 mm =
+//!   0.23 pm, or 5.8 um/s as a velocity at 25 kHz). A soft tie coefficient of 1.3e-3 is held to
+//!   1.8e-7 relative. `Q16.16` was rejected: its 1.5e-5 resolution makes the soft tie stall
+//!   for displacements under 11 um, more than the 5 um budget.
+//! * **Error budget.** Each multiply rounds toward -inf (error <= 2.3e-10 mm); a substep does
+//!   about 150 roundings per mass. Even if all accumulated coherently over one simulated
+//!   second at 25 kHz that is 150 * 25,000 * 2.3e-10 ~ 0.9 um, and random accumulation gives
+//!   about 1e-6 um; what dominates fixed-vs-f64 differences in practice is the contact
+//!   decision on masses that sit within a few picometres of the paper. The test
+//!   `fixed_matches_f64_on_every_example` measures it (see the README for the figure).
+//! * **Overflow.** Explicit and the same in debug and release: add, sub, mul and div
+//!   *saturate*; division by zero saturates to the signed maximum (or 0 for 0/0); `sqrt` of a
+//!   negative number returns 0. None of these can panic.
+//!
+//! The cost of 64-bit fixed point on a Cortex-M4 is measured by the firmware issue; the whole
+//! model changes format by changing the [`Fx`] alias, and the error analysis above says what a
+//! 32-bit format would have to give up.
+
+use core::fmt::Debug;
+use core::ops::{Add, AddAssign, Mul, Neg, Sub, SubAssign};
+
+/// The raw fixed-point format behind [`Fx`].
+pub type FxRaw = fixed::types::I32F32;
+
+/// The fixed-point number the device runs: [`FxRaw`] with *saturating* operators.
+///
+/// The `fixed` crate's own `+`, `-` and `*` panic on overflow in debug builds and wrap in
+/// release builds; this wrapper makes every operator saturate in both, so overflow is never a
+/// matter of build profile.
+#[derive(Copy, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[repr(transparent)]
+pub struct Fx(pub FxRaw);
+
+impl Fx {
+    pub const MAX: Fx = Fx(FxRaw::MAX);
+    pub const MIN: Fx = Fx(FxRaw::MIN);
+    /// The smallest positive step, 2^-32.
+    pub const DELTA: Fx = Fx(FxRaw::DELTA);
+    /// The raw two's-complement bits (for the wire format and bit-exact comparisons).
+    #[inline]
+    pub const fn to_bits(self) -> i64 {
+        self.0.to_bits()
+    }
+    #[inline]
+    pub const fn from_bits(bits: i64) -> Fx {
+        Fx(FxRaw::from_bits(bits))
+    }
+}
+
+impl Debug for Fx {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        Debug::fmt(&self.0, f)
+    }
+}
+
+impl core::fmt::Display for Fx {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        core::fmt::Display::fmt(&self.0, f)
+    }
+}
+
+impl Add for Fx {
+    type Output = Fx;
+    #[inline]
+    fn add(self, rhs: Fx) -> Fx {
+        Fx(self.0.saturating_add(rhs.0))
+    }
+}
+impl Sub for Fx {
+    type Output = Fx;
+    #[inline]
+    fn sub(self, rhs: Fx) -> Fx {
+        Fx(self.0.saturating_sub(rhs.0))
+    }
+}
+impl Mul for Fx {
+    type Output = Fx;
+    #[inline]
+    fn mul(self, rhs: Fx) -> Fx {
+        Fx(self.0.saturating_mul(rhs.0))
+    }
+}
+impl Neg for Fx {
+    type Output = Fx;
+    #[inline]
+    fn neg(self) -> Fx {
+        Fx(self.0.saturating_neg())
+    }
+}
+impl AddAssign for Fx {
+    #[inline]
+    fn add_assign(&mut self, rhs: Fx) {
+        *self = *self + rhs;
+    }
+}
+impl SubAssign for Fx {
+    #[inline]
+    fn sub_assign(&mut self, rhs: Fx) {
+        *self = *self - rhs;
+    }
+}
+
+/// A real-number type the model can run on: `f32`, `f64` or [`Fx`].
+pub trait Scalar:
+    Copy
+    + Debug
+    + PartialOrd
+    + PartialEq
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Neg<Output = Self>
+    + AddAssign
+    + SubAssign
+    + Send
+    + Sync
+    + 'static
+{
+    const ZERO: Self;
+    const ONE: Self;
+    /// Short name for reports ("fixed", "f32", "f64").
+    const NAME: &'static str;
+    /// Conversion from a parameter or input value. Non-finite input becomes zero for fixed
+    /// point; callers validate first.
+    fn from_f64(v: f64) -> Self;
+    fn to_f64(self) -> f64;
+    /// Division; see the module docs for the fixed-point behaviour at zero.
+    fn div(self, rhs: Self) -> Self;
+    /// Square root; 0 for negative input.
+    fn sqrt(self) -> Self;
+    fn abs(self) -> Self {
+        if self < Self::ZERO {
+            -self
+        } else {
+            self
+        }
+    }
+    fn min(self, other: Self) -> Self {
+        if other < self {
+            other
+        } else {
+            self
+        }
+    }
+    fn max(self, other: Self) -> Self {
+        if other > self {
+            other
+        } else {
+            self
+        }
+    }
+    fn clamp(self, lo: Self, hi: Self) -> Self {
+        self.max(lo).min(hi)
+    }
+    fn from_f32(v: f32) -> Self {
+        Self::from_f64(v as f64)
+    }
+    fn to_f32(self) -> f32 {
+        self.to_f64() as f32
+    }
+    fn from_usize(v: usize) -> Self {
+        Self::from_f64(v as f64)
+    }
+}
+
+impl Scalar for f64 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const NAME: &'static str = "f64";
+    #[inline]
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    #[inline]
+    fn to_f64(self) -> f64 {
+        self
+    }
+    #[inline]
+    fn div(self, rhs: Self) -> Self {
+        self / rhs
+    }
+    #[inline]
+    fn sqrt(self) -> Self {
+        if self > 0.0 {
+            sqrt_f64(self)
+        } else {
+            0.0
+        }
+    }
+}
+
+impl Scalar for f32 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const NAME: &'static str = "f32";
+    #[inline]
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    #[inline]
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    #[inline]
+    fn div(self, rhs: Self) -> Self {
+        self / rhs
+    }
+    #[inline]
+    fn sqrt(self) -> Self {
+        if self > 0.0 {
+            sqrt_f32(self)
+        } else {
+            0.0
+        }
+    }
+}
+
+impl Scalar for Fx {
+    const ZERO: Self = Fx(FxRaw::ZERO);
+    const ONE: Self = Fx(FxRaw::ONE);
+    const NAME: &'static str = "fixed";
+    #[inline]
+    fn from_f64(v: f64) -> Self {
+        // `saturating_from_num` panics on NaN; the model never feeds it one (parameters and
+        // inputs are validated), but this function must not panic either.
+        if v.is_nan() {
+            Fx(FxRaw::ZERO)
+        } else {
+            Fx(FxRaw::saturating_from_num(v))
+        }
+    }
+    #[inline]
+    fn to_f64(self) -> f64 {
+        self.0.to_num::<f64>()
+    }
+    #[inline]
+    fn div(self, rhs: Self) -> Self {
+        if rhs.0 == FxRaw::ZERO {
+            if self.0 > FxRaw::ZERO {
+                Fx::MAX
+            } else if self.0 < FxRaw::ZERO {
+                Fx::MIN
+            } else {
+                Fx(FxRaw::ZERO)
+            }
+        } else {
+            Fx(self.0.saturating_div(rhs.0))
+        }
+    }
+    #[inline]
+    fn sqrt(self) -> Self {
+        if self.0 > FxRaw::ZERO {
+            // Cannot fail for a positive I32F32 (the root is always representable).
+            Fx(self.0.checked_sqrt().unwrap_or(FxRaw::ZERO))
+        } else {
+            Fx(FxRaw::ZERO)
+        }
+    }
+}
+
+/// `f64::sqrt` is not in `core`; the SSE/VFP instruction is reached through the
+/// `core::intrinsics`-free route of a correctly rounded Newton step on the bit pattern
+/// only when `std` is absent. With `std` (host, tests) this is the hardware instruction.
+#[inline]
+fn sqrt_f64(v: f64) -> f64 {
+    #[cfg(feature = "std")]
+    {
+        v.sqrt()
+    }
+    #[cfg(not(feature = "std"))]
+    {
+        newton_sqrt_f64(v)
+    }
+}
+
+#[inline]
+fn sqrt_f32(v: f32) -> f32 {
+    #[cfg(feature = "std")]
+    {
+        v.sqrt()
+    }
+    #[cfg(not(feature = "std"))]
+    {
+        newton_sqrt_f64(v as f64) as f32
+    }
+}
+
+/// Square root by Newton's method from a bit-pattern estimate; exact to the last bit or one
+/// ulp after four iterations for every positive finite input. Used only on targets without
+/// `std` (the device runs [`Fx`] and uses this for parameter set-up alone).
+#[allow(dead_code)]
+fn newton_sqrt_f64(v: f64) -> f64 {
+    if !(v > 0.0) || v.is_infinite() {
+        return if v > 0.0 { v } else { 0.0 };
+    }
+    // Halve the exponent for the first estimate: within a factor of 1.5 of the root.
+    let bits = v.to_bits();
+    let mut x = f64::from_bits((bits >> 1) + (0x3ff0_0000_0000_0000 >> 1));
+    for _ in 0..6 {
+        x = 0.5 * (x + v / x);
+    }
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn newton_sqrt_matches_hardware() {
+        for &v in &[1e-12, 2.5e-9, 1e-3, 0.5, 1.0, 2.0, 3.0, 1e3, 6.25e5, 1.7e30] {
+            let a = newton_sqrt_f64(v);
+            let b = v.sqrt();
+            assert!((a - b).abs() <= b * 4.0 * f64::EPSILON, "{v}: {a} vs {b}");
+        }
+        assert_eq!(newton_sqrt_f64(0.0), 0.0);
+        assert_eq!(newton_sqrt_f64(-1.0), 0.0);
+    }
+
+    #[test]
+    fn fixed_saturates_instead_of_panicking() {
+        let one = <Fx as Scalar>::ONE;
+        let zero = <Fx as Scalar>::ZERO;
+        assert_eq!(Fx::MAX + Fx::MAX, Fx::MAX);
+        assert_eq!(Fx::MIN - Fx::MAX, Fx::MIN);
+        assert_eq!(Fx::MAX * Fx::MAX, Fx::MAX);
+        assert_eq!(Fx::MAX * -Fx::MAX, Fx::MIN);
+        assert_eq!(-Fx::MIN, Fx::MAX);
+        assert_eq!(Scalar::div(one, zero), Fx::MAX);
+        assert_eq!(Scalar::div(-one, zero), Fx::MIN);
+        assert_eq!(Scalar::div(zero, zero), zero);
+        assert_eq!(Scalar::div(Fx::MAX, Fx::DELTA), Fx::MAX);
+        assert_eq!(Scalar::sqrt(-one), zero);
+        assert_eq!(<Fx as Scalar>::from_f64(f64::NAN), zero);
+        assert_eq!(<Fx as Scalar>::from_f64(1e30), Fx::MAX);
+        assert_eq!(Scalar::sqrt(<Fx as Scalar>::from_f64(6.25)).to_f64(), 2.5);
+    }
+}

@@ -1,0 +1,156 @@
+//! Small vectors over a [`Scalar`].
+
+use crate::scalar::Scalar;
+use core::ops::{Add, AddAssign, Mul, Neg, Sub, SubAssign};
+
+/// A 3-vector. Model coordinates: millimetres, paper plane z = 0, +z up.
+#[derive(Copy, Clone, Debug, PartialEq, Default)]
+pub struct Vec3<S> {
+    pub x: S,
+    pub y: S,
+    pub z: S,
+}
+
+impl<S: Scalar> Vec3<S> {
+    pub const ZERO: Self = Vec3 {
+        x: S::ZERO,
+        y: S::ZERO,
+        z: S::ZERO,
+    };
+    pub const X: Self = Vec3 {
+        x: S::ONE,
+        y: S::ZERO,
+        z: S::ZERO,
+    };
+    pub const Y: Self = Vec3 {
+        x: S::ZERO,
+        y: S::ONE,
+        z: S::ZERO,
+    };
+    pub const Z: Self = Vec3 {
+        x: S::ZERO,
+        y: S::ZERO,
+        z: S::ONE,
+    };
+
+    #[inline]
+    pub const fn new(x: S, y: S, z: S) -> Self {
+        Vec3 { x, y, z }
+    }
+    pub fn from_f64(v: [f64; 3]) -> Self {
+        Vec3::new(S::from_f64(v[0]), S::from_f64(v[1]), S::from_f64(v[2]))
+    }
+    pub fn to_f64(self) -> [f64; 3] {
+        [self.x.to_f64(), self.y.to_f64(), self.z.to_f64()]
+    }
+    /// Converts between scalar types (through `f64`).
+    pub fn cast<T: Scalar>(self) -> Vec3<T> {
+        Vec3::from_f64(self.to_f64())
+    }
+    #[inline]
+    pub fn dot(self, o: Self) -> S {
+        self.x * o.x + self.y * o.y + self.z * o.z
+    }
+    #[inline]
+    pub fn cross(self, o: Self) -> Self {
+        Vec3::new(
+            self.y * o.z - self.z * o.y,
+            self.z * o.x - self.x * o.z,
+            self.x * o.y - self.y * o.x,
+        )
+    }
+    #[inline]
+    pub fn scale(self, s: S) -> Self {
+        Vec3::new(self.x * s, self.y * s, self.z * s)
+    }
+    #[inline]
+    pub fn norm2(self) -> S {
+        self.dot(self)
+    }
+    #[inline]
+    pub fn norm(self) -> S {
+        self.norm2().sqrt()
+    }
+    /// The unit vector along `self`, or `None` when its length is at most `min_len`
+    /// (a direction that is not defined).
+    #[inline]
+    pub fn normalized_or_none(self, min_len: S) -> Option<Self> {
+        let n = self.norm();
+        if n > min_len {
+            let inv = S::ONE.div(n);
+            Some(self.scale(inv))
+        } else {
+            None
+        }
+    }
+    /// The part of `self` in the paper plane (z set to zero).
+    #[inline]
+    pub fn xy(self) -> Self {
+        Vec3::new(self.x, self.y, S::ZERO)
+    }
+    /// `a + (b - a) t`.
+    #[inline]
+    pub fn lerp(a: Self, b: Self, t: S) -> Self {
+        a + (b - a).scale(t)
+    }
+}
+
+impl<S: Scalar> Add for Vec3<S> {
+    type Output = Self;
+    #[inline]
+    fn add(self, o: Self) -> Self {
+        Vec3::new(self.x + o.x, self.y + o.y, self.z + o.z)
+    }
+}
+impl<S: Scalar> Sub for Vec3<S> {
+    type Output = Self;
+    #[inline]
+    fn sub(self, o: Self) -> Self {
+        Vec3::new(self.x - o.x, self.y - o.y, self.z - o.z)
+    }
+}
+impl<S: Scalar> Neg for Vec3<S> {
+    type Output = Self;
+    #[inline]
+    fn neg(self) -> Self {
+        Vec3::new(-self.x, -self.y, -self.z)
+    }
+}
+impl<S: Scalar> Mul<S> for Vec3<S> {
+    type Output = Self;
+    #[inline]
+    fn mul(self, s: S) -> Self {
+        self.scale(s)
+    }
+}
+impl<S: Scalar> AddAssign for Vec3<S> {
+    #[inline]
+    fn add_assign(&mut self, o: Self) {
+        *self = *self + o;
+    }
+}
+impl<S: Scalar> SubAssign for Vec3<S> {
+    #[inline]
+    fn sub_assign(&mut self, o: Self) {
+        *self = *self - o;
+    }
+}
+
+/// A point in paper coordinates (mm).
+#[derive(Copy, Clone, Debug, PartialEq, Default)]
+pub struct Vec2<S> {
+    pub x: S,
+    pub y: S,
+}
+
+impl<S: Scalar> Vec2<S> {
+    #[inline]
+    pub const fn new(x: S, y: S) -> Self {
+        Vec2 { x, y }
+    }
+    /// z-component of `(b - a) x (c - a)`: positive when a, b, c turn counter-clockwise.
+    #[inline]
+    pub fn orient(a: Self, b: Self, c: Self) -> S {
+        (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x)
+    }
+}

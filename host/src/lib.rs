@@ -3,7 +3,15 @@
 //! The command line (`maobi trace`, `maobi render`) and the pieces the GUI will reuse:
 //!
 //! * [`poses`]: reading, validating and resampling handle-pose CSV files.
+//! * [`sim`]: running the shared brush model over a pose track, tick by tick.
+//! * [`trace`]: the per-tick trace CSV.
 //! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
+//! * [`render`]: inking a simulated stroke and writing it as PNG.
+//! * [`cli`]: the command-line interface.
 
+pub mod cli;
 pub mod poses;
 pub mod raster;
+pub mod render;
+pub mod sim;
+pub mod trace;

@@ -1,0 +1,178 @@
+//! The `maobi` command line.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use maobi_shared::{presets, BrushParams, Fx, Scalar};
+
+use crate::poses::PoseTrack;
+use crate::render::{paper_frame, render, write_png, RenderStats};
+use crate::sim::{simulate, ScalarKind};
+use crate::trace::{time_decimals, TraceWriter};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "maobi",
+    version,
+    about = "Simulate the Maobi brush from recorded handle poses"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Simulate a pose file and write the brush state of every 1 ms tick as CSV.
+    Trace(TraceArgs),
+    /// Simulate a pose file and render the ink it leaves as a greyscale PNG.
+    Render(RenderArgs),
+}
+
+/// A brush preset chosen on the command line.
+#[derive(Clone, Debug)]
+pub struct BrushChoice {
+    pub name: String,
+    pub params: BrushParams,
+}
+
+fn parse_brush(name: &str) -> Result<BrushChoice, String> {
+    presets::by_name(name)
+        .map(|params| BrushChoice {
+            name: name.to_string(),
+            params,
+        })
+        .ok_or_else(|| format!("unknown brush `{name}`; valid brushes: {}", presets::NAMES))
+}
+
+fn parse_px_per_mm(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("`{s}` is not a positive number")),
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct TraceArgs {
+    /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
+    #[arg(long, value_name = "POSES.csv")]
+    pub poses: PathBuf,
+    /// Brush preset.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Number type to run the model in.
+    #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
+    pub scalar: ScalarKind,
+    /// Output trace CSV.
+    #[arg(short = 'o', long = "output", value_name = "TRACE.csv")]
+    pub output: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
+    #[arg(long, value_name = "POSES.csv")]
+    pub poses: PathBuf,
+    /// Brush preset.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Image resolution.
+    #[arg(long, value_name = "N", default_value = "10", value_parser = parse_px_per_mm)]
+    pub px_per_mm: f64,
+    /// Number type to run the model in (the device runs fixed).
+    #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
+    pub scalar: ScalarKind,
+    /// Output PNG.
+    #[arg(short = 'o', long = "output", value_name = "OUT.png")]
+    pub output: PathBuf,
+}
+
+/// Parses the command line, runs the command, prints errors; the process's exit code.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("maobi: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Trace(a) => run_trace(&a),
+        Command::Render(a) => run_render(&a),
+    }
+}
+
+fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let track = PoseTrack::from_path(&a.poses)?;
+    let ticks = match a.scalar {
+        ScalarKind::Fixed => trace_as::<Fx>(a.brush.params, &track, &a.output)?,
+        ScalarKind::F32 => trace_as::<f32>(a.brush.params, &track, &a.output)?,
+        ScalarKind::F64 => trace_as::<f64>(a.brush.params, &track, &a.output)?,
+    };
+    eprintln!(
+        "maobi trace: {ticks} ticks ({:.3} s) of the {} brush in {}, wrote {} in {:.2} s",
+        (ticks - 1) as f64 * crate::poses::TICK_S,
+        a.brush.name,
+        a.scalar,
+        a.output.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn trace_as<S: Scalar>(
+    params: BrushParams,
+    track: &PoseTrack,
+    out: &Path,
+) -> anyhow::Result<usize> {
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let write_err = || format!("cannot write {}", out.display());
+    let mut w = TraceWriter::new(
+        std::io::BufWriter::new(file),
+        params.layers as usize,
+        time_decimals(track.start()),
+    )
+    .with_context(write_err)?;
+    let ticks = simulate::<S>(params, track, |tick| {
+        w.write_tick(tick).with_context(write_err)
+    })?;
+    w.finish().with_context(write_err)?;
+    Ok(ticks)
+}
+
+fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let track = PoseTrack::from_path(&a.poses)?;
+    let params = a.brush.params;
+    let frame = paper_frame(&track, &params, a.px_per_mm)?;
+    let (canvas, stats): (_, RenderStats) = match a.scalar {
+        ScalarKind::Fixed => render::<Fx>(params, &track, frame)?,
+        ScalarKind::F32 => render::<f32>(params, &track, frame)?,
+        ScalarKind::F64 => render::<f64>(params, &track, frame)?,
+    };
+    write_png(&canvas, &a.output)?;
+    eprintln!(
+        "maobi render: {} ticks ({} inking, {:.1} us/tick stamping) of the {} brush in {}, {} x {} px at {} px/mm, ink {:.2}%, wrote {} in {:.2} s",
+        stats.ticks,
+        stats.stamps,
+        stats.stamp_seconds * 1e6 / stats.ticks as f64,
+        a.brush.name,
+        a.scalar,
+        stats.width,
+        stats.height,
+        a.px_per_mm,
+        stats.ink_fraction * 100.0,
+        a.output.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}

@@ -1,0 +1,77 @@
+//! Runs the brush model over a resampled pose track, one 1 ms tick at a time.
+
+use std::fmt;
+
+use maobi_shared::{Brush, BrushParams, Fx, Pose, Scalar};
+
+use crate::poses::PoseTrack;
+
+/// The number type to run the model in.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum ScalarKind {
+    /// I32F32 fixed point, as on the device.
+    #[default]
+    Fixed,
+    F32,
+    F64,
+}
+
+impl ScalarKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            ScalarKind::Fixed => <Fx as Scalar>::NAME,
+            ScalarKind::F32 => <f32 as Scalar>::NAME,
+            ScalarKind::F64 => <f64 as Scalar>::NAME,
+        }
+    }
+}
+
+impl fmt::Display for ScalarKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The state after one tick, handed to the caller of [`simulate`].
+pub struct Tick<'a, S: Scalar> {
+    /// Tick index; 0 is the rest state at the first pose.
+    pub k: usize,
+    /// Time (s) on the input's clock.
+    pub t: f64,
+    /// The resampled input pose the handle was driven to.
+    pub pose: Pose<f64>,
+    pub brush: &'a Brush<S>,
+}
+
+/// Creates the brush at rest at the track's first pose, calls `on_tick` with that state
+/// (tick 0), then ticks to each following resampled pose and calls `on_tick` after each.
+/// Stops at the first error `on_tick` returns. Returns the number of ticks (tick 0 included).
+pub fn simulate<S: Scalar>(
+    params: BrushParams,
+    track: &PoseTrack,
+    mut on_tick: impl FnMut(&Tick<'_, S>) -> anyhow::Result<()>,
+) -> anyhow::Result<usize> {
+    let mut poses = track.resample();
+    let first = poses.next().expect("a pose track has at least one tick");
+    // `ParamError` is not a `std::error::Error`, so it is carried as its message.
+    let mut brush = Brush::<S>::new(params, first.cast())
+        .map_err(|e| anyhow::anyhow!("invalid brush parameters: {e}"))?;
+    on_tick(&Tick {
+        k: 0,
+        t: track.tick_time(0),
+        pose: first,
+        brush: &brush,
+    })?;
+    let mut k = 0;
+    for pose in poses {
+        k += 1;
+        brush.tick(pose.cast());
+        on_tick(&Tick {
+            k,
+            t: track.tick_time(k),
+            pose,
+            brush: &brush,
+        })?;
+    }
+    Ok(k + 1)
+}

@@ -23,9 +23,16 @@
 //!    `w_i` the skeleton node's own displacement this substep, and `du_0` the ferrule's
 //!    prescribed velocity change. The coefficients are dimensionless and computed in `f64`
 //!    when a parameter changes, so `h^2` never meets the fixed-point format.
+//!
+//!    The iterations are the thesis's method and are used while they converge well; for
+//!    stiffer springs or longer substeps the same system is solved exactly in O(N) (see
+//!    [`JACOBI_LIMIT`] for the stability analysis behind the switch).
 //! 3. **Paper.** Viscous drag (eq. 4.1) on masses lying on the paper, applied implicitly
 //!    (`u_par /= 1 + h C_f / m`, stable for any drag). Then `S_i += u_i`, and a mass below the
 //!    paper is projected back onto it with its downward velocity removed (Fig. 4-5).
+//!
+//! Once per 1 ms tick, after the substeps ([`Brush::end_tick`]):
+//!
 //! 4. **Plasticity** (eqs. 3-1..3-6) when D > 0.
 //! 5. **Surface** (eqs. 3-7..3-21): per-layer ellipse axes and radii.
 //!
@@ -33,17 +40,33 @@
 //!
 //! * Eq. 3-3 interpolates with weight i/(N-1), which moves the end direction V_{N-2} it has just
 //!   set; we use i/(N-2) so both ends keep their values.
-//! * D and SDF are per-step rates in the thesis, which ran at 25 kHz. They are stated at that
-//!   reference rate and converted, `1 - (1 - D)^(25 kHz / f)`, so a brush behaves the same at
-//!   any substep rate.
+//! * D and SDF are per-step rates in the thesis, which ran them at 25 kHz. They are stated at
+//!   that reference rate and converted to the 1 kHz tick at which we run them,
+//!   `1 - (1 - D)^(25 kHz / 1 kHz)`, so a brush behaves the same at any substep rate.
+//! * Eq. 3-8 interpolates the short axis toward the paper normal but never makes it
+//!   perpendicular to the spine segment, so near a vertical brush the "cross-section"
+//!   ellipse stands upright. We keep the interpolated direction's intent and use
+//!   `SA = V x LA` (the interpolated SA with its component along the segment removed), so
+//!   every ellipse is a true cross-section of the hair bundle.
 //! * Eq. 3.11's cross product vanishes when a layer's short axis is parallel to its spine
 //!   segment (a brush pressed straight down): the previous long axis, made perpendicular to
 //!   the segment, is kept instead.
 
-use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ};
+use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
+
+/// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
+/// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
+///
+/// Why: for the chain's alternating mode the Jacobi iteration matrix has eigenvalue
+/// `-2 c_j`, and k = 4 iterations scale the update by `S = (1 + (2c)^5) / (1 + 2c)` instead of
+/// the exact `1 / (1 + 2c)`. The step is stable only while `c S <= 1/3`, which fails for
+/// `c_j > 0.425` (h^2 k / m > 2.8): a brush 1000x stiffer than the presets blows up at any
+/// substep rate. At 0.25 the series has converged to 3% and the margin is wide; the presets
+/// sit at 0.05. The exact solve costs about as much as two Jacobi sweeps.
+pub const JACOBI_LIMIT: f64 = 0.25;
 
 /// Masses within this height of the paper count as lying on it (mm). Large enough that the
 /// contact decision does not flicker on rounding, far below anything visible.
@@ -56,6 +79,7 @@ struct Row<S> {
     c_j: S, // c_k + c_d: the Jacobi off-diagonal, also the relative-velocity weight
     c_t: S,
     c_tv: S, // c_t + c_dt
+    c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
 }
 
 /// Everything derived from the parameters that the substep needs: recomputed by
@@ -66,12 +90,15 @@ struct Derived<S> {
     k: usize,
     iterations: usize,
     substeps: usize,
+    /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
+    exact_solve: bool,
     /// [interior or tip][untied or tied]
     rows: [[Row<S>; 2]; 2],
     /// 1 / (1 + h C_f / m)
     drag_keep: S,
     segment: S,
     segment_f64: f64,
+    compression_ratio: S,
     plasticity: S,
     spread_rate: S,
     spread_tf: S,
@@ -85,6 +112,7 @@ struct Derived<S> {
     inv_substeps: S,
     /// Below this length a direction is treated as undefined (mm).
     tiny: S,
+    tiny2: S,
 }
 
 /// The state of one layer's surface ellipse (Liang 3.2).
@@ -120,6 +148,12 @@ pub struct Brush<S: Scalar> {
     /// Skeleton nodes' displacement in the last substep (mm).
     skel_vel: [Vec3<S>; MAX_LAYERS],
     layers: [Layer<S>; MAX_LAYERS],
+    /// External force on the tip mass (N), e.g. a finger or a test load.
+    tip_load: Vec3<S>,
+    /// Cached pivots of the exact solve and the contact pattern they belong to.
+    pivots_for: Option<u32>,
+    inv_pivot: [S; MAX_LAYERS],
+    cprime: [S; MAX_LAYERS],
     substeps_done: u64,
 }
 
@@ -145,6 +179,10 @@ impl<S: Scalar> Brush<S> {
                 short_radius: S::ZERO,
                 wetness: S::ONE,
             }; MAX_LAYERS],
+            tip_load: Vec3::ZERO,
+            pivots_for: None,
+            inv_pivot: [S::ZERO; MAX_LAYERS],
+            cprime: [S::ZERO; MAX_LAYERS],
             substeps_done: 0,
         };
         b.reset(pose);
@@ -194,6 +232,7 @@ impl<S: Scalar> Brush<S> {
             || params.wetness != self.params.wetness;
         self.params = params;
         self.d = derive::<S>(&params);
+        self.pivots_for = None;
         if relayout {
             self.reset(self.handle);
         }
@@ -251,8 +290,54 @@ impl<S: Scalar> Brush<S> {
     pub fn segment_mm(&self) -> f64 {
         self.d.segment_f64
     }
+    /// Whether the implicit solve is exact (stiff parameters) rather than Jacobi iterations.
+    pub fn solves_exactly(&self) -> bool {
+        self.d.exact_solve
+    }
     pub fn ring_nodes(&self) -> usize {
         self.d.k
+    }
+
+    /// The force the hairs exert on the handle (newtons, world frame): the first segment's
+    /// spring-damper pulling on the ferrule plus every tie's spring-damper pulling on the
+    /// skeleton, which the handle carries. At rest against the paper this balances the
+    /// paper's reaction, so its vertical part is the normal force the brush presses with.
+    pub fn handle_reaction(&self) -> [f64; 3] {
+        let p = &self.params;
+        let h = p.substep_s();
+        let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
+        let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
+        let mut f = [0.0; 3];
+        let n = self.d.n;
+        if n > 1 {
+            let d = (self.spine[1] - self.spine[0]).to_f64();
+            let dv = (self.vel[1] - self.vel[0]).to_f64();
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if len > 1e-9 {
+                let mut s = ks * (len - self.d.segment_f64) / len;
+                if s < 0.0 {
+                    s *= p.compression_ratio as f64;
+                }
+                for a in 0..3 {
+                    f[a] += (s * d[a] + kd * dv[a] / h) * 1e-3;
+                }
+            }
+        }
+        for i in 1..n {
+            if !self.contact[i] {
+                let d = (self.spine[i] - self.skel[i]).to_f64();
+                let dv = (self.vel[i] - self.skel_vel[i]).to_f64();
+                for a in 0..3 {
+                    f[a] += (kt * d[a] + kdt * dv[a] / h) * 1e-3;
+                }
+            }
+        }
+        f
+    }
+
+    /// Applies a constant external force (newtons, world frame) to the tip mass until changed.
+    pub fn set_tip_load(&mut self, force: Vec3<S>) {
+        self.tip_load = force;
     }
 
     /// Wets every layer to `wetness` (dipping the brush in ink).
@@ -280,6 +365,18 @@ impl<S: Scalar> Brush<S> {
             };
             self.substep(pose);
         }
+        self.end_tick();
+    }
+
+    /// The once-per-tick part of the model: plastic flow of the skeleton and the surface.
+    /// Neither is read by the substep's dynamics except through the skeleton, which moves by
+    /// at most D per reference step, so running them at 1 kHz with their rates converted
+    /// changes the result by far less than a micrometre and saves 24 of every 25 evaluations.
+    pub fn end_tick(&mut self) {
+        if self.d.plasticity > S::ZERO {
+            self.plastic_flow();
+        }
+        self.update_surface();
     }
 
     /// One substep of length h with the handle at `pose`.
@@ -295,6 +392,13 @@ impl<S: Scalar> Brush<S> {
         self.vel[0] = self.skel[0] - old_ferrule;
         let du0 = self.vel[0] - old_ferrule_vel;
 
+        // Spring term of each segment j (between masses j-1 and j), computed once and used with
+        // opposite signs by both ends: (1 - L/|d|) d with d = S_j - S_{j-1}.
+        let mut seg_force = [Vec3::<S>::ZERO; MAX_LAYERS];
+        for j in 1..n {
+            seg_force[j] = self.spring(self.spine[j] - self.spine[j - 1]);
+        }
+
         // Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs).
         let mut p = [Vec3::<S>::ZERO; MAX_LAYERS];
         let mut rows = [self.d.rows[0][0]; MAX_LAYERS];
@@ -305,10 +409,10 @@ impl<S: Scalar> Brush<S> {
             rows[i] = row;
             let xi = self.spine[i];
             let ui = self.vel[i];
-            let mut spring = self.spring(self.spine[i - 1] - xi);
+            let mut spring = -seg_force[i];
             let mut rel = self.vel[i - 1] - ui;
             if i + 1 < n {
-                spring += self.spring(self.spine[i + 1] - xi);
+                spring += seg_force[i + 1];
                 rel += self.vel[i + 1] - ui;
             }
             let mut pi = spring.scale(row.c_k) + rel.scale(row.c_j);
@@ -318,20 +422,26 @@ impl<S: Scalar> Brush<S> {
             }
             p[i] = pi;
         }
+        p[n - 1] += self.tip_load.scale(rows[n - 1].c_f);
 
-        // Jacobi iterations (eq. 2.33).
-        let mut du = p;
-        let mut next = p;
-        for _ in 0..self.d.iterations {
-            for i in 1..n {
-                let mut sum = if i == 1 { du0 } else { du[i - 1] };
-                if i + 1 < n {
-                    sum += du[i + 1];
+        let du = if self.d.exact_solve {
+            self.solve_exact(&p, &rows, du0)
+        } else {
+            // Jacobi iterations (eq. 2.33).
+            let mut du = p;
+            let mut next = p;
+            for _ in 0..self.d.iterations {
+                for i in 1..n {
+                    let mut sum = if i == 1 { du0 } else { du[i - 1] };
+                    if i + 1 < n {
+                        sum += du[i + 1];
+                    }
+                    next[i] = p[i] + sum.scale(rows[i].c_j);
                 }
-                next[i] = p[i] + sum.scale(rows[i].c_j);
+                du[1..n].copy_from_slice(&next[1..n]);
             }
-            du[1..n].copy_from_slice(&next[1..n]);
-        }
+            du
+        };
 
         // Integrate, paper drag, projection.
         for i in 1..n {
@@ -344,20 +454,73 @@ impl<S: Scalar> Brush<S> {
             self.spine[i] += u;
         }
         self.project_onto_paper();
-
-        if self.d.plasticity > S::ZERO {
-            self.plastic_flow();
-        }
-        self.update_surface();
         self.substeps_done = self.substeps_done.wrapping_add(1);
+    }
+
+    /// Solves eq. 2.30's tridiagonal system `du_i - c_j,i (du_{i-1} + du_{i+1}) = p_i` exactly
+    /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
+    /// lie on the paper, so they are cached per contact pattern.
+    fn solve_exact(
+        &mut self,
+        p: &[Vec3<S>; MAX_LAYERS],
+        rows: &[Row<S>; MAX_LAYERS],
+        du0: Vec3<S>,
+    ) -> [Vec3<S>; MAX_LAYERS] {
+        let n = self.d.n;
+        let mask = self.contact_mask();
+        if self.pivots_for != Some(mask) {
+            // Forward elimination of the coefficients: cp_i = -c_i / m_i, inv_m_i = 1 / m_i
+            // with m_i = 1 - c_i * (-cp_{i-1})... written for sub = super = -c_j,i.
+            let mut prev_cp = S::ZERO;
+            for i in 1..n {
+                let c = rows[i].c_j;
+                let m = S::ONE - c * prev_cp;
+                let inv_m = S::ONE.div(m);
+                self.inv_pivot[i] = inv_m;
+                prev_cp = if i + 1 < n { c * inv_m } else { S::ZERO };
+                self.cprime[i] = prev_cp;
+            }
+            self.pivots_for = Some(mask);
+        }
+        let mut d = [Vec3::<S>::ZERO; MAX_LAYERS];
+        let mut prev = Vec3::ZERO;
+        for i in 1..n {
+            let mut rhs = p[i];
+            if i == 1 {
+                rhs += du0.scale(rows[1].c_j);
+            }
+            // d'_i = (d_i - a_i d'_{i-1}) / m_i with a_i = -c_j,i.
+            prev = (rhs + prev.scale(rows[i].c_j)).scale(self.inv_pivot[i]);
+            d[i] = prev;
+        }
+        let mut du = d;
+        for i in (1..n - 1).rev() {
+            du[i] = d[i] + du[i + 1].scale(self.cprime[i]);
+        }
+        du
+    }
+
+    fn contact_mask(&self) -> u32 {
+        let mut m = 0u32;
+        for (i, &c) in self.contact[..self.d.n].iter().enumerate() {
+            m |= u32::from(c) << i;
+        }
+        m
     }
 
     /// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm).
     #[inline]
     fn spring(&self, d: Vec3<S>) -> Vec3<S> {
-        let len = d.norm();
-        if len > self.d.tiny {
-            d.scale(S::ONE - self.d.segment.div(len))
+        let len2 = d.norm2();
+        if len2 > self.d.tiny2 {
+            let strain = S::ONE - self.d.segment * len2.rsqrt();
+            // Negative strain: the segment is compressed and the hairs buckle.
+            let strain = if strain < S::ZERO {
+                strain * self.d.compression_ratio
+            } else {
+                strain
+            };
+            d.scale(strain)
         } else {
             // Coincident masses (piled on the paper): no defined direction, no force.
             Vec3::ZERO
@@ -467,9 +630,9 @@ impl<S: Scalar> Brush<S> {
             match la.normalized_or_none(min_cross) {
                 Some(la) => {
                     layer.long_axis = la;
-                    if let Some(sa) = sa.normalized_or_none(self.d.tiny) {
-                        layer.short_axis = sa;
-                    }
+                    // V x LA: the short axis made perpendicular to the segment, so the
+                    // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
+                    layer.short_axis = seg[i].cross(la);
                 }
                 None => {
                     let old = layer.long_axis;
@@ -624,7 +787,6 @@ fn exp(x: f64) -> f64 {
 fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let n = p.layers as usize;
     let h = p.substep_s();
-    let substep_hz = 1.0 / h;
     let m = p.mass_g as f64 * 1e-3 / (n as f64 - 1.0);
     let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
     let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
@@ -640,6 +802,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
             c_j: S::from_f64(c_k + c_d),
             c_t: S::from_f64(c_t * t),
             c_tv: S::from_f64((c_t + c_dt) * t),
+            c_f: S::from_f64(h * h * 1e3 / w),
         }
     };
     let mut rest_radius = [S::ZERO; MAX_LAYERS];
@@ -657,20 +820,28 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         });
         layer_frac[i] = S::from_f64(i as f64 / (n as f64 - 1.0));
     }
+    let rows = [
+        [row(2.0, false), row(2.0, true)],
+        [row(1.0, false), row(1.0, true)],
+    ];
+    let worst_c_j = rows
+        .iter()
+        .flatten()
+        .map(|r| r.c_j.to_f64())
+        .fold(0.0, f64::max);
     Derived {
+        exact_solve: worst_c_j > JACOBI_LIMIT,
         n,
         k: p.ring_nodes as usize,
         iterations: p.jacobi_iterations as usize,
         substeps: p.substeps_per_tick as usize,
-        rows: [
-            [row(2.0, false), row(2.0, true)],
-            [row(1.0, false), row(1.0, true)],
-        ],
+        rows,
         drag_keep: S::from_f64(1.0 / (1.0 + h * p.paper_drag as f64 / m)),
         segment: S::from_f64(p.segment_mm()),
         segment_f64: p.segment_mm(),
-        plasticity: S::from_f64(per_substep_rate(p.plasticity as f64, substep_hz)),
-        spread_rate: S::from_f64(per_substep_rate(p.spread_rate as f64, substep_hz)),
+        compression_ratio: S::from_f32(p.compression_ratio),
+        plasticity: S::from_f64(per_substep_rate(p.plasticity as f64, TICK_HZ as f64)),
+        spread_rate: S::from_f64(per_substep_rate(p.spread_rate as f64, TICK_HZ as f64)),
         spread_tf: S::from_f64(p.spread_tf as f64),
         rest_radius,
         max_radius,
@@ -679,6 +850,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         contact_tol: S::from_f64(CONTACT_TOLERANCE_MM),
         inv_substeps: S::from_f64(1.0 / p.substeps_per_tick as f64),
         tiny: S::from_f64(1e-6),
+        tiny2: S::from_f64(1e-12),
     }
 }
 

@@ -42,7 +42,12 @@ pub fn energy<S: Scalar>(b: &Brush<S>) -> Energy {
         let d = (spine[i] - spine[i - 1]).to_f64();
         let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
         let stretch = (len - l) * 1e-3;
-        e.axial += 0.5 * ks * stretch * stretch;
+        let k = if stretch < 0.0 {
+            ks * p.compression_ratio as f64
+        } else {
+            ks
+        };
+        e.axial += 0.5 * k * stretch * stretch;
         if !contact[i] {
             let t = (spine[i] - skel[i]).to_f64();
             e.tie += 0.5 * kt * (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) * 1e-6;

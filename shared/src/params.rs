@@ -28,6 +28,7 @@ pub enum ParamId {
     MassG,
     AxialStiffness,
     AxialDamping,
+    CompressionRatio,
     TieStiffness,
     TieDamping,
     PaperDrag,
@@ -42,7 +43,7 @@ pub enum ParamId {
 }
 
 impl ParamId {
-    pub const ALL: [ParamId; 20] = [
+    pub const ALL: [ParamId; 21] = [
         ParamId::Layers,
         ParamId::RingNodes,
         ParamId::LengthMm,
@@ -52,6 +53,7 @@ impl ParamId {
         ParamId::MassG,
         ParamId::AxialStiffness,
         ParamId::AxialDamping,
+        ParamId::CompressionRatio,
         ParamId::TieStiffness,
         ParamId::TieDamping,
         ParamId::PaperDrag,
@@ -77,6 +79,7 @@ impl ParamId {
             ParamId::MassG => "mass_g",
             ParamId::AxialStiffness => "axial_stiffness_n_per_m",
             ParamId::AxialDamping => "axial_damping_ns_per_m",
+            ParamId::CompressionRatio => "axial_compression_ratio",
             ParamId::TieStiffness => "tie_stiffness_n_per_m",
             ParamId::TieDamping => "tie_damping_ns_per_m",
             ParamId::PaperDrag => "paper_drag_ns_per_m",
@@ -107,6 +110,7 @@ impl ParamId {
             ParamId::MassG => (0.005, 50.0, false),
             ParamId::AxialStiffness => (1.0, 1.0e7, false),
             ParamId::AxialDamping => (0.0, 1.0e4, false),
+            ParamId::CompressionRatio => (0.0, 1.0, false),
             ParamId::TieStiffness => (0.01, 1.0e6, false),
             ParamId::TieDamping => (0.0, 1.0e4, false),
             ParamId::PaperDrag => (0.0, 100.0, false),
@@ -184,6 +188,10 @@ pub struct BrushParams {
     pub axial_stiffness: f32,
     /// k_d between neighbouring spine masses (eq. 2.27).
     pub axial_damping: f32,
+    /// Stiffness in compression as a fraction of `axial_stiffness`. A bundle of hair cannot
+    /// carry much compression (each hair buckles), so a brush pressed straight down settles
+    /// onto the paper instead of standing on its tip like a column.
+    pub compression_ratio: f32,
     /// Zero-length spring from S_i to the virtual skeleton node VS_i (Liang 3.1.2).
     pub tie_stiffness: f32,
     /// Damper in parallel with the tie.
@@ -221,6 +229,7 @@ impl BrushParams {
             ParamId::MassG => self.mass_g,
             ParamId::AxialStiffness => self.axial_stiffness,
             ParamId::AxialDamping => self.axial_damping,
+            ParamId::CompressionRatio => self.compression_ratio,
             ParamId::TieStiffness => self.tie_stiffness,
             ParamId::TieDamping => self.tie_damping,
             ParamId::PaperDrag => self.paper_drag,
@@ -255,6 +264,7 @@ impl BrushParams {
             ParamId::MassG => self.mass_g = v,
             ParamId::AxialStiffness => self.axial_stiffness = v,
             ParamId::AxialDamping => self.axial_damping = v,
+            ParamId::CompressionRatio => self.compression_ratio = v,
             ParamId::TieStiffness => self.tie_stiffness = v,
             ParamId::TieDamping => self.tie_damping = v,
             ParamId::PaperDrag => self.paper_drag = v,

@@ -75,10 +75,9 @@ impl<S: Scalar> Vec3<S> {
     /// (a direction that is not defined).
     #[inline]
     pub fn normalized_or_none(self, min_len: S) -> Option<Self> {
-        let n = self.norm();
-        if n > min_len {
-            let inv = S::ONE.div(n);
-            Some(self.scale(inv))
+        let n2 = self.norm2();
+        if n2 > min_len * min_len {
+            Some(self.scale(n2.rsqrt()))
         } else {
             None
         }

@@ -1,0 +1,206 @@
+//! Behaviour of the brush model: the scenarios of SPEC.md that the model alone must survive.
+
+use maobi_shared::footprint::{convex_hull, for_each_polygon, polygon_area};
+use maobi_shared::params::ParamId;
+use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, Pose, Quat, Scalar, Vec2, Vec3};
+
+/// The handle at (x, y, z) mm, tilted `tilt_deg` about +y (the tip swings toward -x).
+pub fn pose<S: Scalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
+    let h = tilt_deg.to_radians() / 2.0;
+    Pose::new(
+        Vec3::from_f64([x, y, z]),
+        Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]),
+    )
+}
+
+/// Largest distance (mm) of any mass from where the rest shape puts it for the current handle.
+fn deviation_from_rest<S: Scalar>(b: &Brush<S>) -> f64 {
+    let h = b.handle().cast::<f64>();
+    let seg = b.segment_mm();
+    b.spine()
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let rest = h.pos + h.down().scale(seg * i as f64);
+            (s.cast::<f64>() - rest).norm()
+        })
+        .fold(0.0, f64::max)
+}
+
+fn ticks<S: Scalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {
+    for _ in 0..n {
+        b.tick(p);
+    }
+}
+
+#[test]
+fn rest_holds_its_shape_for_ten_seconds() {
+    for (name, params) in presets::PRESETS {
+        for tilt in [0.0, 30.0] {
+            let p = pose::<Fx>(5.0, -3.0, 70.0, tilt);
+            let mut b = Brush::new(*params, p).unwrap();
+            let mut worst = 0.0f64;
+            for _ in 0..10_000 {
+                b.tick(p);
+                worst = worst.max(deviation_from_rest(&b));
+            }
+            println!("{name} tilt {tilt}: largest deviation from rest over 10 s = {worst:.3e} mm");
+            assert!(worst < 1e-3, "{name}: drifted {worst} mm");
+        }
+    }
+}
+
+/// Presses the brush 10 mm into the paper at a slant, holds, lifts; returns the largest
+/// distance of any mass from its rest position after `settle_ms` in the air, and the brush.
+fn press_and_release<S: Scalar>(params: BrushParams, settle_ms: usize) -> (f64, Brush<S>) {
+    let tilt = 20.0f64;
+    let reach = params.length_mm as f64 * tilt.to_radians().cos();
+    let above = pose::<S>(0.0, 0.0, reach + 5.0, tilt);
+    let mut b = Brush::new(params, above).unwrap();
+    // Down over 200 ms until the rest tip would be 10 mm below the paper, hold 500 ms.
+    for k in 1..=200 {
+        let z = reach + 5.0 - 15.0 * k as f64 / 200.0;
+        b.tick(pose(0.0, 0.0, z, tilt));
+    }
+    assert!(b.contacts() >= 3, "the press must put hair on the paper");
+    let pressed = pose::<S>(0.0, 0.0, reach - 10.0, tilt);
+    ticks(&mut b, 500, pressed);
+    for k in 1..=100 {
+        let z = reach - 10.0 + 15.0 * k as f64 / 100.0;
+        b.tick(pose(0.0, 0.0, z, tilt));
+    }
+    ticks(&mut b, settle_ms, above);
+    let dev = deviation_from_rest(&b);
+    (dev, b)
+}
+
+#[test]
+fn elastic_brush_returns_to_rest_within_half_a_second() {
+    for (name, params) in presets::PRESETS {
+        let mut p = *params;
+        p.plasticity = 0.0;
+        let (dev, _) = press_and_release::<Fx>(p, 500);
+        println!("{name}, D = 0: {dev:.4} mm from rest 0.5 s after lifting");
+        assert!(dev < 0.1, "{name}: {dev} mm");
+    }
+}
+
+#[test]
+fn plastic_brush_keeps_a_set() {
+    for (name, params) in presets::PRESETS {
+        let mut p = *params;
+        p.set(ParamId::Plasticity, 2e-4).unwrap();
+        let (dev, b) = press_and_release::<Fx>(p, 500);
+        let n = b.len();
+        let h = b.handle().cast::<f64>();
+        let rest_tip = h.pos + h.down().scale(b.segment_mm() * (n - 1) as f64);
+        let set = (b.spine()[n - 1].cast::<f64>() - rest_tip).norm();
+        println!("{name}, D = 2e-4: tip set {set:.2} mm, largest deviation {dev:.2} mm");
+        assert!(set > 1.0, "{name}: set of only {set} mm");
+    }
+}
+
+#[test]
+fn large_brush_bends_nearly_flat_under_one_to_two_newtons() {
+    // Baxter & Lin 2004, section 5: 1-2 N bends a brush nearly 90 degrees.
+    let p = pose::<Fx>(0.0, 0.0, 60.0, 0.0);
+    let mut b = Brush::new(presets::LARGE, p).unwrap();
+    let mut bend = |f: f64| {
+        b.set_tip_load(Vec3::from_f64([f, 0.0, 0.0]));
+        ticks(&mut b, 500, p);
+        let s = b.spine();
+        let chord = (s[s.len() - 1] - s[0]).to_f64();
+        chord[0].atan2(-chord[2]).to_degrees()
+    };
+    let (a025, a1, a2) = (bend(0.25), bend(1.0), bend(2.0));
+    println!("chord bend: 0.25 N {a025:.0} deg, 1 N {a1:.0} deg, 2 N {a2:.0} deg");
+    assert!(a025 < 50.0, "too soft: {a025}");
+    assert!((60.0..85.0).contains(&a1), "1 N: {a1}");
+    assert!((75.0..90.0).contains(&a2), "2 N: {a2}");
+}
+
+/// Area (mm^2) and x / y extents (mm) of the convex hull of all footprint polygons.
+fn footprint_hull<S: Scalar>(b: &Brush<S>) -> (f64, f64, f64) {
+    let mut pts: Vec<Vec2<f64>> = Vec::new();
+    for_each_polygon(b, |_, poly| {
+        pts.extend(poly.iter().map(|p| Vec2::new(p.x.to_f64(), p.y.to_f64())))
+    });
+    if pts.len() < 3 {
+        return (0.0, 0.0, 0.0);
+    }
+    let mut out = vec![Vec2::new(0.0, 0.0); pts.len() + 1];
+    let h = convex_hull(&mut pts, &mut out);
+    let hull = &out[..h];
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for p in hull {
+        x0 = x0.min(p.x);
+        x1 = x1.max(p.x);
+        y0 = y0.min(p.y);
+        y1 = y1.max(p.y);
+    }
+    (polygon_area(hull), x1 - x0, y1 - y0)
+}
+
+#[test]
+fn straight_press_leaves_a_round_footprint_growing_with_depth() {
+    let mut b = Brush::new(presets::LARGE, pose::<Fx>(0.0, 0.0, 45.0, 0.0)).unwrap();
+    let mut last = 0.0;
+    for depth in [0.5, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0] {
+        ticks(&mut b, 200, pose(0.0, 0.0, 40.0 - depth, 0.0));
+        let (area, wx, wy) = footprint_hull(&b);
+        let round = wx.min(wy) / wx.max(wy);
+        println!("depth {depth} mm: area {area:.2} mm^2, {wx:.2} x {wy:.2} mm");
+        assert!(area > last, "area must grow with depth: {area} after {last}");
+        assert!(round > 0.9, "not round at depth {depth}: {wx} x {wy}");
+        last = area;
+    }
+}
+
+#[test]
+fn tilted_press_leaves_a_footprint_elongated_along_the_tilt() {
+    // Tilted about +y, the brush leans toward -x: the footprint runs along x.
+    let tilt = 35.0f64;
+    let reach = 40.0 * tilt.to_radians().cos();
+    let mut b = Brush::new(presets::LARGE, pose::<Fx>(0.0, 0.0, reach + 5.0, tilt)).unwrap();
+    ticks(&mut b, 300, pose(0.0, 0.0, reach - 6.0, tilt));
+    let (area, wx, wy) = footprint_hull(&b);
+    println!("tilted: area {area:.2} mm^2, {wx:.2} x {wy:.2} mm");
+    assert!(wx > 1.3 * wy, "{wx} x {wy}");
+}
+
+#[test]
+fn parameters_are_validated_and_never_stored_when_bad() {
+    let mut b = Brush::<Fx>::new(presets::LARGE, pose(0.0, 0.0, 50.0, 0.0)).unwrap();
+    let before = *b.params();
+    let bad = [
+        (ParamId::TieStiffness, f32::NAN),
+        (ParamId::TieStiffness, f32::INFINITY),
+        (ParamId::AxialStiffness, -5.0),
+        (ParamId::Layers, 2.0),
+        (ParamId::Layers, 7.5),
+        (ParamId::Layers, 99.0),
+        (ParamId::RingNodes, 12.0),
+        (ParamId::Wetness, 1.5),
+        (ParamId::TipRadiusMm, 5.5),
+        (ParamId::RadiusMm, 0.1),
+    ];
+    for (id, v) in bad {
+        let e = b.set_param(id, v).unwrap_err();
+        println!("{id} = {v}: {e}");
+        assert_eq!(*b.params(), before, "{id} = {v} was stored");
+    }
+    assert!(matches!(
+        b.set_param(ParamId::TieStiffness, f32::NAN),
+        Err(ParamError::NotFinite { .. })
+    ));
+    // Each valid alone, not together: a tip wider than the root.
+    b.set_param(ParamId::RadiusMm, 1.0).unwrap();
+    let e = b.set_param(ParamId::TipRadiusMm, 2.0).unwrap_err();
+    assert!(matches!(e, ParamError::Inconsistent { .. }), "{e}");
+    assert_eq!(b.params().tip_radius_mm, presets::LARGE.tip_radius_mm);
+    b.set_param(ParamId::TieStiffness, 3.0).unwrap();
+    assert_eq!(b.params().tie_stiffness, 3.0);
+    for id in ParamId::ALL {
+        assert_eq!(ParamId::from_name(id.name()), Some(id));
+    }
+}

@@ -111,8 +111,11 @@ pub struct Stamper {
     pts: Vec<[f64; 2]>,
     /// End index in `pts` of each polygon.
     ends: Vec<usize>,
-    /// Difference accumulator over the stamp's bounding box, `stride` per row.
+    /// Difference accumulator over the stamp's bounding box, `stride` per row. All zero
+    /// between stamps (each stamp zeroes what it touched), so its layout can change freely.
     acc: Vec<f32>,
+    /// Per row of the box: the first and last index of `acc` that the stamp touched.
+    touched: Vec<(usize, usize)>,
 }
 
 impl Stamper {
@@ -168,8 +171,11 @@ impl Stamper {
         }
         let (bw, bh) = (x1 - x0, y1 - y0);
         let stride = bw + 2;
-        self.acc.clear();
-        self.acc.resize(stride * bh, 0.0);
+        if self.acc.len() < stride * bh {
+            self.acc.resize(stride * bh, 0.0);
+        }
+        self.touched.clear();
+        self.touched.resize(bh, (usize::MAX, 0));
 
         let mut start = 0;
         for &end in &self.ends {
@@ -180,18 +186,24 @@ impl Stamper {
                 bh,
                 stride,
                 &mut self.acc,
+                &mut self.touched,
             );
             start = end;
         }
 
         let mut total = 0.0f64;
-        for row in 0..bh {
-            let acc = &self.acc[row * stride..row * stride + bw];
+        for (row, &(lo, hi)) in self.touched.iter().enumerate() {
+            if lo > hi {
+                continue;
+            }
+            let acc = &mut self.acc[row * stride..(row + 1) * stride];
+            // Past the last touched index every span has ended: the coverage is zero there.
+            let end = hi.min(bw);
             let base = (y0 + row) * canvas.width + x0;
-            let dst = &mut canvas.cov[base..base + bw];
+            let dst = &mut canvas.cov[base + lo..base + end];
             let mut sum = 0.0f32;
             let mut row_total = 0.0f32;
-            for (d, &a) in dst.iter_mut().zip(acc) {
+            for (d, &a) in dst.iter_mut().zip(&acc[lo..end]) {
                 sum += a;
                 let c = sum.clamp(0.0, 1.0);
                 row_total += c;
@@ -199,6 +211,7 @@ impl Stamper {
                     *d = c;
                 }
             }
+            acc[lo..=hi].fill(0.0);
             total += row_total as f64;
         }
         self.begin();
@@ -215,6 +228,7 @@ fn scan_polygon(
     bh: usize,
     stride: usize,
     acc: &mut [f32],
+    touched: &mut [(usize, usize)],
 ) {
     let n = pts.len();
     let p = |i: usize| [pts[i][0] - origin[0], pts[i][1] - origin[1]];
@@ -258,9 +272,12 @@ fn scan_polygon(
         if xr <= xl {
             continue;
         }
-        let row = &mut acc[(q / SUB) * stride..(q / SUB + 1) * stride];
-        add_edge(row, xl, SUB_WEIGHT);
-        add_edge(row, xr, -SUB_WEIGHT);
+        let r = q / SUB;
+        let row = &mut acc[r * stride..(r + 1) * stride];
+        let first = add_edge(row, xl, SUB_WEIGHT);
+        let last = add_edge(row, xr, -SUB_WEIGHT) + 1;
+        let t = &mut touched[r];
+        *t = (t.0.min(first), t.1.max(last));
     }
 }
 
@@ -271,14 +288,15 @@ fn edge_x(p: [f64; 2], q: [f64; 2], y: f64) -> f64 {
 }
 
 /// A span edge at `x` (0 <= x <= row.len() - 2) with weight `w`: the pixel containing `x`
-/// gets the part of `w` right of `x`, the next pixel the rest.
+/// gets the part of `w` right of `x`, the next pixel the rest. Returns the pixel's index.
 #[inline]
-fn add_edge(row: &mut [f32], x: f64, w: f32) {
+fn add_edge(row: &mut [f32], x: f64, w: f32) -> usize {
     let i = x.floor();
     let f = (x - i) as f32;
     let i = i as usize;
     row[i] += w * (1.0 - f);
     row[i + 1] += w * f;
+    i
 }
 
 #[cfg(test)]

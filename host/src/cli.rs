@@ -80,7 +80,13 @@ pub struct RenderArgs {
     #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
     pub brush: BrushChoice,
     /// Image resolution.
-    #[arg(long, value_name = "N", default_value = "10", value_parser = parse_px_per_mm)]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value = "10",
+        value_parser = parse_px_per_mm,
+        allow_negative_numbers = true
+    )]
     pub px_per_mm: f64,
     /// Number type to run the model in (the device runs fixed).
     #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]

@@ -1,0 +1,357 @@
+//! End-to-end tests of the `maobi` binary: bad input is refused with a message that says
+//! where and why, and the example strokes trace and render.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+const HEADER: &str = "t,x,y,z,qw,qx,qy,qz\n";
+
+fn maobi(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(args)
+        .output()
+        .expect("run maobi")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn example(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/poses")
+        .join(name)
+        .to_str()
+        .unwrap()
+        .to_string()
+}
+
+/// A file in the temp directory, unique to this process and call, removed on drop.
+struct Temp(PathBuf);
+
+impl Temp {
+    fn new(name: &str) -> Temp {
+        static N: AtomicUsize = AtomicUsize::new(0);
+        let n = N.fetch_add(1, Ordering::Relaxed);
+        Temp(std::env::temp_dir().join(format!("maobi-cli-{}-{n}-{name}", std::process::id())))
+    }
+    fn with(name: &str, contents: &[u8]) -> Temp {
+        let t = Temp::new(name);
+        std::fs::write(&t.0, contents).unwrap();
+        t
+    }
+    fn path(&self) -> &str {
+        self.0.to_str().unwrap()
+    }
+}
+
+impl Drop for Temp {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// Runs `trace` (and `render`) on a bad pose file; both must fail saying `wants`.
+fn assert_rejected(contents: &[u8], wants: &[&str]) {
+    let input = Temp::with("bad.csv", contents);
+    let out = Temp::new("out");
+    for cmd in ["trace", "render"] {
+        let o = maobi(&[cmd, "--poses", input.path(), "-o", out.path()]);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{cmd} accepted {contents:?}");
+        assert_eq!(o.status.code(), Some(1), "{cmd}: {err}");
+        assert!(err.contains(input.path()), "{cmd}: no file name in {err:?}");
+        for w in wants {
+            assert!(err.contains(w), "{cmd}: {w:?} not in {err:?}");
+        }
+        assert!(!out.0.exists(), "{cmd} wrote output for bad input");
+    }
+}
+
+#[test]
+fn rejects_empty_file() {
+    assert_rejected(b"", &["empty", "t,x,y,z,qw,qx,qy,qz"]);
+}
+
+#[test]
+fn rejects_header_without_rows() {
+    assert_rejected(HEADER.as_bytes(), &["no data rows"]);
+}
+
+#[test]
+fn rejects_wrong_or_missing_header_columns() {
+    assert_rejected(
+        b"t,x,y,z,qw,qx,qy\n0,0,0,40,1,0,0\n",
+        &[":1:", "missing column(s) qz"],
+    );
+    assert_rejected(
+        b"time,x,y,z,qw,qx,qy,qz\n0,0,0,40,1,0,0,0\n",
+        &[":1:", "missing column(s) t", "unexpected column(s) time"],
+    );
+}
+
+#[test]
+fn rejects_malformed_rows() {
+    let csv = format!("{HEADER}0,0,0,40,1,0,0,0\n0.01,0,0,40,1,0\n");
+    assert_rejected(csv.as_bytes(), &[":3:", "expected 8 fields, found 6"]);
+    let mut bytes = HEADER.as_bytes().to_vec();
+    bytes.extend_from_slice(b"0,0,0,\xfe,1,0,0,0\n");
+    assert_rejected(&bytes, &[":2:", "UTF-8"]);
+}
+
+#[test]
+fn rejects_non_numbers_with_line_and_column() {
+    let csv = format!("{HEADER}0,0,0,40,1,0,0,0\n0.01,0,0,40,1,0,zero,0\n");
+    assert_rejected(
+        csv.as_bytes(),
+        &[":3:", "column `qy`", "`zero` is not a number"],
+    );
+}
+
+#[test]
+fn rejects_non_finite_numbers() {
+    let csv = format!("{HEADER}0,0,0,40,1,0,0,0\n0.01,NaN,0,40,1,0,0,0\n");
+    assert_rejected(
+        csv.as_bytes(),
+        &[":3:", "column `x`", "not a finite number"],
+    );
+    let csv = format!("{HEADER}0,0,0,inf,1,0,0,0\n");
+    assert_rejected(
+        csv.as_bytes(),
+        &[":2:", "column `z`", "not a finite number"],
+    );
+}
+
+#[test]
+fn rejects_time_going_backwards() {
+    let csv = format!("{HEADER}0,0,0,40,1,0,0,0\n0.02,0,0,40,1,0,0,0\n0.01,0,0,40,1,0,0,0\n");
+    assert_rejected(
+        csv.as_bytes(),
+        &[":4:", "column `t`", "before the previous row"],
+    );
+}
+
+#[test]
+fn rejects_non_unit_quaternions() {
+    let csv = format!("{HEADER}0,0,0,40,1,0,0,0\n0.01,0,0,40,0.9,0,0,0\n");
+    assert_rejected(csv.as_bytes(), &[":3:", "quaternion norm 0.9"]);
+}
+
+#[test]
+fn rejects_missing_input_file() {
+    let out = Temp::new("out.csv");
+    let o = maobi(&["trace", "--poses", "/nonexistent/p.csv", "-o", out.path()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("/nonexistent/p.csv"), "{}", stderr(&o));
+}
+
+#[test]
+fn rejects_unknown_brush_listing_valid_ones() {
+    let out = Temp::new("out.csv");
+    let p = example("press_lift.csv");
+    for cmd in ["trace", "render"] {
+        let o = maobi(&[cmd, "--poses", &p, "--brush", "huge", "-o", out.path()]);
+        let err = stderr(&o);
+        assert!(!o.status.success());
+        for w in ["unknown brush `huge`", "large", "small"] {
+            assert!(err.contains(w), "{cmd}: {w:?} not in {err:?}");
+        }
+    }
+}
+
+#[test]
+fn rejects_bad_options() {
+    let out = Temp::new("out.png");
+    let p = example("press_lift.csv");
+    let o = maobi(&["trace", "--poses", &p, "--scalar", "f16", "-o", out.path()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("f16"), "{}", stderr(&o));
+    for bad in ["0", "-3", "nan", "ten"] {
+        let o = maobi(&[
+            "render",
+            "--poses",
+            &p,
+            "--px-per-mm",
+            bad,
+            "-o",
+            out.path(),
+        ]);
+        assert!(!o.status.success(), "--px-per-mm {bad}");
+        assert!(stderr(&o).contains("positive number"), "{}", stderr(&o));
+    }
+}
+
+fn trace(poses: &str, scalar: &str) -> Vec<Vec<String>> {
+    let out = Temp::new(&format!("trace-{scalar}.csv"));
+    let o = maobi(&[
+        "trace",
+        "--poses",
+        poses,
+        "--scalar",
+        scalar,
+        "-o",
+        out.path(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("ticks"), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&out.0).unwrap();
+    text.lines()
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn trace_of_press_lift_has_one_row_per_millisecond() {
+    let rows = trace(&example("press_lift.csv"), "fixed");
+    let mut want = String::from("t,x,y,z,qw,qx,qy,qz");
+    for i in 0..16 {
+        want += &format!(",s{i}_x,s{i}_y,s{i}_z");
+    }
+    want += ",contacts";
+    assert_eq!(rows[0].join(","), want);
+    // 0 .. 1.000 s inclusive.
+    assert_eq!(rows.len() - 1, 1001);
+    for (k, r) in rows[1..].iter().enumerate() {
+        assert_eq!(r.len(), rows[0].len(), "row {k}");
+        assert_eq!(r[0], format!("{:.3}", k as f64 / 1000.0));
+    }
+    // Tick 0 is the rest state at the first pose: the ferrule is the handle position and
+    // the brush, 5 mm above the paper, touches nothing.
+    let first = &rows[1];
+    assert_eq!(&first[1..4], ["0.000000", "0.000000", "45.000000"]);
+    assert_eq!(&first[8..11], &first[1..4]);
+    assert_eq!(first.last().unwrap(), "0");
+    // Pressed 10 mm at 0.5 s, the brush lies on the paper.
+    let mid = &rows[501];
+    assert_eq!(mid[0], "0.500");
+    assert_eq!(mid[3], "30.000000");
+    assert!(mid.last().unwrap().parse::<u32>().unwrap() > 0);
+}
+
+#[test]
+fn trace_runs_in_f32_and_f64_close_to_fixed() {
+    let p = example("press_lift.csv");
+    let fixed = trace(&p, "fixed");
+    for scalar in ["f32", "f64"] {
+        let rows = trace(&p, scalar);
+        assert_eq!(rows[0], fixed[0]);
+        assert_eq!(rows.len(), fixed.len());
+        // The same model in another number type: the spine agrees to well under 0.1 mm.
+        let mut worst = 0.0f64;
+        for (a, b) in rows[1..].iter().zip(&fixed[1..]) {
+            assert_eq!(a[..8], b[..8], "{scalar}: the handle pose is the input's");
+            for (x, y) in a[8..a.len() - 1].iter().zip(&b[8..b.len() - 1]) {
+                let d = (x.parse::<f64>().unwrap() - y.parse::<f64>().unwrap()).abs();
+                worst = worst.max(d);
+            }
+        }
+        assert!(worst < 0.1, "{scalar} differs from fixed by {worst} mm");
+    }
+}
+
+/// Renders `poses` and returns the PNG bytes.
+fn render(poses: &str, extra: &[&str]) -> Vec<u8> {
+    let out = Temp::new("render.png");
+    let mut args = vec!["render", "--poses", poses, "-o", out.path()];
+    args.extend_from_slice(extra);
+    let o = maobi(&args);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains(out.path()) && err.contains("ink"), "{err}");
+    std::fs::read(&out.0).unwrap()
+}
+
+/// Decodes an 8-bit greyscale PNG: (width, height, pixels).
+fn decode(png_bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut r = png::Decoder::new(std::io::Cursor::new(png_bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Grayscale);
+    assert_eq!(info.bit_depth, png::BitDepth::Eight);
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn render_is_deterministic_and_inks_the_paper() {
+    let p = example("press_lift.csv");
+    let a = render(&p, &[]);
+    let b = render(&p, &[]);
+    assert!(a == b, "two renders of the same input differ");
+    let (w, h, px) = decode(&a);
+    // The ferrule stays at (0, 0): the paper is the brush length + 10 mm on each side.
+    assert_eq!((w, h), (1000, 1000));
+    let dark = px.iter().filter(|&&v| v < 128).count();
+    // A 10 mm press of the large brush leaves a blob of tens of square millimetres.
+    assert!(dark > 2_000, "only {dark} dark pixels");
+    assert!(
+        px[0] == 255 && px[px.len() - 1] == 255,
+        "the margin has ink"
+    );
+}
+
+#[test]
+fn render_of_the_fast_hook_is_continuous() {
+    let p = example("hook.csv");
+    let (w, h, px) = decode(&render(&p, &[]));
+    assert!(px.iter().any(|&v| v < 128));
+    // The ink is one connected blot: the flick at 500 mm/s leaves no gaps between ticks.
+    let dark: Vec<bool> = px.iter().map(|&v| v < 250).collect();
+    let start = dark.iter().position(|&d| d).unwrap();
+    let mut seen = vec![false; dark.len()];
+    let mut stack = vec![start];
+    seen[start] = true;
+    while let Some(i) = stack.pop() {
+        let (x, y) = ((i % w as usize) as i64, (i / w as usize) as i64);
+        for (dx, dy) in [
+            (-1, 0),
+            (1, 0),
+            (0, -1),
+            (0, 1),
+            (-1, -1),
+            (1, 1),
+            (-1, 1),
+            (1, -1),
+        ] {
+            let (nx, ny) = (x + dx, y + dy);
+            if nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 {
+                let j = (ny * w as i64 + nx) as usize;
+                if dark[j] && !seen[j] {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+    }
+    let total = dark.iter().filter(|&&d| d).count();
+    let reached = seen.iter().filter(|&&s| s).count();
+    assert_eq!(reached, total, "the ink falls apart into pieces");
+}
+
+#[test]
+fn render_runs_every_scalar() {
+    let p = example("heng.csv");
+    for scalar in ["f32", "f64"] {
+        let (_, _, px) = decode(&render(&p, &["--scalar", scalar]));
+        assert!(px.iter().any(|&v| v < 128), "{scalar}: no ink");
+    }
+}
+
+#[test]
+fn render_with_the_small_brush() {
+    // The small brush's head is 18 mm: press it 4 mm, leaning 10 degrees, and drag it 10 mm.
+    let (c, s) = ((5.0f64).to_radians().cos(), (5.0f64).to_radians().sin());
+    let csv =
+        format!("{HEADER}0,0,0,20,{c},0,{s},0\n0.2,0,0,14,{c},0,{s},0\n0.4,10,0,14,{c},0,{s},0\n");
+    let input = Temp::with("small.csv", csv.as_bytes());
+    let (w, h, px) = decode(&render(input.path(), &["--brush", "small"]));
+    // 10 mm of motion plus (18 + 10) mm on each side at 10 px/mm.
+    assert_eq!((w, h), (660, 560));
+    assert!(
+        px.iter().filter(|&&v| v < 128).count() > 500,
+        "too little ink"
+    );
+}

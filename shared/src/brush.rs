@@ -19,7 +19,9 @@
 //!
 //!    with `c_k = h^2 k_s / W'_i`, `c_d = h k_d / W'_i`, `c_t = h^2 k_t / W'_i`,
 //!    `c_dt = h k_dt / W'_i`, `W'_i = m + h^2 (n_i k_s + t_i k_t) + h (n_i k_d + t_i k_dt)`,
-//!    `t_i` = 1 when mass i is tied to the skeleton (it is not lying on the paper, 3.1.2),
+//!    `t_i` the weight of mass i's tie to the skeleton (0 lying on the paper, 3.1.2, rising
+//!    to 1 at [`TIE_RAMP_MM`]; the implicit rows always include the tie, which changes W' by
+//!    under 0.01% at the presets' stiffness and keeps the solve independent of contact),
 //!    `w_i` the skeleton node's own displacement this substep, and `du_0` the ferrule's
 //!    prescribed velocity change. The coefficients are dimensionless and computed in `f64`
 //!    when a parameter changes, so `h^2` never meets the fixed-point format.
@@ -52,6 +54,10 @@
 //!   segment (a brush pressed straight down): the previous long axis, made perpendicular to
 //!   the segment, is kept instead.
 
+// The solver walks chains of masses touching i-1, i and i+1 of several arrays at once; index
+// loops say that more plainly than zipped iterators.
+#![allow(clippy::needless_range_loop)]
+
 use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
@@ -68,9 +74,17 @@ use crate::vec::Vec3;
 /// sit at 0.05. The exact solve costs about as much as two Jacobi sweeps.
 pub const JACOBI_LIMIT: f64 = 0.25;
 
-/// Masses within this height of the paper count as lying on it (mm). Large enough that the
-/// contact decision does not flicker on rounding, far below anything visible.
+/// A mass within this height of the paper touches it (mm).
 pub const CONTACT_TOLERANCE_MM: f64 = 1e-4;
+/// Height over which a mass's tie to the skeleton fades in as it leaves the paper (mm).
+///
+/// The thesis unties masses lying on the paper (3.1.2) with a switch. A hair grazing the paper
+/// then falls into a relay oscillation: untied it drifts up, tied it is pulled back into the
+/// paper, projected it is untied again, every few substeps; and the fixed-point and f64 runs
+/// switch in different orders (measured 27 um apart at the tip on the 橫 example). With the
+/// tie's weight ramping linearly from 0 on the paper to 1 at this height, and the paper drag
+/// ramping the other way, the model is continuous and the two runs stay together.
+pub const TIE_RAMP_MM: f64 = 0.05;
 
 /// Per-substep coefficients of one mass's row in the implicit solve (see the module docs).
 #[derive(Copy, Clone, Debug)]
@@ -94,8 +108,8 @@ struct Derived<S> {
     exact_solve: bool,
     /// [interior or tip][untied or tied]
     rows: [[Row<S>; 2]; 2],
-    /// 1 / (1 + h C_f / m)
-    drag_keep: S,
+    /// 1 - 1 / (1 + h C_f / m): the share of in-plane velocity the paper's drag takes.
+    drag_loss: S,
     segment: S,
     segment_f64: f64,
     compression_ratio: S,
@@ -109,6 +123,8 @@ struct Derived<S> {
     /// i / (N - 1) (eq. 3-17).
     layer_frac: [S; MAX_LAYERS],
     contact_tol: S,
+    /// 1 / TIE_RAMP_MM.
+    inv_tie_ramp: S,
     inv_substeps: S,
     /// Below this length a direction is treated as undefined (mm).
     tiny: S,
@@ -150,7 +166,7 @@ pub struct Brush<S: Scalar> {
     layers: [Layer<S>; MAX_LAYERS],
     /// External force on the tip mass (N), e.g. a finger or a test load.
     tip_load: Vec3<S>,
-    /// Cached pivots of the exact solve and the contact pattern they belong to.
+    /// Cached pivots of the exact solve (`Some(0)` once computed for the current parameters).
     pivots_for: Option<u32>,
     inv_pivot: [S; MAX_LAYERS],
     cprime: [S; MAX_LAYERS],
@@ -324,12 +340,11 @@ impl<S: Scalar> Brush<S> {
             }
         }
         for i in 1..n {
-            if !self.contact[i] {
-                let d = (self.spine[i] - self.skel[i]).to_f64();
-                let dv = (self.vel[i] - self.skel_vel[i]).to_f64();
-                for a in 0..3 {
-                    f[a] += (kt * d[a] + kdt * dv[a] / h) * 1e-3;
-                }
+            let w = self.tie_weight(i).to_f64();
+            let d = (self.spine[i] - self.skel[i]).to_f64();
+            let dv = (self.vel[i] - self.skel_vel[i]).to_f64();
+            for a in 0..3 {
+                f[a] += w * (kt * d[a] + kdt * dv[a] / h) * 1e-3;
             }
         }
         f
@@ -404,8 +419,7 @@ impl<S: Scalar> Brush<S> {
         let mut rows = [self.d.rows[0][0]; MAX_LAYERS];
         for i in 1..n {
             let tip = usize::from(i == n - 1);
-            let tied = !self.contact[i];
-            let row = self.d.rows[tip][usize::from(tied)];
+            let row = self.d.rows[tip][1];
             rows[i] = row;
             let xi = self.spine[i];
             let ui = self.vel[i];
@@ -416,9 +430,11 @@ impl<S: Scalar> Brush<S> {
                 rel += self.vel[i + 1] - ui;
             }
             let mut pi = spring.scale(row.c_k) + rel.scale(row.c_j);
-            if tied {
-                pi += (self.skel[i] - xi).scale(row.c_t)
-                    + (self.skel_vel[i] - ui).scale(row.c_tv);
+            let w = self.tie_weight(i);
+            if w > S::ZERO {
+                pi += ((self.skel[i] - xi).scale(row.c_t)
+                    + (self.skel_vel[i] - ui).scale(row.c_tv))
+                .scale(w);
             }
             p[i] = pi;
         }
@@ -446,9 +462,12 @@ impl<S: Scalar> Brush<S> {
         // Integrate, paper drag, projection.
         for i in 1..n {
             let mut u = self.vel[i] + du[i];
-            if self.contact[i] {
-                u.x = u.x * self.d.drag_keep;
-                u.y = u.y * self.d.drag_keep;
+            // Drag in proportion to how much the mass is lying on the paper.
+            let on_paper = S::ONE - self.tie_weight(i);
+            if on_paper > S::ZERO {
+                let keep = S::ONE - on_paper * self.d.drag_loss;
+                u.x = u.x * keep;
+                u.y = u.y * keep;
             }
             self.vel[i] = u;
             self.spine[i] += u;
@@ -459,7 +478,8 @@ impl<S: Scalar> Brush<S> {
 
     /// Solves eq. 2.30's tridiagonal system `du_i - c_j,i (du_{i-1} + du_{i+1}) = p_i` exactly
     /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
-    /// lie on the paper, so they are cached per contact pattern.
+    /// lie on the paper... and since the tie is weighted on the right-hand side, not at all:
+    /// they are computed once per parameter change.
     fn solve_exact(
         &mut self,
         p: &[Vec3<S>; MAX_LAYERS],
@@ -467,7 +487,9 @@ impl<S: Scalar> Brush<S> {
         du0: Vec3<S>,
     ) -> [Vec3<S>; MAX_LAYERS] {
         let n = self.d.n;
-        let mask = self.contact_mask();
+        // The rows no longer depend on contact (the tie is weighted in the right-hand side),
+        // so the pivots change only with the parameters.
+        let mask = 0;
         if self.pivots_for != Some(mask) {
             // Forward elimination of the coefficients: cp_i = -c_i / m_i, inv_m_i = 1 / m_i
             // with m_i = 1 - c_i * (-cp_{i-1})... written for sub = super = -c_j,i.
@@ -500,12 +522,11 @@ impl<S: Scalar> Brush<S> {
         du
     }
 
-    fn contact_mask(&self) -> u32 {
-        let mut m = 0u32;
-        for (i, &c) in self.contact[..self.d.n].iter().enumerate() {
-            m |= u32::from(c) << i;
-        }
-        m
+    /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
+    /// [`TIE_RAMP_MM`] up.
+    #[inline]
+    pub fn tie_weight(&self, i: usize) -> S {
+        (self.spine[i].z * self.d.inv_tie_ramp).clamp(S::ZERO, S::ONE)
     }
 
     /// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm).
@@ -836,7 +857,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         iterations: p.jacobi_iterations as usize,
         substeps: p.substeps_per_tick as usize,
         rows,
-        drag_keep: S::from_f64(1.0 / (1.0 + h * p.paper_drag as f64 / m)),
+        drag_loss: S::from_f64(1.0 - 1.0 / (1.0 + h * p.paper_drag as f64 / m)),
         segment: S::from_f64(p.segment_mm()),
         segment_f64: p.segment_mm(),
         compression_ratio: S::from_f32(p.compression_ratio),
@@ -848,6 +869,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         skel_weight,
         layer_frac,
         contact_tol: S::from_f64(CONTACT_TOLERANCE_MM),
+        inv_tie_ramp: S::from_f64(1.0 / TIE_RAMP_MM),
         inv_substeps: S::from_f64(1.0 / p.substeps_per_tick as f64),
         tiny: S::from_f64(1e-6),
         tiny2: S::from_f64(1e-12),
@@ -870,7 +892,10 @@ mod tests {
         }
         for &x in &[-20.0, -1.0, -1e-3, 0.0, 0.7, 3.0] {
             let e: f64 = x;
-            assert!((exp(x) - e.exp()).abs() < 1e-12 * e.exp().max(1.0), "exp {x}");
+            assert!(
+                (exp(x) - e.exp()).abs() < 1e-12 * e.exp().max(1.0),
+                "exp {x}"
+            );
         }
         assert!((rate_at(0.01, 25_000.0) - 0.01).abs() < 1e-12);
         // Half the rate: two reference steps per substep.

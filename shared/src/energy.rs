@@ -11,7 +11,8 @@ pub struct Energy {
     pub kinetic: f64,
     /// Energy in the stretched or compressed spine springs.
     pub axial: f64,
-    /// Energy in the ties between spine masses and skeleton nodes (masses not on the paper).
+    /// Energy in the ties between spine masses and skeleton nodes, each weighted as the model
+    /// weights it (0 on the paper).
     pub tie: f64,
 }
 
@@ -33,7 +34,6 @@ pub fn energy<S: Scalar>(b: &Brush<S>) -> Energy {
     let spine = b.spine();
     let vel = b.velocities();
     let skel = b.skeleton();
-    let contact = b.in_contact();
     let mut e = Energy::default();
     for i in 1..n {
         let u = vel[i].to_f64();
@@ -48,10 +48,9 @@ pub fn energy<S: Scalar>(b: &Brush<S>) -> Energy {
             ks
         };
         e.axial += 0.5 * k * stretch * stretch;
-        if !contact[i] {
-            let t = (spine[i] - skel[i]).to_f64();
-            e.tie += 0.5 * kt * (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) * 1e-6;
-        }
+        let t = (spine[i] - skel[i]).to_f64();
+        let w = b.tie_weight(i).to_f64();
+        e.tie += 0.5 * w * kt * (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]) * 1e-6;
     }
     e
 }

@@ -14,7 +14,8 @@ use crate::params::MAX_RING_NODES;
 use crate::scalar::Scalar;
 use crate::vec::{Vec2, Vec3};
 
-/// cos and sin of 2 pi j / 32 (eq. 3-21's angles for K = 32; other K take every (32/K)-th).
+/// cos and sin of 2 pi j / 32 (printed to full f64 precision by a script, hence the literals) (eq. 3-21's angles for K = 32; other K take every (32/K)-th).
+#[allow(clippy::approx_constant)]
 const TRIG32: [(f64, f64); 32] = [
     (1.0, 0.0),
     (0.9807852804032304, 0.19509032201612825),
@@ -47,7 +48,7 @@ const TRIG32: [(f64, f64); 32] = [
     (0.7071067811865474, -0.7071067811865477),
     (0.8314696123025452, -0.5555702330196022),
     (0.9238795325112865, -0.3826834323650904),
-    (0.9807852804032303, -0.19509032201612872)
+    (0.9807852804032303, -0.19509032201612872),
 ];
 
 /// Most candidate points one band can produce (2K nodes + 4K edge crossings).
@@ -203,7 +204,11 @@ mod tests {
 
     #[test]
     fn hull_of_degenerate_input_is_empty() {
-        let mut pts = [Vec2::new(0.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(2.0, 2.0)];
+        let mut pts = [
+            Vec2::new(0.0, 0.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(2.0, 2.0),
+        ];
         let mut out = [Vec2::new(0.0f64, 0.0); 4];
         assert!(convex_hull(&mut pts, &mut out) < 3);
     }

@@ -135,13 +135,28 @@ impl fmt::Display for ParamId {
 /// Why a parameter value was rejected. The old value stays in force.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub enum ParamError {
-    NotFinite { param: ParamId },
-    OutOfRange { param: ParamId, value: f32, min: f32, max: f32 },
-    NotWholeNumber { param: ParamId, value: f32 },
+    NotFinite {
+        param: ParamId,
+    },
+    OutOfRange {
+        param: ParamId,
+        value: f32,
+        min: f32,
+        max: f32,
+    },
+    NotWholeNumber {
+        param: ParamId,
+        value: f32,
+    },
     /// Values that are each valid but not together (e.g. a tip wider than the root).
-    Inconsistent { param: ParamId, why: &'static str },
+    Inconsistent {
+        param: ParamId,
+        why: &'static str,
+    },
     /// `ring_nodes` must divide the 32-entry trigonometric table.
-    RingNodesNotPowerOfTwo { value: f32 },
+    RingNodesNotPowerOfTwo {
+        value: f32,
+    },
 }
 
 impl fmt::Display for ParamError {
@@ -153,15 +168,17 @@ impl fmt::Display for ParamError {
                 value,
                 min,
                 max,
-            } => write!(f, "{param}: {value} is outside the valid range {min} ..= {max}"),
+            } => write!(
+                f,
+                "{param}: {value} is outside the valid range {min} ..= {max}"
+            ),
             ParamError::NotWholeNumber { param, value } => {
                 write!(f, "{param}: {value} is not a whole number")
             }
             ParamError::Inconsistent { param, why } => write!(f, "{param}: {why}"),
-            ParamError::RingNodesNotPowerOfTwo { value } => write!(
-                f,
-                "ring_nodes: {value} is not one of 4, 8, 16, 32"
-            ),
+            ParamError::RingNodesNotPowerOfTwo { value } => {
+                write!(f, "ring_nodes: {value} is not one of 4, 8, 16, 32")
+            }
         }
     }
 }
@@ -336,3 +353,6 @@ fn check_value(id: ParamId, value: f32) -> Result<f32, ParamError> {
     }
     Ok(value)
 }
+
+#[cfg(feature = "std")]
+impl std::error::Error for ParamError {}

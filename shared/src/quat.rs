@@ -67,7 +67,7 @@ impl<S: Scalar> Quat<S> {
         Quat::new(self.w, -self.x, -self.y, -self.z)
     }
     /// Hamilton product `self * o` (apply `o`, then `self`).
-    pub fn mul(self, o: Self) -> Self {
+    pub fn compose(self, o: Self) -> Self {
         Quat::new(
             self.w * o.w - self.x * o.x - self.y * o.y - self.z * o.z,
             self.w * o.x + self.x * o.w + self.y * o.z - self.z * o.y,
@@ -147,5 +147,4 @@ mod tests {
         let back = q.rotate_inv(d);
         assert!((back.z + 1.0).abs() < 1e-12);
     }
-
 }

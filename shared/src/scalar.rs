@@ -102,7 +102,17 @@ impl Mul for Fx {
     type Output = Fx;
     #[inline]
     fn mul(self, rhs: Fx) -> Fx {
-        Fx(self.0.saturating_mul(rhs.0))
+        // Full 128-bit product, floor-shifted back to 32 fraction bits, clamped: the same
+        // result as `saturating_mul`, without its general-purpose overflow bookkeeping.
+        let p = (self.0.to_bits() as i128 * rhs.0.to_bits() as i128) >> 32;
+        let bits = if p > i64::MAX as i128 {
+            i64::MAX
+        } else if p < i64::MIN as i128 {
+            i64::MIN
+        } else {
+            p as i64
+        };
+        Fx(FxRaw::from_bits(bits))
     }
 }
 impl Neg for Fx {
@@ -263,20 +273,22 @@ impl Scalar for Fx {
     const ZERO: Self = Fx(FxRaw::ZERO);
     const ONE: Self = Fx(FxRaw::ONE);
     const NAME: &'static str = "fixed";
+    /// Rounds to nearest (ties away from zero) and saturates; NaN becomes zero. Rust's
+    /// float-to-int `as` cast is defined to saturate and to map NaN to 0 on every target.
     #[inline]
     fn from_f64(v: f64) -> Self {
-        // `saturating_from_num` panics on NaN; the model never feeds it one (parameters and
-        // inputs are validated), but this function must not panic either.
-        if v.is_nan() {
-            Fx(FxRaw::ZERO)
+        let scaled = v * 4_294_967_296.0;
+        let rounded = if scaled >= 0.0 {
+            scaled + 0.5
         } else {
-            // Round to nearest (the `fixed` conversion rounds to nearest, ties to even).
-            Fx(FxRaw::saturating_from_num(v))
-        }
+            scaled - 0.5
+        };
+        Fx(FxRaw::from_bits(rounded as i64))
     }
     #[inline]
     fn to_f64(self) -> f64 {
-        self.0.to_num::<f64>()
+        // Exact for |x| < 2^21; correctly rounded above.
+        self.0.to_bits() as f64 * (1.0 / 4_294_967_296.0)
     }
     #[inline]
     fn div(self, rhs: Self) -> Self {
@@ -347,7 +359,7 @@ fn sqrt_f32(v: f32) -> f32 {
 /// `std` (the device runs [`Fx`] and uses this for parameter set-up alone).
 #[allow(dead_code)]
 fn newton_sqrt_f64(v: f64) -> f64 {
-    if !(v > 0.0) || v.is_infinite() {
+    if v.is_nan() || v <= 0.0 || v.is_infinite() {
         return if v > 0.0 { v } else { 0.0 };
     }
     // Halve the exponent for the first estimate: within a factor of 1.5 of the root.
@@ -382,6 +394,11 @@ mod tests {
         assert_eq!(Fx::MIN - Fx::MAX, Fx::MIN);
         assert_eq!(Fx::MAX * Fx::MAX, Fx::MAX);
         assert_eq!(Fx::MAX * -Fx::MAX, Fx::MIN);
+        let a = <Fx as Scalar>::from_f64(-3.25);
+        let b = <Fx as Scalar>::from_f64(1.5);
+        assert_eq!((a * b).0, a.0.saturating_mul(b.0));
+        assert_eq!(<Fx as Scalar>::from_f64(-1e30), Fx::MIN);
+        assert_eq!(<Fx as Scalar>::from_f64(0.1).0, FxRaw::from_num(0.1));
         assert_eq!(-Fx::MIN, Fx::MAX);
         assert_eq!(Scalar::div(one, zero), Fx::MAX);
         assert_eq!(Scalar::div(-one, zero), Fx::MIN);

@@ -150,7 +150,10 @@ fn straight_press_leaves_a_round_footprint_growing_with_depth() {
         let (area, wx, wy) = footprint_hull(&b);
         let round = wx.min(wy) / wx.max(wy);
         println!("depth {depth} mm: area {area:.2} mm^2, {wx:.2} x {wy:.2} mm");
-        assert!(area > last, "area must grow with depth: {area} after {last}");
+        assert!(
+            area > last,
+            "area must grow with depth: {area} after {last}"
+        );
         assert!(round > 0.9, "not round at depth {depth}: {wx} x {wy}");
         last = area;
     }

@@ -64,42 +64,81 @@ pub fn ring_node<S: Scalar>(center: Vec3<S>, layer: &Layer<S>, j: usize, k: usiz
         + layer.short_axis.scale(layer.short_radius * S::from_f64(s))
 }
 
-/// All K nodes of layer i's ring.
-pub fn ring<S: Scalar>(brush: &Brush<S>, i: usize, out: &mut [Vec3<S>; MAX_RING_NODES]) -> usize {
-    let k = brush.ring_nodes();
-    let center = brush.spine()[i];
-    let layer = &brush.layers()[i];
-    for (j, o) in out.iter_mut().enumerate().take(k) {
-        *o = ring_node(center, layer, j, k);
-    }
-    k
+/// The geometry the footprint is computed from: what a brush-state frame carries, so the host
+/// can rebuild the footprint from the device's state with this same code.
+#[derive(Copy, Clone, Debug)]
+pub struct Geometry<'a, S> {
+    /// Spine masses S_i (mm), S_0 the ferrule.
+    pub spine: &'a [Vec3<S>],
+    /// Each layer's ellipse, one per spine mass.
+    pub layers: &'a [Layer<S>],
+    /// K, nodes per ring (4, 8, 16 or 32).
+    pub ring_nodes: usize,
+    /// Surface at or below this height leaves ink (mm).
+    pub eps: S,
 }
 
-/// Calls `f(band, polygon)` for every band with a non-empty footprint, band i lying between
-/// layers i and i+1. Polygons are convex, counter-clockwise, in paper millimetres.
-pub fn for_each_polygon<S: Scalar, F: FnMut(usize, &[Vec2<S>])>(brush: &Brush<S>, mut f: F) {
-    let n = brush.len();
-    let k = brush.ring_nodes();
-    let eps = S::from_f32(brush.params().footprint_eps_mm);
-    let mut a = [Vec3::ZERO; MAX_RING_NODES];
-    let mut b = [Vec3::ZERO; MAX_RING_NODES];
-    let mut cand = [Vec2::new(S::ZERO, S::ZERO); MAX_CANDIDATES];
-    let mut hull = [Vec2::new(S::ZERO, S::ZERO); MAX_CANDIDATES + 1];
-    ring(brush, 0, &mut a);
-    let mut low_a = a[..k].iter().any(|p| p.z <= eps);
-    for i in 0..n - 1 {
-        ring(brush, i + 1, &mut b);
-        let low_b = b[..k].iter().any(|p| p.z <= eps);
-        if low_a || low_b {
-            let m = band_candidates(&a[..k], &b[..k], eps, &mut cand);
-            let h = convex_hull(&mut cand[..m], &mut hull);
-            if h >= 3 {
-                f(i, &hull[..h]);
-            }
+impl<'a, S: Scalar> Geometry<'a, S> {
+    /// The geometry of a live brush.
+    pub fn of(brush: &'a Brush<S>) -> Self {
+        Geometry {
+            spine: brush.spine(),
+            layers: brush.layers(),
+            ring_nodes: brush.ring_nodes(),
+            eps: S::from_f32(brush.params().footprint_eps_mm),
         }
-        a = b;
-        low_a = low_b;
     }
+
+    /// All K nodes of layer i's ring.
+    pub fn ring(&self, i: usize, out: &mut [Vec3<S>; MAX_RING_NODES]) -> usize {
+        let k = self.ring_nodes.clamp(1, MAX_RING_NODES);
+        let center = self.spine[i];
+        let layer = &self.layers[i];
+        for (j, o) in out.iter_mut().enumerate().take(k) {
+            *o = ring_node(center, layer, j, k);
+        }
+        k
+    }
+
+    /// Calls `f(band, polygon)` for every band with a non-empty footprint, band i lying
+    /// between layers i and i+1. Polygons are convex, counter-clockwise, in paper millimetres.
+    pub fn for_each_polygon<F: FnMut(usize, &[Vec2<S>])>(&self, mut f: F) {
+        let n = self.spine.len().min(self.layers.len());
+        if n < 2 {
+            return;
+        }
+        let k = self.ring_nodes.clamp(1, MAX_RING_NODES);
+        let eps = self.eps;
+        let mut a = [Vec3::ZERO; MAX_RING_NODES];
+        let mut b = [Vec3::ZERO; MAX_RING_NODES];
+        let mut cand = [Vec2::new(S::ZERO, S::ZERO); MAX_CANDIDATES];
+        let mut hull = [Vec2::new(S::ZERO, S::ZERO); MAX_CANDIDATES + 1];
+        self.ring(0, &mut a);
+        let mut low_a = a[..k].iter().any(|p| p.z <= eps);
+        for i in 0..n - 1 {
+            self.ring(i + 1, &mut b);
+            let low_b = b[..k].iter().any(|p| p.z <= eps);
+            if low_a || low_b {
+                let m = band_candidates(&a[..k], &b[..k], eps, &mut cand);
+                let h = convex_hull(&mut cand[..m], &mut hull);
+                if h >= 3 {
+                    f(i, &hull[..h]);
+                }
+            }
+            a = b;
+            low_a = low_b;
+        }
+    }
+}
+
+/// All K nodes of layer i's ring of a live brush.
+pub fn ring<S: Scalar>(brush: &Brush<S>, i: usize, out: &mut [Vec3<S>; MAX_RING_NODES]) -> usize {
+    Geometry::of(brush).ring(i, out)
+}
+
+/// [`Geometry::for_each_polygon`] for a live brush.
+pub fn for_each_polygon<S: Scalar, F: FnMut(usize, &[Vec2<S>])>(brush: &Brush<S>, f: F) {
+    Geometry::of(brush).for_each_polygon(f)
 }
 
 /// Candidate points of one band's clipped projection; returns how many were written.
@@ -138,9 +177,11 @@ fn band_candidates<S: Scalar>(
 
 /// Convex hull (Andrew's monotone chain) of `pts` (reordered in place) into `out`,
 /// counter-clockwise, without repeated or collinear points. Returns the vertex count; `out`
-/// must hold `pts.len() + 1` points.
+/// must hold `pts.len() + 1` points (a shorter `out` is a caller bug: it asserts in debug
+/// builds and yields an empty hull in release rather than panicking on the device).
 pub fn convex_hull<S: Scalar>(pts: &mut [Vec2<S>], out: &mut [Vec2<S>]) -> usize {
     let n = pts.len();
+    debug_assert!(out.len() > n, "convex_hull: `out` must hold pts.len() + 1 points");
     if n < 3 || out.len() < n + 1 {
         return 0;
     }

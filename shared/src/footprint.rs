@@ -181,7 +181,10 @@ fn band_candidates<S: Scalar>(
 /// builds and yields an empty hull in release rather than panicking on the device).
 pub fn convex_hull<S: Scalar>(pts: &mut [Vec2<S>], out: &mut [Vec2<S>]) -> usize {
     let n = pts.len();
-    debug_assert!(out.len() > n, "convex_hull: `out` must hold pts.len() + 1 points");
+    debug_assert!(
+        out.len() > n,
+        "convex_hull: `out` must hold pts.len() + 1 points"
+    );
     if n < 3 || out.len() < n + 1 {
         return 0;
     }

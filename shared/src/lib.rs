@@ -11,6 +11,10 @@
 //! * [`brush`]: spine dynamics, virtual skeleton, plasticity, surface.
 //! * [`footprint`]: the part of the surface that touches the paper, as convex polygons.
 //! * [`energy`]: the brush's mechanical energy, for stability checks.
+//! * [`force`]: the forces for the hand (Liang 4.2.3) and the output stage that keeps them safe.
+//! * [`kinematics`]: the reference pen's arm and gimbal, from raw sensor readings to the pose
+//!   and from forces to motor commands.
+//! * [`hand`]: a simulated hand holding the stylus, for tests of the force loop.
 //!
 //! Coordinates: millimetres, the paper is the plane z = 0 with +z up, the pose is the
 //! ferrule's, and the identity orientation holds the brush pointing straight down.
@@ -20,6 +24,9 @@
 pub mod brush;
 pub mod energy;
 pub mod footprint;
+pub mod force;
+pub mod hand;
+pub mod kinematics;
 pub mod params;
 pub mod presets;
 pub mod quat;

@@ -166,6 +166,10 @@ pub trait Scalar:
     /// `1 / sqrt(self)`; the largest value for zero or negative input. One call replaces a
     /// square root and a division when normalising.
     fn rsqrt(self) -> Self;
+    /// Sine and cosine of an angle in radians.
+    fn sin_cos(self) -> (Self, Self);
+    /// Angle of the point (x, y) = (`x`, `self`) in (-pi, pi]; 0 for (0, 0).
+    fn atan2(self, x: Self) -> Self;
     fn abs(self) -> Self {
         if self < Self::ZERO {
             -self
@@ -233,6 +237,12 @@ impl Scalar for f64 {
             f64::MAX
         }
     }
+    fn sin_cos(self) -> (Self, Self) {
+        libm::sincos(self)
+    }
+    fn atan2(self, x: Self) -> Self {
+        libm::atan2(self, x)
+    }
 }
 
 impl Scalar for f32 {
@@ -266,6 +276,12 @@ impl Scalar for f32 {
         } else {
             f32::MAX
         }
+    }
+    fn sin_cos(self) -> (Self, Self) {
+        libm::sincosf(self)
+    }
+    fn atan2(self, x: Self) -> Self {
+        libm::atan2f(self, x)
     }
 }
 
@@ -325,50 +341,59 @@ impl Scalar for Fx {
             Fx::MAX
         }
     }
+    /// CORDIC (the `cordic` crate, 32 rotations: about 1e-9 rad) after reducing the angle to
+    /// [-pi, pi] here, so the crate's own reduction loop runs at most once.
+    fn sin_cos(self) -> (Self, Self) {
+        let two_pi = FxRaw::TAU;
+        let mut a = self.0 % two_pi;
+        if a > FxRaw::PI {
+            a -= two_pi;
+        } else if a < -FxRaw::PI {
+            a += two_pi;
+        }
+        let (s, c) = cordic::sin_cos(a);
+        (Fx(s), Fx(c))
+    }
+    /// CORDIC arc tangent of a ratio kept within [-1, 1] (the crate's `atan2` divides `y / x`
+    /// unguarded, which can overflow), with the quadrant restored here.
+    fn atan2(self, x: Self) -> Self {
+        let (y, x) = (self.0, x.0);
+        if x == FxRaw::ZERO && y == FxRaw::ZERO {
+            return Fx(FxRaw::ZERO);
+        }
+        let half_pi = FxRaw::FRAC_PI_2;
+        let a = if y.unsigned_abs() <= x.unsigned_abs() {
+            // |y / x| <= 1.
+            let t = cordic::atan(y / x);
+            if x > FxRaw::ZERO {
+                t
+            } else if y >= FxRaw::ZERO {
+                t + FxRaw::PI
+            } else {
+                t - FxRaw::PI
+            }
+        } else {
+            // |x / y| <= 1: atan2(y, x) = +-pi/2 - atan(x / y).
+            let t = cordic::atan(x / y);
+            if y > FxRaw::ZERO {
+                half_pi - t
+            } else {
+                -half_pi - t
+            }
+        };
+        Fx(a)
+    }
 }
 
-/// `f64::sqrt` is not in `core`; the SSE/VFP instruction is reached through the
-/// `core::intrinsics`-free route of a correctly rounded Newton step on the bit pattern
-/// only when `std` is absent. With `std` (host, tests) this is the hardware instruction.
+/// IEEE correctly rounded square roots without `std` (`libm`), the same everywhere.
 #[inline]
 fn sqrt_f64(v: f64) -> f64 {
-    #[cfg(feature = "std")]
-    {
-        v.sqrt()
-    }
-    #[cfg(not(feature = "std"))]
-    {
-        newton_sqrt_f64(v)
-    }
+    libm::sqrt(v)
 }
 
 #[inline]
 fn sqrt_f32(v: f32) -> f32 {
-    #[cfg(feature = "std")]
-    {
-        v.sqrt()
-    }
-    #[cfg(not(feature = "std"))]
-    {
-        newton_sqrt_f64(v as f64) as f32
-    }
-}
-
-/// Square root by Newton's method from a bit-pattern estimate; exact to the last bit or one
-/// ulp after four iterations for every positive finite input. Used only on targets without
-/// `std` (the device runs [`Fx`] and uses this for parameter set-up alone).
-#[allow(dead_code)]
-fn newton_sqrt_f64(v: f64) -> f64 {
-    if v.is_nan() || v <= 0.0 || v.is_infinite() {
-        return if v > 0.0 { v } else { 0.0 };
-    }
-    // Halve the exponent for the first estimate: within a factor of 1.5 of the root.
-    let bits = v.to_bits();
-    let mut x = f64::from_bits((bits >> 1) + (0x3ff0_0000_0000_0000 >> 1));
-    for _ in 0..6 {
-        x = 0.5 * (x + v / x);
-    }
-    x
+    libm::sqrtf(v)
 }
 
 #[cfg(test)]
@@ -376,14 +401,23 @@ mod tests {
     use super::*;
 
     #[test]
-    fn newton_sqrt_matches_hardware() {
-        for &v in &[1e-12, 2.5e-9, 1e-3, 0.5, 1.0, 2.0, 3.0, 1e3, 6.25e5, 1.7e30] {
-            let a = newton_sqrt_f64(v);
-            let b = v.sqrt();
-            assert!((a - b).abs() <= b * 4.0 * f64::EPSILON, "{v}: {a} vs {b}");
+    fn fixed_trigonometry_matches_f64() {
+        let mut worst: f64 = 0.0;
+        for k in -400..=400 {
+            let a = k as f64 * 0.0191;
+            let (s, c) = <Fx as Scalar>::from_f64(a).sin_cos();
+            worst = worst.max((s.to_f64() - a.sin()).abs()).max((c.to_f64() - a.cos()).abs());
+            for &r in &[0.3, 1.0, 150.0] {
+                let (y, x) = (r * a.sin(), r * a.cos());
+                let t = Scalar::atan2(<Fx as Scalar>::from_f64(y), <Fx as Scalar>::from_f64(x));
+                let d = (t.to_f64() - y.atan2(x)).abs();
+                let d = d.min((d - 2.0 * core::f64::consts::PI).abs());
+                worst = worst.max(d);
+            }
         }
-        assert_eq!(newton_sqrt_f64(0.0), 0.0);
-        assert_eq!(newton_sqrt_f64(-1.0), 0.0);
+        assert!(worst < 1e-7, "worst trig error {worst}");
+        let zero = <Fx as Scalar>::ZERO;
+        assert_eq!(Scalar::atan2(zero, zero), zero);
     }
 
     #[test]

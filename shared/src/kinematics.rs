@@ -1,0 +1,350 @@
+//! The reference pen's kinematics: a serial arm shaped like the Phantom Omni (base yaw,
+//! shoulder, elbow, driven by three motors through capstan or gear ratios) with a three-axis
+//! gimbal at the wrist read by three angle sensors.
+//!
+//! # Conventions
+//!
+//! Paper frame: millimetres, the paper is z = 0, +z up. The arm's base sits at `base_mm`.
+//!
+//! * q1, base yaw about +z: 0 points the arm along +y.
+//! * q2, shoulder: elevation of the upper arm above the horizontal.
+//! * q3, elbow: angle of the forearm relative to the upper arm (0 = straight; the elbow
+//!   bends downward, q3 < 0).
+//!
+//! With `u = (-sin q1, cos q1, 0)`, `r = l1 cos q2 + l2 cos(q2 + q3)` and
+//! `h = l1 sin q2 + l2 sin(q2 + q3)`, the wrist (the gimbal's centre) is `base + r u + h z`.
+//!
+//! Orientation: the forearm frame is `Rz(q1) Rx(q2 + q3)`, the gimbal adds yaw, pitch and roll
+//! `Rz(g1) Rx(g2) Ry(g3)`, and the pen points along the resulting frame's -z, so all angles zero
+//! hold the brush straight down. The ferrule sits `stylus_mm` from the wrist along the pen.
+//!
+//! Forces act at the wrist: the three motors cannot put a torque on the unactuated gimbal, so
+//! the force felt is the force at the ferrule carried to the wrist (`tau = J^T F`).
+//!
+//! # From raw readings
+//!
+//! Encoders arrive as free-running 16-bit counts ([`EncoderUnwrap`] extends them), gimbal
+//! sensors as ADC codes. The pen resting in its inkwell defines the zeros: [`Pen::calibrate`]
+//! records the raw readings there, and from then on
+//! `q_j = inkwell_j + sign_j (counts_j - zero_j) 2 pi / (counts_per_rev_j ratio_j)`.
+
+use crate::force::LimitError;
+use crate::quat::{Pose, Quat};
+use crate::scalar::Scalar;
+use crate::vec::Vec3;
+
+/// Geometry, transmission and sensors of a pen. Defaults: [`PenConfig::OMNI_LIKE`].
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct PenConfig {
+    /// Shoulder to elbow (mm).
+    pub upper_arm_mm: f32,
+    /// Elbow to wrist (mm).
+    pub forearm_mm: f32,
+    /// Wrist (gimbal centre) to ferrule along the pen (mm).
+    pub stylus_mm: f32,
+    /// The shoulder's position in the paper frame (mm).
+    pub base_mm: [f32; 3],
+    /// Encoder counts per motor revolution (after quadrature decoding).
+    pub counts_per_rev: [u32; 3],
+    /// Motor revolutions per joint revolution (capstan or gear ratio).
+    pub ratio: [f32; 3],
+    /// +1 or -1: how a rising count turns the joint.
+    pub encoder_sign: [i8; 3],
+    /// Motor torque constant (N m / A).
+    pub torque_constant: [f32; 3],
+    /// Current at full command (A).
+    pub max_current: [f32; 3],
+    /// +1 or -1: which way a positive command turns the joint.
+    pub motor_sign: [i8; 3],
+    /// Joint limits (rad).
+    pub joint_min: [f32; 3],
+    pub joint_max: [f32; 3],
+    /// Gimbal sensor scale (rad per ADC code) and sign.
+    pub gimbal_rad_per_code: [f32; 3],
+    pub gimbal_sign: [i8; 3],
+    /// Joint and gimbal angles of the inkwell (calibration) pose (rad).
+    pub inkwell_joints: [f32; 3],
+    pub inkwell_gimbal: [f32; 3],
+}
+
+impl PenConfig {
+    /// The Phantom Omni's link lengths (133.35 mm each, SensAble) and plausible parts for a
+    /// home-built pen: 2048-count encoders, 13.2:1 capstans, 25 mN m/A motors at 2 A.
+    pub const OMNI_LIKE: PenConfig = PenConfig {
+        upper_arm_mm: 133.35,
+        forearm_mm: 133.35,
+        stylus_mm: 0.0,
+        base_mm: [0.0, -180.0, 110.0],
+        counts_per_rev: [2048; 3],
+        ratio: [13.2; 3],
+        encoder_sign: [1, 1, 1],
+        torque_constant: [0.025; 3],
+        max_current: [2.0; 3],
+        motor_sign: [1, 1, 1],
+        joint_min: [-1.0, -0.3, -2.6],
+        joint_max: [1.0, 1.6, -0.15],
+        gimbal_rad_per_code: [0.001_534; 3], // 12-bit ADC over 360 degrees
+        gimbal_sign: [1, 1, 1],
+        inkwell_joints: [0.0, 0.2, -1.2],
+        inkwell_gimbal: [0.0, 0.0, 0.0],
+    };
+
+    pub fn validate(&self) -> Result<(), LimitError> {
+        let check = |name, v: f32, lo, hi| {
+            if v.is_finite() && v >= lo && v <= hi {
+                Ok(())
+            } else {
+                Err(LimitError {
+                    name,
+                    value: v,
+                    min: lo,
+                    max: hi,
+                })
+            }
+        };
+        check("upper_arm_mm", self.upper_arm_mm, 10.0, 1000.0)?;
+        check("forearm_mm", self.forearm_mm, 10.0, 1000.0)?;
+        check("stylus_mm", self.stylus_mm, 0.0, 300.0)?;
+        for j in 0..3 {
+            check("base_mm", self.base_mm[j], -2000.0, 2000.0)?;
+            check("counts_per_rev", self.counts_per_rev[j] as f32, 4.0, 1.0e7)?;
+            check("ratio", self.ratio[j], 0.01, 1000.0)?;
+            check("torque_constant", self.torque_constant[j], 1e-5, 10.0)?;
+            check("max_current", self.max_current[j], 1e-3, 100.0)?;
+            check("joint_min", self.joint_min[j], -7.0, self.joint_max[j])?;
+            check("joint_max", self.joint_max[j], self.joint_min[j], 7.0)?;
+            check("gimbal_rad_per_code", self.gimbal_rad_per_code[j].abs(), 1e-7, 1.0)?;
+            check("inkwell_joints", self.inkwell_joints[j], self.joint_min[j], self.joint_max[j])?;
+            check("inkwell_gimbal", self.inkwell_gimbal[j], -7.0, 7.0)?;
+            for (name, s) in [
+                ("encoder_sign", self.encoder_sign[j]),
+                ("motor_sign", self.motor_sign[j]),
+                ("gimbal_sign", self.gimbal_sign[j]),
+            ] {
+                if s != 1 && s != -1 {
+                    return Err(LimitError {
+                        name,
+                        value: s as f32,
+                        min: -1.0,
+                        max: 1.0,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Extends a free-running 16-bit encoder count into an unbounded one. Correct as long as the
+/// count moves by less than half its range (32,768) between two reads.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct EncoderUnwrap {
+    last: Option<u16>,
+    total: i64,
+}
+
+impl EncoderUnwrap {
+    pub fn update(&mut self, raw: u16) -> i64 {
+        if let Some(last) = self.last {
+            self.total += raw.wrapping_sub(last) as i16 as i64;
+        } else {
+            self.total = raw as i64;
+        }
+        self.last = Some(raw);
+        self.total
+    }
+    pub fn total(&self) -> i64 {
+        self.total
+    }
+}
+
+/// Raw sensor readings: unwrapped encoder counts and gimbal ADC codes.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct RawReadings {
+    pub encoders: [i64; 3],
+    pub gimbal: [i32; 3],
+}
+
+/// Joint angles of the arm and the gimbal (rad).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Joints<S> {
+    pub arm: [S; 3],
+    pub gimbal: [S; 3],
+}
+
+/// Why a pose or reading cannot be turned into joint angles.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum KinematicsError {
+    /// No calibration yet: the pen does not know its zeros.
+    NotCalibrated,
+    /// The wrist position is farther than the arm can reach, or too close.
+    Unreachable,
+    /// Reachable only with joint `joint` outside its limits.
+    JointLimit { joint: usize },
+}
+
+/// A calibrated pen: configuration plus the raw readings at the inkwell.
+#[derive(Clone, Debug)]
+pub struct Pen<S> {
+    cfg: PenConfig,
+    zero: Option<RawReadings>,
+    l1: S,
+    l2: S,
+    base: Vec3<S>,
+    rad_per_count: [S; 3],
+    rad_per_code: [S; 3],
+    torque_per_command: [S; 3],
+}
+
+impl<S: Scalar> Pen<S> {
+    pub fn new(cfg: PenConfig) -> Result<Self, LimitError> {
+        cfg.validate()?;
+        let tau = core::f64::consts::TAU;
+        Ok(Pen {
+            cfg,
+            zero: None,
+            l1: S::from_f32(cfg.upper_arm_mm),
+            l2: S::from_f32(cfg.forearm_mm),
+            base: Vec3::from_f64(cfg.base_mm.map(|v| v as f64)),
+            rad_per_count: [0, 1, 2].map(|j| {
+                S::from_f64(
+                    cfg.encoder_sign[j] as f64 * tau
+                        / (cfg.counts_per_rev[j] as f64 * cfg.ratio[j] as f64),
+                )
+            }),
+            rad_per_code: [0, 1, 2]
+                .map(|j| S::from_f64(cfg.gimbal_sign[j] as f64 * cfg.gimbal_rad_per_code[j] as f64)),
+            // Joint torque at full command: ratio * k_t * I_max (N m).
+            torque_per_command: [0, 1, 2].map(|j| {
+                S::from_f64(
+                    cfg.ratio[j] as f64 * cfg.torque_constant[j] as f64 * cfg.max_current[j] as f64,
+                )
+            }),
+        })
+    }
+
+    pub fn config(&self) -> &PenConfig {
+        &self.cfg
+    }
+
+    /// The pen rests in its inkwell: these readings are the known inkwell angles.
+    pub fn calibrate(&mut self, at_inkwell: RawReadings) {
+        self.zero = Some(at_inkwell);
+    }
+    pub fn is_calibrated(&self) -> bool {
+        self.zero.is_some()
+    }
+
+    /// Joint angles from raw readings.
+    pub fn joints(&self, raw: &RawReadings) -> Result<Joints<S>, KinematicsError> {
+        let zero = self.zero.ok_or(KinematicsError::NotCalibrated)?;
+        let arm = [0, 1, 2].map(|j| {
+            // Counts since calibration as a scalar: exact for any realistic travel.
+            let d = S::from_f64((raw.encoders[j] - zero.encoders[j]) as f64);
+            S::from_f32(self.cfg.inkwell_joints[j]) + d * self.rad_per_count[j]
+        });
+        let gimbal = [0, 1, 2].map(|j| {
+            let d = S::from_f64((raw.gimbal[j] - zero.gimbal[j]) as f64);
+            S::from_f32(self.cfg.inkwell_gimbal[j]) + d * self.rad_per_code[j]
+        });
+        Ok(Joints { arm, gimbal })
+    }
+
+    /// The wrist (gimbal centre) in the paper frame (mm).
+    pub fn wrist(&self, q: &[S; 3]) -> Vec3<S> {
+        let (s1, c1) = q[0].sin_cos();
+        let (s2, c2) = q[1].sin_cos();
+        let (s23, c23) = (q[1] + q[2]).sin_cos();
+        let r = self.l1 * c2 + self.l2 * c23;
+        let h = self.l1 * s2 + self.l2 * s23;
+        self.base + Vec3::new(-r * s1, r * c1, h)
+    }
+
+    /// Forward kinematics: the ferrule's pose.
+    pub fn forward(&self, j: &Joints<S>) -> Pose<S> {
+        let rot = axis_quat(2, j.arm[0])
+            .compose(axis_quat(0, j.arm[1] + j.arm[2]))
+            .compose(axis_quat(2, j.gimbal[0]))
+            .compose(axis_quat(0, j.gimbal[1]))
+            .compose(axis_quat(1, j.gimbal[2]));
+        let pos = self.wrist(&j.arm) + rot.rotate(-Vec3::Z).scale(S::from_f32(self.cfg.stylus_mm));
+        Pose::new(pos, rot)
+    }
+
+    /// Inverse kinematics of the arm: the joint angles that put the wrist at `p` (elbow bent
+    /// downward), checked against the joint limits.
+    pub fn inverse_wrist(&self, p: Vec3<S>) -> Result<[S; 3], KinematicsError> {
+        let d = p - self.base;
+        let q1 = (-d.x).atan2(d.y);
+        let r = (d.x * d.x + d.y * d.y).sqrt();
+        let h = d.z;
+        let (l1, l2) = (self.l1, self.l2);
+        let two = S::ONE + S::ONE;
+        let c3 = (r * r + h * h - l1 * l1 - l2 * l2).div(two * l1 * l2);
+        if c3 > S::ONE || c3 < -S::ONE {
+            return Err(KinematicsError::Unreachable);
+        }
+        let s3 = -(S::ONE - c3 * c3).max(S::ZERO).sqrt();
+        let q3 = s3.atan2(c3);
+        let q2 = h.atan2(r) - (l2 * s3).atan2(l1 + l2 * c3);
+        let q = [q1, q2, q3];
+        for (j, &qj) in q.iter().enumerate() {
+            if qj < S::from_f32(self.cfg.joint_min[j]) || qj > S::from_f32(self.cfg.joint_max[j]) {
+                return Err(KinematicsError::JointLimit { joint: j });
+            }
+        }
+        Ok(q)
+    }
+
+    /// Whether the wrist position `p` is inside the workspace (reachable within limits).
+    pub fn in_workspace(&self, p: Vec3<S>) -> bool {
+        self.inverse_wrist(p).is_ok()
+    }
+
+    /// Jacobian of the wrist position (mm per rad), columns = joints.
+    pub fn jacobian(&self, q: &[S; 3]) -> [Vec3<S>; 3] {
+        let (s1, c1) = q[0].sin_cos();
+        let (s2, c2) = q[1].sin_cos();
+        let (s23, c23) = (q[1] + q[2]).sin_cos();
+        let r = self.l1 * c2 + self.l2 * c23;
+        let u = Vec3::new(-s1, c1, S::ZERO);
+        let du = Vec3::new(-c1, -s1, S::ZERO);
+        let dr2 = -(self.l1 * s2 + self.l2 * s23);
+        let dh2 = r;
+        let dr3 = -(self.l2 * s23);
+        let dh3 = self.l2 * c23;
+        [
+            du.scale(r),
+            u.scale(dr2) + Vec3::Z.scale(dh2),
+            u.scale(dr3) + Vec3::Z.scale(dh3),
+        ]
+    }
+
+    /// Joint torques (N m) that produce force `f` (N) at the wrist: `tau = J^T F`.
+    pub fn torques(&self, q: &[S; 3], f: Vec3<S>) -> [S; 3] {
+        let j = self.jacobian(q);
+        let mm = S::from_f64(1e-3);
+        [j[0].dot(f) * mm, j[1].dot(f) * mm, j[2].dot(f) * mm]
+    }
+
+    /// Motor commands in [-1, 1] (full current) for joint torques `tau` (N m): through the
+    /// ratio and the torque constant, clamped.
+    pub fn motor_commands(&self, tau: &[S; 3]) -> [S; 3] {
+        [0, 1, 2].map(|j| {
+            let c = tau[j].div(self.torque_per_command[j]);
+            let c = if self.cfg.motor_sign[j] < 0 { -c } else { c };
+            c.clamp(-S::ONE, S::ONE)
+        })
+    }
+}
+
+/// Rotation by `angle` about axis 0 (x), 1 (y) or 2 (z).
+fn axis_quat<S: Scalar>(axis: usize, angle: S) -> Quat<S> {
+    let half = angle * S::from_f64(0.5);
+    let (s, c) = half.sin_cos();
+    match axis {
+        0 => Quat::new(c, s, S::ZERO, S::ZERO),
+        1 => Quat::new(c, S::ZERO, s, S::ZERO),
+        _ => Quat::new(c, S::ZERO, S::ZERO, s),
+    }
+}

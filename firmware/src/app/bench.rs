@@ -1,0 +1,218 @@
+//! The force loop's cost, measured on the device itself.
+//!
+//! Runs the large brush through a scripted stroke (hanging, pressing into the paper,
+//! dragging, lifting) and measures every full force-loop tick ([`ForceLoop::tick`]: pen,
+//! brush with all substeps, force, motor output) with the board's counter, interrupts
+//! masked by the caller. Then the two parts of a tick separately (one substep, the once per
+//! tick surface update) and the same stroke at lower substep rates. Prints `BENCH` lines of
+//! raw counter values; the host (`hil bench`) turns counts into instructions, since only it
+//! knows the emulator's `-icount` shift.
+
+use core::fmt::Write;
+
+use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
+
+use super::{CmdQueue, ForceLoop};
+use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
+
+/// Ticks of the scripted stroke.
+pub const STROKE_TICKS: u32 = 600;
+
+/// The handle pose at tick `k` of the bench stroke: hang 50 ticks, press 12 mm into the
+/// paper over 150 ticks, drag 60 mm in x over 300 ticks, lift over 100.
+pub fn stroke_pose(k: u32) -> Pose<Fx> {
+    let hang = 44.0;
+    let press = 32.0;
+    let (x, z) = match k {
+        0..=49 => (0.0, hang),
+        50..=199 => (0.0, hang + (press - hang) * (k - 50) as f64 / 150.0),
+        200..=499 => (60.0 * (k - 200) as f64 / 300.0, press),
+        _ => (
+            60.0,
+            press + (hang - press) * (k.min(600) - 500) as f64 / 100.0,
+        ),
+    };
+    // Tilted 15 degrees about y, as a writer holds the brush.
+    let (s, c) = (0.130_526_192_220_051_6, 0.991_444_861_373_810_4);
+    Pose::new(
+        Vec3::from_f64([x, 0.0, z]),
+        Quat::from_f64([c, 0.0, s, 0.0]),
+    )
+}
+
+struct ScriptPen {
+    next: Option<Pose<Fx>>,
+}
+
+impl PoseSource for ScriptPen {
+    fn next_pose(&mut self) -> Option<Pose<Fx>> {
+        self.next.take()
+    }
+    fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
+        f
+    }
+}
+
+struct NullMotors([Fx; 3]);
+impl Motors for NullMotors {
+    fn command(&mut self, t: [Fx; 3]) {
+        self.0 = t;
+    }
+    fn disable(&mut self) {
+        self.0 = [Fx::ZERO; 3];
+    }
+    fn applied(&self) -> [Fx; 3] {
+        self.0
+    }
+}
+
+struct NullWatchdog;
+impl Watchdog for NullWatchdog {
+    fn feed(&mut self) {}
+}
+
+#[derive(Default)]
+struct Stats {
+    n: u32,
+    min: u32,
+    max: u32,
+    sum: u64,
+    max_at: u32,
+}
+
+impl Stats {
+    fn add(&mut self, k: u32, v: u32) {
+        if self.n == 0 || v < self.min {
+            self.min = v;
+        }
+        if v > self.max {
+            self.max = v;
+            self.max_at = k;
+        }
+        self.sum += v as u64;
+        self.n += 1;
+    }
+    fn mean(&self) -> u64 {
+        self.sum / self.n.max(1) as u64
+    }
+}
+
+/// Runs the bench and writes `BENCH ...` lines to `out`. Call with interrupts masked.
+pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
+    static mut CMDS: CmdQueue = CmdQueue::new();
+    // SAFETY: the bench runs once, before anything else uses this queue.
+    let (_tx, rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
+
+    // Cost of the measurement itself (two counter reads).
+    let mut overhead = u32::MAX;
+    for _ in 0..8 {
+        let a = clk.now();
+        let b = clk.now();
+        overhead = overhead.min(b.wrapping_sub(a));
+    }
+    let _ = writeln!(out, "BENCH overhead_counts={overhead}");
+
+    let params = presets::LARGE;
+    let Ok(brush) = Brush::<Fx>::new(params, stroke_pose(0)) else {
+        let _ = writeln!(out, "BENCH error=invalid_preset");
+        return;
+    };
+    let mut fl = ForceLoop::new(
+        brush,
+        ScriptPen { next: None },
+        NullMotors([Fx::ZERO; 3]),
+        NullWatchdog,
+        rx,
+    );
+
+    for substeps in [25u8, 20, 16, 12, 10, 8, 5] {
+        if fl
+            .brush
+            .set_param(ParamId::SubstepsPerTick, substeps as f32)
+            .is_err()
+        {
+            continue;
+        }
+        fl.brush.reset(stroke_pose(0));
+        let mut st = Stats::default();
+        let mut contact_max = 0;
+        for k in 1..=STROKE_TICKS {
+            fl.pen.next = Some(stroke_pose(k));
+            let a = clk.now();
+            fl.tick();
+            let b = clk.now();
+            st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            contact_max = contact_max.max(fl.brush.contacts());
+        }
+        let _ = writeln!(
+            out,
+            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={}",
+            fl.brush.len(),
+            st.n,
+            st.min,
+            st.mean(),
+            st.max,
+            st.max_at,
+            fl.brush.solves_exactly() as u8,
+        );
+    }
+
+    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
+    let _ = fl
+        .brush
+        .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
+    fl.brush.reset(stroke_pose(0));
+    for k in 1..=300 {
+        fl.brush.tick(stroke_pose(k));
+    }
+    let mut sub = Stats::default();
+    let mut end = Stats::default();
+    for k in 301..=400 {
+        let p = stroke_pose(k);
+        let a = clk.now();
+        fl.brush.substep(p);
+        let b = clk.now();
+        fl.brush.end_tick();
+        let c = clk.now();
+        sub.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+        end.add(k, c.wrapping_sub(b).saturating_sub(overhead));
+    }
+    let _ = writeln!(
+        out,
+        "BENCH parts substep_mean_counts={} substep_max_counts={} end_tick_mean_counts={} end_tick_max_counts={} contacts={}",
+        sub.mean(),
+        sub.max,
+        end.mean(),
+        end.max,
+        fl.brush.contacts(),
+    );
+    // The scalar operations the model is built from: 100 calls each, counts per 100.
+    let x = core::hint::black_box(Fx::from_bits(0x0000_0012_3456_789A)); // about 18.2
+    let y = core::hint::black_box(Fx::from_bits(0x0000_0003_0000_0001)); // about 3.0
+    type Op = fn(Fx, Fx) -> Fx;
+    let ops: [(&str, Op); 6] = [
+        ("add", |a, b| a + b),
+        ("mul", |a, b| a * b),
+        ("div", |a, b| Scalar::div(a, b)),
+        ("sqrt", |a, _| Scalar::sqrt(a)),
+        ("rsqrt", |a, _| Scalar::rsqrt(a)),
+        ("from_f64", |a, _| Fx::from_f64(a.to_bits() as f64)),
+    ];
+    for (name, op) in ops {
+        let a = clk.now();
+        let mut acc = Fx::ZERO;
+        for _ in 0..100 {
+            acc += op(core::hint::black_box(x), core::hint::black_box(y));
+        }
+        let b = clk.now();
+        core::hint::black_box(acc);
+        let _ = writeln!(out, "BENCH op={name} counts_per_100={}", b.wrapping_sub(a));
+    }
+    // Calibration: exactly 4000 instructions (one count per 40 at -icount shift=0).
+    let a = clk.now();
+    // SAFETY: only NOPs.
+    unsafe { core::arch::asm!(".rept 4000", "nop", ".endr", options(nomem, nostack)) };
+    let b = clk.now();
+    let _ = writeln!(out, "BENCH calib_4000_nops_counts={}", b.wrapping_sub(a));
+    let _ = writeln!(out, "BENCH unit={}", C::UNIT);
+}

@@ -1,0 +1,77 @@
+//! What the application needs from a board, as small traits.
+//!
+//! The application ([`crate::app`]) is written against these traits only; a board module
+//! ([`crate::qemu`] today, an STM32F411 board later) implements them and owns every register
+//! address, interrupt number and linker-script detail. A second board plugs in by
+//! implementing the same traits and adding a `board-*` feature (see `build.rs`).
+
+use maobi_shared::{Fx, Pose};
+
+/// The three motor channels of the pen.
+///
+/// Commands are torques in newton-metres, one per channel, already saturated to the
+/// channel's limit by the caller. `disable` must take effect at once and must be callable
+/// from any context (fault handlers included).
+pub trait Motors {
+    fn command(&mut self, torque_nm: [Fx; 3]);
+    /// All channels off (zero current, drivers disabled).
+    fn disable(&mut self);
+    /// The last command actually applied (zero while disabled): reported in state frames.
+    fn applied(&self) -> [Fx; 3];
+}
+
+/// One raw reading of the pen's joints: encoder counts of the three motor joints and the
+/// three gimbal angles, as integers straight from the hardware.
+#[allow(dead_code)] // used by physical boards (the STM32F411, a later issue); QEMU's pen is virtual
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct JointReading {
+    pub encoders: [i32; 3],
+    pub gimbal: [i32; 3],
+}
+
+/// Joint sensors of a physical pen (read by the force loop once per tick).
+#[allow(dead_code)] // as JointReading
+pub trait JointSensors {
+    fn read(&mut self) -> JointReading;
+}
+
+/// Where the force loop gets the handle pose each tick.
+///
+/// A physical pen implements this as [`JointSensors`] plus its forward kinematics; the QEMU
+/// board's virtual pen takes poses the host sent ([`crate::qemu`]).
+pub trait PoseSource {
+    /// The pose for this tick, or `None` when the source has no new reading (the virtual
+    /// pen's queue is empty). The force loop then holds the brush and counts the gap.
+    fn next_pose(&mut self) -> Option<Pose<Fx>>;
+    /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
+    fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];
+}
+
+/// The byte-stream link to the host, non-blocking on both sides: the force loop never
+/// touches it, the link task reads what is there and writes what fits.
+#[allow(dead_code)] // TEMPORARY: the protocol link task uses all of it (next commit)
+pub trait LinkTransport {
+    /// Copies received bytes into `buf`; returns how many (0 if none).
+    fn read(&mut self, buf: &mut [u8]) -> usize;
+    /// Queues bytes for sending; returns how many fitted.
+    fn write(&mut self, buf: &[u8]) -> usize;
+    /// Free room in the transmit queue (bytes).
+    fn tx_space(&self) -> usize;
+    /// Waits until at least one received byte is available.
+    fn readable(&mut self) -> impl core::future::Future<Output = ()>;
+    /// Received bytes dropped because the receive ring was full.
+    fn rx_overflows(&self) -> u32;
+}
+
+/// A hardware watchdog that turns the motors off when the force loop stops feeding it.
+pub trait Watchdog {
+    fn feed(&mut self);
+}
+
+/// A free-running counter for measuring code, in the board's own unit.
+pub trait CycleCounter {
+    fn now(&self) -> u32;
+    /// What one count is: on QEMU `"timer25mhz"` (40 / 2^shift instructions under
+    /// `-icount shift=N`, converted by the host), on hardware `"cycles"` (DWT).
+    const UNIT: &'static str;
+}

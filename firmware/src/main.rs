@@ -1,0 +1,165 @@
+//! Maobi pen firmware: one application ([`app`]) on a board ([`qemu`] today).
+//!
+//! The board's boot mode comes from the semihosting command line under QEMU
+//! (`-semihosting-config enable=on,target=native,arg=maobi-fw,arg=MODE,...`):
+//!
+//! * `run` (default): the device. The force loop ticks at 1 kHz; the link task talks to the
+//!   host over UART0.
+//! * `selftest [TICKS]`: no link; the pen follows the built-in bench stroke through the real
+//!   force loop, timer interrupt and executor, then prints a summary and exits 0.
+//! * `tick_us=N` anywhere on the line: a force-loop period other than 1000 us. The brush
+//!   still advances 1 ms of model time per tick; this only paces it, for emulated runs
+//!   where a tick costs more instructions than a virtual millisecond holds (see the README).
+//! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
+//!   lines (see [`app::bench`]); `SHIFT` is QEMU's `-icount shift`.
+#![no_std]
+#![no_main]
+
+mod app;
+mod board;
+mod link;
+#[cfg(feature = "board-qemu")]
+mod qemu;
+
+use core::fmt::Write;
+use core::sync::atomic::Ordering;
+
+use embassy_executor::Spawner;
+use embassy_time::{Duration, Ticker, Timer};
+use maobi_shared::{presets, Brush, Fx};
+
+use crate::app::{bench, fault, Command, SNAPSHOT, TICKS};
+use crate::qemu::semihosting::{self, Stdout};
+
+enum Mode {
+    Run,
+    Selftest(u32),
+    Bench(u32),
+}
+
+/// Force-loop period: 1000 us (1 kHz) unless the command line says `tick_us=N`.
+fn tick_us() -> u32 {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    line.split_ascii_whitespace()
+        .find_map(|w| w.strip_prefix("tick_us=")?.parse().ok())
+        .filter(|&us| (100..=100_000).contains(&us))
+        .unwrap_or(1000)
+}
+
+fn boot_mode() -> Mode {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    let mut words = line.split_ascii_whitespace().skip(1);
+    let num = |w: Option<&str>, d: u32| w.and_then(|s| s.parse().ok()).unwrap_or(d);
+    match words.next() {
+        Some("bench") => Mode::Bench(num(words.next(), 0)),
+        Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
+        _ => Mode::Run,
+    }
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let mode = boot_mode();
+    if let Mode::Bench(shift) = mode {
+        let clk = qemu::IcountCounter;
+        let _ = writeln!(Stdout, "BENCH icount_shift={shift}");
+        qemu::time_driver::init();
+        cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout));
+        let _ = writeln!(Stdout, "BENCH done");
+        semihosting::exit(0);
+    }
+
+    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, bench::stroke_pose(0)) else {
+        semihosting::fatal("the large preset is invalid", 5);
+    };
+    let parts = qemu::start(brush, tick_us());
+    defmt::info!("maobi-fw up");
+
+    qemu::executor::run(move |spawner: Spawner| {
+        spawner.spawn(supervisor().expect("one supervisor"));
+        match mode {
+            Mode::Selftest(ticks) => {
+                spawner.spawn(selftest(parts, ticks).expect("one selftest"));
+            }
+            _ => {
+                spawner.spawn(link::link_task(parts).expect("one link task"));
+            }
+        }
+    })
+}
+
+/// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
+/// or it never returns while the watchdog is somehow not firing), the motors go off and the
+/// fault latches.
+#[embassy_executor::task]
+async fn supervisor() {
+    let mut last = TICKS.load(Ordering::Relaxed);
+    let mut ticker = Ticker::every(Duration::from_millis(10));
+    loop {
+        ticker.next().await;
+        let now = TICKS.load(Ordering::Relaxed);
+        if now == last {
+            qemu::motors_off();
+            app::latch(fault::LOOP_STALLED);
+        }
+        last = now;
+    }
+}
+
+/// Boot test without a link: the bench stroke through the real force loop.
+#[embassy_executor::task]
+async fn selftest(mut parts: qemu::Parts, ticks: u32) {
+    let _ = parts.cmds.enqueue(Command::Calibrated);
+    let mut k = 1;
+    let mut done = 0;
+    let mut snap_tick = 0;
+    let mut tip = [0i64; 3];
+    let mut contacts = 0;
+    let start = embassy_time::Instant::now();
+    while done < ticks {
+        while k <= ticks && parts.poses.ready() {
+            let _ = parts.poses.enqueue(bench::stroke_pose(k));
+            k += 1;
+        }
+        SNAPSHOT.request();
+        Timer::after_millis(5).await;
+        if let Some((b, t, c, tk)) = SNAPSHOT.take(|s| {
+            let n = s.layers_n as usize;
+            (
+                s.brush_tick,
+                {
+                    let p = s.spine[n - 1];
+                    [um(p.x), um(p.y), um(p.z)]
+                },
+                s.spine[..n]
+                    .iter()
+                    .filter(|p| p.z.to_bits() <= 429_497)
+                    .count(),
+                s.tick,
+            )
+        }) {
+            done = b;
+            tip = t;
+            contacts = contacts.max(c);
+            snap_tick = tk;
+        }
+    }
+    let _ = writeln!(
+        Stdout,
+        "selftest: brush_ticks={done} force_ticks={snap_tick} elapsed_us={} tip_um=({}, {}, {}) max_masses_on_paper={contacts} faults={:#x} overruns={}",
+        start.elapsed().as_micros(),
+        tip[0],
+        tip[1],
+        tip[2],
+        app::FAULTS.load(Ordering::SeqCst),
+        qemu::overruns(),
+    );
+    semihosting::exit(0);
+}
+
+/// Micrometres, rounded toward -inf (integer output keeps float formatting out of the image).
+fn um(v: Fx) -> i64 {
+    ((v.to_bits() as i128 * 1000) >> 32) as i64
+}

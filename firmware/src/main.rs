@@ -35,6 +35,8 @@ enum Mode {
     Run,
     Selftest(u32),
     Bench(u32),
+    /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
+    Crash(&'static str),
 }
 
 /// Force-loop period: 1000 us (1 kHz) unless the command line says `tick_us=N`.
@@ -55,6 +57,11 @@ fn boot_mode() -> Mode {
     match words.next() {
         Some("bench") => Mode::Bench(num(words.next(), 0)),
         Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
+        Some("crash") => Mode::Crash(match words.next() {
+            Some("hardfault") => "hardfault",
+            Some("stall") => "stall",
+            _ => "panic",
+        }),
         _ => Mode::Run,
     }
 }
@@ -80,6 +87,7 @@ fn main() -> ! {
     qemu::executor::run(move |spawner: Spawner| {
         spawner.spawn(supervisor().expect("one supervisor"));
         match mode {
+            Mode::Crash(how) => spawner.spawn(crash(parts, how).expect("one crash task")),
             Mode::Selftest(ticks) => {
                 spawner.spawn(selftest(parts, ticks).expect("one selftest"));
             }
@@ -106,6 +114,28 @@ async fn supervisor() {
         }
         last = now;
     }
+}
+
+/// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop
+/// that never returns (the watchdog's case).
+#[embassy_executor::task]
+async fn crash(mut parts: qemu::Parts, how: &'static str) {
+    let _ = parts.cmds.enqueue(Command::Calibrated);
+    Timer::after_millis(20).await;
+    match how {
+        "hardfault" => {
+            // An undefined instruction: UsageFault, escalated to HardFault (not enabled).
+            // SAFETY: deliberately faults.
+            unsafe { core::arch::asm!("udf #0") };
+        }
+        "stall" => {
+            let _ = parts.cmds.enqueue(Command::Stall);
+        }
+        _ => panic!("crash test"),
+    }
+    Timer::after_millis(1000).await;
+    let _ = writeln!(Stdout, "crash {how}: still running");
+    semihosting::exit(0);
 }
 
 /// Boot test without a link: the bench stroke through the real force loop.

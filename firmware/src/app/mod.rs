@@ -80,6 +80,8 @@ pub enum Command {
     ClearFaults,
     /// Test hook: burn more than one tick's time in the next tick.
     InjectOverrun,
+    /// Test hook: the force loop never returns from its next tick (for the watchdog).
+    Stall,
     /// Set a brush parameter (validated; a rejected value latches PARAM_REJECTED).
     SetParam(ParamId, f32),
 }
@@ -246,6 +248,9 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 FAULTS.store(0, Ordering::SeqCst);
             }
             Command::InjectOverrun => self.inject_overrun = true,
+            Command::Stall => loop {
+                core::hint::spin_loop();
+            },
             Command::SetParam(id, v) => {
                 if self.brush.set_param(id, v).is_err() {
                     latch(fault::PARAM_REJECTED);

@@ -1,0 +1,182 @@
+//! `hil bench`: the firmware's own instruction count of its 1 kHz tick.
+//!
+//! The firmware (boot mode `bench SHIFT`) reads the 25 MHz dual-timer count around each
+//! force-loop tick with interrupts masked and prints `BENCH` lines of raw counts. Under
+//! `-icount shift=N` a count is exactly 40 / 2^N instructions (the firmware's calibration
+//! line checks it with 4000 NOPs), so the default shift 3 resolves 5 instructions.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+
+use crate::qemu::{Clock, Run};
+
+/// The instruction budget of one 1 kHz tick (the issue's goal).
+pub const BUDGET: u64 = 50_000;
+
+/// One `BENCH tick ...` line, converted to instructions.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TickCost {
+    pub substeps: u64,
+    pub min: u64,
+    pub mean: u64,
+    pub max: u64,
+}
+
+/// Everything the bench measured, in instructions.
+#[derive(Clone, Debug)]
+pub struct Report {
+    pub shift: u32,
+    pub ticks: Vec<TickCost>,
+    pub substep: u64,
+    pub end_tick: u64,
+    /// Per call of each scalar operation.
+    pub ops: BTreeMap<String, f64>,
+    pub raw: String,
+}
+
+impl Report {
+    /// The preset's rate (25 substeps): the number the issue asks for.
+    pub fn per_tick(&self) -> Option<&TickCost> {
+        self.ticks.iter().find(|t| t.substeps == 25)
+    }
+    /// The largest measured substep rate whose worst tick fits [`BUDGET`].
+    pub fn largest_fitting(&self) -> Option<u64> {
+        self.ticks
+            .iter()
+            .filter(|t| t.max <= BUDGET)
+            .map(|t| t.substeps)
+            .max()
+    }
+}
+
+fn fields(line: &str) -> BTreeMap<&str, &str> {
+    line.split_whitespace()
+        .filter_map(|w| w.split_once('='))
+        .collect()
+}
+
+/// Parses the firmware's bench output.
+pub fn parse(out: &str, shift: u32) -> Result<Report> {
+    let to_instr = |counts: u64| (counts * 40) >> shift;
+    let num = |m: &BTreeMap<&str, &str>, k: &str| -> Result<u64> {
+        m.get(k)
+            .with_context(|| format!("bench output lacks `{k}`"))?
+            .parse::<u64>()
+            .with_context(|| format!("bench field `{k}` is not a number"))
+    };
+    let mut r = Report {
+        shift,
+        ticks: vec![],
+        substep: 0,
+        end_tick: 0,
+        ops: BTreeMap::new(),
+        raw: out.to_string(),
+    };
+    let mut calibrated = false;
+    let mut overhead = 0;
+    for line in out.lines() {
+        let Some(rest) = line.strip_prefix("BENCH ") else {
+            continue;
+        };
+        let m = fields(rest);
+        if rest.starts_with("tick ") {
+            r.ticks.push(TickCost {
+                substeps: num(&m, "substeps")?,
+                min: to_instr(num(&m, "min_counts")?),
+                mean: to_instr(num(&m, "mean_counts")?),
+                max: to_instr(num(&m, "max_counts")?),
+            });
+        } else if rest.starts_with("parts ") {
+            r.substep = to_instr(num(&m, "substep_mean_counts")?);
+            r.end_tick = to_instr(num(&m, "end_tick_mean_counts")?);
+        } else if let Some(name) = m.get("op") {
+            r.ops.insert(
+                name.to_string(),
+                to_instr(num(&m, "counts_per_100")?) as f64 / 100.0,
+            );
+        } else if m.contains_key("overhead_counts") {
+            overhead = num(&m, "overhead_counts")?;
+        } else if m.contains_key("calib_4000_nops_counts") {
+            // Like the ticks, less the cost of reading the counter twice.
+            let got = to_instr(num(&m, "calib_4000_nops_counts")?.saturating_sub(overhead));
+            // One count of resolution (40 / 2^shift instructions).
+            if got.abs_diff(4000) > 40 >> shift {
+                bail!(
+                    "calibration failed: 4000 NOPs measured as {got} instructions (shift {shift})"
+                );
+            }
+            calibrated = true;
+        }
+    }
+    if !calibrated || r.per_tick().is_none() {
+        bail!("incomplete bench output:\n{out}");
+    }
+    Ok(r)
+}
+
+/// Runs the bench in QEMU (deterministic clock) and parses it.
+pub fn run(elf: &Path, shift: u32, timeout: Duration) -> Result<Report> {
+    let shift_arg = shift.to_string();
+    let run = Run::new(
+        elf,
+        &["bench", &shift_arg],
+        Clock::Deterministic { shift },
+        timeout,
+    );
+    let (status, out) = run.output()?;
+    if !status.success() {
+        bail!("the bench firmware failed ({status}):\n{out}");
+    }
+    parse(&out, shift)
+}
+
+/// The human-readable report; its last line is `instructions_per_tick=<N>`.
+pub fn render(r: &Report) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "force-loop tick, large brush, 16 layers, bench stroke (hang, press, drag, lift), -icount shift={}", r.shift);
+    let _ = writeln!(
+        s,
+        "{:>9} {:>12} {:>12} {:>12}  fits {} ?",
+        "substeps", "min", "mean", "max", BUDGET
+    );
+    for t in &r.ticks {
+        let _ = writeln!(
+            s,
+            "{:>9} {:>12} {:>12} {:>12}  {}",
+            t.substeps,
+            t.min,
+            t.mean,
+            t.max,
+            if t.max <= BUDGET { "yes" } else { "no" }
+        );
+    }
+    let _ = writeln!(
+        s,
+        "one substep: {} instructions; once-per-tick surface update (end_tick): {}",
+        r.substep, r.end_tick
+    );
+    let ops: Vec<String> = r.ops.iter().map(|(k, v)| format!("{k} {v:.0}")).collect();
+    let _ = writeln!(
+        s,
+        "instructions per scalar operation (incl. loop overhead): {}",
+        ops.join(", ")
+    );
+    match r.largest_fitting() {
+        Some(n) => {
+            let _ = writeln!(s, "largest measured substeps_per_tick within {BUDGET}: {n}");
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "no measured substep rate fits {BUDGET} instructions per tick"
+            );
+        }
+    }
+    let worst = r.per_tick().map(|t| t.max).unwrap_or(0);
+    let _ = write!(s, "instructions_per_tick={worst}");
+    s
+}

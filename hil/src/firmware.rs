@@ -1,0 +1,105 @@
+//! Building the firmware image and reading its size.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{bail, Context, Result};
+
+pub const TARGET: &str = "thumbv7em-none-eabihf";
+pub const BIN: &str = "maobi-fw";
+
+/// `firmware/` beside this crate.
+pub fn firmware_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("firmware")
+}
+
+/// Where `cargo build --release` in `firmware/` puts the image.
+pub fn default_elf() -> PathBuf {
+    firmware_dir()
+        .join("target")
+        .join(TARGET)
+        .join("release")
+        .join(BIN)
+}
+
+/// Builds the release image (the firmware is its own workspace with its own target dir).
+pub fn build() -> Result<PathBuf> {
+    let dir = firmware_dir();
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(&dir)
+        // Not `--locked`: a dependency added to maobi-shared must not break the HIL build.
+        .args(["build", "--release"])
+        // The firmware's own target dir, whatever the calling cargo uses.
+        .env("CARGO_TARGET_DIR", dir.join("target"))
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_BUILD_TARGET")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .status()
+        .context("cannot run cargo to build the firmware")?;
+    if !status.success() {
+        bail!("building the firmware failed ({status})");
+    }
+    Ok(default_elf())
+}
+
+/// The image: `elf` if given, else a fresh build unless `no_build`.
+pub fn image(elf: Option<&Path>, no_build: bool) -> Result<PathBuf> {
+    match elf {
+        Some(p) => Ok(p.to_path_buf()),
+        None if no_build => Ok(default_elf()),
+        None => build(),
+    }
+}
+
+/// Flash and static RAM of an ARM ELF image, from its section headers.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct Size {
+    /// Bytes stored in flash: code, constants, the vector table and `.data`'s initial values.
+    pub flash: u64,
+    /// Bytes of RAM reserved statically: `.data`, `.bss`, `.uninit` (the stack comes on top).
+    pub static_ram: u64,
+}
+
+/// Reads [`Size`] from a 32-bit little-endian ELF: allocated sections at addresses below
+/// `ram_start` are flash; allocated ones at or above it are RAM, and those with contents
+/// (`.data`) count in flash too (their initial values are copied from there).
+pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
+    let b = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    if b.len() < 52 || &b[..4] != b"\x7fELF" || b[4] != 1 || b[5] != 1 {
+        bail!("{} is not a 32-bit little-endian ELF", elf.display());
+    }
+    let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as u64;
+    let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]) as u64;
+    let shoff = u32_at(32) as usize;
+    let shentsize = u16_at(46) as usize;
+    let shnum = u16_at(48) as usize;
+    if shoff + shnum * shentsize > b.len() || shentsize < 40 {
+        bail!("{}: bad section header table", elf.display());
+    }
+    const SHF_ALLOC: u64 = 2;
+    const SHT_NOBITS: u64 = 8;
+    let mut s = Size {
+        flash: 0,
+        static_ram: 0,
+    };
+    for i in 0..shnum {
+        let h = shoff + i * shentsize;
+        let (kind, flags, addr, size) =
+            (u32_at(h + 4), u32_at(h + 8), u32_at(h + 12), u32_at(h + 20));
+        if flags & SHF_ALLOC == 0 || size == 0 {
+            continue;
+        }
+        if addr >= ram_start {
+            s.static_ram += size;
+            if kind != SHT_NOBITS {
+                s.flash += size;
+            }
+        } else if kind != SHT_NOBITS {
+            s.flash += size;
+        }
+    }
+    Ok(s)
+}

@@ -1,0 +1,12 @@
+//! # hil: the Maobi firmware in the loop
+//!
+//! * [`qemu`]: starting `qemu-system-arm` (`mps2-an386`) under a deadline, with UART0 on a
+//!   loopback socket when the host needs the link.
+//! * [`firmware`]: building the image (the firmware is its own cargo workspace) and its size.
+//! * [`bench`]: the firmware's own instruction count of one force-loop tick.
+//! * [`selftest`]: the boot self-test and the fault-path hooks (panic, HardFault, watchdog).
+
+pub mod bench;
+pub mod firmware;
+pub mod qemu;
+pub mod selftest;

@@ -1,0 +1,75 @@
+//! `hil`: runs the Maobi pen firmware in the loop (QEMU now, real boards over a serial port
+//! once the wire protocol is wired in).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+use hil::{bench, firmware, selftest};
+
+#[derive(Parser)]
+#[command(
+    name = "hil",
+    version,
+    about = "Maobi firmware in the loop (QEMU mps2-an386)"
+)]
+struct Cli {
+    /// Firmware image to run (default: build firmware/ and use its release image).
+    #[arg(long, global = true)]
+    elf: Option<PathBuf>,
+    /// Do not build the firmware; use the existing release image.
+    #[arg(long, global = true)]
+    no_build: bool,
+    /// Wall-clock limit for each emulator run, seconds.
+    #[arg(long, global = true, default_value_t = 300)]
+    timeout: u64,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Instructions per force-loop tick, measured by the firmware under `-icount`; the last
+    /// line is `instructions_per_tick=<N>`.
+    Bench {
+        /// QEMU `-icount shift`: one timer count is 40 / 2^shift instructions.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
+        shift: u32,
+    },
+    /// Flash and static RAM of the firmware image against the budget.
+    Size,
+    /// Boots the firmware and runs the bench stroke through the real force loop.
+    Selftest {
+        #[arg(long, default_value_t = 600)]
+        ticks: u32,
+    },
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let timeout = Duration::from_secs(cli.timeout);
+    let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
+    match cli.cmd {
+        Cmd::Bench { shift } => {
+            let r = bench::run(&elf, shift, timeout)?;
+            println!("{}", bench::render(&r));
+        }
+        Cmd::Size => {
+            let s = firmware::size(&elf, 0x2000_0000)?;
+            println!("image: {}", elf.display());
+            println!(
+                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB incl. stack)",
+                s.flash,
+                s.flash as f64 / 1024.0,
+                s.static_ram,
+                s.static_ram as f64 / 1024.0
+            );
+        }
+        Cmd::Selftest { ticks } => {
+            println!("{}", selftest::selftest(&elf, ticks, timeout)?);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,172 @@
+//! Starting `qemu-system-arm` for the firmware, always under a deadline.
+
+use std::io::Read;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+
+/// The emulator binary (override with `MAOBI_QEMU`).
+pub fn qemu_binary() -> PathBuf {
+    std::env::var_os("MAOBI_QEMU")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("qemu-system-arm"))
+}
+
+/// Whether the emulator can be started at all.
+pub fn available() -> bool {
+    Command::new(qemu_binary())
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
+}
+
+/// How the guest's clock runs.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Clock {
+    /// `-icount shift=N,sleep=off`: virtual time from the instruction count only; idle time
+    /// is skipped. Deterministic for self-contained runs.
+    Deterministic { shift: u32 },
+    /// `-icount shift=N,sleep=on`: instruction-counted while running, host time while idle,
+    /// so link timeouts are comparable with the host's pace.
+    Paced { shift: u32 },
+}
+
+/// One emulator run of the firmware image.
+#[derive(Clone, Debug)]
+pub struct Run {
+    pub elf: PathBuf,
+    /// Semihosting arguments after the program name (the boot mode).
+    pub args: Vec<String>,
+    pub clock: Clock,
+    /// UART0 as a TCP server on this loopback port (the host connects); `None`: UART0 unused.
+    pub uart_port: Option<u16>,
+    /// Hard limit on the emulator's wall-clock time.
+    pub timeout: Duration,
+}
+
+impl Run {
+    pub fn new(elf: &Path, args: &[&str], clock: Clock, timeout: Duration) -> Self {
+        Run {
+            elf: elf.to_path_buf(),
+            args: args.iter().map(|s| s.to_string()).collect(),
+            clock,
+            uart_port: None,
+            timeout,
+        }
+    }
+
+    pub fn command(&self) -> Command {
+        let mut c = Command::new(qemu_binary());
+        c.args(["-machine", "mps2-an386", "-cpu", "cortex-m4"]);
+        c.args(["-display", "none", "-monitor", "none"]);
+        let mut semi = String::from("enable=on,target=native,arg=maobi-fw");
+        for a in &self.args {
+            semi.push_str(",arg=");
+            semi.push_str(a);
+        }
+        c.args(["-semihosting-config", &semi]);
+        let icount = match self.clock {
+            Clock::Deterministic { shift } => format!("shift={shift},sleep=off"),
+            Clock::Paced { shift } => format!("shift={shift},sleep=on"),
+        };
+        c.args(["-icount", &icount]);
+        match self.uart_port {
+            Some(port) => {
+                c.args([
+                    "-chardev",
+                    &format!(
+                        "socket,id=u0,host=127.0.0.1,port={port},server=on,wait=on,nodelay=on"
+                    ),
+                    "-serial",
+                    "chardev:u0",
+                ]);
+            }
+            None => {
+                c.args(["-serial", "null"]);
+            }
+        }
+        c.arg("-kernel").arg(&self.elf);
+        c
+    }
+
+    /// Starts the emulator with stdout captured and stderr (defmt frames) discarded.
+    pub fn spawn(&self) -> Result<Guest> {
+        let child = self
+            .command()
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .with_context(|| {
+                format!(
+                    "cannot start {} (install it: apt-get install qemu-system-arm)",
+                    qemu_binary().display()
+                )
+            })?;
+        Ok(Guest {
+            child,
+            deadline: Instant::now() + self.timeout,
+            timeout: self.timeout,
+        })
+    }
+
+    /// Runs to completion and returns the exit status and the semihosting stdout.
+    pub fn output(&self) -> Result<(ExitStatus, String)> {
+        let mut g = self.spawn()?;
+        let status = g.wait()?;
+        let mut out = String::new();
+        if let Some(mut s) = g.child.stdout.take() {
+            s.read_to_string(&mut out)?;
+        }
+        Ok((status, out))
+    }
+}
+
+/// A running emulator; killed when dropped.
+pub struct Guest {
+    pub child: Child,
+    deadline: Instant,
+    timeout: Duration,
+}
+
+impl Guest {
+    /// Waits for the emulator to exit; kills it and fails at the deadline.
+    pub fn wait(&mut self) -> Result<ExitStatus> {
+        loop {
+            if let Some(s) = self.child.try_wait()? {
+                return Ok(s);
+            }
+            if Instant::now() >= self.deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                bail!("QEMU did not finish within {:?}: killed", self.timeout);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    pub fn deadline(&self) -> Instant {
+        self.deadline
+    }
+}
+
+impl Drop for Guest {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// A free loopback TCP port (bound and released; QEMU binds it next).
+pub fn free_port() -> Result<u16> {
+    let l = TcpListener::bind("127.0.0.1:0").context("no free loopback port")?;
+    Ok(l.local_addr()?.port())
+}

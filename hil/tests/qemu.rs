@@ -1,0 +1,100 @@
+//! The firmware under QEMU (mps2-an386): boot, force loop, bench, fault paths.
+//!
+//! Needs `qemu-system-arm` and the `thumbv7em-none-eabihf` target (`.ci/run` installs
+//! both, then runs these tests with `MAOBI_REQUIRE_QEMU=1`). Without QEMU the tests are
+//! skipped with a message, unless `MAOBI_REQUIRE_QEMU` is set, which makes that a failure.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use hil::{bench, firmware, qemu, selftest};
+
+const TIMEOUT: Duration = Duration::from_secs(300);
+
+/// Builds the firmware once for all tests; `None` when QEMU is missing outside CI.
+fn image() -> Option<PathBuf> {
+    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
+    ELF.get_or_init(|| {
+        if !qemu::available() {
+            assert!(
+                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
+                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
+            );
+            eprintln!("SKIPPED: qemu-system-arm is not installed");
+            return None;
+        }
+        Some(firmware::build().expect("firmware builds"))
+    })
+    .clone()
+}
+
+#[test]
+fn bench_reports_instructions_per_tick() {
+    let Some(elf) = image() else { return };
+    let r = bench::run(&elf, 3, TIMEOUT).expect("bench runs");
+    let text = bench::render(&r);
+    println!("{text}");
+    let last = text.lines().last().unwrap();
+    let n: u64 = last
+        .strip_prefix("instructions_per_tick=")
+        .expect("last line names the figure")
+        .parse()
+        .unwrap();
+    assert!(n > 1000, "{n}");
+    // Fewer substeps never cost more.
+    for w in r.ticks.windows(2) {
+        assert!(
+            w[0].substeps > w[1].substeps && w[0].max >= w[1].max,
+            "{:?}",
+            r.ticks
+        );
+    }
+}
+
+#[test]
+fn bench_is_deterministic() {
+    let Some(elf) = image() else { return };
+    let a = bench::run(&elf, 3, TIMEOUT).unwrap();
+    let b = bench::run(&elf, 3, TIMEOUT).unwrap();
+    assert_eq!(a.ticks, b.ticks);
+}
+
+#[test]
+fn selftest_ticks_the_brush_through_the_force_loop() {
+    let Some(elf) = image() else { return };
+    let line = selftest::selftest(&elf, 600, TIMEOUT).expect("selftest passes");
+    println!("{line}");
+    assert!(line.contains("brush_ticks=600"), "{line}");
+    assert!(line.contains("faults=0x0 "), "{line}");
+    assert!(line.contains("overruns=0"), "{line}");
+}
+
+#[test]
+fn panic_hardfault_and_stall_turn_motors_off_and_exit_nonzero() {
+    let Some(elf) = image() else { return };
+    for (how, code, text) in [
+        ("panic", 1, "FATAL panic"),
+        ("hardfault", 2, "FATAL HardFault"),
+        ("stall", 3, "FATAL watchdog"),
+    ] {
+        let (status, out) = selftest::crash(&elf, how, Duration::from_secs(60)).unwrap();
+        assert_eq!(status.code(), Some(code), "{how}: {out}");
+        assert!(
+            out.contains(text) && out.contains("motors off"),
+            "{how}: {out}"
+        );
+    }
+}
+
+#[test]
+fn image_fits_the_budget() {
+    let Some(elf) = image() else { return };
+    let s = firmware::size(&elf, 0x2000_0000).unwrap();
+    println!("flash={} static_ram={}", s.flash, s.static_ram);
+    assert!(s.flash <= 128 * 1024, "{s:?}");
+    assert!(
+        s.static_ram <= 24 * 1024,
+        "leave 8 KiB for the stack: {s:?}"
+    );
+}

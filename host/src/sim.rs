@@ -2,6 +2,7 @@
 
 use std::fmt;
 
+use maobi_shared::force::{ForceModel, Forces, DEFAULT_FORCES};
 use maobi_shared::{Brush, BrushParams, Fx, Pose, Scalar};
 
 use crate::poses::PoseTrack;
@@ -41,6 +42,10 @@ pub struct Tick<'a, S: Scalar> {
     /// The resampled input pose the handle was driven to.
     pub pose: Pose<f64>,
     pub brush: &'a Brush<S>,
+    /// The force model's output for this tick, with the hand's ferrule at `pose` (which may
+    /// be below the paper; the brush's own handle is kept on it). Before any device's output
+    /// stage: no ramp, clamp or step limit.
+    pub forces: Forces<S>,
 }
 
 /// Creates the brush at rest at the track's first pose, calls `on_tick` with that state
@@ -53,24 +58,28 @@ pub fn simulate<S: Scalar>(
 ) -> anyhow::Result<usize> {
     let mut poses = track.resample();
     let first = poses.next().expect("a pose track has at least one tick");
-    // `ParamError` is not a `std::error::Error`, so it is carried as its message.
-    let mut brush = Brush::<S>::new(params, first.cast())
-        .map_err(|e| anyhow::anyhow!("invalid brush parameters: {e}"))?;
+    let mut brush = Brush::<S>::new(params, first.cast())?;
+    let mut model = ForceModel::<S>::new(DEFAULT_FORCES)?;
+    let forces = model.tick(&brush, first.pos.cast());
     on_tick(&Tick {
         k: 0,
         t: track.tick_time(0),
         pose: first,
         brush: &brush,
+        forces,
     })?;
     let mut k = 0;
     for pose in poses {
         k += 1;
-        brush.tick(pose.cast());
+        let target: Pose<S> = pose.cast();
+        brush.tick(target);
+        let forces = model.tick(&brush, target.pos);
         on_tick(&Tick {
             k,
             t: track.tick_time(k),
             pose,
             brush: &brush,
+            forces,
         })?;
     }
     Ok(k + 1)

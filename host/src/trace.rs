@@ -2,7 +2,9 @@
 //!
 //! Columns, in order: `t` (s), the handle pose `x,y,z,qw,qx,qy,qz` (the resampled input pose
 //! the handle was driven to), `s{i}_x,s{i}_y,s{i}_z` for every spine mass i = 0..N-1 (mm,
-//! mass 0 is the ferrule), `contacts` (masses lying on the paper).
+//! mass 0 is the ferrule), `contacts` (masses lying on the paper), `fx,fy,fz` (the force model's
+//! force on the hand, N, paper frame, before any device's output stage) and `depth` (D_p, the
+//! virtual skeleton's depth below the paper, mm).
 //!
 //! Each column is a [`Column`] that knows both its name and its value, so the header and the
 //! rows cannot drift apart: a new column is a new variant plus its place in [`columns`].
@@ -16,6 +18,8 @@ use crate::sim::Tick;
 
 /// Decimals for lengths (mm): 1 nm.
 const MM_DECIMALS: usize = 6;
+/// Decimals for forces (N): 1 uN.
+const FORCE_DECIMALS: usize = 6;
 /// Decimals for quaternion components: 1e-9 rad, far below anything the model resolves.
 const QUAT_DECIMALS: usize = 9;
 
@@ -30,6 +34,10 @@ pub enum Column {
     Spine { mass: usize, axis: usize },
     /// Number of masses lying on the paper.
     Contacts,
+    /// Force on the hand, axis 0 = x, 1 = y, 2 = z (N).
+    Force(usize),
+    /// Depth of the virtual skeleton below the paper (mm).
+    Depth,
 }
 
 const HANDLE_NAMES: [&str; 7] = ["x", "y", "z", "qw", "qx", "qy", "qz"];
@@ -42,6 +50,8 @@ impl Column {
             Column::Handle(c) => HANDLE_NAMES[c].into(),
             Column::Spine { mass, axis } => format!("s{mass}_{}", AXES[axis]),
             Column::Contacts => "contacts".into(),
+            Column::Force(axis) => format!("f{}", AXES[axis]),
+            Column::Depth => "depth".into(),
         }
     }
 
@@ -57,6 +67,10 @@ impl Column {
             Column::Contacts => {
                 let _ = write!(out, "{}", tick.brush.contacts());
             }
+            Column::Force(axis) => {
+                push_decimal(out, tick.forces.total.to_f64()[axis], FORCE_DECIMALS)
+            }
+            Column::Depth => push_decimal(out, tick.forces.depth_mm.to_f64(), MM_DECIMALS),
         }
     }
 }
@@ -69,6 +83,8 @@ pub fn columns(masses: usize) -> Vec<Column> {
         cols.extend((0..3).map(|axis| Column::Spine { mass, axis }));
     }
     cols.push(Column::Contacts);
+    cols.extend((0..3).map(Column::Force));
+    cols.push(Column::Depth);
     cols
 }
 
@@ -166,7 +182,7 @@ mod tests {
         let names: Vec<String> = columns(2).into_iter().map(Column::name).collect();
         assert_eq!(
             names.join(","),
-            "t,x,y,z,qw,qx,qy,qz,s0_x,s0_y,s0_z,s1_x,s1_y,s1_z,contacts"
+            "t,x,y,z,qw,qx,qy,qz,s0_x,s0_y,s0_z,s1_x,s1_y,s1_z,contacts,fx,fy,fz,depth"
         );
     }
 
@@ -182,14 +198,19 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 5);
         let width = lines[0].split(',').count();
-        assert_eq!(width, 1 + 7 + 3 * 16 + 1);
+        assert_eq!(width, 1 + 7 + 3 * 16 + 1 + 4);
         for l in &lines[1..] {
             assert_eq!(l.split(',').count(), width, "{l}");
         }
         assert!(lines[1].starts_with("0.000,0.000000,0.000000,45.000000,1.000000000,"));
         assert!(lines[4].starts_with("0.003,0.000000,0.000000,44.000000,"));
-        // At rest the ferrule is s0 = handle position, and nothing touches the paper.
+        // At rest the ferrule is s0 = handle position, and nothing touches the paper: the
+        // only force is the brush's weight, and the skeleton is above the paper.
         assert!(lines[1].contains(",0.000000,0.000000,45.000000,0.000000,0.000000,42.333333,"));
-        assert!(lines[1].ends_with(",0"));
+        assert!(
+            lines[1].ends_with(",0,0.000000,0.000000,-0.147100,0.000000"),
+            "{}",
+            lines[1]
+        );
     }
 }

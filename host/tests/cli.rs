@@ -208,8 +208,10 @@ fn trace_of_press_lift_has_one_row_per_millisecond() {
     for i in 0..16 {
         want += &format!(",s{i}_x,s{i}_y,s{i}_z");
     }
-    want += ",contacts";
+    want += ",contacts,fx,fy,fz,depth";
     assert_eq!(rows[0].join(","), want);
+    let col = |name: &str| rows[0].iter().position(|c| c == name).unwrap();
+    let (contacts, fz, depth) = (col("contacts"), col("fz"), col("depth"));
     // 0 .. 1.000 s inclusive.
     assert_eq!(rows.len() - 1, 1001);
     for (k, r) in rows[1..].iter().enumerate() {
@@ -221,12 +223,21 @@ fn trace_of_press_lift_has_one_row_per_millisecond() {
     let first = &rows[1];
     assert_eq!(&first[1..4], ["0.000000", "0.000000", "45.000000"]);
     assert_eq!(&first[8..11], &first[1..4]);
-    assert_eq!(first.last().unwrap(), "0");
-    // Pressed 10 mm at 0.5 s, the brush lies on the paper.
+    assert_eq!(first[contacts], "0");
+    // In the air only the brush's weight (15 g) pulls down, and nothing is below the paper.
+    assert_eq!(first[fz], "-0.147100");
+    assert_eq!(first[depth], "0.000000");
+    // Pressed 10 mm at 0.5 s, the brush lies on the paper and pushes back up.
     let mid = &rows[501];
     assert_eq!(mid[0], "0.500");
     assert_eq!(mid[3], "30.000000");
-    assert!(mid.last().unwrap().parse::<u32>().unwrap() > 0);
+    assert!(mid[contacts].parse::<u32>().unwrap() > 0);
+    assert!(mid[fz].parse::<f64>().unwrap() > 0.3, "fz = {}", mid[fz]);
+    assert!(
+        mid[depth].parse::<f64>().unwrap() > 5.0,
+        "depth = {}",
+        mid[depth]
+    );
 }
 
 #[test]

@@ -113,8 +113,18 @@ impl PenConfig {
             check("max_current", self.max_current[j], 1e-3, 100.0)?;
             check("joint_min", self.joint_min[j], -7.0, self.joint_max[j])?;
             check("joint_max", self.joint_max[j], self.joint_min[j], 7.0)?;
-            check("gimbal_rad_per_code", self.gimbal_rad_per_code[j].abs(), 1e-7, 1.0)?;
-            check("inkwell_joints", self.inkwell_joints[j], self.joint_min[j], self.joint_max[j])?;
+            check(
+                "gimbal_rad_per_code",
+                self.gimbal_rad_per_code[j].abs(),
+                1e-7,
+                1.0,
+            )?;
+            check(
+                "inkwell_joints",
+                self.inkwell_joints[j],
+                self.joint_min[j],
+                self.joint_max[j],
+            )?;
             check("inkwell_gimbal", self.inkwell_gimbal[j], -7.0, 7.0)?;
             for (name, s) in [
                 ("encoder_sign", self.encoder_sign[j]),
@@ -212,8 +222,9 @@ impl<S: Scalar> Pen<S> {
                         / (cfg.counts_per_rev[j] as f64 * cfg.ratio[j] as f64),
                 )
             }),
-            rad_per_code: [0, 1, 2]
-                .map(|j| S::from_f64(cfg.gimbal_sign[j] as f64 * cfg.gimbal_rad_per_code[j] as f64)),
+            rad_per_code: [0, 1, 2].map(|j| {
+                S::from_f64(cfg.gimbal_sign[j] as f64 * cfg.gimbal_rad_per_code[j] as f64)
+            }),
             // Joint torque at full command: ratio * k_t * I_max (N m).
             torque_per_command: [0, 1, 2].map(|j| {
                 S::from_f64(

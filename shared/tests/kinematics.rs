@@ -1,6 +1,8 @@
 //! The reference pen's kinematics against hand-computed poses, finite differences and itself.
 
-use maobi_shared::kinematics::{EncoderUnwrap, Joints, KinematicsError, Pen, PenConfig, RawReadings};
+use maobi_shared::kinematics::{
+    EncoderUnwrap, Joints, KinematicsError, Pen, PenConfig, RawReadings,
+};
 use maobi_shared::{Fx, Scalar, Vec3};
 use std::f64::consts::{FRAC_PI_2, PI};
 
@@ -29,7 +31,10 @@ fn forward_kinematics_matches_hand_computed_poses() {
     }
     // All angles zero but the elbow: the brush points straight down after the forearm's
     // elevation is undone by the gimbal pitch.
-    let j = Joints { arm: [0.3, 0.2, -0.9], gimbal: [0.0, 0.7, 0.0] };
+    let j = Joints {
+        arm: [0.3, 0.2, -0.9],
+        gimbal: [0.0, 0.7, 0.0],
+    };
     let down = p.forward(&j).down().to_f64();
     assert!(close(down, [0.0, 0.0, -1.0], 1e-12), "{down:?}");
 }
@@ -44,10 +49,17 @@ fn forward_and_inverse_agree_to_a_micrometre_inside_the_workspace() {
         for y in (-20..=120).step_by(20) {
             for z in (-20..=120).step_by(20) {
                 let target = [x as f64, y as f64, z as f64];
-                let Ok(q) = reference.inverse_wrist(Vec3::from_f64(target)) else { continue };
+                let Ok(q) = reference.inverse_wrist(Vec3::from_f64(target)) else {
+                    continue;
+                };
                 let back = reference.wrist(&q).to_f64();
-                assert!(close(back, target, 1e-9), "f64 round trip {target:?} -> {back:?}");
-                let qf = fixed.inverse_wrist(Vec3::from_f64(target)).expect("fixed point reaches it too");
+                assert!(
+                    close(back, target, 1e-9),
+                    "f64 round trip {target:?} -> {back:?}"
+                );
+                let qf = fixed
+                    .inverse_wrist(Vec3::from_f64(target))
+                    .expect("fixed point reaches it too");
                 let backf = fixed.wrist(&qf).to_f64();
                 for i in 0..3 {
                     worst = worst.max((backf[i] - target[i]).abs());
@@ -56,7 +68,10 @@ fn forward_and_inverse_agree_to_a_micrometre_inside_the_workspace() {
             }
         }
     }
-    println!("{checked} workspace points; worst fixed-point forward(inverse(p)) error {:.3} um", worst * 1e3);
+    println!(
+        "{checked} workspace points; worst fixed-point forward(inverse(p)) error {:.3} um",
+        worst * 1e3
+    );
     assert!(checked > 100);
     assert!(worst < 1e-3, "{worst} mm");
 }
@@ -65,7 +80,10 @@ fn forward_and_inverse_agree_to_a_micrometre_inside_the_workspace() {
 fn unreachable_and_out_of_limit_poses_are_refused() {
     let p = pen::<f64>();
     let b = PenConfig::OMNI_LIKE.base_mm.map(|v| v as f64);
-    assert_eq!(p.inverse_wrist(Vec3::from_f64([b[0], b[1] + 400.0, b[2]])), Err(KinematicsError::Unreachable));
+    assert_eq!(
+        p.inverse_wrist(Vec3::from_f64([b[0], b[1] + 400.0, b[2]])),
+        Err(KinematicsError::Unreachable)
+    );
     assert!(matches!(
         p.inverse_wrist(Vec3::from_f64([b[0], b[1] - 200.0, b[2]])),
         Err(KinematicsError::JointLimit { .. })
@@ -88,7 +106,11 @@ fn jacobian_transpose_matches_finite_differences() {
             qm[j] -= h;
             let d = (p.wrist(&qp) - p.wrist(&qm)).scale(1.0 / (2.0 * h));
             let fd = f.dot(d) * 1e-3;
-            assert!((tau[j] - fd).abs() < 1e-7, "q = {q:?} joint {j}: {} vs {fd}", tau[j]);
+            assert!(
+                (tau[j] - fd).abs() < 1e-7,
+                "q = {q:?} joint {j}: {} vs {fd}",
+                tau[j]
+            );
         }
     }
 }
@@ -102,12 +124,18 @@ fn encoder_counts_wrap_and_signs_are_honoured() {
     assert_eq!(e.update(65_000), 65_000);
     let mut cfg = PenConfig::OMNI_LIKE;
     let mut p = Pen::<f64>::new(cfg).unwrap();
-    let zero = RawReadings { encoders: [1000, -5, 70_000], gimbal: [2048, 100, 4000] };
+    let zero = RawReadings {
+        encoders: [1000, -5, 70_000],
+        gimbal: [2048, 100, 4000],
+    };
     assert_eq!(p.joints(&zero), Err(KinematicsError::NotCalibrated));
     p.calibrate(zero);
     let at_inkwell = p.joints(&zero).unwrap();
     let ink = cfg.inkwell_joints.map(|v| v as f64);
-    assert!(close(at_inkwell.arm, ink, 1e-12), "calibration pose reads the inkwell angles");
+    assert!(
+        close(at_inkwell.arm, ink, 1e-12),
+        "calibration pose reads the inkwell angles"
+    );
     // One joint revolution of counts turns joint 0 by 2 pi; flipping its sign reverses it.
     let rad_per_count = 2.0 * PI / (2048.0 * 13.2f32 as f64);
     let mut moved = zero;

@@ -5,6 +5,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use maobi_shared::footprint::for_each_polygon;
+use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 use std::hint::black_box;
 
@@ -35,6 +37,30 @@ fn bench_scalar<S: Scalar>(c: &mut Criterion) {
         bench.iter(|| {
             k += 25;
             b.tick(black_box(stroke_pose(k / 25)));
+        })
+    });
+    // Everything the force loop does per tick besides the brush: raw sensors to joint angles,
+    // forward kinematics, the force model, the output stage, J^T F and motor commands.
+    let mut pen = Pen::<S>::new(PenConfig::OMNI_LIKE).unwrap();
+    let zero = RawReadings::default();
+    pen.calibrate(zero);
+    let mut model = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
+    let mut stage = OutputStage::<S>::new(PHANTOM_OMNI).unwrap();
+    stage.enable();
+    let mut n = 0i64;
+    c.bench_function(&format!("force_and_kinematics/{}", S::NAME), |bench| {
+        bench.iter(|| {
+            n += 1;
+            let raw = RawReadings {
+                encoders: [n % 400, -(n % 300), n % 500],
+                gimbal: [(n % 100) as i32, 7, -3],
+            };
+            let j = pen.joints(black_box(&raw)).unwrap();
+            let pose = pen.forward(&j);
+            let f = model.tick(&b, pose.pos);
+            let cmd = stage.apply(f.total, Vec3::ZERO);
+            let tau = pen.torques(&j.arm, cmd);
+            black_box(pen.motor_commands(&tau))
         })
     });
     c.bench_function(&format!("footprint/large/{}", S::NAME), |bench| {

@@ -2,7 +2,8 @@
 //!
 //! Runs the large brush through a scripted stroke (hanging, pressing into the paper,
 //! dragging, lifting) and measures every full force-loop tick ([`ForceLoop::tick`]: pen,
-//! brush with all substeps, force, motor output) with the board's counter, interrupts
+//! brush with all substeps, force model and output stage, motor output; the pen is
+//! calibrated so the force path runs in full) with the board's counter, interrupts
 //! masked by the caller. Then the two parts of a tick separately (one substep, the once per
 //! tick surface update) and the same stroke at lower substep rates. Prints `BENCH` lines of
 //! raw counter values; the host (`hil bench`) turns counts into instructions, since only it
@@ -117,13 +118,17 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         let _ = writeln!(out, "BENCH error=invalid_preset");
         return;
     };
-    let mut fl = ForceLoop::new(
+    let Some(mut fl) = ForceLoop::new(
         brush,
         ScriptPen { next: None },
         NullMotors([Fx::ZERO; 3]),
         NullWatchdog,
         rx,
-    );
+    ) else {
+        let _ = writeln!(out, "BENCH error=invalid_force_model");
+        return;
+    };
+    fl.calibrated = true;
 
     for substeps in [25u8, 20, 16, 12, 10, 8, 5] {
         if fl

@@ -105,7 +105,8 @@ pub struct Snapshot {
     pub pose_gaps: u32,
     pub faults: u32,
     pub calibrated: bool,
-    /// Force on the handle (N) before gating, and the torques applied (N·m; 0 when off).
+    /// The force model's force on the hand (N) before the output stage and the gate, and
+    /// the torques applied (N·m; 0 when off).
     pub force: [Fx; 3],
     pub motors: [Fx; 3],
     pub handle: Pose<Fx>,
@@ -123,9 +124,15 @@ impl Snapshot {
         calibrated: false,
         force: [<Fx as Scalar>::ZERO; 3],
         motors: [<Fx as Scalar>::ZERO; 3],
+        // All-zero (not the identity rotation) so the slot lives in .bss, not in flash.
         handle: Pose {
             pos: Vec3::ZERO,
-            rot: Quat::IDENTITY,
+            rot: Quat {
+                w: <Fx as Scalar>::ZERO,
+                x: <Fx as Scalar>::ZERO,
+                y: <Fx as Scalar>::ZERO,
+                z: <Fx as Scalar>::ZERO,
+            },
         },
         layers_n: 0,
         spine: [Vec3::ZERO; MAX_LAYERS],
@@ -154,14 +161,22 @@ pub struct ForceLoop<P, M, W> {
     last_pose: Option<Pose<Fx>>,
     calibrated: bool,
     inject_overrun: bool,
+    forces: force::HandForces,
     force: [Fx; 3],
     jump2: Fx,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
-    pub fn new(brush: Brush<Fx>, pen: P, mut motors: M, watchdog: W, cmds: CmdConsumer) -> Self {
+    /// None if the shared force model's defaults are invalid (they are tested not to be).
+    pub fn new(
+        brush: Brush<Fx>,
+        pen: P,
+        mut motors: M,
+        watchdog: W,
+        cmds: CmdConsumer,
+    ) -> Option<Self> {
         motors.disable();
-        ForceLoop {
+        Some(ForceLoop {
             brush,
             pen,
             motors,
@@ -172,9 +187,10 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             last_pose: None,
             calibrated: false,
             inject_overrun: false,
+            forces: force::HandForces::new()?,
             force: [Fx::ZERO; 3],
             jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
-        }
+        })
     }
 
     /// One 1 ms tick: commands, sensors, brush, forces, motors, snapshot.
@@ -213,16 +229,20 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             latch(fault::LINK_SILENT);
         }
 
-        self.force = force::handle_force(&self.brush);
-        self.apply_outputs();
+        let allowed = self.calibrated && FAULTS.load(Ordering::SeqCst) == 0;
+        let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
+        let cmd = self.forces.tick(&self.brush, hand, allowed);
+        let w = self.forces.wanted;
+        self.force = [w.x, w.y, w.z];
+        self.apply_outputs(allowed, cmd);
 
         SNAPSHOT.fill_if_requested(|s| self.snapshot(now, s));
     }
 
     /// Motors on only with a calibrated pen and no latched fault.
-    fn apply_outputs(&mut self) {
-        if self.calibrated && FAULTS.load(Ordering::SeqCst) == 0 {
-            let t = self.pen.torques_for(self.force);
+    fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
+        if allowed {
+            let t = self.pen.torques_for(cmd);
             self.motors.command(t);
         } else {
             self.motors.disable();
@@ -238,6 +258,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         match cmd {
             Command::ResetBrush(pose) => {
                 self.brush.reset(pose);
+                self.forces.reset();
                 self.brush_tick = 0;
                 self.last_pose = Some(pose);
                 while self.pen.next_pose().is_some() {}

@@ -149,12 +149,14 @@ impl CycleCounter for IcountCounter {
 
 type Loop = app::ForceLoop<VirtualPen, ReportedMotors, TimerWatchdog>;
 
-struct LoopCell(core::cell::UnsafeCell<Option<Loop>>);
-// SAFETY: written once by `start` before the TIMER0 interrupt is enabled, then touched only
-// by the TIMER0 handler, which nothing else preempts except the watchdog (which never
-// touches it).
+/// Uninitialised storage (in .bss, not copied from flash) until `start` writes it.
+struct LoopCell(core::cell::UnsafeCell<core::mem::MaybeUninit<Loop>>);
+// SAFETY: written once by `start` (then LOOP_READY is set) before the TIMER0 interrupt is
+// enabled, then touched only by the TIMER0 handler, which nothing else preempts except the
+// watchdog (which never touches it).
 unsafe impl Sync for LoopCell {}
-static LOOP: LoopCell = LoopCell(core::cell::UnsafeCell::new(None));
+static LOOP: LoopCell = LoopCell(core::cell::UnsafeCell::new(core::mem::MaybeUninit::uninit()));
+static LOOP_READY: AtomicBool = AtomicBool::new(false);
 
 static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 
@@ -178,15 +180,18 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
     time_driver::init();
     let uart = uart::Uart0::init();
 
-    let fl = app::ForceLoop::new(
+    let Some(fl) = app::ForceLoop::new(
         brush,
         VirtualPen { rx: pose_rx },
         ReportedMotors { _private: () },
         TimerWatchdog { _private: () },
         cmd_rx,
-    );
+    ) else {
+        semihosting::fatal("the force model's defaults are invalid", 5);
+    };
     // SAFETY: the TIMER0 interrupt is not enabled yet (see `LoopCell`).
-    unsafe { *LOOP.0.get() = Some(fl) };
+    unsafe { (*LOOP.0.get()).write(fl) };
+    LOOP_READY.store(true, Ordering::SeqCst);
 
     // TIMER1: watchdog; TIMER0: 1 kHz force tick.
     wr(t::TIMER1 + t::CTRL, 0);
@@ -236,10 +241,11 @@ pub fn overruns() -> u32 {
 
 fn on_force_tick() {
     wr(t::TIMER0 + t::INTCLEAR, 1);
-    // SAFETY: see `LoopCell`: only this handler touches the loop after `start`.
-    let Some(fl) = (unsafe { &mut *LOOP.0.get() }) else {
+    if !LOOP_READY.load(Ordering::Relaxed) {
         return;
-    };
+    }
+    // SAFETY: see `LoopCell`: initialised (LOOP_READY), and only this handler touches it.
+    let fl = unsafe { (*LOOP.0.get()).assume_init_mut() };
     fl.tick();
     if rd(t::TIMER0 + t::INTCLEAR) & 1 != 0 {
         // The next tick fell due while this one ran.

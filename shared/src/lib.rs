@@ -29,6 +29,7 @@ pub mod hand;
 pub mod kinematics;
 pub mod params;
 pub mod presets;
+pub mod protocol;
 pub mod quat;
 pub mod scalar;
 pub mod vec;

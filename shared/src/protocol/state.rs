@@ -1,0 +1,297 @@
+//! Brush state frames and pose samples: every fixed-point value crosses the link as its exact
+//! [`Fx`] bits, so what the host rebuilds is bit-identical to what the device computed.
+
+use heapless::Vec;
+use serde::{Deserialize, Serialize};
+
+use super::messages::{Buttons, Faults};
+use crate::brush::{Brush, Layer};
+use crate::footprint::Geometry;
+use crate::params::MAX_LAYERS;
+use crate::quat::{Pose, Quat};
+use crate::scalar::{Fx, Scalar};
+use crate::vec::Vec3;
+
+/// A [`Vec3<Fx>`] as the bits of its components.
+pub type Vec3Bits = [i64; 3];
+
+/// The bits of `v`'s components.
+pub fn vec3_bits(v: Vec3<Fx>) -> Vec3Bits {
+    [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]
+}
+
+/// The vector with these component bits.
+pub fn vec3_from_bits([x, y, z]: Vec3Bits) -> Vec3<Fx> {
+    Vec3::new(Fx::from_bits(x), Fx::from_bits(y), Fx::from_bits(z))
+}
+
+/// `a - b` on the raw bits, wrapping: [`add_bits`] undoes it exactly for every input.
+fn delta_bits(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3Bits {
+    [
+        a.x.to_bits().wrapping_sub(b.x.to_bits()),
+        a.y.to_bits().wrapping_sub(b.y.to_bits()),
+        a.z.to_bits().wrapping_sub(b.z.to_bits()),
+    ]
+}
+
+/// `base + d` on the raw bits, wrapping.
+fn add_bits(base: Vec3<Fx>, [x, y, z]: Vec3Bits) -> Vec3<Fx> {
+    Vec3::new(
+        Fx::from_bits(base.x.to_bits().wrapping_add(x)),
+        Fx::from_bits(base.y.to_bits().wrapping_add(y)),
+        Fx::from_bits(base.z.to_bits().wrapping_add(z)),
+    )
+}
+
+/// A [`Pose<Fx>`] as bits: position (mm) and orientation quaternion (w, x, y, z).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct PoseBits {
+    pub pos: Vec3Bits,
+    pub rot: [i64; 4],
+}
+
+impl From<Pose<Fx>> for PoseBits {
+    fn from(p: Pose<Fx>) -> Self {
+        let q = p.rot;
+        PoseBits {
+            pos: vec3_bits(p.pos),
+            rot: [q.w.to_bits(), q.x.to_bits(), q.y.to_bits(), q.z.to_bits()],
+        }
+    }
+}
+
+impl PoseBits {
+    pub fn pose(&self) -> Pose<Fx> {
+        let [w, x, y, z] = self.rot.map(Fx::from_bits);
+        Pose::new(vec3_from_bits(self.pos), Quat::new(w, x, y, z))
+    }
+}
+
+/// One tick of the virtual pen, host to device: exactly the pose the host simulation feeds
+/// its own `Brush<Fx>`, so device and host simulate the same brush bit for bit.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PoseSample {
+    /// The host's tick number for this pose (one per 1 ms); the device detects lost and
+    /// reordered samples by it (wrapping).
+    pub seq: u32,
+    pub pose: PoseBits,
+    pub buttons: Buttons,
+}
+
+impl PoseSample {
+    pub fn new(seq: u32, pose: Pose<Fx>, buttons: Buttons) -> Self {
+        PoseSample {
+            seq,
+            pose: pose.into(),
+            buttons,
+        }
+    }
+    pub fn pose(&self) -> Pose<Fx> {
+        self.pose.pose()
+    }
+}
+
+/// What the force loop did at the state's tick.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Haptics {
+    /// Force on the hand, world frame (N), as [`Fx`] bits.
+    pub force_n: Vec3Bits,
+    /// The three motor commands the board drives (or would drive, with forces off): signed
+    /// fraction of each driver's full scale, +-32767 = +-100%.
+    pub motors: [i16; 3],
+    /// Forces are enabled (the motors are driven).
+    pub enabled: bool,
+}
+
+impl Haptics {
+    pub fn new(force_n: Vec3<Fx>, motors: [i16; 3], enabled: bool) -> Self {
+        Haptics {
+            force_n: vec3_bits(force_n),
+            motors,
+            enabled,
+        }
+    }
+    pub fn force(&self) -> Vec3<Fx> {
+        vec3_from_bits(self.force_n)
+    }
+}
+
+/// One layer of one spine, [`Fx`] bits. Positions are differences, which are shorter varints
+/// than canvas coordinates and exact (wrapping differences of the raw bits).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct LayerState {
+    /// Spine mass S_i minus S_(i-1) (for S_0: minus the handle position) (mm).
+    pub spine: Vec3Bits,
+    /// Skeleton node VS_i minus S_i (mm).
+    pub skeleton: Vec3Bits,
+    /// The ellipse: short- and long-axis directions (unit), radii (mm), wetness [0, 1].
+    pub short_axis: Vec3Bits,
+    pub long_axis: Vec3Bits,
+    pub long_radius: i64,
+    pub short_radius: i64,
+    pub wetness: i64,
+}
+
+/// The brush at one tick, device to host, one frame per spine.
+///
+/// A brush of several spines (Baxter & Lin's multi-spine brushes) sends `spine_count` frames
+/// per tick with the same `tick`, `spine_index` 0, 1, ...; each frame is complete on its own,
+/// so a lost frame costs one spine for one tick. Today's brush has one spine.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BrushState {
+    /// Device tick (1 ms, wrapping).
+    pub tick: u32,
+    pub spine_index: u8,
+    pub spine_count: u8,
+    /// The handle (ferrule) pose the model used at this tick.
+    pub handle: PoseBits,
+    pub haptics: Haptics,
+    /// Faults latched at this tick.
+    pub faults: Faults,
+    /// Bit i set: layer i lies on the paper.
+    pub contacts: u32,
+    /// K, nodes per ellipse ring.
+    pub ring_nodes: u8,
+    /// Surface at or below this height leaves ink (mm, [`Fx`] bits).
+    pub footprint_eps: i64,
+    /// One entry per layer, ferrule first.
+    pub layers: Vec<LayerState, MAX_LAYERS>,
+}
+
+impl BrushState {
+    /// The state of a (single-spine) brush at `tick`.
+    pub fn from_brush(brush: &Brush<Fx>, tick: u32, haptics: Haptics, faults: Faults) -> Self {
+        let handle = brush.handle();
+        let geometry = Geometry::of(brush);
+        let mut layers = Vec::new();
+        let mut contacts = 0u32;
+        let mut prev = handle.pos;
+        let per_layer = geometry
+            .spine
+            .iter()
+            .zip(brush.skeleton())
+            .zip(geometry.layers)
+            .zip(brush.in_contact());
+        for (i, (((&s, &k), l), &touching)) in per_layer.enumerate() {
+            if touching {
+                contacts |= u32::try_from(i)
+                    .ok()
+                    .and_then(|i| 1u32.checked_shl(i))
+                    .unwrap_or(0);
+            }
+            // A brush has at most MAX_LAYERS layers: the push cannot fail.
+            let _ = layers.push(LayerState {
+                spine: delta_bits(s, prev),
+                skeleton: delta_bits(k, s),
+                short_axis: vec3_bits(l.short_axis),
+                long_axis: vec3_bits(l.long_axis),
+                long_radius: l.long_radius.to_bits(),
+                short_radius: l.short_radius.to_bits(),
+                wetness: l.wetness.to_bits(),
+            });
+            prev = s;
+        }
+        BrushState {
+            tick,
+            spine_index: 0,
+            spine_count: 1,
+            handle: handle.into(),
+            haptics,
+            faults,
+            contacts,
+            ring_nodes: u8::try_from(geometry.ring_nodes).unwrap_or(u8::MAX),
+            footprint_eps: geometry.eps.to_bits(),
+            layers,
+        }
+    }
+
+    /// Whether layer `i` lies on the paper.
+    pub fn in_contact(&self, i: usize) -> bool {
+        u32::try_from(i)
+            .ok()
+            .and_then(|i| self.contacts.checked_shr(i))
+            .is_some_and(|bits| bits & 1 == 1)
+    }
+
+    /// The spine's positions and ellipses, decoded (host side): build the footprint from
+    /// [`BrushShape::geometry`] with the same code the device runs.
+    pub fn shape(&self) -> BrushShape {
+        let handle = self.handle.pose();
+        let mut shape = BrushShape {
+            handle,
+            spine: [Vec3::ZERO; MAX_LAYERS],
+            skeleton: [Vec3::ZERO; MAX_LAYERS],
+            layers: [NO_LAYER; MAX_LAYERS],
+            len: self.layers.len(),
+            ring_nodes: usize::from(self.ring_nodes),
+            eps: Fx::from_bits(self.footprint_eps),
+        };
+        let mut prev = handle.pos;
+        let slots = shape
+            .spine
+            .iter_mut()
+            .zip(shape.skeleton.iter_mut())
+            .zip(shape.layers.iter_mut());
+        for (w, ((s, k), l)) in self.layers.iter().zip(slots) {
+            *s = add_bits(prev, w.spine);
+            *k = add_bits(*s, w.skeleton);
+            *l = Layer {
+                short_axis: vec3_from_bits(w.short_axis),
+                long_axis: vec3_from_bits(w.long_axis),
+                long_radius: Fx::from_bits(w.long_radius),
+                short_radius: Fx::from_bits(w.short_radius),
+                wetness: Fx::from_bits(w.wetness),
+            };
+            prev = *s;
+        }
+        shape
+    }
+}
+
+const NO_LAYER: Layer<Fx> = Layer {
+    short_axis: Vec3::ZERO,
+    long_axis: Vec3::ZERO,
+    long_radius: Fx::ZERO,
+    short_radius: Fx::ZERO,
+    wetness: Fx::ZERO,
+};
+
+/// One spine of a [`BrushState`], decoded into the model's own types.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BrushShape {
+    handle: Pose<Fx>,
+    spine: [Vec3<Fx>; MAX_LAYERS],
+    skeleton: [Vec3<Fx>; MAX_LAYERS],
+    layers: [Layer<Fx>; MAX_LAYERS],
+    len: usize,
+    ring_nodes: usize,
+    eps: Fx,
+}
+
+impl BrushShape {
+    pub fn handle(&self) -> Pose<Fx> {
+        self.handle
+    }
+    /// Spine masses S_i (mm), the ferrule's first.
+    pub fn spine(&self) -> &[Vec3<Fx>] {
+        self.spine.get(..self.len).unwrap_or(&[])
+    }
+    /// Skeleton nodes VS_i (mm).
+    pub fn skeleton(&self) -> &[Vec3<Fx>] {
+        self.skeleton.get(..self.len).unwrap_or(&[])
+    }
+    /// Each layer's ellipse.
+    pub fn layers(&self) -> &[Layer<Fx>] {
+        self.layers.get(..self.len).unwrap_or(&[])
+    }
+    /// What the footprint is computed from: `shape.geometry().for_each_polygon(..)` gives the
+    /// device's polygons, bit for bit.
+    pub fn geometry(&self) -> Geometry<'_, Fx> {
+        Geometry {
+            spine: self.spine(),
+            layers: self.layers(),
+            ring_nodes: self.ring_nodes,
+            eps: self.eps,
+        }
+    }
+}

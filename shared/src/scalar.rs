@@ -205,85 +205,54 @@ pub trait Scalar:
     }
 }
 
-impl Scalar for f64 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
-    const NAME: &'static str = "f64";
-    #[inline]
-    fn from_f64(v: f64) -> Self {
-        v
-    }
-    #[inline]
-    fn to_f64(self) -> f64 {
-        self
-    }
-    #[inline]
-    fn div(self, rhs: Self) -> Self {
-        self / rhs
-    }
-    #[inline]
-    fn sqrt(self) -> Self {
-        if self > 0.0 {
-            sqrt_f64(self)
-        } else {
-            0.0
+/// The float references: IEEE arithmetic, with `libm` for the functions `core` lacks, so the
+/// results are the same on every target and in every build configuration.
+macro_rules! float_scalar {
+    ($t:ty, $name:literal, $sqrt:path, $sincos:path, $atan2:path) => {
+        impl Scalar for $t {
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            const NAME: &'static str = $name;
+            #[inline]
+            fn from_f64(v: f64) -> Self {
+                v as $t
+            }
+            #[inline]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+            #[inline]
+            fn div(self, rhs: Self) -> Self {
+                self / rhs
+            }
+            #[inline]
+            fn sqrt(self) -> Self {
+                if self > 0.0 {
+                    $sqrt(self)
+                } else {
+                    0.0
+                }
+            }
+            #[inline]
+            fn rsqrt(self) -> Self {
+                if self > 0.0 {
+                    1.0 / $sqrt(self)
+                } else {
+                    <$t>::MAX
+                }
+            }
+            fn sin_cos(self) -> (Self, Self) {
+                $sincos(self)
+            }
+            fn atan2(self, x: Self) -> Self {
+                $atan2(self, x)
+            }
         }
-    }
-    #[inline]
-    fn rsqrt(self) -> Self {
-        if self > 0.0 {
-            1.0 / sqrt_f64(self)
-        } else {
-            f64::MAX
-        }
-    }
-    fn sin_cos(self) -> (Self, Self) {
-        libm::sincos(self)
-    }
-    fn atan2(self, x: Self) -> Self {
-        libm::atan2(self, x)
-    }
+    };
 }
 
-impl Scalar for f32 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
-    const NAME: &'static str = "f32";
-    #[inline]
-    fn from_f64(v: f64) -> Self {
-        v as f32
-    }
-    #[inline]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-    #[inline]
-    fn div(self, rhs: Self) -> Self {
-        self / rhs
-    }
-    #[inline]
-    fn sqrt(self) -> Self {
-        if self > 0.0 {
-            sqrt_f32(self)
-        } else {
-            0.0
-        }
-    }
-    #[inline]
-    fn rsqrt(self) -> Self {
-        if self > 0.0 {
-            1.0 / sqrt_f32(self)
-        } else {
-            f32::MAX
-        }
-    }
-    fn sin_cos(self) -> (Self, Self) {
-        libm::sincosf(self)
-    }
-    fn atan2(self, x: Self) -> Self {
-        libm::atan2f(self, x)
-    }
-}
+float_scalar!(f64, "f64", libm::sqrt, libm::sincos, libm::atan2);
+float_scalar!(f32, "f32", libm::sqrtf, libm::sincosf, libm::atan2f);
 
 impl Scalar for Fx {
     const ZERO: Self = Fx(FxRaw::ZERO);
@@ -328,7 +297,7 @@ impl Scalar for Fx {
     #[inline]
     fn sqrt(self) -> Self {
         if self.0 > FxRaw::ZERO {
-            Fx::from_f64(sqrt_f64(self.to_f64()))
+            Fx::from_f64(libm::sqrt(self.to_f64()))
         } else {
             Fx(FxRaw::ZERO)
         }
@@ -336,7 +305,7 @@ impl Scalar for Fx {
     #[inline]
     fn rsqrt(self) -> Self {
         if self.0 > FxRaw::ZERO {
-            Fx::from_f64(1.0 / sqrt_f64(self.to_f64()))
+            Fx::from_f64(1.0 / libm::sqrt(self.to_f64()))
         } else {
             Fx::MAX
         }
@@ -383,17 +352,6 @@ impl Scalar for Fx {
         };
         Fx(a)
     }
-}
-
-/// IEEE correctly rounded square roots without `std` (`libm`), the same everywhere.
-#[inline]
-fn sqrt_f64(v: f64) -> f64 {
-    libm::sqrt(v)
-}
-
-#[inline]
-fn sqrt_f32(v: f32) -> f32 {
-    libm::sqrtf(v)
 }
 
 #[cfg(test)]

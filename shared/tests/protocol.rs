@@ -55,6 +55,16 @@ fn pressed_brush(params: maobi_shared::BrushParams) -> Brush<Fx> {
     b
 }
 
+/// Motor commands with every fraction bit in use, as the force loop's would be.
+fn motors() -> [Fx; 3] {
+    [0.1234567, -0.7654321, 0.0421].map(Fx::from_f64)
+}
+
+/// A force loop's output while writing: about 0.8 N up, some drag.
+fn haptics() -> Haptics {
+    Haptics::new(Vec3::from_f64([0.0512, -0.0233, 0.7911]), motors(), true)
+}
+
 fn polygons(g: &Geometry<'_, Fx>) -> Vec<(usize, Vec<Vec2<Fx>>)> {
     let mut out = Vec::new();
     g.for_each_polygon(|band, poly| out.push((band, poly.to_vec())));
@@ -108,7 +118,8 @@ fn device_samples() -> Vec<DeviceMsg> {
     let state = BrushState::from_brush(
         &brush,
         42,
-        Haptics::new(Vec3::from_f64([0.1, -0.2, 0.9]), [100, -32767, 0], true),
+        40,
+        Haptics::new(Vec3::from_f64([0.1, -0.2, 0.9]), motors(), true),
         Faults::empty(),
     );
     let mut params = presets::LARGE;
@@ -171,6 +182,7 @@ fn device_samples() -> Vec<DeviceMsg> {
         tick_period_max_us: 1042,
         load_percent: 37,
         frames_dropped: 3,
+        pose_gaps: 8,
         rx: LinkStats {
             frames_ok: 5,
             framing_errors: 1,
@@ -337,8 +349,8 @@ fn presets_resolve_by_index_and_name() {
 #[test]
 fn brush_state_rebuilds_the_footprint_bit_for_bit() {
     let brush = pressed_brush(presets::LARGE);
-    let haptics = Haptics::new(Vec3::from_f64([0.01, 0.0, 0.6]), [12, 34, -56], true);
-    let state = BrushState::from_brush(&brush, 300, haptics, Faults::empty());
+    let haptics = Haptics::new(Vec3::from_f64([0.01, 0.0, 0.6]), motors(), true);
+    let state = BrushState::from_brush(&brush, 300, 250, haptics, Faults::empty());
     let mut rx = HostRx::new();
     let got = match decode(&mut rx, &frame(&DeviceMsg::State(state.clone()))).pop() {
         Some(Ok(DeviceMsg::State(s))) => s,
@@ -346,6 +358,8 @@ fn brush_state_rebuilds_the_footprint_bit_for_bit() {
     };
     assert_eq!(got, state);
     assert_eq!(got.haptics.force(), haptics.force());
+    assert_eq!(got.haptics.motors(), motors());
+    assert_eq!(got.pose_seq, 250);
     let shape = got.shape();
     assert_eq!(shape.handle(), brush.handle());
     assert_eq!(shape.spine(), brush.spine());
@@ -376,7 +390,7 @@ fn state_frame_size_and_link_share() {
             ("pressed", pressed_brush(*params)),
         ] {
             let state =
-                BrushState::from_brush(&brush, 123_456, Haptics::default(), Faults::empty());
+                BrushState::from_brush(&brush, 123_456, 100_000, haptics(), Faults::empty());
             let n = frame(&DeviceMsg::State(state)).len();
             let share = n as f64 * STATE_HZ / LINK_BYTES_PER_S;
             println!(
@@ -392,7 +406,7 @@ fn state_frame_size_and_link_share() {
             }
         }
     }
-    // Measured 826 (at rest) and 900 bytes (pressed): under a kilobyte, an eighth of the link.
+    // Measured 852 (at rest) and 926 bytes (pressed): under a kilobyte, an eighth of the link.
     assert!(large < 1024, "large state frame {large} bytes");
     assert!(large as f64 * STATE_HZ / LINK_BYTES_PER_S < 0.125);
     let p = HostMsg::Pose(PoseSample::new(
@@ -427,12 +441,13 @@ fn largest_messages_fit_their_bounds() {
     };
     let state = BrushState {
         tick: u32::MAX,
+        pose_seq: u32::MAX,
         spine_index: u8::MAX,
         spine_count: u8::MAX,
         handle: worst_pose,
         haptics: Haptics {
             force_n: [i64::MIN; 3],
-            motors: [i16::MIN; 3],
+            motors: [i64::MIN; 3],
             enabled: true,
         },
         faults: Faults::from_bits_retain(u16::MAX),
@@ -481,7 +496,8 @@ fn encoding_never_overruns_its_buffer() {
     let m = DeviceMsg::State(BrushState::from_brush(
         &pressed_brush(presets::SMALL),
         1,
-        Haptics::default(),
+        1,
+        haptics(),
         Faults::empty(),
     ));
     let full = frame(&m);
@@ -736,6 +752,7 @@ proptest! {
         });
         let state = BrushState {
             tick,
+            pose_seq: tick.wrapping_mul(3),
             spine_index: 0,
             spine_count: 1,
             handle: PoseBits { pos: handle.0, rot: handle.1 },
@@ -780,7 +797,7 @@ fn reset_drops_a_partial_frame() {
 fn shape_of_a_decoded_state_is_usable_without_the_brush() {
     // A host that never had the brush: the state alone gives geometry and the handle.
     let brush = pressed_brush(presets::SMALL);
-    let state = BrushState::from_brush(&brush, 7, Haptics::default(), Faults::LINK_SILENT);
+    let state = BrushState::from_brush(&brush, 7, 0, Haptics::default(), Faults::LINK_SILENT);
     let shape = state.shape();
     assert_eq!(shape.spine().len(), brush.len());
     assert_eq!(shape.geometry().ring_nodes, brush.ring_nodes());

@@ -20,8 +20,8 @@ use crate::presets;
 pub const HOST_MSG_MAX: usize = 256;
 /// Largest decoded device-to-host frame. A [`BrushState`] of [`crate::params::MAX_LAYERS`]
 /// layers with every value at its longest varint (10 bytes per fixed-point value) is a
-/// 3760-byte frame (test `largest_messages_fit_their_bounds`), so any brush state the model
-/// can reach fits in one frame; the large preset's is 0.8-0.9 KB.
+/// 3786-byte frame (test `largest_messages_fit_their_bounds`), so any brush state the model
+/// can reach fits in one frame; the large preset's is 0.85-0.93 KB.
 pub const DEVICE_MSG_MAX: usize = 4096;
 
 /// Capacity of names on the wire (board, host program, preset).
@@ -468,6 +468,9 @@ pub struct Telemetry {
     pub load_percent: u8,
     /// Device-to-host frames the device dropped (link busy or down), since start.
     pub frames_dropped: u32,
+    /// Virtual pen: ticks without a new pose sample (the brush held its last pose), since
+    /// start.
+    pub pose_gaps: u32,
     /// The device receiver's counters (frames decoded; CRC, framing, oversized, decode and
     /// version errors), since start.
     pub rx: super::frame::LinkStats,

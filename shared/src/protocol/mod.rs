@@ -44,7 +44,7 @@
 //! | `GetParam { id }`, `SetParam { id, value }` | `Param(`[`ParamReply`]`)`: the value in force, or [`ParamRejected`] |
 //! | `Command(`[`Command`]`)`: enable / disable forces, calibrate, dip ink, choose preset, clear faults, reset brush | `CommandDone { command, result }` |
 //! | | `Event(`[`Event`]`)`: fault raised / cleared, forces enabled / disabled, link (re)connected, with the latched [`Faults`] |
-//! | | `Telemetry(`[`Telemetry`]`)`: tick period min / mean / max (us), load (%), frames dropped, the device receiver's [`LinkStats`] |
+//! | | `Telemetry(`[`Telemetry`]`)`: tick period min / mean / max (us), load (%), frames dropped, virtual-pen pose gaps, the device receiver's [`LinkStats`] |
 //!
 //! Two enums, one per direction, so each end can only decode what the other may send; the
 //! direction byte makes an echoed frame an error rather than a message (without it an
@@ -84,8 +84,8 @@
 //!   or a distance under 4 mm, 6 for canvas coordinates.
 //! * **Differences for positions in [`BrushState`]**: each spine mass relative to the previous
 //!   one (the first to the handle), each skeleton node relative to its spine mass. Short
-//!   distances are shorter varints (the large brush at rest at (150, 120) mm: 826 bytes
-//!   instead of 1186 with absolute positions); wrapping differences of the raw bits are
+//!   distances are shorter varints (the large brush at rest at (150, 120) mm: 852 bytes
+//!   instead of 1212 with absolute positions); wrapping differences of the raw bits are
 //!   exact.
 //! * **`f32` for parameters and force limits**: that is how [`crate::BrushParams`] stores them.
 //! * **Flags** ([`Capabilities`], [`Faults`], [`Buttons`]): integers that keep bits a newer
@@ -95,9 +95,9 @@
 //!
 //! | frame | bytes on the wire | at its rate, share of a 1 MB/s USB full-speed CDC link |
 //! |---|---|---|
-//! | state, large preset (16 layers), at rest / pressed and dragged | 826 / 900 | 9.9% / 10.8% at 120 Hz |
-//! | state, small preset (12 layers), at rest / pressed and dragged | 616 / 676 | 7.4% / 8.1% at 120 Hz |
-//! | state, 24 layers, every value at its longest varint | 3760 | (the bound: [`DEVICE_MSG_MAX`]) |
+//! | state, large preset (16 layers), at rest / pressed and dragged | 852 / 926 | 10.2% / 11.1% at 120 Hz |
+//! | state, small preset (12 layers), at rest / pressed and dragged | 642 / 702 | 7.7% / 8.4% at 120 Hz |
+//! | state, 24 layers, every value at its longest varint | 3786 | (the bound: [`DEVICE_MSG_MAX`]) |
 //! | pose sample | 43 | 4.3% at 1 kHz |
 //! | longest host message | 85 | (the bound: [`HOST_MSG_MAX`]) |
 //!

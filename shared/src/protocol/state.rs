@@ -96,23 +96,26 @@ impl PoseSample {
 pub struct Haptics {
     /// Force on the hand, world frame (N), as [`Fx`] bits.
     pub force_n: Vec3Bits,
-    /// The three motor commands the board drives (or would drive, with forces off): signed
-    /// fraction of each driver's full scale, +-32767 = +-100%.
-    pub motors: [i16; 3],
+    /// The three motor commands the board drives (or would drive, with forces off), in
+    /// [-1, 1] of full current as `kinematics::Pen::motor_commands` gives them, as [`Fx`] bits.
+    pub motors: [i64; 3],
     /// Forces are enabled (the motors are driven).
     pub enabled: bool,
 }
 
 impl Haptics {
-    pub fn new(force_n: Vec3<Fx>, motors: [i16; 3], enabled: bool) -> Self {
+    pub fn new(force_n: Vec3<Fx>, motors: [Fx; 3], enabled: bool) -> Self {
         Haptics {
             force_n: vec3_bits(force_n),
-            motors,
+            motors: motors.map(Fx::to_bits),
             enabled,
         }
     }
     pub fn force(&self) -> Vec3<Fx> {
         vec3_from_bits(self.force_n)
+    }
+    pub fn motors(&self) -> [Fx; 3] {
+        self.motors.map(Fx::from_bits)
     }
 }
 
@@ -141,6 +144,9 @@ pub struct LayerState {
 pub struct BrushState {
     /// Device tick (1 ms, wrapping).
     pub tick: u32,
+    /// Virtual pen: the `seq` of the last [`PoseSample`] the brush has consumed, so the host
+    /// can set this state beside its own simulation at that tick (0 with real sensors).
+    pub pose_seq: u32,
     pub spine_index: u8,
     pub spine_count: u8,
     /// The handle (ferrule) pose the model used at this tick.
@@ -159,8 +165,15 @@ pub struct BrushState {
 }
 
 impl BrushState {
-    /// The state of a (single-spine) brush at `tick`.
-    pub fn from_brush(brush: &Brush<Fx>, tick: u32, haptics: Haptics, faults: Faults) -> Self {
+    /// The state of a (single-spine) brush at device tick `tick`, after the pose sample
+    /// `pose_seq`.
+    pub fn from_brush(
+        brush: &Brush<Fx>,
+        tick: u32,
+        pose_seq: u32,
+        haptics: Haptics,
+        faults: Faults,
+    ) -> Self {
         let handle = brush.handle();
         let geometry = Geometry::of(brush);
         let mut layers = Vec::new();
@@ -193,6 +206,7 @@ impl BrushState {
         }
         BrushState {
             tick,
+            pose_seq,
             spine_index: 0,
             spine_count: 1,
             handle: handle.into(),

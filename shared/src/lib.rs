@@ -32,6 +32,7 @@ pub mod presets;
 pub mod protocol;
 pub mod quat;
 pub mod scalar;
+pub mod stroke;
 pub mod vec;
 
 pub use brush::{Brush, Layer};

@@ -10,7 +10,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use maobi_shared::{footprint, Brush, BrushParams, Scalar, Vec2};
+use maobi_shared::footprint::{self, Geometry};
+use maobi_shared::{Brush, BrushParams, Scalar, Vec2};
 
 use crate::poses::PoseTrack;
 use crate::raster::{Canvas, Frame, Stamper};
@@ -73,6 +74,8 @@ pub struct Inker {
     spare: Vec<Vec<[f64; 2]>>,
     union: Vec<Vec2<f64>>,
     hull: Vec<Vec2<f64>>,
+    /// Pixel bounds `[x0, y0, x1, y1]` of what the last stamp could have touched.
+    last_bounds: Option<[f64; 4]>,
 }
 
 impl Inker {
@@ -85,6 +88,7 @@ impl Inker {
             spare: Vec::new(),
             union: Vec::new(),
             hull: Vec::new(),
+            last_bounds: None,
         }
     }
 
@@ -95,6 +99,22 @@ impl Inker {
     /// Stamps the brush's current footprint (swept from the previous call's) onto `canvas`.
     /// Returns whether anything touched the paper.
     pub fn stamp<S: Scalar>(&mut self, brush: &Brush<S>, canvas: &mut Canvas) -> bool {
+        self.stamp_geometry(&Geometry::of(brush), canvas)
+    }
+
+    /// Pixel bounds `[x0, y0, x1, y1]` (not clipped to the canvas) of everything the last
+    /// [`Inker::stamp`] could have changed, or `None` if it touched nothing. The GUI
+    /// re-uploads only this region.
+    pub fn last_bounds(&self) -> Option<[f64; 4]> {
+        self.last_bounds
+    }
+
+    /// [`Inker::stamp`] from a brush's geometry (as a device's state frame carries it).
+    pub fn stamp_geometry<S: Scalar>(
+        &mut self,
+        geometry: &Geometry<'_, S>,
+        canvas: &mut Canvas,
+    ) -> bool {
         let Inker {
             frame,
             stamper,
@@ -103,14 +123,26 @@ impl Inker {
             spare,
             union,
             hull,
+            last_bounds,
         } = self;
         stamper.begin();
         let mut any = false;
-        footprint::for_each_polygon(brush, |band, poly| {
+        *last_bounds = None;
+        geometry.for_each_polygon(|band, poly| {
             any = true;
             let mut buf = spare.pop().unwrap_or_default();
             buf.clear();
             buf.extend(poly.iter().map(|p| frame.to_px(p.x.to_f64(), p.y.to_f64())));
+            let olds = prev[band].as_deref().unwrap_or(&[]);
+            for p in buf.iter().chain(olds) {
+                let b = last_bounds.get_or_insert([p[0], p[1], p[0], p[1]]);
+                *b = [
+                    b[0].min(p[0]),
+                    b[1].min(p[1]),
+                    b[2].max(p[0]),
+                    b[3].max(p[1]),
+                ];
+            }
             match &prev[band] {
                 Some(old) => {
                     union.clear();

@@ -17,11 +17,12 @@ use crate::trace::{time_decimals, TraceWriter};
 #[command(
     name = "maobi",
     version,
-    about = "Simulate the Maobi brush from recorded handle poses"
+    about = "The Maobi virtual calligraphy brush: the GUI (no subcommand), or simulate recorded handle poses"
 )]
 pub struct Cli {
+    /// Without a subcommand, opens the GUI with the built-in simulated device.
     #[command(subcommand)]
-    pub command: Command,
+    pub command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -30,6 +31,27 @@ pub enum Command {
     Trace(TraceArgs),
     /// Simulate a pose file and render the ink it leaves as a greyscale PNG.
     Render(RenderArgs),
+    /// Open the desktop GUI with the built-in simulated device (the default command).
+    Gui(GuiArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct GuiArgs {
+    /// Replay this pose CSV (t,x,y,z,qw,qx,qy,qz) through the simulator at start.
+    #[arg(long, value_name = "POSES.csv")]
+    pub replay: Option<PathBuf>,
+    /// After the replay, save a screenshot of the window here and exit.
+    #[arg(long, value_name = "OUT.png")]
+    pub screenshot: Option<PathBuf>,
+    /// Brush preset.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Paper size: a square of this many millimetres centred on the origin.
+    #[arg(long, value_name = "MM", default_value = "200", value_parser = parse_px_per_mm)]
+    pub paper_mm: f64,
+    /// Paper resolution (the default paper is 2000 x 2000 px).
+    #[arg(long, value_name = "N", default_value = "10", value_parser = parse_px_per_mm)]
+    pub px_per_mm: f64,
 }
 
 /// A brush preset chosen on the command line.
@@ -110,8 +132,16 @@ pub fn main() -> ExitCode {
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Trace(a) => run_trace(&a),
-        Command::Render(a) => run_render(&a),
+        Some(Command::Trace(a)) => run_trace(&a),
+        Some(Command::Render(a)) => run_render(&a),
+        Some(Command::Gui(a)) => crate::gui::run(crate::gui::GuiOptions {
+            brush: a.brush.name,
+            replay: a.replay,
+            screenshot: a.screenshot,
+            paper_mm: a.paper_mm,
+            px_per_mm: a.px_per_mm,
+        }),
+        None => crate::gui::run(crate::gui::GuiOptions::default()),
     }
 }
 

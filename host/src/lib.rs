@@ -7,9 +7,11 @@
 //! * [`trace`]: the per-tick trace CSV.
 //! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
 //! * [`render`]: inking a simulated stroke and writing it as PNG.
+//! * [`gui`]: the desktop GUI (`maobi`, `maobi gui`) and its device backends.
 //! * [`cli`]: the command-line interface.
 
 pub mod cli;
+pub mod gui;
 pub mod poses;
 pub mod raster;
 pub mod render;

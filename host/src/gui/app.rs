@@ -1,0 +1,893 @@
+//! The application: panels, controls, and the per-frame loop (poll the device, ink its
+//! frames, draw, send the hand).
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context as _;
+use egui::{Color32, RichText};
+use maobi_shared::force::OutputState;
+use maobi_shared::{presets, ParamId};
+
+use super::brush_view::{self, Orbit};
+use super::canvas::PaperView;
+use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
+use crate::poses::PoseTrack;
+use crate::raster::Frame;
+use crate::render::write_png;
+
+/// Seconds of history in the live plots.
+const PLOT_SECONDS: f64 = 5.0;
+/// Ferrule height above the brush length while the pen is up (mm).
+const HOVER_MM: f64 = 6.0;
+
+/// What the automation (`--replay`, `--screenshot`) should do.
+#[derive(Clone, Debug, Default)]
+pub struct Automation {
+    /// Replay this pose file at start.
+    pub replay: Option<PathBuf>,
+    /// After the replay (or the first frames, without one), save a screenshot here and exit.
+    pub screenshot: Option<PathBuf>,
+}
+
+/// How the run ended, for the process's exit code and the summary on stderr.
+#[derive(Clone, Debug, Default)]
+pub struct Outcome {
+    pub error: Option<String>,
+    pub summary: Vec<String>,
+}
+
+#[derive(Debug)]
+enum Shot {
+    /// Waiting for the replay to finish (counts frames since it did).
+    Waiting(u32),
+    Requested(Arc<Mutex<Option<Arc<egui::ColorImage>>>>, Instant),
+    Done,
+}
+
+/// Frame-time samples (ms).
+#[derive(Default)]
+struct FrameTimes {
+    last: Option<Instant>,
+    /// Interval between frames while the brush was drawing from a replay.
+    replay_interval: Vec<f64>,
+    /// Time spent in `ui` (inking, uploading and building the UI) during the replay.
+    replay_ui: Vec<f64>,
+    recent: VecDeque<[f64; 2]>,
+}
+
+fn percentile(v: &[f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let i = ((s.len() - 1) as f64 * p).round() as usize;
+    s[i]
+}
+
+/// Recording of the pose stream, in the `maobi trace` pose CSV format.
+struct Recorder {
+    path: PathBuf,
+    first_tick: u64,
+    rows: Vec<(u64, maobi_shared::Pose<f64>)>,
+}
+
+pub struct MaobiApp {
+    device: Box<dyn Device>,
+    status: DeviceStatus,
+    paper: PaperView,
+    orbit: Orbit,
+    scratch: Vec<BrushFrame>,
+    latest: Option<BrushFrame>,
+    started: Instant,
+    /// Hand control.
+    hand: HandInput,
+    /// How far the ferrule goes below the brush length when the pen is pressed (mm).
+    press_mm: f64,
+    pen_down: bool,
+    /// Pen pressure in [0, 1] from a touch/pen device, when it reports one.
+    pressure: Option<f32>,
+    /// Live plot data: [t s, value].
+    normal_n: VecDeque<[f64; 2]>,
+    depth_mm: VecDeque<[f64; 2]>,
+    times: FrameTimes,
+    /// The values shown in the parameter editors.
+    param_edit: Vec<f32>,
+    /// Last parameter change's result: (message, is an error).
+    param_msg: Option<(String, bool)>,
+    /// Last general message.
+    message: Option<(String, bool)>,
+    save_path: String,
+    record_path: String,
+    replay_path: String,
+    recorder: Option<Recorder>,
+    automation: Automation,
+    shot: Option<Shot>,
+    replay_started: bool,
+    outcome: Arc<Mutex<Outcome>>,
+    /// Frames seen from replays.
+    replay_frames: u64,
+    /// Screen rectangle of the brush view in the last frame.
+    brush_rect: egui::Rect,
+}
+
+impl MaobiApp {
+    /// The app over `device` (connected here), with a paper of `paper` mapped by `frame`.
+    pub fn new(
+        mut device: Box<dyn Device>,
+        frame: Frame,
+        automation: Automation,
+        outcome: Arc<Mutex<Outcome>>,
+    ) -> MaobiApp {
+        let connect_msg = device
+            .connect()
+            .err()
+            .map(|e| (format!("cannot connect: {e}"), true));
+        let status = device.status();
+        let len = status.params.length_mm as f64;
+        let cx = frame.x0_mm + frame.width as f64 / frame.px_per_mm * 0.5;
+        let cy = frame.y_top_mm - frame.height as f64 / frame.px_per_mm * 0.5;
+        let param_edit = ParamId::ALL.iter().map(|&p| status.params.get(p)).collect();
+        let shot = automation.screenshot.as_ref().map(|_| Shot::Waiting(0));
+        MaobiApp {
+            device,
+            paper: PaperView::new(frame),
+            orbit: Orbit::default(),
+            scratch: Vec::new(),
+            latest: None,
+            started: Instant::now(),
+            hand: HandInput {
+                x: cx,
+                y: cy,
+                z: len + HOVER_MM,
+                tilt_x_deg: 0.0,
+                tilt_y_deg: 0.0,
+            },
+            press_mm: (len * 0.25).clamp(1.0, 20.0),
+            pen_down: false,
+            pressure: None,
+            normal_n: VecDeque::new(),
+            depth_mm: VecDeque::new(),
+            times: FrameTimes::default(),
+            param_edit,
+            param_msg: None,
+            message: connect_msg,
+            save_path: "out/maobi-canvas.png".into(),
+            record_path: "out/maobi-recording.csv".into(),
+            replay_path: automation
+                .replay
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|| "examples/poses/hook.csv".into()),
+            recorder: None,
+            shot,
+            automation,
+            replay_started: false,
+            outcome,
+            status,
+            replay_frames: 0,
+            brush_rect: egui::Rect::NOTHING,
+        }
+    }
+
+    pub fn paper(&self) -> &PaperView {
+        &self.paper
+    }
+    pub fn status(&self) -> &DeviceStatus {
+        &self.status
+    }
+    pub fn latest(&self) -> Option<&BrushFrame> {
+        self.latest.as_ref()
+    }
+    pub fn replay_frames(&self) -> u64 {
+        self.replay_frames
+    }
+
+    /// Starts replaying a pose file through the device.
+    pub fn start_replay(&mut self, path: &Path) -> anyhow::Result<()> {
+        let track = PoseTrack::from_path(path)?;
+        self.device
+            .send(DeviceCommand::Replay(Arc::new(track)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        self.message = Some((format!("replaying {}", path.display()), false));
+        Ok(())
+    }
+
+    /// Sets a parameter on the device; the message shows what happened.
+    pub fn set_param(&mut self, id: ParamId, value: f32) {
+        match self.device.send(DeviceCommand::SetParam(id, value)) {
+            Ok(()) => self.param_msg = Some((format!("{} = {value}", id.name()), false)),
+            Err(e) => {
+                self.param_msg = Some((format!("{} rejected: {e}", id.name()), true));
+            }
+        }
+    }
+
+    /// Starts recording the pose stream to `path` (written by [`Self::stop_recording`]).
+    pub fn start_recording(&mut self, path: &Path) {
+        self.recorder = Some(Recorder {
+            path: path.to_path_buf(),
+            first_tick: 0,
+            rows: Vec::new(),
+        });
+    }
+
+    /// Writes the recording; returns the number of poses.
+    pub fn stop_recording(&mut self) -> anyhow::Result<usize> {
+        let r = self
+            .recorder
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("not recording"))?;
+        write_recording(&r)
+    }
+
+    pub fn undo(&mut self) -> bool {
+        self.paper.undo()
+    }
+    pub fn clear(&mut self) {
+        self.paper.clear();
+    }
+
+    /// Polls the device and inks what arrived.
+    fn pump(&mut self) {
+        let mut frames = std::mem::take(&mut self.scratch);
+        frames.clear();
+        self.device.poll(&mut frames);
+        let was_replaying = self.status.replaying;
+        self.status = self.device.status();
+        let t_now = self.started.elapsed().as_secs_f64();
+        let n = frames.len().max(1) as f64;
+        for (i, f) in frames.iter().enumerate() {
+            self.paper.ink(f);
+            if f.replaying {
+                self.replay_frames += 1;
+            }
+            if let Some(r) = &mut self.recorder {
+                if r.rows.is_empty() {
+                    r.first_tick = f.tick;
+                }
+                r.rows.push((f.tick, f.pose));
+            }
+            // Frames of this UI frame spread over its interval, for the plots.
+            let t = t_now - (n - 1.0 - i as f64) * 1e-3;
+            if i % 4 == 0 {
+                let fn_ = f.force_normal;
+                push(
+                    &mut self.normal_n,
+                    [
+                        t,
+                        (fn_[0] * fn_[0] + fn_[1] * fn_[1] + fn_[2] * fn_[2]).sqrt(),
+                    ],
+                );
+                push(&mut self.depth_mm, [t, f.depth_mm]);
+            }
+        }
+        if let Some(f) = frames.pop() {
+            self.latest = Some(f);
+        }
+        self.scratch = frames;
+        if was_replaying && !self.status.replaying {
+            // Hand control back where the replay left the brush, lifted.
+            if let Some(f) = &self.latest {
+                let p = f.pose.pos.to_f64();
+                self.hand.x = p[0];
+                self.hand.y = p[1];
+            }
+            self.message = Some(("replay finished".into(), false));
+        }
+    }
+
+    fn automation(&mut self, ctx: &egui::Context) {
+        if !self.replay_started {
+            self.replay_started = true;
+            if let Some(p) = self.automation.replay.clone() {
+                if let Err(e) = self.start_replay(&p) {
+                    self.fail(ctx, format!("cannot replay {}: {e:#}", p.display()));
+                    return;
+                }
+            }
+        }
+        let replay_done = self.automation.replay.is_none()
+            || (self.status.replays_done > 0 && !self.status.replaying);
+        let Some(shot) = self.shot.take() else { return };
+        self.shot = Some(match shot {
+            Shot::Waiting(k) if !replay_done => Shot::Waiting(k),
+            // A few frames after the replay: the queue is drained and the last ink shown.
+            Shot::Waiting(k) if k < 5 => Shot::Waiting(k + 1),
+            Shot::Waiting(_) => {
+                let slot = Arc::new(Mutex::new(None));
+                let s2 = slot.clone();
+                ctx.request_screenshot(move |img| {
+                    if let Ok(mut s) = s2.lock() {
+                        *s = Some(img);
+                    }
+                });
+                Shot::Requested(slot, Instant::now())
+            }
+            Shot::Requested(slot, since) => {
+                let img = slot.lock().ok().and_then(|mut s| s.take());
+                match img {
+                    Some(img) => {
+                        let path = self.automation.screenshot.clone().unwrap_or_default();
+                        match self.save_screenshot(ctx, &img, &path) {
+                            Ok(()) => {
+                                self.finish_summary();
+                                ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+                            }
+                            Err(e) => self.fail(ctx, format!("{e:#}")),
+                        }
+                        Shot::Done
+                    }
+                    None if since.elapsed() > Duration::from_secs(20) => {
+                        self.fail(ctx, "the screenshot never arrived (20 s)".into());
+                        Shot::Done
+                    }
+                    None => Shot::Requested(slot, since),
+                }
+            }
+            Shot::Done => Shot::Done,
+        });
+    }
+
+    fn fail(&mut self, ctx: &egui::Context, msg: String) {
+        if let Ok(mut o) = self.outcome.lock() {
+            o.error = Some(msg);
+        }
+        self.finish_summary();
+        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+    }
+
+    /// Writes the frame-time and ink summary into the outcome (printed at exit).
+    fn finish_summary(&mut self) {
+        let c = self.paper.canvas();
+        let t = &self.times;
+        let mut lines = vec![format!(
+            "maobi gui: canvas {} x {} px, ink {:.2}%, {} strokes, {} replay ticks, {} frames dropped, {} ticks late",
+            c.width(),
+            c.height(),
+            c.ink_fraction() * 100.0,
+            self.paper.strokes(),
+            self.replay_frames,
+            self.status.frames_dropped,
+            self.status.ticks_late
+        )];
+        if !t.replay_interval.is_empty() {
+            lines.push(format!(
+                "maobi gui: frame time while drawing ({} frames): median {:.1} ms, p99 {:.1} ms; ui+ink+upload median {:.2} ms, p99 {:.2} ms",
+                t.replay_interval.len(),
+                percentile(&t.replay_interval, 0.5),
+                percentile(&t.replay_interval, 0.99),
+                percentile(&t.replay_ui, 0.5),
+                percentile(&t.replay_ui, 0.99),
+            ));
+        }
+        if let Ok(mut o) = self.outcome.lock() {
+            o.summary = lines;
+        }
+    }
+
+    fn save_screenshot(
+        &self,
+        ctx: &egui::Context,
+        img: &egui::ColorImage,
+        path: &Path,
+    ) -> anyhow::Result<()> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+        }
+        let [w, h] = img.size;
+        let mut bytes = Vec::with_capacity(w * h * 4);
+        for p in &img.pixels {
+            bytes.extend_from_slice(&p.to_array());
+        }
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header()?;
+        wr.write_image_data(&bytes)?;
+        wr.finish()?;
+        // Where the views are, in the screenshot's pixels, for the checker.
+        let ppp = ctx.pixels_per_point();
+        let r = |r: egui::Rect| {
+            format!(
+                "{} {} {} {}",
+                (r.min.x * ppp).round(),
+                (r.min.y * ppp).round(),
+                (r.max.x * ppp).round(),
+                (r.max.y * ppp).round()
+            )
+        };
+        let layout = format!(
+            "canvas {}\nbrush {}\n",
+            r(self.paper.view_rect),
+            r(self.brush_rect)
+        );
+        let lpath = layout_path(path);
+        std::fs::write(&lpath, layout)
+            .with_context(|| format!("cannot write {}", lpath.display()))?;
+        Ok(())
+    }
+}
+
+/// Where `--screenshot OUT.png` writes the views' rectangles: `OUT.png.layout`.
+pub fn layout_path(png: &Path) -> PathBuf {
+    let mut s = png.as_os_str().to_owned();
+    s.push(".layout");
+    PathBuf::from(s)
+}
+
+fn push(q: &mut VecDeque<[f64; 2]>, p: [f64; 2]) {
+    q.push_back(p);
+    while q.front().is_some_and(|f| f[0] < p[0] - PLOT_SECONDS) {
+        q.pop_front();
+    }
+}
+
+fn output_label(s: OutputState) -> (&'static str, Color32) {
+    match s {
+        OutputState::Disabled => ("forces off", Color32::GRAY),
+        OutputState::RampingIn => ("forces ramping in", Color32::from_rgb(220, 180, 60)),
+        OutputState::Active => ("forces active", Color32::from_rgb(80, 200, 100)),
+        OutputState::Faulted => ("FAULT: forces held at zero", Color32::from_rgb(230, 70, 60)),
+    }
+}
+
+impl MaobiApp {
+    fn toolbar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal_wrapped(|ui| {
+            if self.status.connected {
+                if ui.button("Disconnect").clicked() {
+                    self.device.disconnect();
+                }
+            } else if ui.button("Connect").clicked() {
+                if let Err(e) = self.device.connect() {
+                    self.message = Some((format!("cannot connect: {e}"), true));
+                }
+            }
+            ui.separator();
+            let mut preset = self.status.preset.clone();
+            egui::ComboBox::from_label("brush")
+                .selected_text(preset.clone())
+                .show_ui(ui, |ui| {
+                    for (name, _) in presets::PRESETS {
+                        ui.selectable_value(&mut preset, name.to_string(), name);
+                    }
+                });
+            if preset != self.status.preset {
+                match self.device.send(DeviceCommand::Preset(preset.clone())) {
+                    Ok(()) => {
+                        if let Some(p) = presets::by_name(&preset) {
+                            self.param_edit = ParamId::ALL.iter().map(|&i| p.get(i)).collect();
+                        }
+                        self.message = Some((format!("brush: {preset}"), false));
+                    }
+                    Err(e) => self.message = Some((e.to_string(), true)),
+                }
+            }
+            if ui.button("Dip ink").clicked() {
+                let _ = self.device.send(DeviceCommand::Dip(1.0));
+            }
+            let enabled = self.status.forces_enabled;
+            let out = self.latest.as_ref().map(|f| f.output);
+            if ui
+                .selectable_label(enabled, "Forces")
+                .on_hover_text("Enable the force output (it ramps in)")
+                .clicked()
+            {
+                let _ = self.device.send(DeviceCommand::EnableForces(!enabled));
+            }
+            if let Some(o) = out {
+                let (t, c) = output_label(o);
+                ui.label(RichText::new(t).color(c));
+                if o == OutputState::Faulted && ui.button("Clear fault").clicked() {
+                    let _ = self.device.send(DeviceCommand::ClearFault);
+                }
+            }
+            ui.separator();
+            if ui
+                .add_enabled(
+                    self.paper.undo_depth() > 0,
+                    egui::Button::new("Undo stroke"),
+                )
+                .clicked()
+            {
+                self.undo();
+            }
+            if ui.button("Clear").clicked() {
+                self.clear();
+            }
+            if ui.button("Fit").clicked() {
+                self.paper.fit();
+            }
+            if ui.button("1:1").clicked() {
+                self.paper.actual_size(ui.ctx());
+            }
+        });
+        ui.horizontal_wrapped(|ui| {
+            let l = ui.label("PNG file");
+            ui.add(egui::TextEdit::singleline(&mut self.save_path).desired_width(180.0))
+                .labelled_by(l.id);
+            if ui.button("Save PNG").clicked() {
+                let path = PathBuf::from(&self.save_path);
+                self.message = Some(match write_png(self.paper.canvas(), &path) {
+                    Ok(()) => (format!("saved {}", path.display()), false),
+                    Err(e) => (format!("{e:#}"), true),
+                });
+            }
+            ui.separator();
+            let l = ui.label("pose recording");
+            ui.add(egui::TextEdit::singleline(&mut self.record_path).desired_width(180.0))
+                .labelled_by(l.id);
+            if self.recorder.is_some() {
+                if ui.button("Stop recording").clicked() {
+                    let path = self.record_path.clone();
+                    self.message = Some(match self.stop_recording() {
+                        Ok(n) => (format!("recorded {n} poses to {path}"), false),
+                        Err(e) => (format!("{e:#}"), true),
+                    });
+                }
+            } else if ui.button("Record poses").clicked() {
+                let p = PathBuf::from(&self.record_path);
+                self.start_recording(&p);
+            }
+            ui.separator();
+            let l = ui.label("pose file");
+            ui.add(egui::TextEdit::singleline(&mut self.replay_path).desired_width(180.0))
+                .labelled_by(l.id);
+            if self.status.replaying {
+                if ui.button("Stop replay").clicked() {
+                    let _ = self.device.send(DeviceCommand::StopReplay);
+                }
+            } else if ui.button("Replay").clicked() {
+                let p = PathBuf::from(&self.replay_path);
+                if let Err(e) = self.start_replay(&p) {
+                    self.message = Some((format!("cannot replay: {e:#}"), true));
+                }
+            }
+        });
+        if let Some((m, err)) = &self.message {
+            let c = if *err {
+                Color32::from_rgb(230, 80, 70)
+            } else {
+                ui.visuals().text_color()
+            };
+            ui.label(RichText::new(m).color(c));
+        }
+    }
+
+    fn params_panel(&mut self, ui: &mut egui::Ui) {
+        ui.heading("Parameters");
+        ui.label(
+            RichText::new(
+                "Checked by the model before they apply; a rejected value keeps the old one.",
+            )
+            .small(),
+        );
+        if let Some((m, err)) = &self.param_msg {
+            let c = if *err {
+                Color32::from_rgb(230, 80, 70)
+            } else {
+                Color32::from_rgb(90, 190, 110)
+            };
+            ui.label(RichText::new(m).color(c));
+        }
+        let mut changed = None;
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            egui::Grid::new("params")
+                .num_columns(2)
+                .striped(true)
+                .show(ui, |ui| {
+                    for (i, &id) in ParamId::ALL.iter().enumerate() {
+                        let (lo, hi, whole) = id.range();
+                        let label = ui.label(id.name()).on_hover_text(format!("{lo} ..= {hi}"));
+                        let speed = ((hi - lo) as f64 / 500.0).min(1.0);
+                        let mut dv = egui::DragValue::new(&mut self.param_edit[i]).speed(speed);
+                        if whole {
+                            dv = dv.fixed_decimals(0);
+                        }
+                        let r = ui.add(dv).labelled_by(label.id);
+                        if r.changed() {
+                            changed = Some((id, self.param_edit[i]));
+                        }
+                        ui.end_row();
+                    }
+                });
+        });
+        if let Some((id, v)) = changed {
+            self.set_param(id, v);
+        }
+    }
+
+    fn plots(&mut self, ui: &mut egui::Ui) {
+        use egui_plot::{Line, Plot};
+        let h = ((ui.available_height() - 60.0) / 3.0).max(50.0);
+        let now = self.started.elapsed().as_secs_f64();
+        let x0 = now - PLOT_SECONDS;
+        let series = [
+            (
+                "normal force (N)",
+                &self.normal_n,
+                Color32::from_rgb(240, 120, 80),
+            ),
+            (
+                "depth (mm)",
+                &self.depth_mm,
+                Color32::from_rgb(90, 160, 255),
+            ),
+            (
+                "frame time (ms)",
+                &self.times.recent,
+                Color32::from_rgb(120, 220, 120),
+            ),
+        ];
+        for (name, data, color) in series {
+            ui.label(name);
+            Plot::new(name)
+                .height(h)
+                .include_x(x0)
+                .include_x(now)
+                .include_y(0.0)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .show_x(false)
+                .show(ui, |p| {
+                    let pts: Vec<[f64; 2]> = data.iter().copied().collect();
+                    p.line(Line::new(name, pts).color(color));
+                });
+        }
+    }
+
+    fn status_bar(&mut self, ui: &mut egui::Ui) {
+        let s = &self.status;
+        ui.horizontal(|ui| {
+            let (dot, c) = if s.connected {
+                ("connected", Color32::from_rgb(80, 200, 100))
+            } else {
+                ("disconnected", Color32::from_rgb(230, 80, 70))
+            };
+            ui.label(RichText::new(s.name.clone()).strong());
+            ui.label(RichText::new(dot).color(c));
+            ui.separator();
+            ui.label(format!(
+                "protocol {}  firmware {}",
+                s.protocol_version.map_or("-".into(), |v| v.to_string()),
+                s.firmware_version.as_deref().unwrap_or("-")
+            ));
+            ui.separator();
+            if s.faults.is_empty() {
+                ui.label("no faults");
+            } else {
+                ui.label(RichText::new(s.faults.join("; ")).color(Color32::from_rgb(230, 80, 70)));
+            }
+            ui.separator();
+            ui.label(format!("frames dropped {}  ticks late {}", s.frames_dropped, s.ticks_late));
+            ui.separator();
+            if let Some(f) = &self.latest {
+                let p = f.pose.pos.to_f64();
+                ui.label(format!(
+                    "tick {}  ferrule ({:.1}, {:.1}, {:.1}) mm  tilt ({:.0}, {:.0})°  press {:.1} mm{}",
+                    f.tick,
+                    p[0],
+                    p[1],
+                    p[2],
+                    self.hand.tilt_x_deg,
+                    self.hand.tilt_y_deg,
+                    self.press_mm,
+                    if s.replaying { "  REPLAY" } else { "" }
+                ));
+            }
+            ui.separator();
+            ui.label(format!(
+                "canvas {}x{}  upload {} px  undo {}",
+                self.paper.frame().width,
+                self.paper.frame().height,
+                self.paper.uploaded_px,
+                self.paper.undo_depth()
+            ));
+            if self.recorder.is_some() {
+                ui.label(RichText::new("REC").color(Color32::from_rgb(230, 60, 60)));
+            }
+        });
+    }
+
+    /// Keys and pointer to the hand: pointer x/y on the paper, press with the primary button
+    /// (depth from pen pressure when reported, else W/S or the wheel), tilt with the arrows.
+    fn hand_input(&mut self, ctx: &egui::Context, over_paper: super::canvas::PaperPointer) {
+        if !ctx.egui_wants_keyboard_input() {
+            ctx.input(|i| {
+                let dt = i.stable_dt.min(0.1) as f64;
+                if i.key_down(egui::Key::W) {
+                    self.press_mm += 8.0 * dt;
+                }
+                if i.key_down(egui::Key::S) {
+                    self.press_mm -= 8.0 * dt;
+                }
+                let rate = 30.0 * dt;
+                if i.key_down(egui::Key::ArrowUp) {
+                    self.hand.tilt_x_deg -= rate;
+                }
+                if i.key_down(egui::Key::ArrowDown) {
+                    self.hand.tilt_x_deg += rate;
+                }
+                if i.key_down(egui::Key::ArrowLeft) {
+                    self.hand.tilt_y_deg -= rate;
+                }
+                if i.key_down(egui::Key::ArrowRight) {
+                    self.hand.tilt_y_deg += rate;
+                }
+                if i.key_pressed(egui::Key::R) {
+                    self.hand.tilt_x_deg = 0.0;
+                    self.hand.tilt_y_deg = 0.0;
+                }
+            });
+        }
+        let len = self.status.params.length_mm as f64;
+        self.hand.tilt_x_deg = self.hand.tilt_x_deg.clamp(-45.0, 45.0);
+        self.hand.tilt_y_deg = self.hand.tilt_y_deg.clamp(-45.0, 45.0);
+        self.pressure = ctx.input(|i| {
+            i.events.iter().rev().find_map(|e| match e {
+                egui::Event::Touch {
+                    force,
+                    phase: egui::TouchPhase::Start | egui::TouchPhase::Move,
+                    ..
+                } => *force,
+                _ => None,
+            })
+        });
+        if let Some(mm) = over_paper.mm {
+            let wheel = ctx.input(|i| {
+                if i.modifiers.command {
+                    0.0
+                } else {
+                    i.smooth_scroll_delta.y
+                }
+            });
+            self.press_mm += wheel as f64 * 0.02;
+            self.hand.x = mm[0];
+            self.hand.y = mm[1];
+        }
+        self.press_mm = self.press_mm.clamp(0.0, len * 0.8);
+        self.pen_down = over_paper.pressed;
+        let depth = match (self.pen_down, self.pressure) {
+            (true, Some(p)) => self.press_mm * (p as f64 * 1.5).min(1.5),
+            (true, None) => self.press_mm,
+            (false, _) => -HOVER_MM,
+        };
+        self.hand.z = len - depth;
+        if !self.status.replaying {
+            let _ = self.device.send(DeviceCommand::Hand(self.hand));
+        }
+    }
+
+    /// Draws the brush's position on the paper view.
+    fn overlay(&self, ui: &egui::Ui) {
+        let Some(f) = &self.latest else { return };
+        let p = f.pose.pos.to_f64();
+        let at = self.paper.mm_to_screen(p[0], p[1]);
+        let painter = ui.painter_at(self.paper.view_rect);
+        let c = if f.contacts() > 0 {
+            Color32::from_rgb(220, 60, 50)
+        } else {
+            Color32::from_rgb(60, 110, 220)
+        };
+        painter.circle_stroke(at, 6.0, egui::Stroke::new(1.5, c));
+        painter.line_segment(
+            [at - egui::vec2(10.0, 0.0), at + egui::vec2(10.0, 0.0)],
+            (1.0, c),
+        );
+        painter.line_segment(
+            [at - egui::vec2(0.0, 10.0), at + egui::vec2(0.0, 10.0)],
+            (1.0, c),
+        );
+    }
+}
+
+impl MaobiApp {
+    /// One frame of the whole UI into `ui` (the root).
+    pub fn frame_ui(&mut self, ui: &mut egui::Ui) {
+        let begin = Instant::now();
+        let ctx = ui.ctx().clone();
+        let interval = self.times.last.map(|l| (begin - l).as_secs_f64() * 1e3);
+        self.times.last = Some(begin);
+        self.pump();
+        let drawing = self.status.replaying || self.latest.as_ref().is_some_and(|f| f.replaying);
+
+        egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
+        egui::Panel::bottom("status").show(ui, |ui| self.status_bar(ui));
+        egui::Panel::left("params")
+            .resizable(true)
+            .default_size(260.0)
+            .show(ui, |ui| self.params_panel(ui));
+        egui::Panel::right("views")
+            .resizable(true)
+            .default_size(380.0)
+            .show(ui, |ui| {
+                let h = ui.available_height() * 0.55;
+                ui.allocate_ui(egui::vec2(ui.available_width(), h), |ui| {
+                    self.brush_rect = brush_view::show(ui, &mut self.orbit, self.latest.as_ref());
+                });
+                self.plots(ui);
+            });
+        let mut pointer = super::canvas::PaperPointer::default();
+        egui::CentralPanel::default().show(ui, |ui| {
+            let (_, p) = self.paper.show(ui);
+            pointer = p;
+            self.overlay(ui);
+        });
+        self.hand_input(&ctx, pointer);
+        self.automation(&ctx);
+
+        let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
+        if let Some(iv) = interval {
+            push(
+                &mut self.times.recent,
+                [self.started.elapsed().as_secs_f64(), iv],
+            );
+            if drawing {
+                self.times.replay_interval.push(iv);
+                self.times.replay_ui.push(ui_ms);
+            }
+        }
+        // A live view: ~60 frames per second while connected.
+        ctx.request_repaint_after(Duration::from_millis(15));
+    }
+}
+
+impl eframe::App for MaobiApp {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.frame_ui(ui);
+    }
+
+    fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {
+        if self
+            .outcome
+            .lock()
+            .map(|o| o.summary.is_empty())
+            .unwrap_or(false)
+        {
+            self.finish_summary();
+        }
+        self.device.disconnect();
+    }
+}
+
+fn write_recording(r: &Recorder) -> anyhow::Result<usize> {
+    if let Some(dir) = r.path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    let file = std::fs::File::create(&r.path)
+        .with_context(|| format!("cannot create {}", r.path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    writeln!(w, "t,x,y,z,qw,qx,qy,qz")?;
+    for (tick, pose) in &r.rows {
+        let t = (tick - r.first_tick) as f64 * 1e-3;
+        let p = pose.pos.to_f64();
+        let q = pose.rot.to_f64();
+        writeln!(
+            w,
+            "{t:.3},{:.4},{:.4},{:.4},{:.9},{:.9},{:.9},{:.9}",
+            p[0], p[1], p[2], q[0], q[1], q[2], q[3]
+        )?;
+    }
+    w.flush()
+        .with_context(|| format!("cannot write {}", r.path.display()))?;
+    Ok(r.rows.len())
+}
+
+/// Records the frames' poses as a pose CSV (for tests and scripting).
+pub fn record_frames(path: &Path, frames: &[BrushFrame]) -> anyhow::Result<usize> {
+    let r = Recorder {
+        path: path.to_path_buf(),
+        first_tick: frames.first().map_or(0, |f| f.tick),
+        rows: frames.iter().map(|f| (f.tick, f.pose)).collect(),
+    };
+    write_recording(&r)
+}

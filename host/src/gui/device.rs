@@ -1,0 +1,180 @@
+//! What the GUI talks to: "a device" that runs the brush model and sends back its state.
+//!
+//! The GUI never touches a [`Brush`](maobi_shared::Brush) directly. It sends the hand's pose
+//! and commands through a [`Device`] and draws the [`BrushFrame`]s that come back (one per
+//! 1 ms model tick), so a real pen on a serial link and the built-in simulator look the same
+//! to it.
+//!
+//! Backends:
+//! * [`crate::gui::sim::SimDevice`]: the built-in simulator (the shared model on the host).
+//! * TODO(serial): a pen on USB serial, speaking `maobi_shared::protocol` (the wire protocol
+//!   is being written in parallel; this backend lands after it).
+//! * TODO(tcp): the QEMU firmware's UART bridged over TCP, same protocol.
+//!
+//! Neither TODO backend exists yet and the GUI does not offer them.
+
+use std::fmt;
+use std::sync::Arc;
+
+use maobi_shared::footprint::Geometry;
+use maobi_shared::force::OutputState;
+use maobi_shared::{BrushParams, Fx, Layer, ParamId, Pose, Vec3};
+
+use crate::poses::PoseTrack;
+
+/// The brush's state after one model tick, as a device reports it.
+#[derive(Clone, Debug)]
+pub struct BrushFrame {
+    /// Model tick number since the device started.
+    pub tick: u64,
+    /// The handle (ferrule) pose the model was driven to.
+    pub pose: Pose<f64>,
+    /// Spine masses S_i (mm), S_0 at the ferrule.
+    pub spine: Vec<Vec3<Fx>>,
+    /// Virtual skeleton nodes VS_i (mm).
+    pub skeleton: Vec<Vec3<Fx>>,
+    /// Each layer's surface ellipse.
+    pub layers: Vec<Layer<Fx>>,
+    pub in_contact: Vec<bool>,
+    /// K, nodes per surface ring.
+    pub ring_nodes: usize,
+    /// Surface at or below this height inks (mm).
+    pub eps: Fx,
+    /// The force model's output (N): total, and its normal part.
+    pub force_total: [f64; 3],
+    pub force_normal: [f64; 3],
+    /// Depth of the virtual skeleton below the paper (mm).
+    pub depth_mm: f64,
+    /// What the output stage commands the motors (N) after ramp, clamp and passivity control.
+    pub command: [f64; 3],
+    pub output: OutputState,
+    /// The device is driving this tick from a pose file, not from the hand.
+    pub replaying: bool,
+}
+
+impl BrushFrame {
+    /// The geometry the footprint and the drawing are computed from.
+    pub fn geometry(&self) -> Geometry<'_, Fx> {
+        Geometry {
+            spine: &self.spine,
+            layers: &self.layers,
+            ring_nodes: self.ring_nodes,
+            eps: self.eps,
+        }
+    }
+
+    pub fn contacts(&self) -> usize {
+        self.in_contact.iter().filter(|&&c| c).count()
+    }
+}
+
+/// Where the GUI wants the hand (the ferrule) to be.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct HandInput {
+    /// Paper position (mm).
+    pub x: f64,
+    pub y: f64,
+    /// Ferrule height above the paper (mm).
+    pub z: f64,
+    /// Tilt about the paper's x and y axes (degrees); 0, 0 holds the brush straight down.
+    pub tilt_x_deg: f64,
+    pub tilt_y_deg: f64,
+}
+
+impl HandInput {
+    pub fn pose(&self) -> Pose<f64> {
+        let (ax, ay) = (
+            self.tilt_x_deg.to_radians() * 0.5,
+            self.tilt_y_deg.to_radians() * 0.5,
+        );
+        let qx = maobi_shared::Quat::new(ax.cos(), ax.sin(), 0.0, 0.0);
+        let qy = maobi_shared::Quat::new(ay.cos(), 0.0, ay.sin(), 0.0);
+        Pose::new(
+            Vec3::new(self.x, self.y, self.z),
+            qy.compose(qx).normalized(),
+        )
+    }
+}
+
+/// A command to the device.
+#[derive(Clone, Debug)]
+pub enum DeviceCommand {
+    /// Move the hand toward this pose (the device limits the speed as a hand would).
+    Hand(HandInput),
+    /// Enable or disable the force output (it ramps in and out).
+    EnableForces(bool),
+    /// Clear a latched output-stage fault.
+    ClearFault,
+    /// Wet every layer to this wetness in [0, 1].
+    Dip(f32),
+    /// Replace all parameters with a preset's (by name, see `maobi_shared::presets`).
+    Preset(String),
+    /// Set one parameter; validated before it is sent.
+    SetParam(ParamId, f32),
+    /// Drive the model from a pose file, tick by tick, then hand control back.
+    Replay(Arc<PoseTrack>),
+    /// Stop a replay.
+    StopReplay,
+}
+
+/// Why a command was not carried out.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DeviceError {
+    NotConnected,
+    /// The device (or the shared validation in front of it) refused the command.
+    Rejected(String),
+    /// The link failed.
+    Link(String),
+}
+
+impl fmt::Display for DeviceError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DeviceError::NotConnected => f.write_str("not connected"),
+            DeviceError::Rejected(why) => write!(f, "rejected: {why}"),
+            DeviceError::Link(why) => write!(f, "link error: {why}"),
+        }
+    }
+}
+
+impl std::error::Error for DeviceError {}
+
+/// What the status bar shows.
+#[derive(Clone, Debug)]
+pub struct DeviceStatus {
+    /// Human-readable device name ("built-in simulator", a port name, ...).
+    pub name: String,
+    pub connected: bool,
+    /// Wire protocol version, when the device speaks one.
+    pub protocol_version: Option<u32>,
+    pub firmware_version: Option<String>,
+    /// Faults the device reports (empty when healthy).
+    pub faults: Vec<String>,
+    /// State frames lost between the device and the GUI.
+    pub frames_dropped: u64,
+    /// Model ticks the device could not run in real time (it fell behind and skipped).
+    pub ticks_late: u64,
+    /// The parameters in force on the device.
+    pub params: BrushParams,
+    /// Name of the preset the parameters started from.
+    pub preset: String,
+    pub forces_enabled: bool,
+    /// A replay is running.
+    pub replaying: bool,
+    /// Replays finished since connecting.
+    pub replays_done: u64,
+}
+
+/// A source of brush state that takes commands: the built-in simulator or a real pen.
+pub trait Device {
+    /// Opens the link (for the simulator: starts the model).
+    fn connect(&mut self) -> Result<(), DeviceError>;
+    /// Closes the link; the device's output stage fades its forces out.
+    fn disconnect(&mut self);
+    fn status(&self) -> DeviceStatus;
+    /// Appends the frames that arrived since the last call, oldest first.
+    fn poll(&mut self, out: &mut Vec<BrushFrame>);
+    /// Sends a command. Parameters are validated (with the shared model's own checks) before
+    /// anything is sent, so a rejection comes back here.
+    fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError>;
+}

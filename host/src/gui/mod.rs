@@ -1,0 +1,156 @@
+//! The desktop GUI (eframe over glow): the paper with its ink, the brush in 3D, live plots,
+//! controls and a status bar, over a [`device::Device`] (for now the built-in simulator).
+//!
+//! * [`device`]: the device-backend trait the GUI talks through.
+//! * [`sim`]: the built-in simulator backend.
+//! * [`canvas`]: the paper view (ink, partial texture uploads, zoom, pan, undo).
+//! * [`brush_view`]: the brush in 3D.
+//! * [`app`]: the application and its automation (`--replay`, `--screenshot`).
+
+pub mod app;
+pub mod brush_view;
+pub mod canvas;
+pub mod device;
+pub mod sim;
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use anyhow::bail;
+
+use crate::raster::Frame;
+use app::{Automation, MaobiApp, Outcome};
+use device::HandInput;
+use sim::{SimClock, SimDevice};
+
+/// What the headless commands are, for the error when there is no display.
+pub const HEADLESS_HINT: &str = "without a display, use the headless commands: \
+`maobi render --poses FILE.csv -o OUT.png` (ink to PNG) or `maobi trace --poses FILE.csv -o TRACE.csv`; \
+or run the GUI under a virtual display: `xvfb-run -a maobi gui ...`";
+
+/// Options of `maobi gui`.
+#[derive(Clone, Debug)]
+pub struct GuiOptions {
+    /// Brush preset name.
+    pub brush: String,
+    pub replay: Option<PathBuf>,
+    pub screenshot: Option<PathBuf>,
+    /// Paper size (mm, square, centred on the origin) and resolution.
+    pub paper_mm: f64,
+    pub px_per_mm: f64,
+}
+
+impl Default for GuiOptions {
+    fn default() -> Self {
+        GuiOptions {
+            brush: "large".into(),
+            replay: None,
+            screenshot: None,
+            paper_mm: 200.0,
+            px_per_mm: 10.0,
+        }
+    }
+}
+
+impl GuiOptions {
+    /// The paper's frame: `paper_mm` square centred on the origin.
+    pub fn frame(&self) -> Frame {
+        let h = self.paper_mm / 2.0;
+        Frame::covering([-h, -h], [h, h], 0.0, self.px_per_mm)
+    }
+}
+
+/// The hand's start: above the paper's centre, the brush hanging straight down.
+pub fn start_hand(length_mm: f64) -> HandInput {
+    HandInput {
+        x: 0.0,
+        y: 0.0,
+        z: length_mm + 6.0,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
+    }
+}
+
+/// Whether there is a display to open a window on.
+pub fn have_display() -> bool {
+    if cfg!(any(target_os = "windows", target_os = "macos")) {
+        return true;
+    }
+    ["DISPLAY", "WAYLAND_DISPLAY"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
+}
+
+/// Opens the GUI and runs it until the window closes (or the automation finishes).
+pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
+    if !(opts.px_per_mm.is_finite() && opts.px_per_mm > 0.0) {
+        bail!("--px-per-mm must be a positive number");
+    }
+    if !(opts.paper_mm.is_finite() && opts.paper_mm > 0.0) {
+        bail!("--paper-mm must be a positive number");
+    }
+    let frame = opts.frame();
+    if frame.width > 8192 || frame.height > 8192 {
+        bail!(
+            "the paper would be {} x {} px; the GUI shows at most 8192 x 8192: use a smaller --paper-mm or --px-per-mm",
+            frame.width,
+            frame.height
+        );
+    }
+    // Check the inputs before opening a window.
+    if let Some(p) = &opts.replay {
+        crate::poses::PoseTrack::from_path(p)?;
+    }
+    let params = maobi_shared::presets::by_name(&opts.brush).ok_or_else(|| {
+        anyhow::anyhow!(
+            "unknown brush `{}`; valid brushes: {}",
+            opts.brush,
+            maobi_shared::presets::NAMES
+        )
+    })?;
+    if !have_display() {
+        bail!("no display: neither DISPLAY nor WAYLAND_DISPLAY is set; {HEADLESS_HINT}");
+    }
+    let device = SimDevice::new(
+        SimClock::RealTime,
+        &opts.brush,
+        start_hand(params.length_mm as f64),
+    )
+    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let outcome = Arc::new(Mutex::new(Outcome::default()));
+    let automation = Automation {
+        replay: opts.replay.clone(),
+        screenshot: opts.screenshot.clone(),
+    };
+    let native = eframe::NativeOptions {
+        renderer: eframe::Renderer::Glow,
+        viewport: egui::ViewportBuilder::default()
+            .with_title("Maobi")
+            .with_inner_size([1400.0, 900.0]),
+        ..Default::default()
+    };
+    let out2 = outcome.clone();
+    let result = eframe::run_native(
+        "maobi",
+        native,
+        Box::new(move |_cc| {
+            Ok(Box::new(MaobiApp::new(
+                Box::new(device),
+                frame,
+                automation,
+                out2,
+            )))
+        }),
+    );
+    let outcome = outcome.lock().map(|o| o.clone()).unwrap_or_default();
+    for line in &outcome.summary {
+        eprintln!("{line}");
+    }
+    if let Err(e) = result {
+        bail!("cannot open the GUI window: {e}; {HEADLESS_HINT}");
+    }
+    if let Some(e) = outcome.error {
+        bail!("{e}");
+    }
+    Ok(())
+}

@@ -1,0 +1,459 @@
+//! The built-in simulated device: the shared brush model (`Brush<Fx>`, the device's number
+//! type), the force model and an output stage, ticking at 1 kHz.
+//!
+//! Two clocks:
+//! * [`SimClock::RealTime`]: a background thread runs the ticks that are due by the wall
+//!   clock, so the UI never waits on the model. If the thread falls more than
+//!   [`MAX_BEHIND_TICKS`] behind it skips ahead and counts the ticks as late. Frames go to the
+//!   GUI through a bounded queue; when it is full (a stalled UI) live frames are dropped and
+//!   counted, but replay frames wait, so a replay's ink is always complete.
+//! * [`SimClock::Stepped`]: no thread; each [`Device::poll`] runs a fixed number of ticks.
+//!   Deterministic, for tests.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, Sender, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+
+use super::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
+
+/// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
+pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
+/// Fraction of the remaining rotation toward the target tilt per tick.
+const HAND_TURN_PER_TICK: f64 = 0.02;
+/// Queue of frames between the model thread and the GUI (4 s at 1 kHz).
+pub const FRAME_QUEUE: usize = 4096;
+/// Ticks the real-time thread may fall behind before it skips ahead.
+pub const MAX_BEHIND_TICKS: u64 = 100;
+
+/// How the simulator keeps time.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum SimClock {
+    RealTime,
+    /// Each poll runs this many ticks.
+    Stepped(usize),
+}
+
+/// The model and its inputs; no threads, no clock.
+pub struct SimCore {
+    brush: Brush<Fx>,
+    model: ForceModel<Fx>,
+    stage: OutputStage<Fx>,
+    preset: String,
+    hand: Pose<f64>,
+    target: HandInput,
+    replay: Option<(Vec<Pose<f64>>, usize)>,
+    replays_done: u64,
+    tick: u64,
+}
+
+impl SimCore {
+    /// The brush `preset`, hanging at rest at `hand`.
+    pub fn new(preset: &str, hand: HandInput) -> Result<SimCore, DeviceError> {
+        let params = presets::by_name(preset).ok_or_else(|| {
+            DeviceError::Rejected(format!(
+                "unknown brush `{preset}`; valid brushes: {}",
+                presets::NAMES
+            ))
+        })?;
+        let pose = hand.pose();
+        let brush =
+            Brush::new(params, pose.cast()).map_err(|e| DeviceError::Rejected(e.to_string()))?;
+        let model =
+            ForceModel::new(DEFAULT_FORCES).map_err(|e| DeviceError::Rejected(e.to_string()))?;
+        let stage =
+            OutputStage::new(PHANTOM_OMNI).map_err(|e| DeviceError::Rejected(e.to_string()))?;
+        Ok(SimCore {
+            brush,
+            model,
+            stage,
+            preset: preset.to_string(),
+            hand: pose,
+            target: hand,
+            replay: None,
+            replays_done: 0,
+            tick: 0,
+        })
+    }
+
+    pub fn params(&self) -> &BrushParams {
+        self.brush.params()
+    }
+
+    pub fn replaying(&self) -> bool {
+        self.replay.is_some()
+    }
+
+    /// Carries out a command. Parameter changes are validated by the model itself; on error
+    /// nothing changes.
+    pub fn apply(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        match cmd {
+            DeviceCommand::Hand(h) => self.target = h,
+            DeviceCommand::EnableForces(true) => self.stage.enable(),
+            DeviceCommand::EnableForces(false) => self.stage.disable(),
+            DeviceCommand::ClearFault => self.stage.clear_fault(),
+            DeviceCommand::Dip(w) => self.brush.dip(Fx::from_f32(w)),
+            DeviceCommand::Preset(name) => {
+                let p = presets::by_name(&name).ok_or_else(|| {
+                    DeviceError::Rejected(format!(
+                        "unknown brush `{name}`; valid brushes: {}",
+                        presets::NAMES
+                    ))
+                })?;
+                self.brush
+                    .set_params(p)
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                self.brush.reset(self.hand.cast());
+                self.preset = name;
+            }
+            DeviceCommand::SetParam(id, v) => self
+                .brush
+                .set_param(id, v)
+                .map_err(|e| DeviceError::Rejected(e.to_string()))?,
+            DeviceCommand::Replay(track) => {
+                let poses: Vec<Pose<f64>> = track.resample().collect();
+                self.brush.reset(poses[0].cast());
+                self.model.reset();
+                self.hand = poses[0];
+                self.replay = Some((poses, 0));
+            }
+            DeviceCommand::StopReplay => self.end_replay(),
+        }
+        Ok(())
+    }
+
+    fn end_replay(&mut self) {
+        if self.replay.take().is_some() {
+            self.replays_done += 1;
+            // Hold where the replay left the hand until the GUI says otherwise.
+            let p = self.hand.pos.to_f64();
+            self.target = HandInput {
+                x: p[0],
+                y: p[1],
+                z: p[2],
+                ..self.target
+            };
+        }
+    }
+
+    /// Runs one 1 ms tick and returns the brush state after it.
+    pub fn step(&mut self) -> BrushFrame {
+        let replaying = self.replay.is_some();
+        let last = self.hand.pos;
+        let pose = if let Some((poses, k)) = &mut self.replay {
+            let p = poses[*k];
+            *k += 1;
+            if *k >= poses.len() {
+                self.hand = p;
+                self.end_replay();
+            }
+            p
+        } else {
+            let t = self.target.pose();
+            let d = t.pos - self.hand.pos;
+            let n = d.norm();
+            let pos = if n > HAND_SPEED_MM_PER_TICK {
+                self.hand.pos + d.scale(HAND_SPEED_MM_PER_TICK / n)
+            } else {
+                t.pos
+            };
+            let rot = Quat::nlerp(self.hand.rot, t.rot, HAND_TURN_PER_TICK);
+            Pose::new(pos, rot)
+        };
+        self.hand = pose;
+        let target: Pose<Fx> = pose.cast();
+        self.brush.tick(target);
+        let forces = self.model.tick(&self.brush, target.pos);
+        let step: Vec3<Fx> = (pose.pos - last).cast();
+        let command = self.stage.apply(forces.total, step);
+        self.tick += 1;
+        let b = &self.brush;
+        BrushFrame {
+            tick: self.tick,
+            pose,
+            spine: b.spine().to_vec(),
+            skeleton: b.skeleton().to_vec(),
+            layers: b.layers().to_vec(),
+            in_contact: b.in_contact().to_vec(),
+            ring_nodes: b.ring_nodes(),
+            eps: Fx::from_f32(b.params().footprint_eps_mm),
+            force_total: forces.total.to_f64(),
+            force_normal: forces.normal.to_f64(),
+            depth_mm: forces.depth_mm.to_f64(),
+            command: command.to_f64(),
+            output: self.stage.state(),
+            replaying,
+        }
+    }
+
+    fn status(&self, name: &str, connected: bool) -> DeviceStatus {
+        let mut faults = Vec::new();
+        if self.stage.faulted() {
+            faults.push("output stage fault latched".to_string());
+        }
+        DeviceStatus {
+            name: name.to_string(),
+            connected,
+            protocol_version: None,
+            firmware_version: None,
+            faults,
+            frames_dropped: 0,
+            ticks_late: 0,
+            params: *self.brush.params(),
+            preset: self.preset.clone(),
+            forces_enabled: !matches!(
+                self.stage.state(),
+                maobi_shared::force::OutputState::Disabled
+            ),
+            replaying: self.replay.is_some(),
+            replays_done: self.replays_done,
+        }
+    }
+}
+
+const NAME: &str = "built-in simulator";
+
+struct Running {
+    thread: JoinHandle<()>,
+    stop: Arc<AtomicBool>,
+    cmds: Sender<DeviceCommand>,
+    frames: Receiver<BrushFrame>,
+    status: Arc<Mutex<DeviceStatus>>,
+}
+
+/// The built-in simulator as a [`Device`].
+pub struct SimDevice {
+    clock: SimClock,
+    preset: String,
+    start_hand: HandInput,
+    /// Stepped clock: the model itself. Real-time clock: kept while disconnected, moved
+    /// into the thread while connected.
+    core: Option<SimCore>,
+    running: Option<Running>,
+    /// Parameters as last reported, for validating commands before they are sent.
+    params: BrushParams,
+    /// Called by the model thread when it has new frames (e.g. to wake the UI).
+    wake: Option<Arc<dyn Fn() + Send + Sync>>,
+}
+
+impl SimDevice {
+    pub fn new(clock: SimClock, preset: &str, hand: HandInput) -> Result<SimDevice, DeviceError> {
+        let core = SimCore::new(preset, hand)?;
+        Ok(SimDevice {
+            clock,
+            preset: preset.to_string(),
+            start_hand: hand,
+            params: *core.params(),
+            core: Some(core),
+            running: None,
+            wake: None,
+        })
+    }
+
+    /// Calls `wake` from the model thread after each batch of ticks.
+    pub fn on_frames(&mut self, wake: Arc<dyn Fn() + Send + Sync>) {
+        self.wake = Some(wake);
+    }
+
+    fn validate(&self, cmd: &DeviceCommand) -> Result<(), DeviceError> {
+        match cmd {
+            DeviceCommand::SetParam(id, v) => {
+                let mut p = self.params;
+                p.set(*id, *v)
+                    .and_then(|()| p.validate())
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))
+            }
+            DeviceCommand::Preset(name) => presets::by_name(name).map(|_| ()).ok_or_else(|| {
+                DeviceError::Rejected(format!(
+                    "unknown brush `{name}`; valid brushes: {}",
+                    presets::NAMES
+                ))
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
+impl Device for SimDevice {
+    fn connect(&mut self) -> Result<(), DeviceError> {
+        if self.running.is_some() {
+            return Ok(());
+        }
+        let core = match self.core.take() {
+            Some(c) => c,
+            None => SimCore::new(&self.preset, self.start_hand)?,
+        };
+        match self.clock {
+            SimClock::Stepped(_) => {
+                self.core = Some(core);
+                // A stepped simulator is "connected" whenever it holds its core.
+                self.running = None;
+            }
+            SimClock::RealTime => {
+                let stop = Arc::new(AtomicBool::new(false));
+                let (cmd_tx, cmd_rx) = mpsc::channel();
+                let (frame_tx, frame_rx) = mpsc::sync_channel(FRAME_QUEUE);
+                let status = Arc::new(Mutex::new(core.status(NAME, true)));
+                let thread = {
+                    let stop = stop.clone();
+                    let status = status.clone();
+                    let wake = self.wake.clone();
+                    std::thread::Builder::new()
+                        .name("maobi-sim".into())
+                        .spawn(move || run_thread(core, stop, cmd_rx, frame_tx, status, wake))
+                        .map_err(|e| {
+                            DeviceError::Link(format!("cannot start the model thread: {e}"))
+                        })?
+                };
+                self.running = Some(Running {
+                    thread,
+                    stop,
+                    cmds: cmd_tx,
+                    frames: frame_rx,
+                    status,
+                });
+            }
+        }
+        self.connected_flag(true);
+        Ok(())
+    }
+
+    fn disconnect(&mut self) {
+        if let Some(r) = self.running.take() {
+            r.stop.store(true, Ordering::Relaxed);
+            // Unblock a thread waiting to hand over a replay frame.
+            drop(r.frames);
+            let _ = r.thread.join();
+        }
+        self.core = None;
+        self.connected_flag(false);
+    }
+
+    fn status(&self) -> DeviceStatus {
+        if let Some(r) = &self.running {
+            return r
+                .status
+                .lock()
+                .map(|s| s.clone())
+                .unwrap_or_else(|p| p.into_inner().clone());
+        }
+        match &self.core {
+            Some(c) => c.status(NAME, true),
+            None => {
+                let mut s = SimCore::new(&self.preset, self.start_hand)
+                    .map(|c| c.status(NAME, false))
+                    .expect("the preset was valid at start");
+                s.params = self.params;
+                s
+            }
+        }
+    }
+
+    fn poll(&mut self, out: &mut Vec<BrushFrame>) {
+        if let Some(r) = &self.running {
+            out.extend(r.frames.try_iter());
+            if let Ok(s) = r.status.lock() {
+                self.params = s.params;
+            }
+        } else if let (Some(core), SimClock::Stepped(n)) = (&mut self.core, self.clock) {
+            for _ in 0..n {
+                out.push(core.step());
+            }
+            self.params = *core.params();
+        }
+    }
+
+    fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        self.validate(&cmd)?;
+        if let Some(r) = &self.running {
+            if let DeviceCommand::SetParam(id, v) = cmd {
+                // Keep the local copy current so the next validation sees this change.
+                let _ = self.params.set(id, v);
+            }
+            r.cmds
+                .send(cmd)
+                .map_err(|_| DeviceError::Link("the model thread has stopped".into()))
+        } else if let Some(core) = &mut self.core {
+            let r = core.apply(cmd);
+            self.params = *core.params();
+            r
+        } else {
+            Err(DeviceError::NotConnected)
+        }
+    }
+}
+
+impl SimDevice {
+    fn connected_flag(&mut self, _connected: bool) {
+        if let Some(c) = &self.core {
+            self.params = *c.params();
+        }
+    }
+}
+
+impl Drop for SimDevice {
+    fn drop(&mut self) {
+        self.disconnect();
+    }
+}
+
+fn run_thread(
+    mut core: SimCore,
+    stop: Arc<AtomicBool>,
+    cmds: Receiver<DeviceCommand>,
+    frames: SyncSender<BrushFrame>,
+    status: Arc<Mutex<DeviceStatus>>,
+    wake: Option<Arc<dyn Fn() + Send + Sync>>,
+) {
+    let start = Instant::now();
+    let mut done: u64 = 0;
+    let mut dropped: u64 = 0;
+    let mut late: u64 = 0;
+    let mut last_error: Option<String> = None;
+    'run: while !stop.load(Ordering::Relaxed) {
+        for cmd in cmds.try_iter() {
+            if let Err(e) = core.apply(cmd) {
+                last_error = Some(e.to_string());
+            }
+        }
+        let due = start.elapsed().as_micros() as u64 / 1000 + 1;
+        if due > done + MAX_BEHIND_TICKS {
+            late += due - done - MAX_BEHIND_TICKS;
+            done = due - MAX_BEHIND_TICKS;
+        }
+        while done < due {
+            let frame = core.step();
+            done += 1;
+            if frame.replaying {
+                if frames.send(frame).is_err() {
+                    break 'run;
+                }
+            } else {
+                match frames.try_send(frame) {
+                    Ok(()) => {}
+                    Err(TrySendError::Full(_)) => dropped += 1,
+                    Err(TrySendError::Disconnected(_)) => break 'run,
+                }
+            }
+            if stop.load(Ordering::Relaxed) {
+                break 'run;
+            }
+        }
+        if let Ok(mut s) = status.lock() {
+            *s = core.status(NAME, true);
+            s.frames_dropped = dropped;
+            s.ticks_late = late;
+            if let Some(e) = &last_error {
+                s.faults.push(format!("last command failed: {e}"));
+            }
+        }
+        if let Some(w) = &wake {
+            w();
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}

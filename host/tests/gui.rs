@@ -1,0 +1,170 @@
+//! The GUI without a window: egui_kittest drives the real app over the built-in simulator on
+//! a stepped clock (each UI frame runs a fixed number of 1 ms model ticks), so every run is
+//! the same.
+
+use std::path::PathBuf;
+
+use egui_kittest::kittest::Queryable;
+use egui_kittest::Harness;
+use maobi::gui::app::{Automation, MaobiApp, Outcome};
+use maobi::gui::sim::{SimClock, SimDevice};
+use maobi::gui::{start_hand, GuiOptions};
+use maobi::poses::PoseTrack;
+
+/// Model ticks per UI frame.
+const TICKS_PER_FRAME: usize = 50;
+
+fn example(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/poses")
+        .join(name)
+}
+
+fn harness() -> Harness<'static, MaobiApp> {
+    let opts = GuiOptions {
+        paper_mm: 150.0,
+        px_per_mm: 4.0,
+        ..GuiOptions::default()
+    };
+    let device = SimDevice::new(
+        SimClock::Stepped(TICKS_PER_FRAME),
+        "large",
+        start_hand(40.0),
+    )
+    .expect("the simulator starts");
+    let app = MaobiApp::new(
+        Box::new(device),
+        opts.frame(),
+        Automation::default(),
+        Default::default(),
+    );
+    Harness::builder()
+        .with_size(egui::vec2(1400.0, 900.0))
+        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+}
+
+/// Replays a pose file and steps until the device reports it finished.
+fn replay(h: &mut Harness<'static, MaobiApp>, name: &str) {
+    let path = example(name);
+    let ticks = PoseTrack::from_path(&path).unwrap().ticks();
+    let done = h.state().status().replays_done;
+    h.state_mut().start_replay(&path).unwrap();
+    let frames = ticks / TICKS_PER_FRAME + 3;
+    h.run_steps(frames);
+    assert_eq!(h.state().status().replays_done, done + 1, "{name} finished");
+    assert!(!h.state().status().replaying);
+}
+
+fn ink(h: &Harness<'static, MaobiApp>) -> f64 {
+    h.state().paper().canvas().ink_fraction()
+}
+
+#[test]
+fn starts_with_the_simulator_connected() {
+    let mut h = harness();
+    h.run_steps(3);
+    let s = h.state().status();
+    assert!(s.connected);
+    assert_eq!(s.name, "built-in simulator");
+    assert!(h.state().latest().is_some(), "frames arrive");
+    h.get_by_label_contains("built-in simulator");
+    h.get_by_label("connected");
+    h.get_by_label("Disconnect");
+    assert_eq!(ink(&h), 0.0);
+}
+
+#[test]
+fn replay_leaves_ink_and_the_brush_state() {
+    let mut h = harness();
+    h.run_steps(2);
+    replay(&mut h, "hook.csv");
+    assert!(ink(&h) > 0.0, "ink fraction {}", ink(&h));
+    assert_eq!(h.state().paper().strokes(), 1);
+    // Every replay tick reached the GUI (tick 0, the rest pose, is the reset itself).
+    let ticks = PoseTrack::from_path(&example("hook.csv")).unwrap().ticks() as u64;
+    assert_eq!(h.state().replay_frames(), ticks);
+    h.get_by_label("replay finished");
+}
+
+#[test]
+fn a_rejected_parameter_shows_why() {
+    let mut h = harness();
+    h.run_steps(2);
+    let layers = h.state().status().params.layers;
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "layers")
+        .set_value_accesskit(99.0);
+    h.run_steps(2);
+    h.get_by_label_contains("layers rejected");
+    h.get_by_label_contains("outside the valid range 3 ..= 24");
+    assert_eq!(h.state().status().params.layers, layers, "old value kept");
+
+    // A valid value is taken and the message says so.
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "plasticity_d")
+        .set_value_accesskit(0.01);
+    h.run_steps(2);
+    h.get_by_label("plasticity_d = 0.01");
+    assert_eq!(h.state().status().params.plasticity, 0.01);
+}
+
+#[test]
+fn undo_takes_back_the_last_stroke_and_clear_is_undoable() {
+    let mut h = harness();
+    h.run_steps(2);
+    replay(&mut h, "hook.csv");
+    let first = h.state().paper().canvas().coverage().to_vec();
+    let after_one = ink(&h);
+    assert!(after_one > 0.0);
+    replay(&mut h, "shu.csv");
+    assert_eq!(h.state().paper().strokes(), 2);
+    assert!(ink(&h) > after_one, "the second stroke adds ink");
+
+    h.get_by_label("Undo stroke").click();
+    h.run_steps(2);
+    assert_eq!(h.state().paper().canvas().coverage(), &first[..]);
+
+    h.get_by_label("Clear").click();
+    h.run_steps(2);
+    assert_eq!(ink(&h), 0.0);
+    h.get_by_label("Undo stroke").click();
+    h.run_steps(2);
+    assert_eq!(h.state().paper().canvas().coverage(), &first[..]);
+    h.get_by_label("Undo stroke").click();
+    h.run_steps(2);
+    assert_eq!(ink(&h), 0.0);
+    assert_eq!(h.state().paper().undo_depth(), 0);
+}
+
+#[test]
+fn recording_writes_a_pose_file_that_replays() {
+    let dir = std::env::temp_dir().join(format!("maobi-gui-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = dir.join("rec.csv");
+    let mut h = harness();
+    h.run_steps(2);
+    h.state_mut().start_recording(&rec);
+    replay(&mut h, "press_lift.csv");
+    let n = h.state_mut().stop_recording().unwrap();
+    let track = PoseTrack::from_path(&rec).unwrap();
+    assert_eq!(track.rows().len(), n);
+    let src = PoseTrack::from_path(&example("press_lift.csv")).unwrap();
+    assert!(n >= src.ticks(), "{n} poses for {} ticks", src.ticks());
+    let ink_before = ink(&h);
+
+    // The recording replays to the same ink on a fresh paper.
+    let mut h2 = harness();
+    h2.run_steps(2);
+    h2.state_mut().start_replay(&rec).unwrap();
+    h2.run_steps(n / TICKS_PER_FRAME + 3);
+    let ink_after = ink(&h2);
+    assert!(
+        (ink_after - ink_before).abs() <= 0.02 * ink_before,
+        "{ink_before} vs {ink_after}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn outcome_defaults_are_empty() {
+    let o = Outcome::default();
+    assert!(o.error.is_none() && o.summary.is_empty());
+}

@@ -11,6 +11,7 @@ use maobi_shared::{presets, BrushParams, Fx, Scalar};
 use crate::poses::PoseTrack;
 use crate::render::{paper_frame, render, write_png, RenderStats};
 use crate::sim::{simulate, ScalarKind};
+use crate::strokes::Character;
 use crate::trace::{time_decimals, TraceWriter};
 
 #[derive(Debug, Parser)]
@@ -31,6 +32,9 @@ pub enum Command {
     Trace(TraceArgs),
     /// Simulate a pose file and render the ink it leaves as a greyscale PNG.
     Render(RenderArgs),
+    /// Keyframed stroke files: sample one to poses, or fit poses with one.
+    #[command(subcommand)]
+    Stroke(StrokeCommand),
     /// Open the desktop GUI with the built-in simulated device (the default command).
     Gui(GuiArgs),
 }
@@ -80,8 +84,16 @@ fn parse_px_per_mm(s: &str) -> Result<f64, String> {
 #[derive(Debug, Args)]
 pub struct TraceArgs {
     /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
-    #[arg(long, value_name = "POSES.csv")]
-    pub poses: PathBuf,
+    #[arg(
+        long,
+        value_name = "POSES.csv",
+        required_unless_present = "stroke",
+        conflicts_with = "stroke"
+    )]
+    pub poses: Option<PathBuf>,
+    /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
+    #[arg(long, value_name = "STROKE.toml")]
+    pub stroke: Option<PathBuf>,
     /// Brush preset.
     #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
     pub brush: BrushChoice,
@@ -96,8 +108,16 @@ pub struct TraceArgs {
 #[derive(Debug, Args)]
 pub struct RenderArgs {
     /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
-    #[arg(long, value_name = "POSES.csv")]
-    pub poses: PathBuf,
+    #[arg(
+        long,
+        value_name = "POSES.csv",
+        required_unless_present = "stroke",
+        conflicts_with = "stroke"
+    )]
+    pub poses: Option<PathBuf>,
+    /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
+    #[arg(long, value_name = "STROKE.toml")]
+    pub stroke: Option<PathBuf>,
     /// Brush preset.
     #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
     pub brush: BrushChoice,
@@ -134,6 +154,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Some(Command::Trace(a)) => run_trace(&a),
         Some(Command::Render(a)) => run_render(&a),
+        Some(Command::Stroke(c)) => run_stroke(&c),
         Some(Command::Gui(a)) => crate::gui::run(crate::gui::GuiOptions {
             brush: a.brush.name,
             replay: a.replay,
@@ -147,7 +168,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let track = PoseTrack::from_path(&a.poses)?;
+    let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let ticks = match a.scalar {
         ScalarKind::Fixed => trace_as::<Fx>(a.brush.params, &track, &a.output)?,
         ScalarKind::F32 => trace_as::<f32>(a.brush.params, &track, &a.output)?,
@@ -187,7 +208,7 @@ fn trace_as<S: Scalar>(
 
 fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let track = PoseTrack::from_path(&a.poses)?;
+    let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let params = a.brush.params;
     let frame = paper_frame(&track, &params, a.px_per_mm)?;
     let (canvas, stats): (_, RenderStats) = match a.scalar {
@@ -210,5 +231,87 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         a.output.display(),
         started.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+/// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly one).
+fn load_track(poses: Option<&Path>, stroke: Option<&Path>) -> anyhow::Result<PoseTrack> {
+    match (poses, stroke) {
+        (Some(p), None) => Ok(PoseTrack::from_path(p)?),
+        (None, Some(s)) => Character::from_path(s)?.track(&s.display().to_string()),
+        _ => anyhow::bail!("give exactly one of --poses and --stroke"),
+    }
+}
+
+#[derive(Debug, Subcommand)]
+pub enum StrokeCommand {
+    /// Sample a stroke file to a pose CSV (t,x,y,z,qw,qx,qy,qz).
+    Sample(StrokeSampleArgs),
+    /// Fit a pose CSV with the fewest keyframes within a tolerance; writes a stroke file.
+    Fit(StrokeFitArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct StrokeSampleArgs {
+    /// Stroke file (TOML).
+    #[arg(value_name = "STROKE.toml")]
+    pub file: PathBuf,
+    /// Samples per second (default 1000: the model's 1 ms tick).
+    #[arg(long, value_name = "HZ", default_value = "1000", value_parser = parse_px_per_mm)]
+    pub rate: f64,
+    /// Output pose CSV.
+    #[arg(short = 'o', long = "output", value_name = "POSES.csv")]
+    pub output: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct StrokeFitArgs {
+    /// Pose CSV to fit.
+    #[arg(value_name = "POSES.csv")]
+    pub file: PathBuf,
+    /// Largest position error (mm).
+    #[arg(long, value_name = "MM", default_value = "0.2", value_parser = parse_px_per_mm)]
+    pub tol_mm: f64,
+    /// Largest orientation error (degrees).
+    #[arg(long, value_name = "DEG", default_value = "2", value_parser = parse_px_per_mm)]
+    pub tol_deg: f64,
+    /// Output stroke file (TOML).
+    #[arg(short = 'o', long = "output", value_name = "STROKE.toml")]
+    pub output: PathBuf,
+}
+
+fn run_stroke(c: &StrokeCommand) -> anyhow::Result<()> {
+    match c {
+        StrokeCommand::Sample(a) => {
+            let ch = Character::from_path(&a.file)?;
+            let csv = ch.to_csv(1.0 / a.rate);
+            std::fs::write(&a.output, &csv)
+                .with_context(|| format!("cannot write {}", a.output.display()))?;
+            eprintln!(
+                "maobi stroke sample: {} strokes, {:.3} s, {} poses at {} Hz, wrote {}",
+                ch.stroke_times.len(),
+                ch.duration(),
+                csv.lines().count() - 1,
+                a.rate,
+                a.output.display()
+            );
+        }
+        StrokeCommand::Fit(a) => {
+            let track = PoseTrack::from_path(&a.file)?;
+            let (text, mm, deg) = crate::strokes::fit_track(&track, a.tol_mm, a.tol_deg)
+                .with_context(|| format!("cannot fit {}", a.file.display()))?;
+            std::fs::write(&a.output, &text)
+                .with_context(|| format!("cannot write {}", a.output.display()))?;
+            let keys = text.matches("at = ").count();
+            eprintln!(
+                "maobi stroke fit: {} poses -> {keys} keyframes, largest error {mm:.4} mm and \
+                 {deg:.4} degrees (tolerance {} mm, {} degrees), wrote {}",
+                track.rows().len(),
+                a.tol_mm,
+                a.tol_deg,
+                a.output.display()
+            );
+        }
+    }
     Ok(())
 }

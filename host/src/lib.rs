@@ -5,6 +5,7 @@
 //! * [`poses`]: reading, validating and resampling handle-pose CSV files.
 //! * [`sim`]: running the shared brush model over a pose track, tick by tick.
 //! * [`trace`]: the per-tick trace CSV.
+//! * [`strokes`]: keyframed stroke files (TOML): reading, sampling to poses, fitting.
 //! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
 //! * [`render`]: inking a simulated stroke and writing it as PNG.
 //! * [`gui`]: the desktop GUI (`maobi`, `maobi gui`) and its device backends.
@@ -16,4 +17,5 @@ pub mod poses;
 pub mod raster;
 pub mod render;
 pub mod sim;
+pub mod strokes;
 pub mod trace;

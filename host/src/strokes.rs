@@ -1,0 +1,624 @@
+//! Keyframed stroke files: a character as a list of strokes, each a list of keyframes, in
+//! TOML (see also `examples/strokes/README.md`).
+//!
+//! # Format (version 1)
+//!
+//! ```toml
+//! format = "maobi-stroke"     # required
+//! version = 1                 # required
+//! name = "永"                 # optional
+//! head_mm = 40.0              # brush head length: depth 0 touches the paper (default 40)
+//! lift_mm = 10.0              # travel height above touching between strokes (default 10)
+//! travel_speed_mm_s = 150.0   # speed of the travel between strokes (default 150)
+//! pause_s = 0.15              # hover before each travel (default 0.15)
+//! speed_mm_s = 60.0           # speed for keyframes without a time (default 60)
+//! tilt_deg = 10.0             # default handle tilt from vertical (default 0)
+//! azimuth_deg = -90.0         # default direction the handle top leans, CCW from +x (default 0)
+//!
+//! [[stroke]]
+//! name = "horizontal"         # optional, used in messages
+//! travel = true               # lift and travel from the previous stroke (default true);
+//!                             # false: continue from its last pose, which must be this
+//!                             # stroke's first
+//! keys = [
+//!   { at = [0, 0], lift = 3 },                # 3 mm above touching
+//!   { at = [2, 0], depth = 5, t = 0.25 },     # pressed 5 mm, at 0.25 s
+//!   { at = [40, 0, 35.2], tilt = 15, azimuth = 180 },   # explicit ferrule z
+//!   { at = [42, 1], depth = 2, quat = [1, 0, 0, 0] },   # orientation as a quaternion
+//! ]
+//! stops = [{ key = 1, s = 0.1 }]              # stand still at keyframe 1 for 0.1 s
+//! moving = [{ t = 0.4, at = 1.5 }]           # at 0.4 s be halfway from keyframe 1 to 2
+//! ```
+//!
+//! * `at`: the ferrule's x, y in mm (+x right, +y up the paper) and optionally z. Without z,
+//!   give `depth` (how far the brush is pressed below touching) or `lift` (how far above):
+//!   z = head_mm * cos(tilt) - depth.
+//! * Orientation: `tilt`/`azimuth` in degrees (defaults from the top), or `quat` [w, x, y, z]
+//!   (identity = brush straight down), not both.
+//! * `t`: seconds from the stroke's start (the first keyframe defaults to 0); keyframes
+//!   without a time are placed by chord length between timed ones or at `speed_mm_s`.
+//!   Times must increase.
+//! * Every stroke needs at least 2 keyframes.
+//!
+//! Errors name the file, the stroke (number from 1 and name) and the keyframe (from 1).
+//!
+//! # Timeline
+//!
+//! Strokes are played in order. Between two strokes the brush hovers `pause_s`, rises to
+//! `lift_mm` above touching, travels to above the next stroke's first keyframe and comes down
+//! to it; this travel is itself a keyframed stroke at `travel_speed_mm_s`. The path of each
+//! stroke is the cubic B-spline through its keyframes and its timing the kinetic curve through
+//! its times ([`maobi_shared::stroke`]).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{anyhow, bail, Context};
+use maobi_shared::stroke::fit::{fit, Sample};
+use maobi_shared::stroke::orient::{self, Q};
+use maobi_shared::stroke::{KeyMovingPoint, Keyframe, Stop, Stroke};
+use serde::{Deserialize, Serialize};
+
+use crate::poses::{PoseRow, PoseTrack};
+
+pub const FORMAT: &str = "maobi-stroke";
+pub const VERSION: i64 = 1;
+
+/// The file as written.
+#[derive(Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StrokeFile {
+    pub format: Option<String>,
+    pub version: Option<i64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub head_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lift_mm: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub travel_speed_mm_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pause_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub speed_mm_s: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tilt_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub azimuth_deg: Option<f64>,
+    #[serde(default)]
+    pub stroke: Vec<StrokeSpec>,
+}
+
+#[derive(Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StrokeSpec {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub travel: Option<bool>,
+    #[serde(default)]
+    pub keys: Vec<KeySpec>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub stops: Vec<StopSpec>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub moving: Vec<MovingSpec>,
+}
+
+#[derive(Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeySpec {
+    pub at: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lift: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tilt: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub azimuth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quat: Option<[f64; 4]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub t: Option<f64>,
+}
+
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StopSpec {
+    /// Keyframe number (from 1).
+    pub key: usize,
+    pub s: f64,
+}
+
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MovingSpec {
+    pub t: f64,
+    /// Fractional keyframe number (from 1).
+    pub at: f64,
+}
+
+/// One segment of the timeline: a stroke (or travel) starting at `start` seconds.
+#[derive(Clone, Debug)]
+pub struct Segment {
+    pub start: f64,
+    pub stroke: Stroke,
+    /// Index of the file's stroke, or `None` for a travel.
+    pub from: Option<usize>,
+}
+
+/// A character: the validated strokes and the travel between them, on one clock.
+#[derive(Clone, Debug)]
+pub struct Character {
+    pub name: Option<String>,
+    pub segments: Vec<Segment>,
+    /// (start, end) time of each of the file's strokes.
+    pub stroke_times: Vec<(f64, f64)>,
+}
+
+struct Settings {
+    head: f64,
+    lift: f64,
+    travel_speed: f64,
+    pause: f64,
+    speed: f64,
+    tilt: f64,
+    azimuth: f64,
+}
+
+fn finite_pos(v: Option<f64>, default: f64, what: &str) -> anyhow::Result<f64> {
+    match v {
+        None => Ok(default),
+        Some(x) if x.is_finite() && x > 0.0 => Ok(x),
+        Some(x) => bail!("`{what}` must be a positive number, not {x}"),
+    }
+}
+
+impl Character {
+    /// Reads and validates a stroke file.
+    pub fn from_path(path: &Path) -> anyhow::Result<Character> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {name}"))?;
+        Self::from_toml(&name, &text)
+    }
+
+    /// Parses and validates stroke TOML; `file` names it in errors.
+    pub fn from_toml(file: &str, text: &str) -> anyhow::Result<Character> {
+        let f: StrokeFile = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
+        Self::from_file(&f).map_err(|e| anyhow!("{file}: {e:#}"))
+    }
+
+    fn from_file(f: &StrokeFile) -> anyhow::Result<Character> {
+        match f.format.as_deref() {
+            Some(FORMAT) => {}
+            Some(other) => bail!("`format` is `{other}`, expected `{FORMAT}`"),
+            None => bail!("missing `format = \"{FORMAT}\"`"),
+        }
+        match f.version {
+            Some(VERSION) => {}
+            Some(v) => bail!("`version` {v} is not supported (this is version {VERSION})"),
+            None => bail!("missing `version = {VERSION}`"),
+        }
+        let deg = |v: Option<f64>, what: &str| -> anyhow::Result<f64> {
+            match v {
+                None => Ok(0.0),
+                Some(x) if x.is_finite() => Ok(x.to_radians()),
+                Some(x) => bail!("`{what}` is not finite: {x}"),
+            }
+        };
+        let s = Settings {
+            head: finite_pos(f.head_mm, 40.0, "head_mm")?,
+            lift: finite_pos(f.lift_mm, 10.0, "lift_mm")?,
+            travel_speed: finite_pos(f.travel_speed_mm_s, 150.0, "travel_speed_mm_s")?,
+            pause: match f.pause_s {
+                None => 0.15,
+                Some(x) if x.is_finite() && x >= 0.0 => x,
+                Some(x) => bail!("`pause_s` must be zero or positive, not {x}"),
+            },
+            speed: finite_pos(f.speed_mm_s, 60.0, "speed_mm_s")?,
+            tilt: deg(f.tilt_deg, "tilt_deg")?,
+            azimuth: deg(f.azimuth_deg, "azimuth_deg")?,
+        };
+        if f.stroke.is_empty() {
+            bail!("no strokes: add at least one [[stroke]]");
+        }
+        let mut segments = Vec::new();
+        let mut stroke_times = Vec::new();
+        let mut clock = 0.0;
+        let mut last: Option<([f64; 3], Q)> = None;
+        for (i, spec) in f.stroke.iter().enumerate() {
+            let label = match &spec.name {
+                Some(n) => format!("stroke {} ({n})", i + 1),
+                None => format!("stroke {}", i + 1),
+            };
+            let stroke = build_stroke(spec, &s).with_context(|| label.clone())?;
+            let first = stroke.key(0);
+            if let Some(prev) = last {
+                if spec.travel.unwrap_or(true) {
+                    let travel = travel(prev, first, &s)
+                        .with_context(|| format!("{label}: the travel to it"))?;
+                    let (t0, t1) = travel.domain();
+                    segments.push(Segment {
+                        start: clock - t0,
+                        stroke: travel,
+                        from: None,
+                    });
+                    clock += t1 - t0;
+                } else {
+                    let gap = dist(prev.0, first.0);
+                    let turn = orient::angle_between(prev.1, first.1).to_degrees();
+                    if gap > 0.01 || turn > 0.1 {
+                        bail!(
+                            "{label}: `travel = false` but its keyframe 1 is {gap:.3} mm and \
+                             {turn:.2} degrees from where the previous stroke ended"
+                        );
+                    }
+                }
+            }
+            let (t0, t1) = stroke.domain();
+            stroke_times.push((clock, clock + t1 - t0));
+            last = Some(stroke.key(stroke.len() - 1));
+            segments.push(Segment {
+                start: clock - t0,
+                stroke,
+                from: Some(i),
+            });
+            clock += t1 - t0;
+        }
+        Ok(Character {
+            name: f.name.clone(),
+            segments,
+            stroke_times,
+        })
+    }
+
+    /// Total duration (s).
+    pub fn duration(&self) -> f64 {
+        self.segments
+            .last()
+            .map_or(0.0, |s| s.start + s.stroke.domain().1)
+    }
+
+    /// The pose at time `t` (s) on the character's clock.
+    pub fn pose_at(&self, t: f64) -> ([f64; 3], Q) {
+        let mut seg = &self.segments[0];
+        for s in &self.segments {
+            if t >= s.start + s.stroke.domain().0 {
+                seg = s;
+            } else {
+                break;
+            }
+        }
+        seg.stroke.pose_at(t - seg.start)
+    }
+
+    /// Poses every `dt` seconds from 0 through the end.
+    pub fn sample(&self, dt: f64) -> Vec<PoseRow> {
+        let n = (self.duration() / dt + 1e-9).floor() as usize;
+        (0..=n)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let (pos, rot) = self.pose_at(t);
+                PoseRow { t, pos, rot }
+            })
+            .collect()
+    }
+
+    /// The sampled poses as pose CSV text (`t,x,y,z,qw,qx,qy,qz`).
+    pub fn to_csv(&self, dt: f64) -> String {
+        rows_to_csv(&self.sample(dt))
+    }
+
+    /// The sampled poses (1 ms) as a validated pose track, for `trace` and `render`.
+    pub fn track(&self, name: &str) -> anyhow::Result<PoseTrack> {
+        let csv = self.to_csv(crate::poses::TICK_S);
+        PoseTrack::from_reader(name, csv.as_bytes()).map_err(|e| anyhow!("{e}"))
+    }
+}
+
+/// Pose rows as CSV text with a header.
+pub fn rows_to_csv(rows: &[PoseRow]) -> String {
+    let mut out = String::from("t,x,y,z,qw,qx,qy,qz\n");
+    for r in rows {
+        let _ = writeln!(
+            out,
+            "{:.6},{:.6},{:.6},{:.6},{:.9},{:.9},{:.9},{:.9}",
+            r.t, r.pos[0], r.pos[1], r.pos[2], r.rot[0], r.rot[1], r.rot[2], r.rot[3]
+        );
+    }
+    out
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn build_stroke(spec: &StrokeSpec, s: &Settings) -> anyhow::Result<Stroke> {
+    if spec.keys.len() < 2 {
+        bail!(
+            "needs at least 2 keyframes in `keys`, found {}",
+            spec.keys.len()
+        );
+    }
+    let mut keys = Vec::with_capacity(spec.keys.len());
+    for (k, ks) in spec.keys.iter().enumerate() {
+        keys.push(keyframe(ks, s).with_context(|| format!("keyframe {}", k + 1))?);
+    }
+    let mut stops = Vec::new();
+    for (i, st) in spec.stops.iter().enumerate() {
+        if st.key < 1 || st.key > keys.len() || !(st.s.is_finite() && st.s > 0.0) {
+            bail!(
+                "stop {}: `key` must name a keyframe (1..={}) and `s` be a positive number of \
+                 seconds",
+                i + 1,
+                keys.len()
+            );
+        }
+        stops.push(Stop {
+            key: st.key - 1,
+            dur: st.s,
+        });
+    }
+    let moving: Vec<KeyMovingPoint> = spec
+        .moving
+        .iter()
+        .map(|m| KeyMovingPoint {
+            t: m.t,
+            at: m.at - 1.0,
+        })
+        .collect();
+    Stroke::new(&keys, &stops, &moving, s.speed).map_err(|e| anyhow!("{}", renumber(&e)))
+}
+
+/// The shared crate numbers keyframes, stops and moving points from 0; files from 1.
+fn renumber(e: &maobi_shared::stroke::StrokeError) -> String {
+    use maobi_shared::stroke::{Source, StrokeError as E};
+    match *e {
+        E::NotFinite { key } => format!("keyframe {}: a value is not finite", key + 1),
+        E::Repeated { key } => format!(
+            "keyframe {}: same pose as keyframe {} (to pause, use a stop)",
+            key + 1,
+            key
+        ),
+        E::TimeBackwards { key, t, prev } => format!(
+            "keyframe {}: time {t} s is not after the previous keyframe's {prev} s (times must \
+             increase)",
+            key + 1
+        ),
+        E::BadStop { index } => format!("stop {}: no such keyframe or bad duration", index + 1),
+        E::BadMovingPoint { index } => {
+            format!(
+                "moving point {}: not finite or outside the keyframes",
+                index + 1
+            )
+        }
+        E::Timing { at, err } => {
+            let at = match at {
+                Source::Key(k) => format!("keyframe {}", k + 1),
+                Source::MovingPoint(i) => format!("moving point {}", i + 1),
+            };
+            format!("{at}: timing: {err}")
+        }
+        ref other => other.to_string(),
+    }
+}
+
+fn keyframe(ks: &KeySpec, s: &Settings) -> anyhow::Result<Keyframe> {
+    let at = ks
+        .at
+        .as_ref()
+        .ok_or_else(|| anyhow!("missing `at = [x, y]` (mm)"))?;
+    if !(at.len() == 2 || at.len() == 3) {
+        bail!(
+            "`at` must be [x, y] or [x, y, z], found {} numbers",
+            at.len()
+        );
+    }
+    let check = |v: Option<f64>, what: &str| -> anyhow::Result<()> {
+        match v {
+            Some(x) if !x.is_finite() => bail!("`{what}` is not finite: {x}"),
+            _ => Ok(()),
+        }
+    };
+    for (c, name) in at.iter().zip(["x", "y", "z"]) {
+        check(Some(*c), &format!("at.{name}"))?;
+    }
+    for (v, what) in [
+        (ks.depth, "depth"),
+        (ks.lift, "lift"),
+        (ks.tilt, "tilt"),
+        (ks.azimuth, "azimuth"),
+        (ks.t, "t"),
+    ] {
+        check(v, what)?;
+    }
+    let rot = match ks.quat {
+        Some(q) => {
+            if ks.tilt.is_some() || ks.azimuth.is_some() {
+                bail!("give `quat` or `tilt`/`azimuth`, not both");
+            }
+            if q.iter().any(|c| !c.is_finite()) {
+                bail!("`quat` is not finite");
+            }
+            let n = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+            if (n - 1.0).abs() > 1e-3 {
+                bail!("`quat` has norm {n}, not 1");
+            }
+            orient::normalize(q)
+        }
+        None => orient::from_tilt_azimuth(
+            ks.tilt.map_or(s.tilt, f64::to_radians),
+            ks.azimuth.map_or(s.azimuth, f64::to_radians),
+            0.0,
+        ),
+    };
+    let (tilt, _) = orient::tilt_azimuth(rot);
+    let touch = s.head * tilt.cos();
+    let z = match (at.get(2), ks.depth, ks.lift) {
+        (Some(&z), None, None) => z,
+        (None, Some(d), None) => touch - d,
+        (None, None, Some(l)) => touch + l,
+        (None, None, None) => bail!("no height: give `at = [x, y, z]`, `depth` or `lift`"),
+        _ => bail!("give only one of a z in `at`, `depth` and `lift`"),
+    };
+    Ok(Keyframe {
+        pos: [at[0], at[1], z],
+        rot,
+        t: ks.t,
+    })
+}
+
+/// Hover, rise to the lift height, travel, come down.
+fn travel(from: ([f64; 3], Q), to: ([f64; 3], Q), s: &Settings) -> anyhow::Result<Stroke> {
+    let up = |p: [f64; 3], q: Q| {
+        let touch = s.head * orient::tilt_azimuth(q).0.cos();
+        [p[0], p[1], p[2].max(touch + s.lift)]
+    };
+    let pts = [
+        (from.0, from.1),
+        (up(from.0, from.1), from.1),
+        (up(to.0, to.1), to.1),
+        (to.0, to.1),
+    ];
+    let mut keys: Vec<Keyframe> = Vec::new();
+    for (p, q) in pts {
+        if let Some(last) = keys.last() {
+            if dist(last.pos, p) < 0.5 {
+                continue;
+            }
+        }
+        keys.push(Keyframe {
+            pos: p,
+            rot: q,
+            t: None,
+        });
+    }
+    // The end keyframe must be exactly the next stroke's start.
+    let last = keys.len() - 1;
+    keys[last].pos = to.0;
+    keys[last].rot = to.1;
+    if keys.len() < 2 {
+        keys.insert(
+            0,
+            Keyframe {
+                pos: from.0,
+                rot: from.1,
+                t: None,
+            },
+        );
+    }
+    let stops = if s.pause > 0.0 {
+        vec![Stop {
+            key: 0,
+            dur: s.pause,
+        }]
+    } else {
+        vec![]
+    };
+    Stroke::new(&keys, &stops, &[], s.travel_speed).map_err(|e| anyhow!("{e}"))
+}
+
+/// Fits a pose track with keyframed strokes within the tolerances; the stroke file's text.
+/// The track is split into pieces at its slowest moments when one stroke's keyframes are not
+/// enough. Returns the TOML and the largest errors (mm, degrees).
+pub fn fit_track(
+    track: &PoseTrack,
+    tol_mm: f64,
+    tol_deg: f64,
+) -> anyhow::Result<(String, f64, f64)> {
+    let samples: Vec<Sample> = track
+        .rows()
+        .iter()
+        .map(|r| Sample {
+            t: r.t,
+            pos: r.pos,
+            rot: r.rot,
+        })
+        .collect();
+    // Repeated times (allowed in pose files) would stop the fit: keep the later row.
+    let mut dedup: Vec<Sample> = Vec::with_capacity(samples.len());
+    for s in samples {
+        if let Some(l) = dedup.last_mut() {
+            if s.t <= l.t {
+                *l = s;
+                continue;
+            }
+        }
+        dedup.push(s);
+    }
+    let mut pieces = Vec::new();
+    fit_pieces(&dedup, tol_mm, tol_deg, 0, &mut pieces)?;
+    let mut file = StrokeFile {
+        format: Some(FORMAT.into()),
+        version: Some(VERSION),
+        ..Default::default()
+    };
+    let (mut max_mm, mut max_deg) = (0.0f64, 0.0f64);
+    let t_start = dedup[0].t;
+    for (i, (range, f)) in pieces.iter().enumerate() {
+        let part = &dedup[range.0..range.1];
+        max_mm = max_mm.max(f.max_mm);
+        max_deg = max_deg.max(f.max_deg);
+        let mut spec = StrokeSpec {
+            name: Some(format!("piece {}", i + 1)),
+            travel: Some(false),
+            ..Default::default()
+        };
+        if i == 0 && t_start.abs() > 1e-9 {
+            spec.name = Some(format!("piece 1 (recorded from {t_start} s)"));
+        }
+        for &k in &f.keys[..f.n] {
+            let smp = part[k];
+            spec.keys.push(KeySpec {
+                at: Some(smp.pos.iter().map(|c| round(*c, 6)).collect()),
+                quat: Some(smp.rot.map(|c| round(c, 9))),
+                t: Some(round(smp.t - part[0].t, 6)),
+                ..Default::default()
+            });
+        }
+        for st in &f.stops[..f.n_stops] {
+            spec.stops.push(StopSpec {
+                key: st.key + 1,
+                s: round(st.dur, 6),
+            });
+        }
+        file.stroke.push(spec);
+    }
+    let text = toml::to_string(&file).context("cannot write the stroke TOML")?;
+    let header = format!(
+        "# Fitted by `maobi stroke fit` within {tol_mm} mm and {tol_deg} degrees \
+         (largest errors {max_mm:.4} mm, {max_deg:.4} degrees).\n"
+    );
+    Ok((header + &text, max_mm, max_deg))
+}
+
+fn round(x: f64, decimals: i32) -> f64 {
+    let s = 10f64.powi(decimals);
+    (x * s).round() / s
+}
+
+type Piece = ((usize, usize), maobi_shared::stroke::fit::Fit);
+
+fn fit_pieces(
+    samples: &[Sample],
+    tol_mm: f64,
+    tol_deg: f64,
+    offset: usize,
+    out: &mut Vec<Piece>,
+) -> anyhow::Result<()> {
+    let f = fit(samples, tol_mm, tol_deg).map_err(|e| anyhow!("{e}"))?;
+    if f.within || samples.len() < 8 {
+        out.push(((offset, offset + samples.len()), f));
+        return Ok(());
+    }
+    // Split at the slowest sample in the middle half (a rest point, if there is one); the
+    // pieces share that sample so they join exactly.
+    let m = samples.len();
+    let speed = |i: usize| dist(samples[i + 1].pos, samples[i - 1].pos);
+    let split = (m / 4..3 * m / 4)
+        .min_by(|&a, &b| speed(a).total_cmp(&speed(b)))
+        .unwrap_or(m / 2);
+    fit_pieces(&samples[..=split], tol_mm, tol_deg, offset, out)?;
+    fit_pieces(&samples[split..], tol_mm, tol_deg, offset + split, out)
+}

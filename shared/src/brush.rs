@@ -396,6 +396,13 @@ impl<S: Scalar> Brush<S> {
 
     /// One substep of length h with the handle at `pose`.
     pub fn substep(&mut self, pose: Pose<S>) {
+        self.substep_dynamics(pose);
+        self.project_onto_paper();
+        self.substeps_done = self.substeps_done.wrapping_add(1);
+    }
+
+    /// Everything in a substep but the paper projection.
+    fn substep_dynamics(&mut self, pose: Pose<S>) {
         let pose = clamp_to_paper(pose);
         let n = self.d.n;
         let old_ferrule = self.spine[0];
@@ -472,8 +479,6 @@ impl<S: Scalar> Brush<S> {
             self.vel[i] = u;
             self.spine[i] += u;
         }
-        self.project_onto_paper();
-        self.substeps_done = self.substeps_done.wrapping_add(1);
     }
 
     /// Solves eq. 2.30's tridiagonal system `du_i - c_j,i (du_{i-1} + du_{i+1}) = p_i` exactly

@@ -110,6 +110,7 @@ fn commands() -> Vec<Command> {
         Command::ChoosePreset(PresetRef::Name(bounded_str("大楷"))),
         Command::ClearFaults,
         Command::ResetBrush,
+        Command::InjectOverrun,
     ]
 }
 
@@ -213,6 +214,7 @@ fn host_kind(m: &HostMsg) -> &'static str {
             Command::ChoosePreset(PresetRef::Name(_)) => "preset name",
             Command::ClearFaults => "clear",
             Command::ResetBrush => "reset",
+            Command::InjectOverrun => "inject overrun",
         },
     }
 }
@@ -255,7 +257,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
 fn every_message_round_trips() {
     let hosts = host_samples();
     let kinds: std::collections::BTreeSet<_> = hosts.iter().map(host_kind).collect();
-    assert_eq!(kinds.len(), 13, "host samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 14, "host samples cover {kinds:?}");
     let mut rx = DeviceRx::new();
     let mut stream = Vec::new();
     for m in &hosts {
@@ -810,4 +812,27 @@ fn shape_of_a_decoded_state_is_usable_without_the_brush() {
         format!("{}", Faults::LINK_SILENT | Faults::WATCHDOG),
         "LINK_SILENT | WATCHDOG"
     );
+}
+
+/// The test hook was appended: every earlier command keeps its wire tag, and the hook's tag
+/// follows them.
+#[test]
+fn inject_overrun_is_appended_after_the_existing_commands() {
+    let tag = |c: Command| {
+        let mut b = [0u8; 8];
+        postcard::to_slice(&HostMsg::Command(c), &mut b)
+            .unwrap()
+            .to_vec()
+    };
+    assert_eq!(tag(Command::EnableForces), [5, 0]);
+    assert_eq!(tag(Command::ClearFaults), [5, 5]);
+    assert_eq!(tag(Command::ResetBrush), [5, 6]);
+    assert_eq!(tag(Command::InjectOverrun), [5, 7]);
+    let mut buf = [0u8; HostMsg::MAX_FRAME];
+    let n = HostMsg::Command(Command::InjectOverrun)
+        .encode(&mut buf)
+        .unwrap();
+    let mut rx = DeviceRx::new();
+    let got: Vec<_> = rx.feed(&buf[..n]).collect();
+    assert_eq!(got, [Ok(HostMsg::Command(Command::InjectOverrun))]);
 }

@@ -396,6 +396,11 @@ pub enum Command {
     ClearFaults,
     /// Put the brush back at rest at the current pose.
     ResetBrush,
+    /// Test hook (HIL): make the next force-loop tick overrun its period, so the device's
+    /// overrun path (motors off, [`Faults::LOOP_OVERRUN`] latched) can be exercised. Added
+    /// at the end: every earlier variant keeps its wire tag. Boards that do not offer the
+    /// hook answer [`CommandError::Unsupported`].
+    InjectOverrun,
 }
 
 /// A preset, by its index in [`presets::PRESETS`] or by one of the names

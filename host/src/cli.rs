@@ -37,10 +37,30 @@ pub enum Command {
     Stroke(StrokeCommand),
     /// Open the desktop GUI with the built-in simulated device (the default command).
     Gui(GuiArgs),
+    /// Run the simulated brush behind the wire protocol on a TCP port (a stand-in for the
+    /// pen: `maobi gui --device tcp:HOST:PORT` connects to it).
+    SimDevice(SimDeviceArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct SimDeviceArgs {
+    /// Address to listen on.
+    #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:7878")]
+    pub listen: String,
+    /// Brush preset at start.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Brush state frames per second (1 to 1000).
+    #[arg(long, value_name = "HZ", default_value = "120")]
+    pub state_hz: u32,
 }
 
 #[derive(Debug, Args)]
 pub struct GuiArgs {
+    /// The device: `sim` (the built-in simulator), `tcp:HOST:PORT` (the QEMU board, `maobi
+    /// sim-device`) or `serial:PATH` (the pen); connects at start.
+    #[arg(long, value_name = "DEVICE", default_value = "sim")]
+    pub device: crate::gui::DeviceChoice,
     /// Replay this pose CSV (t,x,y,z,qw,qx,qy,qz) through the simulator at start.
     #[arg(long, value_name = "POSES.csv")]
     pub replay: Option<PathBuf>,
@@ -155,7 +175,27 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Trace(a)) => run_trace(&a),
         Some(Command::Render(a)) => run_render(&a),
         Some(Command::Stroke(c)) => run_stroke(&c),
+        Some(Command::SimDevice(a)) => {
+            let server = crate::device::SimDeviceServer::spawn(
+                &a.listen,
+                crate::device::SimDeviceOptions {
+                    preset: a.brush.name.clone(),
+                    state_hz: a.state_hz,
+                    ..Default::default()
+                },
+            )?;
+            eprintln!(
+                "maobi sim-device: the {} brush on {} ({} states/s); connect with `maobi gui --device tcp:{}`",
+                a.brush.name,
+                server.addr(),
+                a.state_hz,
+                server.addr()
+            );
+            server.wait();
+            Ok(())
+        }
         Some(Command::Gui(a)) => crate::gui::run(crate::gui::GuiOptions {
+            device: a.device,
             brush: a.brush.name,
             replay: a.replay,
             screenshot: a.screenshot,

@@ -8,10 +8,12 @@
 //! * [`strokes`]: keyframed stroke files (TOML): reading, sampling to poses, fitting.
 //! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
 //! * [`render`]: inking a simulated stroke and writing it as PNG.
+//! * [`device`]: devices over the wire protocol (TCP, serial) and the simulated protocol device.
 //! * [`gui`]: the desktop GUI (`maobi`, `maobi gui`) and its device backends.
 //! * [`cli`]: the command-line interface.
 
 pub mod cli;
+pub mod device;
 pub mod gui;
 pub mod poses;
 pub mod raster;

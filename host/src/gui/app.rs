@@ -15,6 +15,8 @@ use maobi_shared::{presets, ParamId};
 use super::brush_view::{self, Orbit};
 use super::canvas::PaperView;
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
+use super::DeviceChoice;
+use crate::device::{available_serial_ports, Endpoint};
 use crate::poses::PoseTrack;
 use crate::raster::Frame;
 use crate::render::write_png;
@@ -113,6 +115,30 @@ pub struct MaobiApp {
     replay_frames: u64,
     /// Screen rectangle of the brush view in the last frame.
     brush_rect: egui::Rect,
+    /// Device chooser: the kind (built-in simulator, TCP, serial) and the address.
+    device_kind: DeviceKind,
+    device_addr: String,
+    serial_ports: Vec<String>,
+    /// Preset a newly chosen device starts with.
+    brush_name: String,
+}
+
+/// The kinds of device the chooser offers.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum DeviceKind {
+    Sim,
+    Tcp,
+    Serial,
+}
+
+impl DeviceKind {
+    fn label(self) -> &'static str {
+        match self {
+            DeviceKind::Sim => "built-in simulator",
+            DeviceKind::Tcp => "TCP (QEMU board, sim-device, bridge)",
+            DeviceKind::Serial => "serial (the pen on USB)",
+        }
+    }
 }
 
 impl MaobiApp {
@@ -171,6 +197,58 @@ impl MaobiApp {
             status,
             replay_frames: 0,
             brush_rect: egui::Rect::NOTHING,
+            device_kind: DeviceKind::Sim,
+            device_addr: "127.0.0.1:7878".into(),
+            serial_ports: Vec::new(),
+            brush_name: "large".into(),
+        }
+    }
+
+    /// Shows `choice` in the device chooser; `brush` is the preset a newly chosen device
+    /// starts with.
+    pub fn set_device_choice(&mut self, choice: &DeviceChoice, brush: &str) {
+        self.brush_name = brush.to_string();
+        match choice {
+            DeviceChoice::Sim => self.device_kind = DeviceKind::Sim,
+            DeviceChoice::Link(Endpoint::Tcp(a)) => {
+                self.device_kind = DeviceKind::Tcp;
+                self.device_addr = a.clone();
+            }
+            DeviceChoice::Link(Endpoint::Serial(p)) => {
+                self.device_kind = DeviceKind::Serial;
+                self.device_addr = p.clone();
+            }
+        }
+    }
+
+    /// Replaces the device with the chooser's choice and connects it; the paper is kept.
+    pub fn switch_device(&mut self, ctx: &egui::Context) {
+        let choice = match self.device_kind {
+            DeviceKind::Sim => Ok(DeviceChoice::Sim),
+            DeviceKind::Tcp => format!("tcp:{}", self.device_addr.trim()).parse(),
+            DeviceKind::Serial => format!("serial:{}", self.device_addr.trim()).parse(),
+        };
+        let choice = match choice {
+            Ok(c) => c,
+            Err(e) => {
+                self.message = Some((e, true));
+                return;
+            }
+        };
+        let c2 = ctx.clone();
+        let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || c2.request_repaint());
+        match super::make_device(&choice, &self.brush_name, Some(wake)) {
+            Ok(mut d) => {
+                self.device.disconnect();
+                self.message = Some(match d.connect() {
+                    Ok(()) => (format!("connected to {choice}"), false),
+                    Err(e) => (format!("cannot connect: {e}"), true),
+                });
+                self.device = d;
+                self.status = self.device.status();
+                self.latest = None;
+            }
+            Err(e) => self.message = Some((format!("cannot use {choice}: {e}"), true)),
         }
     }
 
@@ -440,8 +518,65 @@ fn output_label(s: OutputState) -> (&'static str, Color32) {
 }
 
 impl MaobiApp {
+    fn device_chooser(&mut self, ui: &mut egui::Ui) {
+        let before = self.device_kind;
+        egui::ComboBox::from_label("device")
+            .selected_text(self.device_kind.label())
+            .show_ui(ui, |ui| {
+                for k in [DeviceKind::Sim, DeviceKind::Tcp, DeviceKind::Serial] {
+                    ui.selectable_value(&mut self.device_kind, k, k.label());
+                }
+            });
+        if self.device_kind != before {
+            match self.device_kind {
+                DeviceKind::Serial => {
+                    self.serial_ports = available_serial_ports();
+                    self.device_addr = self.serial_ports.first().cloned().unwrap_or_default();
+                }
+                DeviceKind::Tcp => self.device_addr = "127.0.0.1:7878".into(),
+                DeviceKind::Sim => {}
+            }
+        }
+        if self.device_kind != DeviceKind::Sim {
+            let hint = if self.device_kind == DeviceKind::Tcp {
+                "HOST:PORT"
+            } else {
+                "/dev/ttyACM0"
+            };
+            let l = ui.label("address");
+            ui.add(
+                egui::TextEdit::singleline(&mut self.device_addr)
+                    .hint_text(hint)
+                    .desired_width(150.0),
+            )
+            .labelled_by(l.id);
+        }
+        if self.device_kind == DeviceKind::Serial {
+            egui::ComboBox::from_label("ports")
+                .selected_text(format!("{} found", self.serial_ports.len()))
+                .show_ui(ui, |ui| {
+                    for p in self.serial_ports.clone() {
+                        ui.selectable_value(&mut self.device_addr, p.clone(), p);
+                    }
+                });
+            if ui.button("Rescan").clicked() {
+                self.serial_ports = available_serial_ports();
+            }
+        }
+        if ui
+            .button("Use")
+            .on_hover_text("Switch to this device (the paper is kept)")
+            .clicked()
+        {
+            let ctx = ui.ctx().clone();
+            self.switch_device(&ctx);
+        }
+    }
+
     fn toolbar(&mut self, ui: &mut egui::Ui) {
         ui.horizontal_wrapped(|ui| {
+            self.device_chooser(ui);
+            ui.separator();
             if self.status.connected {
                 if ui.button("Disconnect").clicked() {
                     self.device.disconnect();
@@ -669,6 +804,31 @@ impl MaobiApp {
             }
             ui.separator();
             ui.label(format!("frames dropped {}  ticks late {}", s.frames_dropped, s.ticks_late));
+            if let Some(l) = &s.link {
+                ui.separator();
+                let c = if s.connected {
+                    ui.visuals().text_color()
+                } else {
+                    Color32::from_rgb(230, 80, 70)
+                };
+                ui.label(RichText::new(&l.state).color(c));
+                ui.label(format!(
+                    "rx ok {}  crc {}  framing {}  oversized {}  decode {}  version {}  lost {}",
+                    l.rx.frames_ok,
+                    l.rx.crc_errors,
+                    l.rx.framing_errors,
+                    l.rx.oversized_frames,
+                    l.rx.decode_errors,
+                    l.rx.version_errors,
+                    l.lost
+                ))
+                .on_hover_text(format!(
+                    "device: {} pose gaps, its receiver {:?}; last error: {}",
+                    l.pose_gaps,
+                    l.device_rx,
+                    l.last_error.as_deref().unwrap_or("none")
+                ));
+            }
             ui.separator();
             if let Some(f) = &self.latest {
                 let p = f.pose.pos.to_f64();

@@ -7,11 +7,9 @@
 //!
 //! Backends:
 //! * [`crate::gui::sim::SimDevice`]: the built-in simulator (the shared model on the host).
-//! * TODO(serial): a pen on USB serial, speaking `maobi_shared::protocol` (the wire protocol
-//!   is being written in parallel; this backend lands after it).
-//! * TODO(tcp): the QEMU firmware's UART bridged over TCP, same protocol.
-//!
-//! Neither TODO backend exists yet and the GUI does not offer them.
+//! * [`crate::device::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
+//!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, later the Phantom bridge) or a
+//!   serial port (`serial:PATH`: the pen on USB).
 
 use std::fmt;
 use std::sync::Arc;
@@ -163,6 +161,35 @@ pub struct DeviceStatus {
     pub replaying: bool,
     /// Replays finished since connecting.
     pub replays_done: u64,
+    /// For a device over the wire protocol: the link's state and counters.
+    pub link: Option<LinkReport>,
+}
+
+/// The state of a wire-protocol link ([`crate::device::LinkDevice`]).
+#[derive(Clone, Debug, Default)]
+pub struct LinkReport {
+    /// "connected to ...", "link lost: ...; reconnecting", "not connected: ...".
+    pub state: String,
+    /// The device's board name, from its handshake.
+    pub board: Option<String>,
+    /// The device's capabilities, from its handshake.
+    pub capabilities: String,
+    /// Our decoder's counters (frames decoded; framing, CRC, oversized, decode and version
+    /// errors), over all sessions.
+    pub rx: maobi_shared::protocol::LinkStats,
+    /// The device's receiver counters, from its telemetry.
+    pub device_rx: maobi_shared::protocol::LinkStats,
+    /// Ticks the device ran without a pose sample (virtual pen), from its telemetry.
+    pub pose_gaps: u32,
+    /// State frames received.
+    pub states: u64,
+    /// Sessions that completed the handshake, and sessions lost after it.
+    pub sessions: u32,
+    pub lost: u32,
+    /// Connection attempts so far.
+    pub attempts: u32,
+    pub last_error: Option<String>,
+    pub last_event: Option<String>,
 }
 
 /// A source of brush state that takes commands: the built-in simulator or a real pen.

@@ -18,6 +18,7 @@ use std::sync::{Arc, Mutex};
 
 use anyhow::bail;
 
+use crate::device::{Endpoint, LinkDevice, LinkOptions};
 use crate::raster::Frame;
 use app::{Automation, MaobiApp, Outcome};
 use device::HandInput;
@@ -28,9 +29,72 @@ pub const HEADLESS_HINT: &str = "without a display, use the headless commands: \
 `maobi render --poses FILE.csv -o OUT.png` (ink to PNG) or `maobi trace --poses FILE.csv -o TRACE.csv`; \
 or run the GUI under a virtual display: `xvfb-run -a maobi gui ...`";
 
+/// Which device the GUI talks to.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// The built-in simulator.
+    #[default]
+    Sim,
+    /// A device over the wire protocol (`tcp:HOST:PORT`, `serial:PATH`).
+    Link(Endpoint),
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "sim" {
+            Ok(DeviceChoice::Sim)
+        } else {
+            s.parse().map(DeviceChoice::Link)
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DeviceChoice::Sim => f.write_str("sim"),
+            DeviceChoice::Link(e) => e.fmt(f),
+        }
+    }
+}
+
+/// The device for `choice` with the brush `preset`, not yet connected; `wake` is called
+/// from its threads when frames arrive.
+pub fn make_device(
+    choice: &DeviceChoice,
+    preset: &str,
+    wake: Option<Arc<dyn Fn() + Send + Sync>>,
+) -> Result<Box<dyn device::Device>, device::DeviceError> {
+    let length = maobi_shared::presets::by_name(preset)
+        .map(|p| p.length_mm as f64)
+        .unwrap_or(50.0);
+    let hand = start_hand(length);
+    Ok(match choice {
+        DeviceChoice::Sim => {
+            let mut d = SimDevice::new(SimClock::RealTime, preset, hand)?;
+            if let Some(w) = wake {
+                d.on_frames(w);
+            }
+            Box::new(d)
+        }
+        DeviceChoice::Link(e) => {
+            let mut opts = LinkOptions::new(e.clone(), hand);
+            opts.preset = preset.to_string();
+            let mut d = LinkDevice::new(opts)?;
+            if let Some(w) = wake {
+                d.on_frames(w);
+            }
+            Box::new(d)
+        }
+    })
+}
+
 /// Options of `maobi gui`.
 #[derive(Clone, Debug)]
 pub struct GuiOptions {
+    /// The device to connect to at start.
+    pub device: DeviceChoice,
     /// Brush preset name.
     pub brush: String,
     pub replay: Option<PathBuf>,
@@ -43,6 +107,7 @@ pub struct GuiOptions {
 impl Default for GuiOptions {
     fn default() -> Self {
         GuiOptions {
+            device: DeviceChoice::Sim,
             brush: "large".into(),
             replay: None,
             screenshot: None,
@@ -101,7 +166,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     if let Some(p) = &opts.replay {
         crate::poses::PoseTrack::from_path(p)?;
     }
-    let params = maobi_shared::presets::by_name(&opts.brush).ok_or_else(|| {
+    maobi_shared::presets::by_name(&opts.brush).ok_or_else(|| {
         anyhow::anyhow!(
             "unknown brush `{}`; valid brushes: {}",
             opts.brush,
@@ -111,12 +176,8 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     if !have_display() {
         bail!("no display: neither DISPLAY nor WAYLAND_DISPLAY is set; {HEADLESS_HINT}");
     }
-    let device = SimDevice::new(
-        SimClock::RealTime,
-        &opts.brush,
-        start_hand(params.length_mm as f64),
-    )
-    .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let choice = opts.device.clone();
+    let brush = opts.brush.clone();
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let automation = Automation {
         replay: opts.replay.clone(),
@@ -133,13 +194,13 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let result = eframe::run_native(
         "maobi",
         native,
-        Box::new(move |_cc| {
-            Ok(Box::new(MaobiApp::new(
-                Box::new(device),
-                frame,
-                automation,
-                out2,
-            )))
+        Box::new(move |cc| {
+            let ctx = cc.egui_ctx.clone();
+            let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || ctx.request_repaint());
+            let device = make_device(&choice, &brush, Some(wake))?;
+            let mut app = MaobiApp::new(device, frame, automation, out2);
+            app.set_device_choice(&choice, &brush);
+            Ok(Box::new(app))
         }),
     );
     let outcome = outcome.lock().map(|o| o.clone()).unwrap_or_default();

@@ -24,7 +24,7 @@ use super::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
 pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
 /// Fraction of the remaining rotation toward the target tilt per tick.
-const HAND_TURN_PER_TICK: f64 = 0.02;
+pub const HAND_TURN_PER_TICK: f64 = 0.02;
 /// Queue of frames between the model thread and the GUI (4 s at 1 kHz).
 pub const FRAME_QUEUE: usize = 4096;
 /// Ticks the real-time thread may fall behind before it skips ahead.
@@ -211,6 +211,7 @@ impl SimCore {
             ),
             replaying: self.replay.is_some(),
             replays_done: self.replays_done,
+            link: None,
         }
     }
 }

@@ -1,0 +1,20 @@
+//! Devices over the wire protocol ([`maobi_shared::protocol`]), for the GUI and, later, the
+//! Phantom bridge.
+//!
+//! * [`endpoint`]: where a device is (`tcp:HOST:PORT`, `serial:PATH`) and opening a byte
+//!   stream to it; serial port listing.
+//! * [`link`]: [`link::LinkDevice`], the protocol client behind the GUI's
+//!   [`Device`](crate::gui::device::Device) trait: a link thread that connects, shakes hands,
+//!   decodes frames and reconnects; a writer thread that streams the virtual pen's poses at
+//!   1 kHz and the commands.
+//! * [`sim_device`]: the shared simulator behind the wire protocol over TCP (`maobi
+//!   sim-device`): a stand-in for the pen in tests and demos, and the shape of the Phantom
+//!   bridge.
+
+pub mod endpoint;
+pub mod link;
+pub mod sim_device;
+
+pub use endpoint::{available_serial_ports, Conn, Endpoint};
+pub use link::{LinkDevice, LinkOptions, LINK_TIMEOUT};
+pub use sim_device::{SimDeviceOptions, SimDeviceServer};

@@ -1,0 +1,389 @@
+//! The shared simulator behind the wire protocol, over TCP: `maobi sim-device --listen
+//! 127.0.0.1:PORT`, and [`SimDeviceServer`] for tests.
+//!
+//! It behaves as the QEMU board does, from the link's side: a virtual-pen device
+//! ([`Capabilities::VIRTUAL_PEN`]) that answers `Hello`, `Ping`, parameter reads and writes
+//! and commands, runs one `Brush<Fx>` tick (with the force model and the output stage) per
+//! [`HostMsg::Pose`] sample, in arrival order, and sends the brush's [`BrushState`] at
+//! `state_hz` (120 by default; 1000 sends every tick), plus [`Telemetry`] once a second. With
+//! no pose samples arriving it keeps sending its state at `state_hz`, so the host can tell
+//! the link is up. One host at a time; the brush lives on between connections, as a
+//! device's would.
+
+use std::io::{ErrorKind, Read, Write};
+use std::net::{SocketAddr, TcpListener};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use maobi_shared::force::{ForceModel, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::protocol::{
+    param_id, BrushState, Capabilities, Command, CommandError, DeviceInfo, DeviceMsg, DeviceRx,
+    Event, EventKind, Faults, Haptics, HostMsg, Message, ParamReply, Telemetry,
+};
+use maobi_shared::{presets, Brush, Fx, Pose, Scalar, Vec3};
+
+use super::endpoint::Conn;
+use super::link::host_version;
+
+/// Options of the simulated device.
+#[derive(Clone, Debug)]
+pub struct SimDeviceOptions {
+    /// Brush preset at start.
+    pub preset: String,
+    /// State frames per second (1 ..= 1000).
+    pub state_hz: u32,
+    /// Board name in the handshake.
+    pub board: String,
+}
+
+impl Default for SimDeviceOptions {
+    fn default() -> Self {
+        SimDeviceOptions {
+            preset: "large".into(),
+            state_hz: 120,
+            board: "maobi-sim-device".into(),
+        }
+    }
+}
+
+/// The model the device runs.
+struct Model {
+    brush: Brush<Fx>,
+    forces: ForceModel<Fx>,
+    stage: OutputStage<Fx>,
+    /// Brush ticks run (one per pose sample).
+    tick: u32,
+    pose_seq: u32,
+    last_pos: Vec3<Fx>,
+    force: Vec3<Fx>,
+}
+
+impl Model {
+    fn new(preset: &str) -> anyhow::Result<Model> {
+        let params = presets::by_name(preset).ok_or_else(|| {
+            anyhow::anyhow!(
+                "unknown brush `{preset}`; valid brushes: {}",
+                presets::NAMES
+            )
+        })?;
+        let start = Pose::new(
+            Vec3::from_f64([0.0, 0.0, params.length_mm as f64 + 6.0]),
+            maobi_shared::Quat::IDENTITY,
+        );
+        Ok(Model {
+            brush: Brush::new(params, start).map_err(|e| anyhow::anyhow!("{e}"))?,
+            forces: ForceModel::new(DEFAULT_FORCES).map_err(|e| anyhow::anyhow!("{e}"))?,
+            stage: OutputStage::new(PHANTOM_OMNI).map_err(|e| anyhow::anyhow!("{e}"))?,
+            tick: 0,
+            pose_seq: 0,
+            last_pos: start.pos,
+            force: Vec3::ZERO,
+        })
+    }
+
+    fn step(&mut self, pose: Pose<Fx>, seq: u32) {
+        self.brush.tick(pose);
+        let f = self.forces.tick(&self.brush, pose.pos);
+        self.force = self.stage.apply(f.total, pose.pos - self.last_pos);
+        self.last_pos = pose.pos;
+        self.tick = self.tick.wrapping_add(1);
+        self.pose_seq = seq;
+    }
+
+    fn state(&self) -> BrushState {
+        let enabled = !matches!(
+            self.stage.state(),
+            OutputState::Disabled | OutputState::Faulted
+        );
+        BrushState::from_brush(
+            &self.brush,
+            self.tick,
+            self.pose_seq,
+            Haptics::new(self.force, [Fx::ZERO; 3], enabled),
+            Faults::empty(),
+        )
+    }
+
+    fn command(&mut self, c: &Command) -> Result<(), CommandError> {
+        match c {
+            Command::EnableForces => self.stage.enable(),
+            Command::DisableForces => self.stage.disable(),
+            Command::Calibrate => return Err(CommandError::Unsupported),
+            Command::DipInk { wetness } => {
+                let w = Ord::clamp(Fx::from_bits(*wetness), Fx::ZERO, Fx::ONE);
+                self.brush.dip(w);
+            }
+            Command::ChoosePreset(r) => {
+                let p = r.resolve().ok_or(CommandError::UnknownPreset)?;
+                self.brush
+                    .set_params(p)
+                    .map_err(|_| CommandError::UnknownPreset)?;
+                self.brush.reset(self.brush.handle());
+                self.forces.reset();
+            }
+            Command::ClearFaults => self.stage.clear_fault(),
+            Command::ResetBrush => {
+                self.brush.reset(self.brush.handle());
+                self.forces.reset();
+            }
+            // Test hooks of the firmware (and commands newer than this device).
+            #[allow(unreachable_patterns)]
+            _ => return Err(CommandError::Unsupported),
+        }
+        Ok(())
+    }
+}
+
+/// A running simulated device; stops (closing its socket) when dropped.
+pub struct SimDeviceServer {
+    addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl SimDeviceServer {
+    /// Listens on `addr` (`127.0.0.1:0` picks a free port: see [`SimDeviceServer::addr`]).
+    pub fn spawn(addr: &str, opts: SimDeviceOptions) -> anyhow::Result<SimDeviceServer> {
+        if !(1..=1000).contains(&opts.state_hz) {
+            anyhow::bail!("--state-hz must be 1 ..= 1000");
+        }
+        let model = Model::new(&opts.preset)?;
+        let listener =
+            TcpListener::bind(addr).map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
+        listener.set_nonblocking(true)?;
+        let addr = listener.local_addr()?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = {
+            let stop = stop.clone();
+            std::thread::Builder::new()
+                .name("maobi-sim-device".into())
+                .spawn(move || serve(listener, model, opts, &stop))?
+        };
+        Ok(SimDeviceServer {
+            addr,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Stops serving: closes the connection and the listening socket.
+    pub fn stop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+
+    /// Serves until the process ends (for `maobi sim-device`).
+    pub fn wait(mut self) {
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for SimDeviceServer {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn serve(listener: TcpListener, mut model: Model, opts: SimDeviceOptions, stop: &AtomicBool) {
+    while !stop.load(Ordering::SeqCst) {
+        match listener.accept() {
+            Ok((stream, _)) => {
+                let setup = || -> std::io::Result<Box<dyn Conn>> {
+                    stream.set_nonblocking(false)?;
+                    stream.set_nodelay(true)?;
+                    stream.set_read_timeout(Some(Duration::from_millis(1)))?;
+                    stream.set_write_timeout(Some(Duration::from_millis(500)))?;
+                    Ok(Box::new(stream.try_clone()?))
+                };
+                if let Ok(conn) = setup() {
+                    let _ = connection(conn, &mut model, &opts, stop);
+                }
+            }
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+}
+
+/// Serves one host on `conn` (reads should time out after about a millisecond) until it
+/// closes the stream or `stop` is set: the same device as [`SimDeviceServer`], over any byte
+/// stream (a serial port, a pty in tests).
+pub fn serve_stream(
+    conn: Box<dyn Conn>,
+    opts: &SimDeviceOptions,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let mut model = Model::new(&opts.preset)?;
+    connection(conn, &mut model, opts, stop)?;
+    Ok(())
+}
+
+struct Tx {
+    stream: Box<dyn Conn>,
+    buf: Vec<u8>,
+    frame: Vec<u8>,
+    dropped: u32,
+}
+
+impl Tx {
+    fn send(&mut self, msg: &DeviceMsg) {
+        match msg.encode(&mut self.frame) {
+            Ok(n) => self.buf.extend_from_slice(&self.frame[..n]),
+            Err(_) => self.dropped = self.dropped.saturating_add(1),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        if !self.buf.is_empty() {
+            self.stream.write_all(&self.buf)?;
+            self.buf.clear();
+        }
+        Ok(())
+    }
+}
+
+fn connection(
+    stream: Box<dyn Conn>,
+    model: &mut Model,
+    opts: &SimDeviceOptions,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    let mut rx_stream = stream.try_clone_conn()?;
+    let mut tx = Tx {
+        stream,
+        buf: Vec::new(),
+        frame: vec![0u8; DeviceMsg::MAX_FRAME],
+        dropped: 0,
+    };
+    let mut dec = Box::new(DeviceRx::new());
+    let mut buf = vec![0u8; 4096];
+    let period = Duration::from_micros(1_000_000 / u64::from(opts.state_hz));
+    let ticks_per_state = (1000 / opts.state_hz).max(1);
+    let mut since_state = 0u32;
+    let mut last_state = Instant::now();
+    let mut last_telemetry = Instant::now();
+    let mut last_loop = Instant::now();
+    let mut period_us = (u32::MAX, 0u64, 0u32, 0u32);
+    let mut pose_gaps = 0u32;
+    let mut last_pose = Instant::now();
+    let mut greeted = false;
+    let started = Instant::now();
+    while !stop.load(Ordering::SeqCst) {
+        let n = match rx_stream.read(&mut buf) {
+            Ok(0) => return Ok(()),
+            Ok(n) => n,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                ) =>
+            {
+                0
+            }
+            Err(e) => return Err(e),
+        };
+        let now = Instant::now();
+        let us = now
+            .duration_since(last_loop)
+            .as_micros()
+            .min(u128::from(u32::MAX)) as u32;
+        last_loop = now;
+        period_us = (
+            period_us.0.min(us),
+            period_us.1 + u64::from(us),
+            period_us.2 + 1,
+            period_us.3.max(us),
+        );
+        for outcome in dec.feed(&buf[..n]) {
+            let Ok(msg) = outcome else { continue };
+            match msg {
+                HostMsg::Hello(h) => {
+                    if h.check().is_ok() {
+                        let info = DeviceInfo::new(
+                            &opts.board,
+                            host_version(),
+                            Capabilities::VIRTUAL_PEN | Capabilities::FORCE_OUTPUT,
+                            PHANTOM_OMNI.peak_n,
+                            PHANTOM_OMNI.continuous_n,
+                        );
+                        tx.send(&DeviceMsg::Hello(info));
+                        if !greeted {
+                            greeted = true;
+                            tx.send(&DeviceMsg::Event(Event {
+                                tick: model.tick,
+                                kind: EventKind::LinkConnected,
+                                faults: Faults::empty(),
+                            }));
+                        }
+                    }
+                }
+                HostMsg::Ping { seq } => tx.send(&DeviceMsg::Pong { seq }),
+                HostMsg::Pose(sample) => {
+                    last_pose = now;
+                    model.step(sample.pose(), sample.seq);
+                    since_state += 1;
+                    if since_state >= ticks_per_state {
+                        since_state = 0;
+                        last_state = now;
+                        tx.send(&DeviceMsg::State(model.state()));
+                    }
+                }
+                HostMsg::GetParam { id } => tx.send(&DeviceMsg::Param(ParamReply::read(
+                    model.brush.params(),
+                    id,
+                ))),
+                HostMsg::SetParam { id, value } => {
+                    let reply = match param_id(id) {
+                        Some(p) => {
+                            let r = model.brush.set_param(p, value);
+                            ParamReply::written(id, r, model.brush.params())
+                        }
+                        None => ParamReply::read(model.brush.params(), id),
+                    };
+                    tx.send(&DeviceMsg::Param(reply));
+                }
+                HostMsg::Command(c) => {
+                    let result = model.command(&c);
+                    tx.send(&DeviceMsg::CommandDone { command: c, result });
+                }
+            }
+        }
+        // Without pose samples, the clock still runs: count the gaps, keep the state coming.
+        if now.duration_since(last_pose) > Duration::from_millis(1) {
+            pose_gaps = pose_gaps.saturating_add(1);
+        }
+        if greeted && now.duration_since(last_state) >= period {
+            last_state = now;
+            since_state = 0;
+            tx.send(&DeviceMsg::State(model.state()));
+        }
+        if now.duration_since(last_telemetry) >= Duration::from_secs(1) {
+            last_telemetry = now;
+            let (min, sum, count, max) = period_us;
+            tx.send(&DeviceMsg::Telemetry(Telemetry {
+                tick: started.elapsed().as_millis() as u32,
+                tick_period_min_us: if count > 0 { min } else { 0 },
+                tick_period_mean_us: sum.checked_div(u64::from(count)).unwrap_or(0) as u32,
+                tick_period_max_us: max,
+                load_percent: 0,
+                frames_dropped: tx.dropped,
+                pose_gaps,
+                rx: dec.stats(),
+            }));
+            period_us = (u32::MAX, 0, 0, 0);
+        }
+        tx.flush()?;
+    }
+    Ok(())
+}

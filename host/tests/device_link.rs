@@ -1,0 +1,349 @@
+//! The GUI's protocol backend ([`LinkDevice`]) against the simulated protocol device over TCP
+//! (and a pty): handshake, poses in and states out, ink from the received geometry, garbage
+//! on the link, the peer dying mid-stroke and coming back, a peer of another protocol version.
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use maobi::device::{
+    Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDeviceServer, LINK_TIMEOUT,
+};
+use maobi::gui::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
+use maobi::gui::start_hand;
+use maobi::raster::{Canvas, Frame};
+use maobi::render::Inker;
+use maobi_shared::params::MAX_LAYERS;
+use maobi_shared::presets;
+use maobi_shared::protocol::{encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST};
+
+fn length() -> f64 {
+    presets::by_name("large").unwrap().length_mm as f64
+}
+
+fn server(addr: &str, state_hz: u32) -> SimDeviceServer {
+    SimDeviceServer::spawn(
+        addr,
+        SimDeviceOptions {
+            state_hz,
+            ..Default::default()
+        },
+    )
+    .expect("the sim-device starts")
+}
+
+fn link(endpoint: Endpoint) -> LinkDevice {
+    LinkDevice::new(LinkOptions::new(endpoint, start_hand(length()))).unwrap()
+}
+
+/// The GUI's paper, reduced to what these tests check.
+struct Paper {
+    inker: Inker,
+    canvas: Canvas,
+    frames: usize,
+    touching: usize,
+}
+
+impl Paper {
+    fn new() -> Paper {
+        let frame = Frame::covering([-60.0, -60.0], [60.0, 60.0], 0.0, 4.0);
+        Paper {
+            inker: Inker::new(frame, MAX_LAYERS),
+            canvas: Canvas::new(frame.width, frame.height),
+            frames: 0,
+            touching: 0,
+        }
+    }
+    fn ink(&mut self, frames: &[BrushFrame]) {
+        for f in frames {
+            self.frames += 1;
+            if self.inker.stamp_geometry(&f.geometry(), &mut self.canvas) {
+                self.touching += 1;
+            }
+        }
+    }
+}
+
+/// Polls `dev` for `dur`, inking what arrives.
+fn pump(dev: &mut dyn Device, paper: &mut Paper, dur: Duration) {
+    let end = Instant::now() + dur;
+    let mut frames = Vec::new();
+    while Instant::now() < end {
+        frames.clear();
+        dev.poll(&mut frames);
+        paper.ink(&frames);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn wait_for(dev: &dyn Device, dur: Duration, what: impl Fn(&DeviceStatus) -> bool) -> bool {
+    let end = Instant::now() + dur;
+    while Instant::now() < end {
+        if what(&dev.status()) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    what(&dev.status())
+}
+
+fn hand(x: f64, press_mm: f64) -> HandInput {
+    HandInput {
+        x,
+        y: 0.0,
+        z: length() - press_mm,
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
+    }
+}
+
+/// Presses the brush 8 mm into the paper at x = `from` and drags it to `to`.
+fn stroke(dev: &mut dyn Device, paper: &mut Paper, from: f64, to: f64) {
+    dev.send(DeviceCommand::Hand(hand(from, -6.0))).unwrap();
+    pump(dev, paper, Duration::from_millis(150));
+    dev.send(DeviceCommand::Hand(hand(from, 8.0))).unwrap();
+    pump(dev, paper, Duration::from_millis(150));
+    dev.send(DeviceCommand::Hand(hand(to, 8.0))).unwrap();
+    pump(dev, paper, Duration::from_millis(300));
+}
+
+#[test]
+fn handshake_then_poses_in_states_out_and_ink() {
+    let srv = server("127.0.0.1:0", 120);
+    let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
+    dev.connect().expect("connects");
+    let s = dev.status();
+    assert!(s.connected);
+    assert_eq!(s.protocol_version, Some(1));
+    assert!(
+        s.firmware_version
+            .as_deref()
+            .unwrap()
+            .contains("maobi-sim-device"),
+        "{s:?}"
+    );
+    let mut paper = Paper::new();
+    stroke(&mut dev, &mut paper, -10.0, 10.0);
+    let s = dev.status();
+    let l = s.link.clone().unwrap();
+    assert!(
+        paper.frames > 40,
+        "states at ~120 Hz: {} in 0.6 s",
+        paper.frames
+    );
+    assert!(
+        paper.touching > 10,
+        "the pressed brush touched: {}",
+        paper.touching
+    );
+    assert!(
+        paper.canvas.ink_fraction() > 0.001,
+        "ink from the received geometry: {}",
+        paper.canvas.ink_fraction()
+    );
+    assert_eq!(l.rx.dropped(), 0, "a clean link drops nothing: {:?}", l.rx);
+    assert_eq!(s.frames_dropped, 0);
+    // Parameters were read from the device.
+    assert_eq!(s.params, presets::by_name("large").unwrap());
+    // A rejected parameter never reaches the link; a valid one does.
+    assert!(dev
+        .send(DeviceCommand::SetParam(
+            maobi_shared::ParamId::Layers,
+            1000.0
+        ))
+        .is_err());
+    dev.disconnect();
+    assert!(!dev.status().connected);
+}
+
+/// Forwards a client to `upstream`, injecting `garbage` into the device-to-host stream
+/// every few chunks.
+fn garbage_proxy(upstream: String, garbage: Vec<Vec<u8>>) -> (String, Arc<AtomicBool>) {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stop2 = stop.clone();
+    std::thread::spawn(move || {
+        let (client, _) = listener.accept().unwrap();
+        let dev = TcpStream::connect(upstream).unwrap();
+        let (mut c_rx, mut d_tx) = (client.try_clone().unwrap(), dev.try_clone().unwrap());
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = c_rx.read(&mut buf) {
+                if n == 0 || d_tx.write_all(&buf[..n]).is_err() {
+                    break;
+                }
+            }
+        });
+        let (mut d_rx, mut c_tx) = (dev, client);
+        let mut buf = [0u8; 4096];
+        let mut k = 0usize;
+        while let Ok(n) = d_rx.read(&mut buf) {
+            if n == 0 || stop2.load(Ordering::SeqCst) {
+                break;
+            }
+            if c_tx.write_all(&buf[..n]).is_err() {
+                break;
+            }
+            k += 1;
+            if k > 20 && k.is_multiple_of(5) {
+                let g = &garbage[(k / 5) % garbage.len()];
+                if c_tx.write_all(g).is_err() {
+                    break;
+                }
+            }
+        }
+    });
+    (addr, stop)
+}
+
+#[test]
+fn garbage_oversized_and_corrupt_bytes_are_counted_and_dropped() {
+    let srv = server("127.0.0.1:0", 120);
+    // A good Pong frame with one byte damaged: a CRC error.
+    let mut pong = vec![0u8; DeviceMsg::MAX_FRAME];
+    let n = DeviceMsg::Pong { seq: 0x0102_0304 }
+        .encode(&mut pong)
+        .unwrap();
+    pong.truncate(n);
+    pong[3] ^= 0x10;
+    assert_ne!(pong[3], 0);
+    let mut corrupt = vec![0u8];
+    corrupt.extend(&pong);
+    // 5000 stuffed bytes: more than the 4 KiB a device frame may hold.
+    let mut oversized = vec![0u8];
+    oversized.extend(std::iter::repeat_n(0x01u8, 5000));
+    oversized.push(0);
+    // Not COBS: a code byte promising more bytes than come before the delimiter.
+    let framing = vec![0u8, 0x09, 0xAA, 0x55, 0x00];
+    let (addr, _stop) = garbage_proxy(srv.addr().to_string(), vec![corrupt, oversized, framing]);
+    let mut dev = link(Endpoint::Tcp(addr));
+    dev.connect().expect("connects through the proxy");
+    let mut paper = Paper::new();
+    stroke(&mut dev, &mut paper, -10.0, 10.0);
+    pump(&mut dev, &mut paper, Duration::from_millis(500));
+    let s = dev.status();
+    let rx = s.link.clone().unwrap().rx;
+    assert!(s.connected, "garbage does not end the session: {s:?}");
+    assert!(rx.crc_errors > 0, "{rx:?}");
+    assert!(rx.oversized_frames > 0, "{rx:?}");
+    assert!(rx.framing_errors > 0, "{rx:?}");
+    assert!(s.frames_dropped >= u64::from(rx.dropped()), "{s:?}");
+    assert!(rx.frames_ok > 80, "good frames still arrive: {rx:?}");
+    assert!(paper.canvas.ink_fraction() > 0.001);
+}
+
+#[test]
+fn peer_dies_mid_stroke_then_the_link_reconnects() {
+    let mut srv = server("127.0.0.1:0", 120);
+    let addr = srv.addr().to_string();
+    let mut dev = link(Endpoint::Tcp(addr.clone()));
+    dev.connect().expect("connects");
+    let mut paper = Paper::new();
+    dev.send(DeviceCommand::Hand(hand(-20.0, 8.0))).unwrap();
+    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    dev.send(DeviceCommand::Hand(hand(20.0, 8.0))).unwrap();
+    pump(&mut dev, &mut paper, Duration::from_millis(40));
+    let ink_before = paper.canvas.ink_area_px();
+    assert!(ink_before > 0.0, "inking when the peer dies");
+    let lost_at = Instant::now();
+    srv.stop();
+    assert!(
+        wait_for(&dev, LINK_TIMEOUT * 3, |s| !s.connected),
+        "the loss is noticed"
+    );
+    let s = dev.status();
+    let l = s.link.clone().unwrap();
+    assert!(l.state.contains("lost"), "{}", l.state);
+    assert_eq!(l.lost, 1);
+    eprintln!("loss noticed after {:?}: {}", lost_at.elapsed(), l.state);
+    // Commands other than the hand are refused while the link is down.
+    assert!(dev.send(DeviceCommand::Dip(1.0)).is_err());
+    // What arrived before the loss is inked; then nothing changes: the canvas is kept.
+    pump(&mut dev, &mut paper, Duration::from_millis(50));
+    let ink_at_loss = paper.canvas.ink_area_px();
+    assert!(ink_at_loss >= ink_before);
+    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    assert_eq!(
+        paper.canvas.ink_area_px(),
+        ink_at_loss,
+        "the canvas is kept"
+    );
+    // The peer comes back on the same port.
+    let _srv2 = server(&addr, 120);
+    assert!(
+        wait_for(&dev, Duration::from_secs(5), |s| s.connected),
+        "reconnects: {:?}",
+        dev.status().link
+    );
+    let frames_before = paper.frames;
+    stroke(&mut dev, &mut paper, 20.0, 35.0);
+    let l = dev.status().link.unwrap();
+    assert_eq!(l.sessions, 2, "{l:?}");
+    assert!(paper.frames > frames_before + 40, "states flow again");
+    assert!(paper.canvas.ink_area_px() > ink_at_loss, "and ink again");
+}
+
+#[test]
+fn version_mismatch_is_a_clear_error() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(mut s) = stream else { break };
+            let mut buf = [0u8; 512];
+            let _ = s.read(&mut buf);
+            // A frame of protocol version 2: version byte, direction, some message.
+            let content = [2u8, DEVICE_TO_HOST, 0, 2, 0, 0];
+            let mut out = [0u8; 64];
+            let n = encode_raw(&content, content.len() + CRC_LEN, &mut out).unwrap();
+            let _ = s.write_all(&out[..n]);
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    });
+    let mut dev = link(Endpoint::Tcp(addr));
+    let err = dev.connect().expect_err("a version-2 device is refused");
+    let msg = err.to_string();
+    assert!(msg.contains("protocol version mismatch"), "{msg}");
+    assert!(msg.contains("peer speaks 2"), "{msg}");
+    let s = dev.status();
+    assert!(!s.connected);
+    let l = s.link.unwrap();
+    assert!(l.rx.version_errors >= 1, "{l:?}");
+    assert!(l.state.contains("version mismatch"), "{}", l.state);
+    dev.disconnect();
+}
+
+#[test]
+fn nobody_listening_says_so_and_keeps_trying() {
+    let port = {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let addr = format!("127.0.0.1:{port}");
+    let mut dev = link(Endpoint::Tcp(addr.clone()));
+    let err = dev.connect().expect_err("nothing listens").to_string();
+    assert!(err.contains("cannot open"), "{err}");
+    let _srv = server(&addr, 120);
+    assert!(
+        wait_for(&dev, Duration::from_secs(5), |s| s.connected),
+        "connects once the device is there"
+    );
+}
+
+#[test]
+fn endpoints_parse() {
+    assert_eq!(
+        "tcp:127.0.0.1:7878".parse::<Endpoint>(),
+        Ok(Endpoint::Tcp("127.0.0.1:7878".into()))
+    );
+    assert_eq!(
+        "serial:/dev/ttyACM0".parse::<Endpoint>(),
+        Ok(Endpoint::Serial("/dev/ttyACM0".into()))
+    );
+    assert!("tcp:nohost".parse::<Endpoint>().is_err());
+    assert!("usb:1".parse::<Endpoint>().is_err());
+    assert!("serial:".parse::<Endpoint>().is_err());
+}

@@ -44,6 +44,7 @@ struct Paper {
     canvas: Canvas,
     frames: usize,
     touching: usize,
+    kept: Vec<BrushFrame>,
 }
 
 impl Paper {
@@ -54,6 +55,7 @@ impl Paper {
             canvas: Canvas::new(frame.width, frame.height),
             frames: 0,
             touching: 0,
+            kept: Vec::new(),
         }
     }
     fn ink(&mut self, frames: &[BrushFrame]) {
@@ -346,4 +348,164 @@ fn endpoints_parse() {
     assert!("tcp:nohost".parse::<Endpoint>().is_err());
     assert!("usb:1".parse::<Endpoint>().is_err());
     assert!("serial:".parse::<Endpoint>().is_err());
+}
+
+/// Replays `track` through `dev` and inks the replay's frames; returns the paper.
+fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper {
+    let mut paper = Paper::new();
+    let done0 = dev.status().replays_done;
+    dev.send(DeviceCommand::Replay(Arc::new(track))).unwrap();
+    let end = Instant::now() + Duration::from_secs(30);
+    let mut frames = Vec::new();
+    loop {
+        frames.clear();
+        dev.poll(&mut frames);
+        let replay: Vec<BrushFrame> = frames.drain(..).filter(|f| f.replaying).collect();
+        paper.ink(&replay);
+        paper.kept.extend(replay);
+        let s = dev.status();
+        if s.replays_done > done0 && !s.replaying {
+            break;
+        }
+        assert!(Instant::now() < end, "the replay finishes: {s:?}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    paper
+}
+
+/// Same poses, same geometry, same ink: a replay through the TCP backend (every state sent)
+/// inks the canvas exactly as the built-in simulator does.
+#[test]
+fn replay_over_tcp_inks_like_the_built_in_simulator() {
+    use maobi::gui::sim::{SimClock, SimDevice};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
+    let track = || maobi::poses::PoseTrack::from_path(&path).unwrap();
+
+    let mut sim = SimDevice::new(SimClock::Stepped(20), "large", start_hand(length())).unwrap();
+    sim.connect().unwrap();
+    let local = replay_through(&mut sim, track());
+
+    let srv = server("127.0.0.1:0", 1000);
+    let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
+    dev.connect().unwrap();
+    let remote = replay_through(&mut dev, track());
+
+    assert!(local.touching > 100, "the hook touches the paper");
+    assert_eq!(
+        remote.touching, local.touching,
+        "the same ticks touch the paper"
+    );
+    assert!(local.canvas.ink_fraction() > 0.001);
+    // Bit-identical geometry, tick by tick (the remote side may repeat a state).
+    let mut remote_frames = remote.kept.clone();
+    remote_frames.dedup_by(|a, b| a.tick == b.tick);
+    assert_eq!(remote_frames.len(), local.kept.len());
+    for (k, (r, l)) in remote_frames.iter().zip(&local.kept).enumerate() {
+        let fx = |f: &BrushFrame| f.pose.pos.cast::<maobi_shared::Fx>().to_f64();
+        assert_eq!(fx(r), fx(l), "handle at replay tick {k}");
+        assert!(
+            r.spine == l.spine && r.layers == l.layers,
+            "geometry at replay tick {k}"
+        );
+    }
+    let (a, b) = (remote.canvas.coverage(), local.canvas.coverage());
+    assert_eq!(a.len(), b.len());
+    let differ = a.iter().zip(b).filter(|(x, y)| x != y).count();
+    let worst = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    assert_eq!(
+        differ,
+        0,
+        "same geometry, same ink: {differ} pixels differ, by up to {worst}; ink {} vs {}",
+        remote.canvas.ink_fraction(),
+        local.canvas.ink_fraction()
+    );
+    assert_eq!(dev.status().link.unwrap().rx.dropped(), 0);
+}
+
+/// A device that answers the handshake and then says nothing more.
+#[test]
+fn a_silent_peer_counts_as_lost() {
+    use maobi_shared::protocol::{Capabilities, DeviceInfo, Version};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        let mut held = Vec::new();
+        for stream in listener.incoming() {
+            let Ok(mut s) = stream else { break };
+            let mut buf = [0u8; 512];
+            let _ = s.read(&mut buf);
+            let info = DeviceInfo::new(
+                "mute-board",
+                Version::default(),
+                Capabilities::VIRTUAL_PEN,
+                1.0,
+                0.5,
+            );
+            let mut out = vec![0u8; DeviceMsg::MAX_FRAME];
+            let n = DeviceMsg::Hello(info).encode(&mut out).unwrap();
+            let _ = s.write_all(&out[..n]);
+            held.push(s);
+        }
+    });
+    let mut dev = link(Endpoint::Tcp(addr));
+    dev.connect().expect("the handshake succeeds");
+    assert!(dev
+        .status()
+        .firmware_version
+        .unwrap()
+        .contains("mute-board"));
+    let t = Instant::now();
+    assert!(
+        wait_for(&dev, Duration::from_secs(3), |s| !s.connected),
+        "silence ends the session"
+    );
+    let waited = t.elapsed();
+    assert!(
+        waited >= LINK_TIMEOUT - Duration::from_millis(50),
+        "{waited:?}"
+    );
+    let l = dev.status().link.unwrap();
+    assert!(l.state.contains("no data"), "{}", l.state);
+}
+
+/// The serial backend over a pty pair, the simulated device on the other end.
+#[cfg(unix)]
+#[test]
+fn serial_backend_over_a_pty() {
+    use maobi::device::endpoint::SerialConn;
+    use maobi::device::sim_device::serve_stream;
+    use serialport::SerialPort;
+    let (mut master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+    let path = slave.name().expect("the pty has a name");
+    // The backend opens the pty by its path (and locks it); this handle, which holds no
+    // lock, keeps the pty alive.
+    master.set_timeout(Duration::from_millis(1)).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let device = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let _ = serve_stream(
+                Box::new(SerialConn(Box::new(master))),
+                &SimDeviceOptions::default(),
+                &stop,
+            );
+        })
+    };
+    let mut dev = link(Endpoint::Serial(path.clone()));
+    dev.connect().expect("the device answers on the pty");
+    let s = dev.status();
+    assert!(s.connected);
+    assert!(s.name.contains(&path), "{}", s.name);
+    let mut paper = Paper::new();
+    stroke(&mut dev, &mut paper, -10.0, 10.0);
+    assert!(paper.frames > 40, "{} states", paper.frames);
+    assert!(paper.canvas.ink_fraction() > 0.001);
+    dev.disconnect();
+    stop.store(true, Ordering::SeqCst);
+    device.join().unwrap();
+    drop(slave);
 }

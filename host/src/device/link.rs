@@ -883,24 +883,24 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                     let first = poses[0];
                     let (p, arrived) = step_toward(hand, first);
                     if arrived {
-                        // Exactly at the first pose: the brush restarts at rest there, as
-                        // the built-in simulator's replay does.
-                        let n = encode(&HostMsg::Command(Command::ResetBrush), &mut frame);
-                        batch.extend_from_slice(&frame[..n]);
-                        let poses = std::mem::take(poses);
-                        {
-                            let mut s = inner.shared();
-                            if let Some(span) = &mut s.replay {
-                                span.first = Some(seq);
-                            }
-                        }
-                        pen = Pen::Replay(poses, 0);
+                        // The approach ends exactly at the first pose.
+                        pen = Pen::Replay(std::mem::take(poses), 0);
                         first
                     } else {
                         p
                     }
                 }
                 Pen::Replay(poses, k) => {
+                    if *k == 0 {
+                        // The brush restarts at rest at the first pose, as the built-in
+                        // simulator's replay does; the replay's poses follow.
+                        let n = encode(&HostMsg::Command(Command::ResetBrush), &mut frame);
+                        batch.extend_from_slice(&frame[..n]);
+                        let mut s = inner.shared();
+                        if let Some(span) = &mut s.replay {
+                            span.first = Some(seq);
+                        }
+                    }
                     let p = poses[*k];
                     *k += 1;
                     if *k >= poses.len() {

@@ -136,6 +136,9 @@ impl Model {
     }
 }
 
+/// `EIO`, as Linux and the BSDs number it.
+const EIO: i32 = 5;
+
 /// A running simulated device; stops (closing its socket) when dropped.
 pub struct SimDeviceServer {
     addr: SocketAddr,
@@ -289,6 +292,11 @@ fn connection(
                     ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
                 ) =>
             {
+                0
+            }
+            // A pty master whose other end nobody holds open (yet): no host on the line.
+            Err(e) if e.raw_os_error() == Some(EIO) => {
+                std::thread::sleep(Duration::from_millis(1));
                 0
             }
             Err(e) => return Err(e),

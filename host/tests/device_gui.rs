@@ -1,0 +1,142 @@
+//! The GUI over a protocol device: the real app (egui_kittest, no window) with the TCP
+//! backend to the simulated protocol device. A replay inks the paper from the received
+//! geometry; when the device dies the status bar says the link is lost and the paper keeps
+//! its ink; when it comes back the app reconnects.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use egui_kittest::kittest::Queryable;
+use egui_kittest::Harness;
+use maobi::device::{Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDeviceServer};
+use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::{start_hand, GuiOptions};
+
+fn harness(endpoint: Endpoint) -> Harness<'static, MaobiApp> {
+    let opts = GuiOptions {
+        paper_mm: 150.0,
+        px_per_mm: 4.0,
+        ..GuiOptions::default()
+    };
+    let device = LinkDevice::new(LinkOptions::new(endpoint, start_hand(40.0))).unwrap();
+    let app = MaobiApp::new(
+        Box::new(device),
+        opts.frame(),
+        Automation::default(),
+        Default::default(),
+    );
+    Harness::builder()
+        .with_size(egui::vec2(1400.0, 900.0))
+        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+}
+
+/// Steps the UI (in real time: the device runs on its own clock) until `what` holds.
+fn step_until(
+    h: &mut Harness<'static, MaobiApp>,
+    timeout: Duration,
+    what: impl Fn(&MaobiApp) -> bool,
+) -> bool {
+    let end = Instant::now() + timeout;
+    while Instant::now() < end {
+        h.run_steps(1);
+        if what(h.state()) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    false
+}
+
+#[test]
+fn the_app_inks_over_tcp_and_keeps_the_paper_when_the_link_drops() {
+    let mut srv = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
+    let addr = srv.addr().to_string();
+    let mut h = harness(Endpoint::Tcp(addr.clone()));
+    h.run_steps(2);
+    assert!(h.state().status().connected, "{:?}", h.state().status());
+    h.get_by_label_contains("connected to tcp:");
+    h.get_by_label("Disconnect");
+
+    let hook = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
+    h.state_mut().start_replay(&hook).unwrap();
+    assert!(
+        step_until(&mut h, Duration::from_secs(15), |a| {
+            a.status().replays_done == 1 && !a.status().replaying
+        }),
+        "the replay finishes: {:?}",
+        h.state().status()
+    );
+    let ink = h.state().paper().canvas().ink_fraction();
+    assert!(ink > 0.001, "the replay inked the paper: {ink}");
+    assert!(h.state().replay_frames() > 100);
+
+    srv.stop();
+    assert!(
+        step_until(&mut h, Duration::from_secs(3), |a| !a.status().connected),
+        "the loss shows"
+    );
+    h.run_steps(2);
+    h.get_by_label_contains("link lost");
+    assert_eq!(
+        h.state().paper().canvas().ink_fraction(),
+        ink,
+        "the paper keeps its ink"
+    );
+
+    let _srv2 = SimDeviceServer::spawn(&addr, SimDeviceOptions::default()).unwrap();
+    assert!(
+        step_until(&mut h, Duration::from_secs(5), |a| a.status().connected),
+        "reconnects"
+    );
+    h.run_steps(2);
+    h.get_by_label_contains("connected to tcp:");
+    assert_eq!(h.state().paper().canvas().ink_fraction(), ink);
+}
+
+#[test]
+fn the_cli_names_the_device_forms() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["gui", "--device", "usb:3"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("expected sim, tcp:HOST:PORT or serial:PATH"),
+        "{err}"
+    );
+}
+
+#[test]
+fn maobi_sim_device_serves_the_protocol() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["sim-device", "--listen", "127.0.0.1:0", "--brush", "small"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split("--device tcp:")
+        .nth(1)
+        .and_then(|s| s.split('`').next())
+        .unwrap_or_else(|| panic!("the address is printed: {line}"))
+        .to_string();
+    let mut dev = LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr), start_hand(30.0))).unwrap();
+    use maobi::gui::device::Device;
+    let r = dev.connect();
+    let small = maobi_shared::presets::by_name("small").unwrap();
+    let end = Instant::now() + Duration::from_secs(3);
+    while dev.status().params != small && Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let status = dev.status();
+    let _ = child.kill();
+    let _ = child.wait();
+    r.expect("connects to `maobi sim-device`");
+    assert_eq!(status.params, small, "the device's parameters were read");
+}

@@ -509,3 +509,33 @@ fn serial_backend_over_a_pty() {
     device.join().unwrap();
     drop(slave);
 }
+
+/// Recognising the device by its handshake: the sim-device answers with its board name; a
+/// peer that only echoes (a loop-back, a terminal) is not a Maobi device.
+#[test]
+fn identify_recognises_the_device_by_its_handshake() {
+    let srv = server("127.0.0.1:0", 120);
+    let info = maobi::device::identify(
+        &Endpoint::Tcp(srv.addr().to_string()),
+        Duration::from_millis(500),
+    )
+    .expect("the sim-device answers");
+    assert_eq!(info.board.as_str(), "maobi-sim-device");
+
+    let echo = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = echo.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        for stream in echo.incoming() {
+            let Ok(mut s) = stream else { break };
+            let mut buf = [0u8; 512];
+            while let Ok(n) = s.read(&mut buf) {
+                if n == 0 || s.write_all(&buf[..n]).is_err() {
+                    break;
+                }
+            }
+        }
+    });
+    let err = maobi::device::identify(&Endpoint::Tcp(addr), Duration::from_millis(300))
+        .expect_err("an echo is not a device");
+    assert!(err.contains("is this a Maobi device?"), "{err}");
+}

@@ -476,42 +476,44 @@ fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usiz
     }
 }
 
-fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
-    let mut conn = match opts.endpoint.open() {
-        Ok(c) => c,
-        Err(e) => return End::Failed(format!("cannot open {}: {e}", opts.endpoint)),
-    };
-    dec.reset();
-    inner.write_failed.store(false, Ordering::SeqCst);
+/// Sends our `Hello` on `conn` and waits up to `timeout` for the device's; `None` when
+/// `stop` said to give up. A version mismatch (in a frame's version byte or in the device's
+/// hello) is an error that says so.
+fn handshake(
+    conn: &mut dyn Conn,
+    dec: &mut HostRx,
+    host_name: &str,
+    timeout: Duration,
+    stop: &dyn Fn() -> bool,
+) -> Option<Result<DeviceInfo, String>> {
     // A lone delimiter flushes whatever partial frame the device holds, then our hello.
-    let hello = HostMsg::Hello(HostHello::new(&opts.host_name, host_version()));
+    let hello = HostMsg::Hello(HostHello::new(host_name, host_version()));
     let mut buf = [0u8; HostMsg::MAX_FRAME + 1];
     buf[0] = DELIMITER;
     let n = match hello.encode(&mut buf[1..]) {
         Ok(n) => n,
-        Err(e) => return End::Failed(format!("cannot encode the hello: {e}")),
+        Err(e) => return Some(Err(format!("cannot encode the hello: {e}"))),
     };
     if let Err(e) = conn.write_all(&buf[..n + 1]) {
-        return End::Failed(format!("cannot write to {}: {e}", opts.endpoint));
+        return Some(Err(format!("cannot write: {e}")));
     }
-    // Handshake.
     let started = Instant::now();
     let mut rx = vec![0u8; 8192];
-    let info: DeviceInfo = 'hs: loop {
-        if inner.stop.load(Ordering::SeqCst) {
-            return End::Stopped;
+    loop {
+        if stop() {
+            return None;
         }
-        if started.elapsed() > HANDSHAKE_TIMEOUT {
-            return End::Failed(format!(
+        if started.elapsed() > timeout {
+            return Some(Err(format!(
                 "no answer to the handshake within {} ms: is this a Maobi device?",
-                HANDSHAKE_TIMEOUT.as_millis()
-            ));
+                timeout.as_millis()
+            )));
         }
-        let n = match read_some(&mut *conn, &mut rx) {
-            Ok(Some(0)) => return End::Failed("the device closed the link".into()),
+        let n = match read_some(conn, &mut rx) {
+            Ok(Some(0)) => return Some(Err("the device closed the link".into())),
             Ok(Some(n)) => n,
             Ok(None) => continue,
-            Err(e) => return End::Failed(format!("read failed: {e}")),
+            Err(e) => return Some(Err(format!("read failed: {e}"))),
         };
         let mut mismatch = None;
         let mut got = None;
@@ -522,17 +524,56 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
                 _ => {}
             }
         }
-        inner.shared().report.rx = dec.stats();
         if let Some(e) = mismatch {
-            return End::Failed(e.to_string());
+            return Some(Err(e.to_string()));
         }
         if let Some(info) = got {
-            if let Err(e) = info.check() {
-                return End::Failed(e.to_string());
-            }
-            break 'hs info;
+            return Some(info.check().map(|()| info).map_err(|e| e.to_string()));
         }
+    }
+}
+
+/// Whether a Maobi device answers at `endpoint`: opens it, shakes hands, closes it. For
+/// finding the pen among the serial ports (see [`probe_serial_ports`]).
+pub fn identify(endpoint: &Endpoint, timeout: Duration) -> Result<DeviceInfo, String> {
+    let mut conn = endpoint
+        .open()
+        .map_err(|e| format!("cannot open {endpoint}: {e}"))?;
+    let mut dec = Box::new(HostRx::new());
+    let r = handshake(&mut *conn, &mut dec, "maobi-probe", timeout, &|| false)
+        .unwrap_or_else(|| Err("stopped".into()));
+    conn.shut();
+    r
+}
+
+/// Every serial port with what answered there: the board's name, or why not.
+pub fn probe_serial_ports(timeout: Duration) -> Vec<(String, Result<String, String>)> {
+    super::endpoint::available_serial_ports()
+        .into_iter()
+        .map(|p| {
+            let r = identify(&Endpoint::Serial(p.clone()), timeout)
+                .map(|info| format!("{} (firmware {})", info.board, info.firmware));
+            (p, r)
+        })
+        .collect()
+}
+
+fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
+    let mut conn = match opts.endpoint.open() {
+        Ok(c) => c,
+        Err(e) => return End::Failed(format!("cannot open {}: {e}", opts.endpoint)),
     };
+    dec.reset();
+    inner.write_failed.store(false, Ordering::SeqCst);
+    let stop = || inner.stop.load(Ordering::SeqCst);
+    let outcome = handshake(&mut *conn, dec, &opts.host_name, HANDSHAKE_TIMEOUT, &stop);
+    inner.shared().report.rx = dec.stats();
+    let info = match outcome {
+        None => return End::Stopped,
+        Some(Err(e)) => return End::Failed(e),
+        Some(Ok(info)) => info,
+    };
+    let mut rx = vec![0u8; 8192];
     // Up: the writer gets its own handle.
     let out = match conn.try_clone_conn() {
         Ok(c) => c,

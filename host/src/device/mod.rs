@@ -16,5 +16,5 @@ pub mod link;
 pub mod sim_device;
 
 pub use endpoint::{available_serial_ports, Conn, Endpoint};
-pub use link::{LinkDevice, LinkOptions, LINK_TIMEOUT};
+pub use link::{identify, probe_serial_ports, LinkDevice, LinkOptions, LINK_TIMEOUT};
 pub use sim_device::{SimDeviceOptions, SimDeviceServer};

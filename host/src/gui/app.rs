@@ -119,9 +119,14 @@ pub struct MaobiApp {
     device_kind: DeviceKind,
     device_addr: String,
     serial_ports: Vec<String>,
+    /// A running search for the pen among the serial ports (handshake on each).
+    probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
     brush_name: String,
 }
+
+/// Serial ports and what answered on each (the board, or why not).
+type ProbeResults = Vec<(String, Result<String, String>)>;
 
 /// The kinds of device the chooser offers.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
@@ -200,6 +205,7 @@ impl MaobiApp {
             device_kind: DeviceKind::Sim,
             device_addr: "127.0.0.1:7878".into(),
             serial_ports: Vec::new(),
+            probe: None,
             brush_name: "large".into(),
         }
     }
@@ -562,6 +568,7 @@ impl MaobiApp {
             if ui.button("Rescan").clicked() {
                 self.serial_ports = available_serial_ports();
             }
+            self.find_pen(ui);
         }
         if ui
             .button("Use")
@@ -570,6 +577,55 @@ impl MaobiApp {
         {
             let ctx = ui.ctx().clone();
             self.switch_device(&ctx);
+        }
+    }
+
+    /// "Find the pen": shakes hands on every serial port in the background and picks the
+    /// first that answers.
+    fn find_pen(&mut self, ui: &mut egui::Ui) {
+        if let Some(slot) = &self.probe {
+            let done = slot.lock().ok().and_then(|mut s| s.take());
+            match done {
+                Some(found) => {
+                    self.probe = None;
+                    self.serial_ports = found.iter().map(|(p, _)| p.clone()).collect();
+                    let pens: Vec<String> = found
+                        .iter()
+                        .filter_map(|(p, r)| r.as_ref().ok().map(|b| format!("{p}: {b}")))
+                        .collect();
+                    if let Some((p, _)) = found.iter().find(|(_, r)| r.is_ok()) {
+                        self.device_addr = p.clone();
+                    }
+                    self.message = Some(if pens.is_empty() {
+                        (
+                            format!("no Maobi device answered on {} ports", found.len()),
+                            true,
+                        )
+                    } else {
+                        (format!("found {}", pens.join(", ")), false)
+                    });
+                }
+                None => {
+                    ui.spinner();
+                    ui.ctx().request_repaint_after(Duration::from_millis(100));
+                }
+            }
+        } else if ui
+            .button("Find the pen")
+            .on_hover_text("Shake hands on every serial port")
+            .clicked()
+        {
+            let slot = Arc::new(Mutex::new(None));
+            let s2 = slot.clone();
+            let ctx = ui.ctx().clone();
+            std::thread::spawn(move || {
+                let found = crate::device::probe_serial_ports(Duration::from_millis(400));
+                if let Ok(mut s) = s2.lock() {
+                    *s = Some(found);
+                }
+                ctx.request_repaint();
+            });
+            self.probe = Some(slot);
         }
     }
 

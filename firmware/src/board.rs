@@ -43,13 +43,17 @@ pub trait PoseSource {
     /// The pose for this tick, or `None` when the source has no new reading (the virtual
     /// pen's queue is empty). The force loop then holds the brush and counts the gap.
     fn next_pose(&mut self) -> Option<Pose<Fx>>;
+    /// The host's sequence number of the last pose `next_pose` returned (virtual pen; 0
+    /// for a pen with its own sensors).
+    fn pose_seq(&self) -> u32 {
+        0
+    }
     /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
     fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];
 }
 
 /// The byte-stream link to the host, non-blocking on both sides: the force loop never
 /// touches it, the link task reads what is there and writes what fits.
-#[allow(dead_code)] // TEMPORARY: the protocol link task uses all of it (next commit)
 pub trait LinkTransport {
     /// Copies received bytes into `buf`; returns how many (0 if none).
     fn read(&mut self, buf: &mut [u8]) -> usize;

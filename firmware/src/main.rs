@@ -10,6 +10,9 @@
 //! * `tick_us=N` anywhere on the line: a force-loop period other than 1000 us. The brush
 //!   still advances 1 ms of model time per tick; this only paces it, for emulated runs
 //!   where a tick costs more instructions than a virtual millisecond holds (see the README).
+//! * `state_hz=N` (1..=1000): state frames per 1000 force-loop ticks (default 120; 1000 sends
+//!   every tick's state, for the bit-exact HIL checks).
+//! * `telemetry_ticks=N`: telemetry every N force-loop ticks (default 1000).
 //! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
 //!   lines (see [`app::bench`]); `SHIFT` is QEMU's `-icount shift`.
 #![no_std]
@@ -49,6 +52,15 @@ fn tick_us() -> u32 {
         .unwrap_or(1000)
 }
 
+/// `KEY=N` from the command line, if present and within `range`.
+fn arg_num(key: &str, range: core::ops::RangeInclusive<u32>) -> Option<u32> {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    line.split_ascii_whitespace()
+        .find_map(|w| w.strip_prefix(key)?.strip_prefix('=')?.parse().ok())
+        .filter(|v| range.contains(v))
+}
+
 fn boot_mode() -> Mode {
     let mut buf = [0u8; 128];
     let line = semihosting::cmdline(&mut buf);
@@ -81,18 +93,28 @@ fn main() -> ! {
     let Ok(brush) = Brush::<Fx>::new(presets::LARGE, bench::stroke_pose(0)) else {
         semihosting::fatal("the large preset is invalid", 5);
     };
-    let parts = qemu::start(brush, tick_us());
+    let tick_us = tick_us();
+    if let Some(hz) = arg_num("state_hz", 1..=1000) {
+        app::STATE_HZ.store(hz, Ordering::Relaxed);
+    }
+    let link_cfg = link::LinkConfig {
+        tick_us,
+        telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
+    };
+    let parts = qemu::start(brush, tick_us);
     defmt::info!("maobi-fw up");
 
     qemu::executor::run(move |spawner: Spawner| {
-        spawner.spawn(supervisor().expect("one supervisor"));
+        spawner.spawn(supervisor(tick_us).expect("one supervisor"));
         match mode {
             Mode::Crash(how) => spawner.spawn(crash(parts, how).expect("one crash task")),
             Mode::Selftest(ticks) => {
                 spawner.spawn(selftest(parts, ticks).expect("one selftest"));
             }
             _ => {
-                spawner.spawn(link::link_task(parts).expect("one link task"));
+                spawner.spawn(
+                    link::link_task(parts, presets::LARGE, link_cfg).expect("one link task"),
+                );
             }
         }
     })
@@ -101,10 +123,13 @@ fn main() -> ! {
 /// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
 /// or it never returns while the watchdog is somehow not firing), the motors go off and the
 /// fault latches.
+///
+/// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
+/// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
 #[embassy_executor::task]
-async fn supervisor() {
+async fn supervisor(tick_us: u32) {
     let mut last = TICKS.load(Ordering::Relaxed);
-    let mut ticker = Ticker::every(Duration::from_millis(10));
+    let mut ticker = Ticker::every(Duration::from_micros(u64::from(tick_us) * 10));
     loop {
         ticker.next().await;
         let now = TICKS.load(Ordering::Relaxed);
@@ -120,7 +145,7 @@ async fn supervisor() {
 /// that never returns (the watchdog's case).
 #[embassy_executor::task]
 async fn crash(mut parts: qemu::Parts, how: &'static str) {
-    let _ = parts.cmds.enqueue(Command::Calibrated);
+    let _ = parts.cmds.enqueue(Command::EnableForces);
     Timer::after_millis(20).await;
     match how {
         "hardfault" => {
@@ -141,7 +166,7 @@ async fn crash(mut parts: qemu::Parts, how: &'static str) {
 /// Boot test without a link: the bench stroke through the real force loop.
 #[embassy_executor::task]
 async fn selftest(mut parts: qemu::Parts, ticks: u32) {
-    let _ = parts.cmds.enqueue(Command::Calibrated);
+    let _ = parts.cmds.enqueue(Command::EnableForces);
     let mut k = 1;
     let mut done = 0;
     let mut snap_tick = 0;
@@ -150,25 +175,20 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
     let start = embassy_time::Instant::now();
     while done < ticks {
         while k <= ticks && parts.poses.ready() {
-            let _ = parts.poses.enqueue(bench::stroke_pose(k));
+            let _ = parts.poses.enqueue((k, bench::stroke_pose(k)));
             k += 1;
         }
         SNAPSHOT.request();
         Timer::after_millis(5).await;
-        if let Some((b, t, c, tk)) = SNAPSHOT.take(|s| {
-            let n = s.layers_n as usize;
-            (
+        if let Some(Some((b, t, c, tk))) = SNAPSHOT.take(|s| {
+            let spine = s.brush.as_ref()?.spine();
+            let tip = spine.last()?;
+            Some((
                 s.brush_tick,
-                {
-                    let p = s.spine[n - 1];
-                    [um(p.x), um(p.y), um(p.z)]
-                },
-                s.spine[..n]
-                    .iter()
-                    .filter(|p| p.z.to_bits() <= 429_497)
-                    .count(),
+                [um(tip.x), um(tip.y), um(tip.z)],
+                spine.iter().filter(|p| p.z.to_bits() <= 429_497).count(),
                 s.tick,
-            )
+            ))
         }) {
             done = b;
             tip = t;

@@ -4,9 +4,16 @@
 //!   loopback socket when the host needs the link.
 //! * [`firmware`]: building the image (the firmware is its own cargo workspace) and its size.
 //! * [`bench`]: the firmware's own instruction count of one force-loop tick.
+//! * [`link`]: the host end of the wire protocol: handshake, pose streaming paced by the
+//!   device's states, bit-exact comparison with the host simulation.
+//! * [`run`]: `hil run`: a pose file through the device (QEMU or a serial port), with checks.
+//! * [`serial`]: backend `serial`, the same link over a serial port.
 //! * [`selftest`]: the boot self-test and the fault-path hooks (panic, HardFault, watchdog).
 
 pub mod bench;
 pub mod firmware;
+pub mod link;
 pub mod qemu;
+pub mod run;
 pub mod selftest;
+pub mod serial;

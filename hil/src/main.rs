@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
-use hil::{bench, firmware, selftest};
+use hil::{bench, firmware, run, selftest};
 
 #[derive(Parser)]
 #[command(
@@ -45,13 +45,60 @@ enum Cmd {
         #[arg(long, default_value_t = 600)]
         ticks: u32,
     },
+    /// Streams a pose file (CSV) to the device one pose per tick and checks every state
+    /// frame against the host simulation, bit for bit.
+    Run {
+        /// `qemu`: the firmware in QEMU, UART0 on a loopback socket; `serial`: a device on
+        /// a serial port (`--port`).
+        #[arg(long, value_enum, default_value_t = Backend::Qemu)]
+        backend: Backend,
+        /// Serial port path (backend `serial`).
+        #[arg(long)]
+        port: Option<PathBuf>,
+        /// State frames per 1000 device ticks (QEMU boot argument; 1000: every tick).
+        #[arg(long, default_value_t = 120)]
+        state_hz: u32,
+        poses: PathBuf,
+    },
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Backend {
+    Qemu,
+    Serial,
 }
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
     let timeout = Duration::from_secs(cli.timeout);
+    if let Cmd::Run {
+        backend: Backend::Serial,
+        port,
+        poses,
+        ..
+    } = &cli.cmd
+    {
+        let Some(port) = port else {
+            anyhow::bail!("backend serial needs --port PATH");
+        };
+        let r = run::run_serial(port, poses)?;
+        println!("{}", r.render());
+        if !r.passed() {
+            anyhow::bail!("some checks failed");
+        }
+        return Ok(());
+    }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
     match cli.cmd {
+        Cmd::Run {
+            poses, state_hz, ..
+        } => {
+            let r = run::run_qemu(&elf, &poses, state_hz, timeout)?;
+            println!("{}", r.render());
+            if !r.passed() {
+                anyhow::bail!("some checks failed");
+            }
+        }
         Cmd::Bench { shift } => {
             let r = bench::run(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));

@@ -128,7 +128,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         let _ = writeln!(out, "BENCH error=invalid_force_model");
         return;
     };
-    fl.calibrated = true;
+    super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
 
     for substeps in [25u8, 20, 16, 12, 10, 8, 5] {
         if fl

@@ -1,6 +1,7 @@
 //! A one-slot, lock-free hand-off from the force loop (producer, highest priority) to a
-//! thread-mode consumer: the consumer requests, the producer fills at the end of its next
-//! tick, the consumer takes. Neither side ever waits for the other.
+//! thread-mode consumer: the producer fills the slot when the consumer requested it or when
+//! a value falls due and the slot is free; the consumer takes. Neither side ever waits for
+//! the other (a due value finding the slot full is dropped and counted by the producer).
 
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicU8, Ordering};
@@ -34,13 +35,25 @@ impl<T> Mailbox<T> {
             .is_ok()
     }
 
-    /// Producer: fills the slot if it was requested.
-    pub fn fill_if_requested(&self, f: impl FnOnce(&mut T)) {
-        if self.state.load(Ordering::Acquire) == REQUESTED {
-            // SAFETY: REQUESTED: only the producer (this single context) may touch the slot.
+    /// Producer: fills the slot if it was requested, or if `due` and the slot is free.
+    /// Returns whether it filled it (false: not wanted, or the consumer still holds the
+    /// last value).
+    pub fn offer(&self, due: bool, f: impl FnOnce(&mut T)) -> bool {
+        let s = self.state.load(Ordering::Acquire);
+        if s == REQUESTED || (due && s == IDLE) {
+            // SAFETY: not FULL: the consumer does not touch the slot, and only the producer
+            // (this single context) fills it.
             f(unsafe { &mut *self.slot.get() });
             self.state.store(FULL, Ordering::Release);
+            true
+        } else {
+            false
         }
+    }
+
+    /// Consumer: a filled value is waiting.
+    pub fn is_full(&self) -> bool {
+        self.state.load(Ordering::Acquire) == FULL
     }
 
     /// Consumer: reads the filled slot and frees it. None if not filled yet.

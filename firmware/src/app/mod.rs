@@ -7,13 +7,15 @@
 //!   the highest priority. It owns the brush. It reads commands and poses from lock-free
 //!   queues, never waits for anything and never touches the link.
 //! * The **link task** (thread-mode embassy executor) decodes frames from the host and
-//!   pushes poses and commands into the queues; it asks the force loop for a [`Snapshot`]
-//!   through a one-slot [`Mailbox`] and sends it as a state frame.
+//!   pushes poses and commands into the queues; the force loop offers it a [`Snapshot`]
+//!   through a one-slot [`Mailbox`] whenever a state frame is due ([`STATE_HZ`]), and the
+//!   link task encodes and sends it.
 //!
 //! # Faults
 //!
-//! Faults are latched bits in [`FAULTS`]; any latched fault (and a pen not yet calibrated)
-//! keeps the motors off. Only an explicit [`Command::ClearFaults`] clears them.
+//! Faults are latched bits in [`FAULTS`]; any latched fault turns the motors off and
+//! switches the host's force enable off. Only an explicit [`Command::ClearFaults`] clears
+//! them; the host then enables the forces again.
 
 pub mod bench;
 pub mod force;
@@ -21,13 +23,13 @@ pub mod mailbox;
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use maobi_shared::params::MAX_LAYERS;
-use maobi_shared::{Brush, Fx, Layer, ParamId, Pose, Quat, Scalar, Vec3};
+use embassy_sync::waitqueue::AtomicWaker;
+use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{Motors, PoseSource, Watchdog};
 pub use mailbox::Mailbox;
 
-/// Latched fault bits.
+/// Latched fault bits (the same bits as the wire protocol's `Faults`).
 pub mod fault {
     /// Two consecutive pen poses further apart than [`super::SENSOR_JUMP_MM`].
     pub const SENSOR_JUMP: u32 = 1 << 0;
@@ -35,55 +37,125 @@ pub mod fault {
     pub const LOOP_OVERRUN: u32 = 1 << 1;
     /// No valid frame from the host for [`super::LINK_TIMEOUT_TICKS`] ticks.
     pub const LINK_SILENT: u32 = 1 << 2;
-    /// The host set a parameter to a value the brush rejected.
+    /// The force loop's brush rejected a parameter the link task had validated.
     pub const PARAM_REJECTED: u32 = 1 << 3;
     /// The force loop stopped (caught by the watchdog or the supervisor task).
     pub const LOOP_STALLED: u32 = 1 << 4;
+    /// Number of fault bits.
+    pub const COUNT: usize = 5;
 }
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
 /// moves 0.5 mm per tick.
 pub const SENSOR_JUMP_MM: f64 = 10.0;
-/// The link is declared silent after this many ticks without a valid frame.
+/// The link is declared silent after this many ticks without a valid frame (100 ms of
+/// model time).
 pub const LINK_TIMEOUT_TICKS: u32 = 100;
 
 /// Latched faults (bits of [`fault`]). Set by anyone, cleared only by the force loop on
 /// [`Command::ClearFaults`].
 pub static FAULTS: AtomicU32 = AtomicU32::new(0);
+/// The tick at which each fault bit was last raised (for the events the link task sends).
+pub static FAULT_TICKS: [AtomicU32; fault::COUNT] = [const { AtomicU32::new(0) }; fault::COUNT];
 /// Force-loop ticks since boot (the supervisor watches it advance).
 pub static TICKS: AtomicU32 = AtomicU32::new(0);
 /// The tick at which the link task last received a valid frame.
 pub static LAST_RX_TICK: AtomicU32 = AtomicU32::new(0);
 /// The link is supervised (after the host's handshake).
 pub static LINK_ARMED: AtomicBool = AtomicBool::new(false);
+/// The host's switch for the motors (off at boot, and after any fault latches).
+pub static FORCES_ENABLED: AtomicBool = AtomicBool::new(false);
+/// Commands the force loop has applied (the link task waits for its own to be applied).
+pub static CMDS_APPLIED: AtomicU32 = AtomicU32::new(0);
+/// State snapshots that fell due while the previous one was still with the link task.
+pub static STATES_MISSED: AtomicU32 = AtomicU32::new(0);
+/// State frames are due at this rate of force-loop ticks (1000: every tick).
+pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
+/// Woken by the force loop when it has filled the snapshot slot.
+pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
 
-/// Latches fault bits (any context).
+/// Latches fault bits (any context) and notes the tick of the newly raised ones.
 pub fn latch(bits: u32) {
-    FAULTS.fetch_or(bits, Ordering::SeqCst);
+    let old = FAULTS.fetch_or(bits, Ordering::SeqCst);
+    let new = bits & !old;
+    let now = TICKS.load(Ordering::Relaxed);
+    for (i, t) in FAULT_TICKS.iter().enumerate() {
+        if new & (1 << i) != 0 {
+            t.store(now, Ordering::Relaxed);
+        }
+    }
 }
 
 /// Records a valid frame from the host (link task).
-#[allow(dead_code)] // TEMPORARY: the protocol link task uses it (next commit)
 pub fn link_heard() {
     LAST_RX_TICK.store(TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
 }
 
+/// Force-loop timing, kept by the board around each tick (us) and read out by the link
+/// task for telemetry.
+pub mod timing {
+    use core::sync::atomic::{AtomicU32, Ordering};
+
+    static MIN: AtomicU32 = AtomicU32::new(u32::MAX);
+    static MAX: AtomicU32 = AtomicU32::new(0);
+    static SUM: AtomicU32 = AtomicU32::new(0);
+    static BUSY: AtomicU32 = AtomicU32::new(0);
+    static COUNT: AtomicU32 = AtomicU32::new(0);
+
+    /// One tick: `period_us` since the previous tick's start, `busy_us` spent in it.
+    pub fn record(period_us: u32, busy_us: u32) {
+        MIN.fetch_min(period_us, Ordering::Relaxed);
+        MAX.fetch_max(period_us, Ordering::Relaxed);
+        SUM.fetch_add(period_us, Ordering::Relaxed);
+        BUSY.fetch_add(busy_us, Ordering::Relaxed);
+        COUNT.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// (min, mean, max period in us, load in %) since the last call, and restarts.
+    pub fn take() -> (u32, u32, u32, u8) {
+        let (min, max, sum, busy, n) = critical_section::with(|_| {
+            (
+                MIN.swap(u32::MAX, Ordering::Relaxed),
+                MAX.swap(0, Ordering::Relaxed),
+                SUM.swap(0, Ordering::Relaxed),
+                BUSY.swap(0, Ordering::Relaxed),
+                COUNT.swap(0, Ordering::Relaxed),
+            )
+        });
+        if n == 0 || sum == 0 {
+            return (0, 0, 0, 0);
+        }
+        let load = (u64::from(busy) * 100 / u64::from(sum)).min(100) as u8;
+        (min, sum / n, max, load)
+    }
+}
+
 /// What the link task asks of the force loop.
-#[allow(dead_code)] // TEMPORARY: the protocol link task sends them (next commit)
+#[allow(clippy::large_enum_variant)] // a few of them in a queue; no allocator to box
 #[derive(Copy, Clone, Debug)]
 pub enum Command {
-    /// Put the brush at rest at this pose and drop queued poses (start of a stroke stream).
-    ResetBrush(Pose<Fx>),
-    /// The pen's zero position is known: forces may be applied.
-    Calibrated,
+    /// Put the brush at rest at its current pose; the next pose sample re-anchors it (a new
+    /// stroke stream starts at rest at its first pose).
+    ResetBrush,
+    /// The next pose sample places the brush at rest there instead of dragging it (sent by
+    /// the link task after a handshake).
+    Reanchor,
+    /// The host's switch: motors may be driven (while no fault is latched).
+    EnableForces,
+    DisableForces,
     /// Clear every latched fault (re-arms the link timer).
     ClearFaults,
     /// Test hook: burn more than one tick's time in the next tick.
     InjectOverrun,
     /// Test hook: the force loop never returns from its next tick (for the watchdog).
     Stall,
-    /// Set a brush parameter (validated; a rejected value latches PARAM_REJECTED).
+    /// Set a brush parameter (validated by the link task; a rejection here latches
+    /// PARAM_REJECTED).
     SetParam(ParamId, f32),
+    /// Replace every parameter (a preset) and put the brush at rest at its current pose.
+    SetParams(BrushParams),
+    /// Wet every layer (`Brush::dip`).
+    Dip(Fx),
 }
 
 /// Capacity of the virtual pen's pose queue and of the command queue.
@@ -94,60 +166,52 @@ pub type CmdQueue = heapless::spsc::Queue<Command, CMD_QUEUE>;
 pub type CmdConsumer = heapless::spsc::Consumer<'static, Command>;
 pub type CmdProducer = heapless::spsc::Producer<'static, Command>;
 
-/// The state the link task reports, copied out of the force loop on request.
-#[derive(Copy, Clone, Debug)]
+/// The state the link task reports, copied out of the force loop when a state frame is due
+/// (or when the link task asks).
+#[derive(Clone, Debug)]
 pub struct Snapshot {
     /// Force-loop ticks since boot.
     pub tick: u32,
-    /// Brush ticks since the last reset (poses consumed): tick k of the host simulation.
+    /// Brush ticks since the last reset (poses consumed).
     pub brush_tick: u32,
+    /// The `seq` of the last pose sample the brush consumed (0 with real sensors).
+    pub pose_seq: u32,
     /// Ticks without a new pose (the virtual pen's queue was empty).
     pub pose_gaps: u32,
     pub faults: u32,
-    pub calibrated: bool,
+    /// The motors were driven at this tick.
+    pub enabled: bool,
     /// The force model's force on the hand (N) before the output stage and the gate, and
     /// the torques applied (N·m; 0 when off).
     pub force: [Fx; 3],
     pub motors: [Fx; 3],
-    pub handle: Pose<Fx>,
-    pub layers_n: u8,
-    pub spine: [Vec3<Fx>; MAX_LAYERS],
-    pub layers: [Layer<Fx>; MAX_LAYERS],
+    /// The brush after this tick (`None` only before the first fill).
+    pub brush: Option<Brush<Fx>>,
 }
 
 impl Snapshot {
-    pub const ZERO: Snapshot = Snapshot {
+    pub const EMPTY: Snapshot = Snapshot {
         tick: 0,
         brush_tick: 0,
+        pose_seq: 0,
         pose_gaps: 0,
         faults: 0,
-        calibrated: false,
+        enabled: false,
         force: [<Fx as Scalar>::ZERO; 3],
         motors: [<Fx as Scalar>::ZERO; 3],
-        // All-zero (not the identity rotation) so the slot lives in .bss, not in flash.
-        handle: Pose {
-            pos: Vec3::ZERO,
-            rot: Quat {
-                w: <Fx as Scalar>::ZERO,
-                x: <Fx as Scalar>::ZERO,
-                y: <Fx as Scalar>::ZERO,
-                z: <Fx as Scalar>::ZERO,
-            },
-        },
-        layers_n: 0,
-        spine: [Vec3::ZERO; MAX_LAYERS],
-        layers: [Layer {
-            short_axis: Vec3::ZERO,
-            long_axis: Vec3::ZERO,
-            long_radius: <Fx as Scalar>::ZERO,
-            short_radius: <Fx as Scalar>::ZERO,
-            wetness: <Fx as Scalar>::ZERO,
-        }; MAX_LAYERS],
+        brush: None,
     };
 }
 
 /// The snapshot slot shared by the force loop and the link task.
-pub static SNAPSHOT: Mailbox<Snapshot> = Mailbox::new(Snapshot::ZERO);
+pub static SNAPSHOT: Mailbox<Snapshot> = Mailbox::new(Snapshot::EMPTY);
+
+/// Whether a state frame falls due at tick `now` at `hz` per 1000 ticks.
+pub fn state_due(now: u32, hz: u32) -> bool {
+    let hz = u64::from(hz.clamp(1, 1000));
+    let n = u64::from(now);
+    n * hz / 1000 != n.wrapping_sub(1) * hz / 1000 || n == 0
+}
 
 /// The force loop's state. Owned by the highest-priority context.
 pub struct ForceLoop<P, M, W> {
@@ -159,10 +223,12 @@ pub struct ForceLoop<P, M, W> {
     brush_tick: u32,
     pose_gaps: u32,
     last_pose: Option<Pose<Fx>>,
-    calibrated: bool,
+    /// The next pose places the brush at rest rather than dragging it there.
+    reanchor: bool,
     inject_overrun: bool,
     forces: force::HandForces,
     force: [Fx; 3],
+    enabled: bool,
     jump2: Fx,
 }
 
@@ -185,10 +251,11 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             brush_tick: 0,
             pose_gaps: 0,
             last_pose: None,
-            calibrated: false,
+            reanchor: false,
             inject_overrun: false,
             forces: force::HandForces::new()?,
             force: [Fx::ZERO; 3],
+            enabled: false,
             jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
         })
     }
@@ -201,6 +268,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
 
         while let Some(cmd) = self.cmds.dequeue() {
             self.apply(cmd);
+            CMDS_APPLIED.fetch_add(1, Ordering::Release);
         }
         if self.inject_overrun {
             self.inject_overrun = false;
@@ -210,6 +278,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
 
         match self.pen.next_pose() {
+            Some(pose) if self.reanchor => {
+                self.reanchor = false;
+                self.brush.reset(pose);
+                self.forces.reset();
+                self.brush_tick = 0;
+                self.last_pose = Some(pose);
+            }
             Some(pose) => {
                 if let Some(prev) = self.last_pose {
                     if (pose.pos - prev.pos).norm2() > self.jump2 {
@@ -229,17 +304,27 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             latch(fault::LINK_SILENT);
         }
 
-        let allowed = self.calibrated && FAULTS.load(Ordering::SeqCst) == 0;
+        // Any latched fault switches the forces off: the host must clear it and enable again.
+        if FAULTS.load(Ordering::SeqCst) != 0 {
+            FORCES_ENABLED.store(false, Ordering::SeqCst);
+        }
+        let allowed = FORCES_ENABLED.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
         let cmd = self.forces.tick(&self.brush, hand, allowed);
         let w = self.forces.wanted;
         self.force = [w.x, w.y, w.z];
         self.apply_outputs(allowed, cmd);
+        self.enabled = allowed;
 
-        SNAPSHOT.fill_if_requested(|s| self.snapshot(now, s));
+        let due = state_due(now, STATE_HZ.load(Ordering::Relaxed));
+        if SNAPSHOT.offer(due, |s| self.snapshot(now, s)) {
+            SNAPSHOT_WAKER.wake();
+        } else if due {
+            STATES_MISSED.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
-    /// Motors on only with a calibrated pen and no latched fault.
+    /// Motors on only while the host has enabled them and no fault is latched.
     fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
         if allowed {
             let t = self.pen.torques_for(cmd);
@@ -252,18 +337,25 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     /// Turns the motors off now (called by the board when it detects an overrun).
     pub fn motors_off(&mut self) {
         self.motors.disable();
+        FORCES_ENABLED.store(false, Ordering::SeqCst);
     }
 
     fn apply(&mut self, cmd: Command) {
         match cmd {
-            Command::ResetBrush(pose) => {
+            Command::ResetBrush => {
+                let pose = self.last_pose.unwrap_or(self.brush.handle());
                 self.brush.reset(pose);
                 self.forces.reset();
                 self.brush_tick = 0;
-                self.last_pose = Some(pose);
-                while self.pen.next_pose().is_some() {}
+                self.reanchor = true;
             }
-            Command::Calibrated => self.calibrated = true,
+            Command::Reanchor => self.reanchor = true,
+            Command::EnableForces => {
+                if FAULTS.load(Ordering::SeqCst) == 0 {
+                    FORCES_ENABLED.store(true, Ordering::SeqCst);
+                }
+            }
+            Command::DisableForces => FORCES_ENABLED.store(false, Ordering::SeqCst),
             Command::ClearFaults => {
                 LAST_RX_TICK.store(TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
                 FAULTS.store(0, Ordering::SeqCst);
@@ -277,21 +369,31 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                     latch(fault::PARAM_REJECTED);
                 }
             }
+            Command::SetParams(p) => {
+                if self.brush.set_params(p).is_err() {
+                    latch(fault::PARAM_REJECTED);
+                } else {
+                    let pose = self.brush.handle();
+                    self.brush.reset(pose);
+                    self.forces.reset();
+                }
+            }
+            Command::Dip(w) => self.brush.dip(w),
         }
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {
-        let n = self.brush.len();
         s.tick = now;
         s.brush_tick = self.brush_tick;
+        s.pose_seq = self.pen.pose_seq();
         s.pose_gaps = self.pose_gaps;
         s.faults = FAULTS.load(Ordering::Relaxed);
-        s.calibrated = self.calibrated;
+        s.enabled = self.enabled;
         s.force = self.force;
         s.motors = self.motors.applied();
-        s.handle = self.brush.handle();
-        s.layers_n = n as u8;
-        s.spine[..n].copy_from_slice(self.brush.spine());
-        s.layers[..n].copy_from_slice(self.brush.layers());
+        match &mut s.brush {
+            Some(b) => b.clone_from(&self.brush),
+            None => s.brush = Some(self.brush.clone()),
+        }
     }
 }

@@ -63,17 +63,24 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
 // ---------------------------------------------------------------------------------------
 // The virtual pen
 
-pub type PoseQueue = heapless::spsc::Queue<Pose<Fx>, POSE_QUEUE>;
-pub type PoseProducer = heapless::spsc::Producer<'static, Pose<Fx>>;
+/// A pose the host sent, with its sequence number.
+pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
+pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
 
 /// The pen of the QEMU board: poses the host sent, one per force tick.
 pub struct VirtualPen {
-    rx: heapless::spsc::Consumer<'static, Pose<Fx>>,
+    rx: heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>,
+    seq: u32,
 }
 
 impl PoseSource for VirtualPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
-        self.rx.dequeue()
+        let (seq, pose) = self.rx.dequeue()?;
+        self.seq = seq;
+        Some(pose)
+    }
+    fn pose_seq(&self) -> u32 {
+        self.seq
     }
     /// The virtual pen has no linkage: its "motors" are the three Cartesian axes with a unit
     /// lever arm, so the reported torques (N·m) equal the force's components (N).
@@ -159,6 +166,8 @@ static LOOP: LoopCell = LoopCell(core::cell::UnsafeCell::new(core::mem::MaybeUni
 static LOOP_READY: AtomicBool = AtomicBool::new(false);
 
 static OVERRUNS: AtomicU32 = AtomicU32::new(0);
+/// Time-driver count (25 MHz, low word) at the previous tick's start.
+static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
 
 /// Everything `main` gets from the board.
 pub struct Parts {
@@ -182,7 +191,10 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
 
     let Some(fl) = app::ForceLoop::new(
         brush,
-        VirtualPen { rx: pose_rx },
+        VirtualPen {
+            rx: pose_rx,
+            seq: 0,
+        },
         ReportedMotors { _private: () },
         TimerWatchdog { _private: () },
         cmd_rx,
@@ -246,7 +258,17 @@ fn on_force_tick() {
     }
     // SAFETY: see `LoopCell`: initialised (LOOP_READY), and only this handler touches it.
     let fl = unsafe { (*LOOP.0.get()).assume_init_mut() };
+    let start = time_driver::counts_lo();
     fl.tick();
+    let end = time_driver::counts_lo();
+    let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
+    if last != 0 {
+        let per_us = PCLK_HZ / 1_000_000;
+        app::timing::record(
+            start.wrapping_sub(last) / per_us,
+            end.wrapping_sub(start) / per_us,
+        );
+    }
     if rd(t::TIMER0 + t::INTCLEAR) & 1 != 0 {
         // The next tick fell due while this one ran.
         OVERRUNS.fetch_add(1, Ordering::Relaxed);

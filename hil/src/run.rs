@@ -1,0 +1,201 @@
+//! `hil run`: a pose file through the device, every state checked against the host
+//! simulation bit for bit.
+
+use std::net::TcpStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use maobi::poses::PoseTrack;
+use maobi_shared::presets;
+
+use crate::link::{self, Session, StreamLog, StreamOptions, Transport};
+use crate::qemu::{free_port, Clock, Guest, Run};
+use crate::selftest::EMULATED_TICK_US;
+
+/// A firmware image running in QEMU with UART0 on a loopback socket.
+pub struct QemuDevice {
+    pub guest: Guest,
+    pub port: u16,
+}
+
+impl QemuDevice {
+    /// Starts QEMU (`-icount shift=0,sleep=off`, the force loop paced at
+    /// [`EMULATED_TICK_US`]) with `extra` boot arguments, and connects to its UART0.
+    pub fn start(elf: &Path, extra: &[&str], timeout: Duration) -> Result<(Self, TcpStream)> {
+        let port = free_port()?;
+        let tick = format!("tick_us={EMULATED_TICK_US}");
+        let mut args = vec!["run", tick.as_str()];
+        args.extend_from_slice(extra);
+        let mut run = Run::new(elf, &args, Clock::Deterministic { shift: 0 }, timeout);
+        run.uart_port = Some(port);
+        let guest = run.spawn()?;
+        let mut dev = QemuDevice { guest, port };
+        let stream = dev.connect(Duration::from_secs(20))?;
+        Ok((dev, stream))
+    }
+
+    /// Connects (again) to the UART socket, retrying until QEMU listens.
+    pub fn connect(&mut self, within: Duration) -> Result<TcpStream> {
+        let end = Instant::now() + within;
+        loop {
+            match TcpStream::connect(("127.0.0.1", self.port)) {
+                Ok(s) => {
+                    s.set_nodelay(true)?;
+                    return Ok(s);
+                }
+                Err(e) => {
+                    if let Some(st) = self.guest.child.try_wait()? {
+                        bail!("QEMU exited ({st}) before the link opened");
+                    }
+                    if Instant::now() >= end {
+                        return Err(e).context("cannot connect to QEMU's UART0 socket");
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            }
+        }
+    }
+}
+
+/// One check's outcome.
+#[derive(Clone, Debug)]
+pub struct Check {
+    pub name: String,
+    pub pass: bool,
+    pub detail: String,
+}
+
+impl std::fmt::Display for Check {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = if self.pass { "PASS" } else { "FAIL" };
+        write!(f, "{v} {}: {}", self.name, self.detail)
+    }
+}
+
+/// The outcome of a run.
+pub struct RunReport {
+    pub checks: Vec<Check>,
+    pub figures: link::Figures,
+    pub round_trip: Vec<Duration>,
+    pub log: StreamLog,
+}
+
+impl RunReport {
+    pub fn passed(&self) -> bool {
+        self.checks.iter().all(|c| c.pass)
+    }
+    pub fn render(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        for c in &self.checks {
+            let _ = writeln!(s, "{c}");
+        }
+        let f = &self.figures;
+        let rt: Vec<f64> = self
+            .round_trip
+            .iter()
+            .map(|d| d.as_secs_f64() * 1e3)
+            .collect();
+        let rt_mean = rt.iter().sum::<f64>() / rt.len().max(1) as f64;
+        let rt_max = rt.iter().cloned().fold(0.0, f64::max);
+        let _ = write!(
+            s,
+            "states={} per_s_wall={:.0} per_s_device={:.1} bytes_per_state mean={:.0} max={} \
+             link_share_at_120hz_of_1MBps={:.1}% ping_round_trip_ms mean={rt_mean:.2} max={rt_max:.2}",
+            f.states,
+            f.states_per_s_wall,
+            f.states_per_device_s,
+            f.state_bytes_mean,
+            f.state_bytes_max,
+            f.link_share_at_120hz * 100.0
+        );
+        s
+    }
+}
+
+/// Handshake, a few pings, the stream, the comparison. `base`: the first pose's seq.
+pub fn run_session<T: Transport>(
+    s: &mut Session<T>,
+    track: &PoseTrack,
+    opts: StreamOptions,
+) -> Result<RunReport> {
+    let poses = link::track_poses(track);
+    let sim = link::simulate(presets::LARGE, &poses)?;
+    let mut log = StreamLog::default();
+    let info = s.handshake(Duration::from_secs(10), &mut log.received)?;
+    let mut checks = vec![Check {
+        name: "handshake".into(),
+        pass: true,
+        detail: format!(
+            "protocol {} firmware {} board {} capabilities {:?} force peak {} N continuous {} N",
+            info.protocol_version,
+            info.firmware,
+            info.board,
+            info.capabilities,
+            info.force_peak_n,
+            info.force_continuous_n
+        ),
+    }];
+    let mut round_trip = vec![];
+    for seq in 0..5 {
+        round_trip.push(s.ping(seq, Duration::from_secs(5), &mut log.received)?);
+    }
+    let base = opts.base;
+    link::stream(s, &poses, opts, &mut log)?;
+    let cmp = link::compare(&log, base, &sim);
+    checks.push(Check {
+        name: "states bit-identical to the host simulation".into(),
+        pass: cmp.mismatches.is_empty() && cmp.compared > 0,
+        detail: format!(
+            "{} states over {} of {} ticks compared, {} mismatches{}",
+            cmp.compared,
+            cmp.ticks,
+            sim.len(),
+            cmp.mismatches.len(),
+            cmp.mismatches
+                .first()
+                .map(|(k, w)| format!(" (first at tick {k}: {w})"))
+                .unwrap_or_default()
+        ),
+    });
+    let last = log.states().last().map(|(_, st)| st.pose_seq);
+    checks.push(Check {
+        name: "every pose consumed".into(),
+        pass: last == Some(base + poses.len() as u32 - 1),
+        detail: format!(
+            "last state after pose seq {last:?}, {} poses sent",
+            log.sent
+        ),
+    });
+    checks.push(Check {
+        name: "host decoder clean".into(),
+        pass: s.errors.is_empty(),
+        detail: format!("{} frames dropped by the host decoder", s.errors.len()),
+    });
+    Ok(RunReport {
+        figures: link::figures(&log),
+        checks,
+        round_trip,
+        log,
+    })
+}
+
+/// `hil run --backend qemu POSES.csv`.
+pub fn run_qemu(elf: &Path, poses: &Path, state_hz: u32, timeout: Duration) -> Result<RunReport> {
+    let track = PoseTrack::from_path(poses).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let hz = format!("state_hz={state_hz}");
+    let (dev, stream) = QemuDevice::start(elf, &[&hz], timeout)?;
+    let mut s = Session::new(stream)?;
+    let r = run_session(&mut s, &track, StreamOptions::default());
+    drop(dev);
+    r
+}
+
+/// `hil run --backend serial --port PATH POSES.csv`: the same session over a serial port.
+pub fn run_serial(port: &Path, poses: &Path) -> Result<RunReport> {
+    let track = PoseTrack::from_path(poses).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let io = crate::serial::open(port)?;
+    let mut s = Session::new(io)?;
+    run_session(&mut s, &track, StreamOptions::default())
+}

@@ -1,5 +1,7 @@
-//! `hil`: runs the Maobi pen firmware in the loop (QEMU now, real boards over a serial port
-//! once the wire protocol is wired in).
+//! `hil`: runs the Maobi pen firmware in the loop: `bench`, `size`, `selftest`, and `run`, a
+//! pose file streamed over the wire protocol to the firmware in QEMU (`--backend qemu`) or to
+//! a device on a serial port (`--backend serial --port PATH`; built and tested over a
+//! pseudo-terminal, not yet run against a real pen), every state checked bit for bit.
 
 use std::path::PathBuf;
 use std::time::Duration;

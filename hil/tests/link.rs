@@ -355,3 +355,177 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
     let max = log.telemetry().map(|t| t.tick_period_max_us).max().unwrap();
     assert!(max > 4000, "longest tick period {max} us");
 }
+
+/// Sends `m` and returns the device's answer (`Param` or `CommandDone`).
+fn ask(s: &mut Session<std::net::TcpStream>, m: HostMsg) -> DeviceMsg {
+    s.send(&m).unwrap();
+    s.wait_for(Duration::from_secs(10), &mut vec![], |r| match r {
+        DeviceMsg::Param(_) | DeviceMsg::CommandDone { .. } => Some(r.clone()),
+        _ => None,
+    })
+    .unwrap()
+    .expect("an answer")
+    .0
+}
+
+fn param(m: DeviceMsg) -> Result<f32, maobi_shared::protocol::RejectReason> {
+    match m {
+        DeviceMsg::Param(r) => r.result.map_err(|e| e.reason),
+        other => panic!("{other:?}"),
+    }
+}
+
+fn done(m: DeviceMsg) -> Result<(), maobi_shared::protocol::CommandError> {
+    match m {
+        DeviceMsg::CommandDone { result, .. } => result,
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn parameters_and_commands_are_validated_and_answered() {
+    use maobi_shared::params::ParamId;
+    use maobi_shared::protocol::{bounded_str, CommandError, PresetRef, RejectReason};
+    let Some(elf) = image() else { return };
+    let (dev, stream) = QemuDevice::start(&elf, &[], TIMEOUT).unwrap();
+    let mut s = Session::new(stream).unwrap();
+    s.handshake(Duration::from_secs(10), &mut vec![]).unwrap();
+    let id = |p: ParamId| p as u8;
+    let large = presets::LARGE;
+
+    assert_eq!(
+        param(ask(
+            &mut s,
+            HostMsg::GetParam {
+                id: id(ParamId::Plasticity)
+            }
+        )),
+        Ok(large.plasticity)
+    );
+    let (lo, hi, _) = ParamId::PaperDrag.range();
+    let v = (lo + hi) / 2.0;
+    assert_eq!(
+        param(ask(
+            &mut s,
+            HostMsg::SetParam {
+                id: id(ParamId::PaperDrag),
+                value: v
+            }
+        )),
+        Ok(v)
+    );
+    assert_eq!(
+        param(ask(
+            &mut s,
+            HostMsg::SetParam {
+                id: id(ParamId::PaperDrag),
+                value: f32::NAN
+            }
+        )),
+        Err(RejectReason::NotFinite)
+    );
+    assert!(matches!(
+        param(ask(
+            &mut s,
+            HostMsg::SetParam {
+                id: id(ParamId::PaperDrag),
+                value: hi * 2.0 + 1.0
+            }
+        )),
+        Err(RejectReason::OutOfRange { .. })
+    ));
+    assert!(matches!(
+        param(ask(
+            &mut s,
+            HostMsg::SetParam {
+                id: id(ParamId::TipRadiusMm),
+                value: large.radius_mm * 1.5
+            }
+        )),
+        Err(RejectReason::Inconsistent { .. } | RejectReason::OutOfRange { .. })
+    ));
+    // A rejected write changed nothing.
+    assert_eq!(
+        param(ask(
+            &mut s,
+            HostMsg::GetParam {
+                id: id(ParamId::PaperDrag)
+            }
+        )),
+        Ok(v)
+    );
+    assert_eq!(
+        param(ask(&mut s, HostMsg::GetParam { id: 200 })),
+        Err(RejectReason::UnknownParam)
+    );
+
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::Calibrate))),
+        Err(CommandError::Unsupported)
+    );
+    assert_eq!(
+        done(ask(
+            &mut s,
+            HostMsg::Command(Command::ChoosePreset(PresetRef::Name(bounded_str("nope"))))
+        )),
+        Err(CommandError::UnknownPreset)
+    );
+    assert_eq!(
+        done(ask(
+            &mut s,
+            HostMsg::Command(Command::ChoosePreset(PresetRef::Index(1)))
+        )),
+        Ok(())
+    );
+    assert_eq!(
+        param(ask(
+            &mut s,
+            HostMsg::GetParam {
+                id: id(ParamId::Layers)
+            }
+        )),
+        Ok(f32::from(presets::SMALL.layers))
+    );
+    assert_eq!(
+        done(ask(
+            &mut s,
+            HostMsg::Command(Command::DipInk { wetness: 1 << 31 })
+        )),
+        Ok(())
+    );
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::ResetBrush))),
+        Ok(())
+    );
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::InjectOverrun))),
+        Ok(())
+    );
+    // Wait for the overrun to latch, then enabling is refused with the latched faults.
+    s.wait_for(Duration::from_secs(10), &mut vec![], |m| match m {
+        DeviceMsg::Event(e) => match &e.kind {
+            EventKind::FaultRaised(f) if f.contains(Faults::LOOP_OVERRUN) => Some(()),
+            _ => None,
+        },
+        _ => None,
+    })
+    .unwrap()
+    .expect("LOOP_OVERRUN raised");
+    match done(ask(&mut s, HostMsg::Command(Command::EnableForces))) {
+        Err(CommandError::FaultsLatched(f)) => assert!(f.contains(Faults::LOOP_OVERRUN)),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::ClearFaults))),
+        Ok(())
+    );
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::EnableForces))),
+        Ok(())
+    );
+    assert_eq!(
+        done(ask(&mut s, HostMsg::Command(Command::DisableForces))),
+        Ok(())
+    );
+    drop(dev);
+}

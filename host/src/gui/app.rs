@@ -860,31 +860,6 @@ impl MaobiApp {
             }
             ui.separator();
             ui.label(format!("frames dropped {}  ticks late {}", s.frames_dropped, s.ticks_late));
-            if let Some(l) = &s.link {
-                ui.separator();
-                let c = if s.connected {
-                    ui.visuals().text_color()
-                } else {
-                    Color32::from_rgb(230, 80, 70)
-                };
-                ui.label(RichText::new(&l.state).color(c));
-                ui.label(format!(
-                    "rx ok {}  crc {}  framing {}  oversized {}  decode {}  version {}  lost {}",
-                    l.rx.frames_ok,
-                    l.rx.crc_errors,
-                    l.rx.framing_errors,
-                    l.rx.oversized_frames,
-                    l.rx.decode_errors,
-                    l.rx.version_errors,
-                    l.lost
-                ))
-                .on_hover_text(format!(
-                    "device: {} pose gaps, its receiver {:?}; last error: {}",
-                    l.pose_gaps,
-                    l.device_rx,
-                    l.last_error.as_deref().unwrap_or("none")
-                ));
-            }
             ui.separator();
             if let Some(f) = &self.latest {
                 let p = f.pose.pos.to_f64();
@@ -912,6 +887,33 @@ impl MaobiApp {
                 ui.label(RichText::new("REC").color(Color32::from_rgb(230, 60, 60)));
             }
         });
+        // A protocol device's link: its state and our receiver's counters.
+        if let Some(l) = &s.link {
+            ui.horizontal(|ui| {
+                let c = if s.connected {
+                    ui.visuals().text_color()
+                } else {
+                    Color32::from_rgb(230, 80, 70)
+                };
+                ui.label(RichText::new(&l.state).color(c));
+                ui.label(format!(
+                    "rx ok {}  crc {}  framing {}  oversized {}  decode {}  version {}  lost {}",
+                    l.rx.frames_ok,
+                    l.rx.crc_errors,
+                    l.rx.framing_errors,
+                    l.rx.oversized_frames,
+                    l.rx.decode_errors,
+                    l.rx.version_errors,
+                    l.lost
+                ))
+                .on_hover_text(format!(
+                    "device: {} pose gaps, its receiver {:?}; last error: {}",
+                    l.pose_gaps,
+                    l.device_rx,
+                    l.last_error.as_deref().unwrap_or("none")
+                ));
+            });
+        }
     }
 
     /// Keys and pointer to the hand: pointer x/y on the paper, press with the primary button

@@ -458,6 +458,12 @@ fn a_silent_peer_counts_as_lost() {
         .firmware_version
         .unwrap()
         .contains("mute-board"));
+    let track = maobi::poses::PoseTrack::from_path(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv"),
+    )
+    .unwrap();
+    // A virtual pen takes replays.
+    assert!(dev.send(DeviceCommand::Replay(Arc::new(track))).is_ok());
     let t = Instant::now();
     assert!(
         wait_for(&dev, Duration::from_secs(3), |s| !s.connected),
@@ -468,8 +474,47 @@ fn a_silent_peer_counts_as_lost() {
         waited >= LINK_TIMEOUT - Duration::from_millis(50),
         "{waited:?}"
     );
-    let l = dev.status().link.unwrap();
+    let s = dev.status();
+    let l = s.link.unwrap();
     assert!(l.state.contains("no data"), "{}", l.state);
+    assert!(!s.replaying, "a replay the loss cut short has ended");
+}
+
+/// A device with its own sensors takes no replays (there is no virtual pen to drive).
+#[test]
+fn replays_need_a_virtual_pen() {
+    use maobi_shared::protocol::{Capabilities, DeviceInfo, Version};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        let Ok((mut s, _)) = listener.accept() else {
+            return;
+        };
+        let mut buf = [0u8; 512];
+        let _ = s.read(&mut buf);
+        let info = DeviceInfo::new(
+            "maobi-pen-r1",
+            Version::default(),
+            Capabilities::REAL_SENSORS | Capabilities::FORCE_OUTPUT,
+            3.3,
+            0.88,
+        );
+        let mut out = vec![0u8; DeviceMsg::MAX_FRAME];
+        let n = DeviceMsg::Hello(info).encode(&mut out).unwrap();
+        let _ = s.write_all(&out[..n]);
+        std::thread::sleep(Duration::from_secs(2));
+    });
+    let mut dev = link(Endpoint::Tcp(addr));
+    dev.connect().expect("the handshake succeeds");
+    let track = maobi::poses::PoseTrack::from_path(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv"),
+    )
+    .unwrap();
+    let err = dev
+        .send(DeviceCommand::Replay(Arc::new(track)))
+        .expect_err("no virtual pen");
+    assert!(err.to_string().contains("virtual-pen"), "{err}");
+    assert!(!dev.status().replaying);
 }
 
 /// The serial backend over a pty pair, the simulated device on the other end.

@@ -379,6 +379,19 @@ impl Device for LinkDevice {
             DeviceCommand::Replay(track) if track.rows().is_empty() => {
                 return Err(DeviceError::Rejected("the pose file is empty".into()));
             }
+            DeviceCommand::Replay(_)
+                if !self
+                    .inner
+                    .shared()
+                    .capabilities
+                    .contains(Capabilities::VIRTUAL_PEN) =>
+            {
+                return Err(DeviceError::Rejected(
+                    "this device reads its own sensors: replaying poses needs a virtual-pen \
+                     device (the QEMU board, the sim-device, the Phantom bridge)"
+                        .into(),
+                ));
+            }
             DeviceCommand::Replay(_) => {
                 let mut s = self.inner.shared();
                 s.replay = Some(ReplaySpan::default());

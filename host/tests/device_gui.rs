@@ -140,3 +140,53 @@ fn maobi_sim_device_serves_the_protocol() {
     r.expect("connects to `maobi sim-device`");
     assert_eq!(status.params, small, "the device's parameters were read");
 }
+
+/// The device chooser: from the built-in simulator to a TCP device (combo, address field,
+/// Use); the paper keeps what the simulator drew.
+#[test]
+fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
+    use maobi::gui::sim::{SimClock, SimDevice};
+    let srv = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
+    let opts = GuiOptions {
+        paper_mm: 150.0,
+        px_per_mm: 4.0,
+        ..GuiOptions::default()
+    };
+    let device = SimDevice::new(SimClock::Stepped(50), "large", start_hand(40.0)).unwrap();
+    let app = MaobiApp::new(
+        Box::new(device),
+        opts.frame(),
+        Automation::default(),
+        Default::default(),
+    );
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1400.0, 900.0))
+        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app);
+    h.run_steps(2);
+    let hook = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
+    h.state_mut().start_replay(&hook).unwrap();
+    h.run_steps(40);
+    let ink = h.state().paper().canvas().ink_fraction();
+    assert!(ink > 0.001, "the simulator drew: {ink}");
+
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "device")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("TCP (QEMU board, sim-device, bridge)")
+        .click();
+    h.run_steps(2);
+    h.get_by_role_and_label(egui::accesskit::Role::TextInput, "address")
+        .set_text_value_accesskit(&srv.addr().to_string());
+    h.run_steps(2);
+    h.get_by_label("Use").click();
+    assert!(
+        step_until(&mut h, Duration::from_secs(5), |a| a.status().connected
+            && a.status().link.is_some()),
+        "switched and connected: {:?}",
+        h.state().status()
+    );
+    h.run_steps(2);
+    // The message and the link's status row.
+    assert_eq!(h.get_all_by_label_contains("connected to tcp:").count(), 2);
+    assert_eq!(h.state().paper().canvas().ink_fraction(), ink);
+}

@@ -282,6 +282,8 @@ fn peer_dies_mid_stroke_then_the_link_reconnects() {
     );
     let frames_before = paper.frames;
     stroke(&mut dev, &mut paper, 20.0, 35.0);
+    // The virtual pen restarted where the new device's brush was: no jump, no fault.
+    assert!(dev.status().faults.is_empty(), "{:?}", dev.status().faults);
     let l = dev.status().link.unwrap();
     assert_eq!(l.sessions, 2, "{l:?}");
     assert!(paper.frames > frames_before + 40, "states flow again");

@@ -46,6 +46,9 @@ pub const BACKOFF_MIN: Duration = Duration::from_millis(100);
 pub const BACKOFF_MAX: Duration = Duration::from_secs(2);
 /// A device without a virtual pen gets a ping this often (so it knows the host is there).
 pub const PING_EVERY: Duration = Duration::from_millis(100);
+/// How long a new session waits for the device's first state before the virtual pen starts
+/// from where the host left it.
+pub const SYNC_WAIT: Duration = Duration::from_millis(300);
 /// Pose ticks the writer may fall behind the wall clock before it skips ahead.
 pub const MAX_BEHIND_TICKS: u64 = 50;
 
@@ -105,6 +108,8 @@ struct Shared {
     last_tick: Option<u64>,
     /// The parameters changed wholesale (a preset): read them again.
     refetch_params: bool,
+    /// The handle pose of this session's latest state: where the device's pen is.
+    device_handle: Option<Pose<f64>>,
 }
 
 type Wake = Arc<dyn Fn() + Send + Sync>;
@@ -214,6 +219,7 @@ impl LinkDevice {
                     replay: None,
                     last_tick: None,
                     refetch_params: false,
+                    device_handle: None,
                 }),
                 out: Mutex::new(None),
                 stop: AtomicBool::new(false),
@@ -604,6 +610,7 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
         s.report.capabilities = info.capabilities.to_string();
         s.report.sessions += 1;
         s.last_tick = None;
+        s.device_handle = None;
     }
     *inner.out() = Some(out);
     request_params(inner);
@@ -689,6 +696,7 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
             };
             s.last_tick = Some(tick);
             let frame = frame_from_state(&state, tick, replaying);
+            s.device_handle = Some(frame.pose);
             s.status.forces_enabled = state.haptics.enabled;
             s.status.faults = if state.faults.is_empty() {
                 Vec::new()
@@ -834,6 +842,7 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     let mut batch = Vec::with_capacity(64 * HostMsg::MAX_FRAME);
     let mut frame = [0u8; HostMsg::MAX_FRAME];
     let mut was_up = false;
+    let mut syncing: Option<Instant> = None;
     loop {
         if inner.stop.load(Ordering::SeqCst) {
             return;
@@ -910,6 +919,22 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
         if !was_up {
             was_up = true;
             done = due - 1;
+            syncing = Some(Instant::now());
+        }
+        if let Some(since) = syncing {
+            // Start the virtual pen where the device's pen is (its first state says), so
+            // the first sample of a session is no jump (the firmware latches one of more
+            // than 10 mm as a sensor fault); without a state soon, start from ours.
+            let at = inner.shared().device_handle;
+            if let Some(p) = at {
+                hand = p;
+                syncing = None;
+            } else if since.elapsed() >= SYNC_WAIT {
+                syncing = None;
+            } else {
+                done = due;
+                continue;
+            }
         }
         if !virtual_pen {
             done = due;

@@ -58,6 +58,7 @@ struct Model {
     pose_seq: u32,
     last_pos: Vec3<Fx>,
     force: Vec3<Fx>,
+    faults: Faults,
 }
 
 impl Model {
@@ -80,10 +81,18 @@ impl Model {
             pose_seq: 0,
             last_pos: start.pos,
             force: Vec3::ZERO,
+            faults: Faults::empty(),
         })
     }
 
     fn step(&mut self, pose: Pose<Fx>, seq: u32) {
+        // As the firmware does: a sample further than a pen can move in a tick from where
+        // the pen was is a sensor fault (latched; forces held at zero until cleared).
+        let jump = (pose.pos - self.last_pos).to_f64();
+        if jump.iter().map(|d| d * d).sum::<f64>() > SENSOR_JUMP_MM * SENSOR_JUMP_MM {
+            self.faults |= Faults::SENSOR_JUMP;
+            self.stage.fault();
+        }
         self.brush.tick(pose);
         let f = self.forces.tick(&self.brush, pose.pos);
         self.force = self.stage.apply(f.total, pose.pos - self.last_pos);
@@ -102,12 +111,15 @@ impl Model {
             self.tick,
             self.pose_seq,
             Haptics::new(self.force, [Fx::ZERO; 3], enabled),
-            Faults::empty(),
+            self.faults,
         )
     }
 
     fn command(&mut self, c: &Command) -> Result<(), CommandError> {
         match c {
+            Command::EnableForces if !self.faults.is_empty() => {
+                return Err(CommandError::FaultsLatched(self.faults));
+            }
             Command::EnableForces => self.stage.enable(),
             Command::DisableForces => self.stage.disable(),
             Command::Calibrate => return Err(CommandError::Unsupported),
@@ -123,7 +135,10 @@ impl Model {
                 self.brush.reset(self.brush.handle());
                 self.forces.reset();
             }
-            Command::ClearFaults => self.stage.clear_fault(),
+            Command::ClearFaults => {
+                self.faults = Faults::empty();
+                self.stage.clear_fault();
+            }
             Command::ResetBrush => {
                 self.brush.reset(self.brush.handle());
                 self.forces.reset();
@@ -135,6 +150,10 @@ impl Model {
         Ok(())
     }
 }
+
+/// Consecutive pose samples further apart than this are a sensor fault (the firmware's
+/// threshold).
+pub const SENSOR_JUMP_MM: f64 = 10.0;
 
 /// `EIO`, as Linux and the BSDs number it.
 const EIO: i32 = 5;

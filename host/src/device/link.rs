@@ -51,6 +51,11 @@ pub const PING_EVERY: Duration = Duration::from_millis(100);
 pub const SYNC_WAIT: Duration = Duration::from_millis(300);
 /// Pose ticks the writer may fall behind the wall clock before it skips ahead.
 pub const MAX_BEHIND_TICKS: u64 = 50;
+/// At most this many poses in flight: sent but not yet reported consumed (a state's
+/// `pose_seq`). A device in real time consumes one per millisecond and reports at 120 Hz, so
+/// 48 leaves it about 40 ms of slack; a slower-than-real-time device (the firmware under
+/// QEMU) paces the writer instead of overflowing its 64-pose queue, so no replay pose is lost.
+pub const POSES_IN_FLIGHT: u32 = 48;
 
 /// What the link client says about itself in the handshake.
 #[derive(Clone, Debug)]
@@ -110,6 +115,8 @@ struct Shared {
     refetch_params: bool,
     /// The handle pose of this session's latest state: where the device's pen is.
     device_handle: Option<Pose<f64>>,
+    /// The `pose_seq` of this session's latest state: the last pose the device consumed.
+    device_pose_seq: Option<u32>,
 }
 
 type Wake = Arc<dyn Fn() + Send + Sync>;
@@ -220,6 +227,7 @@ impl LinkDevice {
                     last_tick: None,
                     refetch_params: false,
                     device_handle: None,
+                    device_pose_seq: None,
                 }),
                 out: Mutex::new(None),
                 stop: AtomicBool::new(false),
@@ -611,6 +619,7 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
         s.report.sessions += 1;
         s.last_tick = None;
         s.device_handle = None;
+        s.device_pose_seq = None;
     }
     *inner.out() = Some(out);
     request_params(inner);
@@ -697,6 +706,7 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
             s.last_tick = Some(tick);
             let frame = frame_from_state(&state, tick, replaying);
             s.device_handle = Some(frame.pose);
+            s.device_pose_seq = Some(state.pose_seq);
             s.status.forces_enabled = state.haptics.enabled;
             s.status.faults = if state.faults.is_empty() {
                 Vec::new()
@@ -834,7 +844,10 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     let mut target = start;
     let mut hand = start.pose();
     let mut pen = Pen::Hand;
-    let mut seq: u32 = 0;
+    // Sequence numbers start at 1: a state with `pose_seq` 0 is one from before any pose.
+    let mut seq: u32 = 1;
+    // The first sequence number of the current session.
+    let mut session_first = seq;
     let clock = Instant::now();
     let mut done: u64 = 0;
     let mut last_ping = Instant::now();
@@ -919,6 +932,7 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
         if !was_up {
             was_up = true;
             done = due - 1;
+            session_first = seq;
             syncing = Some(Instant::now());
         }
         if let Some(since) = syncing {
@@ -948,9 +962,23 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
         if due > done + MAX_BEHIND_TICKS {
             done = due - MAX_BEHIND_TICKS;
         }
+        // Poses the device has not reported consumed yet (a pose_seq from before this
+        // session counts as none consumed).
+        let in_flight = match inner.shared().device_pose_seq {
+            Some(a) if seq_at_or_after(a, session_first) => seq.wrapping_sub(a).wrapping_sub(1),
+            _ => seq.wrapping_sub(session_first),
+        };
+        let mut room = POSES_IN_FLIGHT.saturating_sub(in_flight);
         batch.clear();
-        while done < due {
+        while done < due && room > 0 {
+            // A replay's brush reset waits until the device has consumed every earlier pose:
+            // the device applies a command when it arrives but queues poses, so a reset sent
+            // behind queued poses would take effect before them.
+            if matches!(pen, Pen::Replay(_, 0)) && room < POSES_IN_FLIGHT {
+                break;
+            }
             done += 1;
+            room -= 1;
             let pose = match &mut pen {
                 Pen::Hand => {
                     let (p, _) = step_toward(hand, target.pose());

@@ -15,6 +15,8 @@ use maobi_shared::{presets, ParamId};
 use super::brush_view::{self, Orbit};
 use super::canvas::PaperView;
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
+use super::session::{CanvasOp, InkLog, Rerender, Session};
+use super::sim::{SimClock, SimDevice};
 use super::DeviceChoice;
 use crate::device::{available_serial_ports, Endpoint};
 use crate::poses::PoseTrack;
@@ -123,7 +125,17 @@ pub struct MaobiApp {
     probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
     brush_name: String,
+    /// The paper's history for the session file (inked ticks, undo, clear).
+    ink_log: InkLog,
+    session_path: String,
+    /// A session being re-rendered in the background: its path and the result slot.
+    opening: Option<(PathBuf, RerenderSlot)>,
+    /// The clock of the simulator an opened session continues on.
+    session_clock: SimClock,
 }
+
+/// Where a background re-render leaves its result.
+type RerenderSlot = Arc<Mutex<Option<anyhow::Result<Rerender>>>>;
 
 /// Serial ports and what answered on each (the board, or why not).
 type ProbeResults = Vec<(String, Result<String, String>)>;
@@ -207,6 +219,127 @@ impl MaobiApp {
             serial_ports: Vec::new(),
             probe: None,
             brush_name: "large".into(),
+            ink_log: InkLog::default(),
+            session_path: "out/maobi-session.maobi.toml".into(),
+            opening: None,
+            session_clock: SimClock::RealTime,
+        }
+    }
+
+    /// The clock of the simulator an opened session continues on (tests use a stepped one).
+    pub fn set_session_clock(&mut self, clock: SimClock) {
+        self.session_clock = clock;
+    }
+
+    /// A new device (or a new model on the same one) starts a new journal: ink already on
+    /// the paper is not part of the new session.
+    fn restart_ink_log(&mut self) {
+        self.ink_log = InkLog {
+            foreign: self.paper.canvas().ink_area_px() > 0.0 || self.paper.undo_depth() > 0,
+            ..InkLog::default()
+        };
+    }
+
+    /// The session so far: the device's journal and the paper's history.
+    pub fn session(&self) -> anyhow::Result<Session> {
+        let journal = self.device.journal().ok_or_else(|| {
+            anyhow::anyhow!(
+                "{} keeps no session journal (only the built-in simulator does); \
+                 use Record poses to keep its pose stream",
+                self.status.name
+            )
+        })?;
+        Ok(Session {
+            device: self.status.name.clone(),
+            journal,
+            paper: *self.paper.frame(),
+            ink: self.ink_log.clone(),
+        })
+    }
+
+    /// Saves the session (see [`super::session`] for the format); returns its ticks.
+    pub fn save_session(&mut self, path: &Path) -> anyhow::Result<u64> {
+        let s = self.session()?;
+        s.save(path)?;
+        Ok(s.journal.ticks)
+    }
+
+    /// Starts re-rendering a session file in the background; [`Self::opening_session`]
+    /// says whether it is still running. When it is done the paper shows the session and
+    /// the built-in simulator continues from where it ended.
+    pub fn open_session(&mut self, path: &Path, ctx: Option<&egui::Context>) {
+        let slot = Arc::new(Mutex::new(None));
+        let s2 = slot.clone();
+        let p = path.to_path_buf();
+        let ctx = ctx.cloned();
+        let spawned = std::thread::Builder::new()
+            .name("maobi-session".into())
+            .spawn(move || {
+                let r = Session::load(&p).and_then(|s| s.rerender(|_| {}));
+                if let Ok(mut s) = s2.lock() {
+                    *s = Some(r);
+                }
+                if let Some(c) = ctx {
+                    c.request_repaint();
+                }
+            });
+        match spawned {
+            Ok(_) => {
+                self.message = Some((format!("opening {}", path.display()), false));
+                self.opening = Some((path.to_path_buf(), slot));
+            }
+            Err(e) => self.message = Some((format!("cannot start the re-render: {e}"), true)),
+        }
+    }
+
+    pub fn opening_session(&self) -> bool {
+        self.opening.is_some()
+    }
+
+    /// Takes an opened session in when its re-render is done.
+    fn finish_open(&mut self, ctx: &egui::Context) {
+        let Some((path, slot)) = &self.opening else {
+            return;
+        };
+        let done = slot.lock().ok().and_then(|mut s| s.take());
+        let Some(result) = done else {
+            ctx.request_repaint_after(Duration::from_millis(50));
+            return;
+        };
+        let path = path.clone();
+        self.opening = None;
+        match result {
+            Err(e) => {
+                self.message = Some((format!("cannot open {}: {e:#}", path.display()), true));
+            }
+            Ok(r) => {
+                let ticks = r.core.tick();
+                let mut d = SimDevice::from_core(self.session_clock, r.core);
+                let c2 = ctx.clone();
+                d.on_frames(Arc::new(move || c2.request_repaint()));
+                self.device.disconnect();
+                let connected = d.connect();
+                self.device = Box::new(d);
+                self.status = self.device.status();
+                self.latest = None;
+                self.device_kind = DeviceKind::Sim;
+                self.paper = r.paper;
+                self.ink_log = r.ink;
+                self.param_edit = ParamId::ALL
+                    .iter()
+                    .map(|&p| self.status.params.get(p))
+                    .collect();
+                self.message = Some(match connected {
+                    Ok(()) => (
+                        format!(
+                            "opened {}: {ticks} ticks re-rendered; the built-in simulator goes on from there",
+                            path.display()
+                        ),
+                        false,
+                    ),
+                    Err(e) => (format!("opened {}, but: {e}", path.display()), true),
+                });
+            }
         }
     }
 
@@ -253,6 +386,7 @@ impl MaobiApp {
                 self.device = d;
                 self.status = self.device.status();
                 self.latest = None;
+                self.restart_ink_log();
             }
             Err(e) => self.message = Some((format!("cannot use {choice}: {e}"), true)),
         }
@@ -310,10 +444,15 @@ impl MaobiApp {
     }
 
     pub fn undo(&mut self) -> bool {
-        self.paper.undo()
+        let undone = self.paper.undo();
+        if undone {
+            self.ink_log.op(CanvasOp::Undo);
+        }
+        undone
     }
     pub fn clear(&mut self) {
         self.paper.clear();
+        self.ink_log.op(CanvasOp::Clear);
     }
 
     /// Polls the device and inks what arrived.
@@ -327,6 +466,7 @@ impl MaobiApp {
         let n = frames.len().max(1) as f64;
         for (i, f) in frames.iter().enumerate() {
             self.paper.ink(f);
+            self.ink_log.inked(f.tick);
             if f.replaying {
                 self.replay_frames += 1;
             }
@@ -641,6 +781,8 @@ impl MaobiApp {
                 if let Err(e) = self.device.connect() {
                     self.message = Some((format!("cannot connect: {e}"), true));
                 }
+                // The simulator starts a new model (and journal) on connect.
+                self.restart_ink_log();
             }
             ui.separator();
             let mut preset = self.status.preset.clone();
@@ -741,6 +883,32 @@ impl MaobiApp {
                 if let Err(e) = self.start_replay(&p) {
                     self.message = Some((format!("cannot replay: {e:#}"), true));
                 }
+            }
+            ui.separator();
+            let l = ui.label("session file");
+            ui.add(egui::TextEdit::singleline(&mut self.session_path).desired_width(200.0))
+                .labelled_by(l.id);
+            if ui
+                .button("Save session")
+                .on_hover_text("The poses, commands and parameters since the simulator started, so the session re-renders exactly")
+                .clicked()
+            {
+                let p = PathBuf::from(&self.session_path);
+                self.message = Some(match self.save_session(&p) {
+                    Ok(t) => (format!("saved the session ({t} ticks) to {}", p.display()), false),
+                    Err(e) => (format!("cannot save the session: {e:#}"), true),
+                });
+            }
+            if self.opening.is_some() {
+                ui.spinner();
+            } else if ui
+                .button("Open session")
+                .on_hover_text("Re-render a saved session and go on writing from where it ended")
+                .clicked()
+            {
+                let p = PathBuf::from(&self.session_path);
+                let ctx = ui.ctx().clone();
+                self.open_session(&p, Some(&ctx));
             }
         });
         if let Some((m, err)) = &self.message {
@@ -1041,6 +1209,7 @@ impl MaobiApp {
             self.overlay(ui);
         });
         self.hand_input(&ctx, pointer);
+        self.finish_open(&ctx);
         self.automation(&ctx);
 
         let ui_ms = begin.elapsed().as_secs_f64() * 1e3;

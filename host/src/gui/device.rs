@@ -204,4 +204,9 @@ pub trait Device {
     /// Sends a command. Parameters are validated (with the shared model's own checks) before
     /// anything is sent, so a rejection comes back here.
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError>;
+    /// Every pose and brush command since the model started, for saving the session
+    /// ([`super::session`]); `None` from devices that keep no journal (a pen on a link).
+    fn journal(&self) -> Option<super::session::Journal> {
+        None
+    }
 }

@@ -11,6 +11,7 @@ pub mod app;
 pub mod brush_view;
 pub mod canvas;
 pub mod device;
+pub mod session;
 pub mod sim;
 
 use std::path::PathBuf;

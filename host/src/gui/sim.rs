@@ -20,6 +20,7 @@ use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI}
 use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
+use super::session::{Journal, JournalEvent};
 
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
 pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
@@ -49,18 +50,27 @@ pub struct SimCore {
     replay: Option<(Vec<Pose<f64>>, usize)>,
     replays_done: u64,
     tick: u64,
+    /// Every pose and brush command since the start, for saving the session
+    /// ([`super::session`]). Shared so the GUI can read it while the model thread runs.
+    journal: Arc<Mutex<Journal>>,
 }
 
 impl SimCore {
     /// The brush `preset`, hanging at rest at `hand`.
     pub fn new(preset: &str, hand: HandInput) -> Result<SimCore, DeviceError> {
+        let mut core = SimCore::at_pose(preset, hand.pose())?;
+        core.target = hand;
+        Ok(core)
+    }
+
+    /// The brush `preset`, hanging at rest at `pose`; the hand's target is that pose.
+    pub fn at_pose(preset: &str, pose: Pose<f64>) -> Result<SimCore, DeviceError> {
         let params = presets::by_name(preset).ok_or_else(|| {
             DeviceError::Rejected(format!(
                 "unknown brush `{preset}`; valid brushes: {}",
                 presets::NAMES
             ))
         })?;
-        let pose = hand.pose();
         let brush =
             Brush::new(params, pose.cast()).map_err(|e| DeviceError::Rejected(e.to_string()))?;
         let model =
@@ -73,15 +83,65 @@ impl SimCore {
             stage,
             preset: preset.to_string(),
             hand: pose,
-            target: hand,
+            target: hand_at(pose),
             replay: None,
             replays_done: 0,
             tick: 0,
+            journal: Arc::new(Mutex::new(Journal::new(preset, params, pose))),
         })
+    }
+
+    /// The journal of this model (shared with the thread that runs it).
+    pub fn journal(&self) -> Arc<Mutex<Journal>> {
+        self.journal.clone()
+    }
+
+    /// Continues `journal` (a re-rendered session's) instead of this model's own.
+    pub fn resume_journal(&mut self, journal: Journal) {
+        if let Ok(mut j) = self.journal.lock() {
+            *j = journal;
+        }
+    }
+
+    fn note(&self, e: JournalEvent) {
+        if let Ok(mut j) = self.journal.lock() {
+            j.event(e);
+        }
+    }
+
+    /// Replaces all parameters (validated by the model).
+    pub fn set_params(&mut self, p: BrushParams) -> Result<(), DeviceError> {
+        self.brush
+            .set_params(p)
+            .map_err(|e| DeviceError::Rejected(e.to_string()))
+    }
+
+    /// Carries out a journaled event again (re-rendering a session).
+    pub fn replay_event(&mut self, e: &JournalEvent) -> Result<(), DeviceError> {
+        match e {
+            JournalEvent::Dip(w) => self.apply(DeviceCommand::Dip(*w)),
+            JournalEvent::Param(id, v) => self.apply(DeviceCommand::SetParam(*id, *v)),
+            JournalEvent::Preset(n) => self.apply(DeviceCommand::Preset(n.clone())),
+            JournalEvent::Reset(p) => {
+                self.reset_at(*p);
+                Ok(())
+            }
+        }
+    }
+
+    fn reset_at(&mut self, p: Pose<f64>) {
+        self.brush.reset(p.cast());
+        self.model.reset();
+        self.hand = p;
     }
 
     pub fn params(&self) -> &BrushParams {
         self.brush.params()
+    }
+
+    /// The last tick run.
+    pub fn tick(&self) -> u64 {
+        self.tick
     }
 
     pub fn replaying(&self) -> bool {
@@ -96,7 +156,10 @@ impl SimCore {
             DeviceCommand::EnableForces(true) => self.stage.enable(),
             DeviceCommand::EnableForces(false) => self.stage.disable(),
             DeviceCommand::ClearFault => self.stage.clear_fault(),
-            DeviceCommand::Dip(w) => self.brush.dip(Fx::from_f32(w)),
+            DeviceCommand::Dip(w) => {
+                self.brush.dip(Fx::from_f32(w));
+                self.note(JournalEvent::Dip(w));
+            }
             DeviceCommand::Preset(name) => {
                 let p = presets::by_name(&name).ok_or_else(|| {
                     DeviceError::Rejected(format!(
@@ -108,17 +171,19 @@ impl SimCore {
                     .set_params(p)
                     .map_err(|e| DeviceError::Rejected(e.to_string()))?;
                 self.brush.reset(self.hand.cast());
+                self.note(JournalEvent::Preset(name.clone()));
                 self.preset = name;
             }
-            DeviceCommand::SetParam(id, v) => self
-                .brush
-                .set_param(id, v)
-                .map_err(|e| DeviceError::Rejected(e.to_string()))?,
+            DeviceCommand::SetParam(id, v) => {
+                self.brush
+                    .set_param(id, v)
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                self.note(JournalEvent::Param(id, v));
+            }
             DeviceCommand::Replay(track) => {
                 let poses: Vec<Pose<f64>> = track.resample().collect();
-                self.brush.reset(poses[0].cast());
-                self.model.reset();
-                self.hand = poses[0];
+                self.reset_at(poses[0]);
+                self.note(JournalEvent::Reset(poses[0]));
                 self.replay = Some((poses, 0));
             }
             DeviceCommand::StopReplay => self.end_replay(),
@@ -143,7 +208,6 @@ impl SimCore {
     /// Runs one 1 ms tick and returns the brush state after it.
     pub fn step(&mut self) -> BrushFrame {
         let replaying = self.replay.is_some();
-        let last = self.hand.pos;
         let pose = if let Some((poses, k)) = &mut self.replay {
             let p = poses[*k];
             *k += 1;
@@ -164,6 +228,16 @@ impl SimCore {
             let rot = Quat::nlerp(self.hand.rot, t.rot, HAND_TURN_PER_TICK);
             Pose::new(pos, rot)
         };
+        self.run_tick(pose, replaying)
+    }
+
+    /// Runs one tick with the handle at `pose` (re-rendering a journal).
+    pub fn step_at(&mut self, pose: Pose<f64>) -> BrushFrame {
+        self.run_tick(pose, false)
+    }
+
+    fn run_tick(&mut self, pose: Pose<f64>, replaying: bool) -> BrushFrame {
+        let last = self.hand.pos;
         self.hand = pose;
         let target: Pose<Fx> = pose.cast();
         self.brush.tick(target);
@@ -171,6 +245,9 @@ impl SimCore {
         let step: Vec3<Fx> = (pose.pos - last).cast();
         let command = self.stage.apply(forces.total, step);
         self.tick += 1;
+        if let Ok(mut j) = self.journal.lock() {
+            j.tick(self.tick, pose);
+        }
         let b = &self.brush;
         BrushFrame {
             tick: self.tick,
@@ -216,6 +293,18 @@ impl SimCore {
     }
 }
 
+/// A hand target at `pose`'s position, held straight (the GUI sends its own at once).
+fn hand_at(pose: Pose<f64>) -> HandInput {
+    let p = pose.pos.to_f64();
+    HandInput {
+        x: p[0],
+        y: p[1],
+        z: p[2],
+        tilt_x_deg: 0.0,
+        tilt_y_deg: 0.0,
+    }
+}
+
 const NAME: &str = "built-in simulator";
 
 struct Running {
@@ -239,20 +328,28 @@ pub struct SimDevice {
     params: BrushParams,
     /// Called by the model thread when it has new frames (e.g. to wake the UI).
     wake: Option<Arc<dyn Fn() + Send + Sync>>,
+    /// The current model's journal (a new model starts a new one).
+    journal: Arc<Mutex<Journal>>,
 }
 
 impl SimDevice {
     pub fn new(clock: SimClock, preset: &str, hand: HandInput) -> Result<SimDevice, DeviceError> {
         let core = SimCore::new(preset, hand)?;
-        Ok(SimDevice {
+        Ok(SimDevice::from_core(clock, core))
+    }
+
+    /// The simulator continuing from `core` (e.g. a re-rendered session's model).
+    pub fn from_core(clock: SimClock, core: SimCore) -> SimDevice {
+        SimDevice {
             clock,
-            preset: preset.to_string(),
-            start_hand: hand,
+            preset: core.preset.clone(),
+            start_hand: hand_at(core.hand),
             params: *core.params(),
+            journal: core.journal(),
             core: Some(core),
             running: None,
             wake: None,
-        })
+        }
     }
 
     /// Calls `wake` from the model thread after each batch of ticks.
@@ -288,6 +385,7 @@ impl Device for SimDevice {
             Some(c) => c,
             None => SimCore::new(&self.preset, self.start_hand)?,
         };
+        self.journal = core.journal();
         match self.clock {
             SimClock::Stepped(_) => {
                 self.core = Some(core);
@@ -366,6 +464,11 @@ impl Device for SimDevice {
             }
             self.params = *core.params();
         }
+    }
+
+    fn journal(&self) -> Option<Journal> {
+        let j = self.journal.lock().ok()?;
+        Some(j.clone())
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {

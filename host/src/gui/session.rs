@@ -1,0 +1,626 @@
+//! Sessions: everything needed to re-render a sitting at the built-in simulator exactly.
+//!
+//! A session is not a picture but the inputs that made it: the brush preset and parameters
+//! the model started from, the pose it started at rest in, the handle pose of every tick
+//! (stored only when it changed), every command that changed the brush (dip, parameter,
+//! preset, the reset at the start of a replay) with the tick it took effect before, and the
+//! paper's own history: which ticks were inked (live frames a stalled UI dropped were not)
+//! and where undo and clear came between them. Replaying those through the same fixed-point
+//! model ([`SimCore`]) and the same inker gives the same canvas, bit for bit, and leaves the
+//! model in the state it was in, so writing can go on where it stopped.
+//!
+//! The journal of poses and commands is kept by the simulator itself ([`Journal`], inside
+//! [`SimCore`]), because only it knows at which tick a command took effect; the paper's
+//! history is kept by the app ([`InkLog`]).
+//!
+//! # File format (`.maobi.toml`, version 1)
+//!
+//! TOML, so it can be read and diffed: `format = "maobi-session"`, `version`, the `device`
+//! it was recorded on, `preset`, `ticks` (the last tick), `start` (the rest pose before tick
+//! 1: `[x, y, z, qw, qx, qy, qz]`, mm and a unit quaternion), `inked` (inclusive tick
+//! ranges), a `[paper]` table (the canvas frame), a `[params]` table (every parameter by its
+//! `maobi` name), `[[events]]` (`tick` and one of `dip`, `param` + `value`, `preset`,
+//! `reset`), `[[canvas]]` (`after_tick` and `op` = `"undo"` or `"clear"`), and `poses`: a
+//! CSV text with the header `tick,x,y,z,qw,qx,qy,qz`, one row per tick at which the pose
+//! changed; the pose holds until the next row. Numbers are written in Rust's shortest
+//! round-trip form, so reading them back gives the same bits.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{bail, Context as _};
+use maobi_shared::{presets, BrushParams, ParamId, Pose, Quat, Vec3};
+use serde::{Deserialize, Serialize};
+
+use super::canvas::PaperView;
+use super::device::DeviceError;
+use super::sim::SimCore;
+use crate::raster::Frame;
+
+/// The `format` key of a session file.
+pub const FORMAT: &str = "maobi-session";
+/// The version this build writes and reads.
+pub const VERSION: u32 = 1;
+/// Pose changes a journal keeps (64 bytes each): 1,000,000 is about 17 minutes of
+/// continuous motion; a hand at rest costs nothing. Past it the journal stops, and saving
+/// says so.
+pub const MAX_JOURNAL_POSES: usize = 1_000_000;
+
+/// A change to the model between ticks.
+#[derive(Clone, Debug, PartialEq)]
+pub enum JournalEvent {
+    Dip(f32),
+    Param(ParamId, f32),
+    /// A preset's parameters, and the brush reset at rest where the hand is.
+    Preset(String),
+    /// The brush (and force model) reset at rest at this pose (a replay's start).
+    Reset(Pose<f64>),
+}
+
+/// What the simulator did, tick by tick, since it started.
+#[derive(Clone, Debug)]
+pub struct Journal {
+    pub preset: String,
+    pub params: BrushParams,
+    /// The brush was created at rest at this pose, before tick 1.
+    pub start: Pose<f64>,
+    /// The last tick run.
+    pub ticks: u64,
+    /// `(tick, pose)` for each tick whose handle pose differs from the previous tick's.
+    pub poses: Vec<(u64, Pose<f64>)>,
+    /// `(tick, event)`: the event took effect before `tick` ran.
+    pub events: Vec<(u64, JournalEvent)>,
+    /// The tick at which [`MAX_JOURNAL_POSES`] ran out, if it did.
+    pub full_at: Option<u64>,
+    last_pose: Pose<f64>,
+}
+
+impl Journal {
+    pub fn new(preset: &str, params: BrushParams, start: Pose<f64>) -> Journal {
+        Journal {
+            preset: preset.to_string(),
+            params,
+            start,
+            ticks: 0,
+            poses: Vec::new(),
+            events: Vec::new(),
+            full_at: None,
+            last_pose: start,
+        }
+    }
+
+    /// Notes that tick `tick` ran with the handle at `pose`.
+    pub fn tick(&mut self, tick: u64, pose: Pose<f64>) {
+        self.ticks = tick;
+        if self.full_at.is_some() || pose == self.last_pose {
+            return;
+        }
+        if self.poses.len() >= MAX_JOURNAL_POSES {
+            self.full_at = Some(tick);
+            return;
+        }
+        self.poses.push((tick, pose));
+        self.last_pose = pose;
+    }
+
+    /// Notes an event that takes effect before the next tick.
+    pub fn event(&mut self, e: JournalEvent) {
+        if self.full_at.is_none() {
+            self.events.push((self.ticks + 1, e));
+        }
+    }
+}
+
+/// A change to the paper that is not ink.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CanvasOp {
+    Undo,
+    Clear,
+}
+
+/// The paper's history, kept by the app: which ticks it inked, and undo/clear between them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct InkLog {
+    /// Inclusive ranges of inked ticks, ascending.
+    pub inked: Vec<[u64; 2]>,
+    /// `(after_tick, op)`: the op came after the paper inked `after_tick` (0: before any).
+    pub ops: Vec<(u64, CanvasOp)>,
+    /// The paper has ink that is not in this log (from another device's session).
+    pub foreign: bool,
+}
+
+impl InkLog {
+    pub fn inked(&mut self, tick: u64) {
+        match self.inked.last_mut() {
+            Some(r) if r[1] + 1 == tick => r[1] = tick,
+            Some(r) if tick <= r[1] => {} // a tick seen twice; the first inking counts.
+            _ => self.inked.push([tick, tick]),
+        }
+    }
+    pub fn op(&mut self, op: CanvasOp) {
+        let after = self.inked.last().map_or(0, |r| r[1]);
+        self.ops.push((after, op));
+    }
+    fn contains(&self, tick: u64) -> bool {
+        self.inked.iter().any(|r| (r[0]..=r[1]).contains(&tick))
+    }
+}
+
+/// A sitting: the simulator's journal, the paper it inked and the paper's history.
+#[derive(Clone, Debug)]
+pub struct Session {
+    /// Who recorded it ("built-in simulator").
+    pub device: String,
+    pub journal: Journal,
+    pub paper: Frame,
+    pub ink: InkLog,
+}
+
+/// What a re-render leaves: the model where the session ended, and the paper.
+pub struct Rerender {
+    pub core: SimCore,
+    pub paper: PaperView,
+    pub ink: InkLog,
+}
+
+impl Session {
+    /// Checks that the session can be saved: a complete journal, no ink from elsewhere.
+    pub fn check_complete(&self) -> anyhow::Result<()> {
+        if let Some(t) = self.journal.full_at {
+            bail!(
+                "the session's journal filled up at tick {t} ({MAX_JOURNAL_POSES} pose changes); \
+                 it cannot re-render exactly. Save the PNG, or record poses instead"
+            );
+        }
+        if self.ink.foreign {
+            bail!(
+                "the paper holds ink from a device used before this one, which is not part of \
+                 this session; clear the paper (or save the PNG) first"
+            );
+        }
+        Ok(())
+    }
+
+    /// Writes the session file (see the module docs for the format).
+    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
+        self.check_complete()?;
+        let text = self.to_toml()?;
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+        }
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    pub fn to_toml(&self) -> anyhow::Result<String> {
+        let j = &self.journal;
+        let mut poses = format!("{POSES_HEADER}\n");
+        for (t, p) in &j.poses {
+            let v = pose_values(p);
+            let _ = writeln!(
+                poses,
+                "{t},{},{},{},{},{},{},{}",
+                v[0], v[1], v[2], v[3], v[4], v[5], v[6]
+            );
+        }
+        let file = SessionFile {
+            format: FORMAT.into(),
+            version: VERSION,
+            device: self.device.clone(),
+            preset: j.preset.clone(),
+            ticks: j.ticks,
+            start: pose_values(&j.start),
+            inked: self.ink.inked.clone(),
+            paper: PaperFile {
+                x0_mm: self.paper.x0_mm,
+                y_top_mm: self.paper.y_top_mm,
+                px_per_mm: self.paper.px_per_mm,
+                width: self.paper.width as u64,
+                height: self.paper.height as u64,
+            },
+            params: ParamId::ALL
+                .iter()
+                .map(|&id| (id.name().to_string(), j.params.get(id)))
+                .collect(),
+            events: j
+                .events
+                .iter()
+                .map(|(tick, e)| {
+                    let mut f = EventFile {
+                        tick: *tick,
+                        ..EventFile::default()
+                    };
+                    match e {
+                        JournalEvent::Dip(w) => f.dip = Some(*w),
+                        JournalEvent::Param(id, v) => {
+                            f.param = Some(id.name().to_string());
+                            f.value = Some(*v);
+                        }
+                        JournalEvent::Preset(n) => f.preset = Some(n.clone()),
+                        JournalEvent::Reset(p) => f.reset = Some(pose_values(p)),
+                    }
+                    f
+                })
+                .collect(),
+            canvas: self
+                .ink
+                .ops
+                .iter()
+                .map(|&(after_tick, op)| CanvasFile { after_tick, op })
+                .collect(),
+            poses,
+        };
+        toml::to_string(&file).context("cannot write the session as TOML")
+    }
+
+    /// Reads and checks a session file; every problem names the file and what is wrong.
+    pub fn load(path: &Path) -> anyhow::Result<Session> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        Session::from_toml(&text).with_context(|| format!("{}", path.display()))
+    }
+
+    pub fn from_toml(text: &str) -> anyhow::Result<Session> {
+        let f: SessionFile = toml::from_str(text).context("not a session file")?;
+        if f.format != FORMAT {
+            bail!("format is `{}`, expected `{FORMAT}`", f.format);
+        }
+        if f.version != VERSION {
+            bail!(
+                "session version {} (this build reads version {VERSION})",
+                f.version
+            );
+        }
+        let preset_params = presets::by_name(&f.preset).ok_or_else(|| {
+            anyhow::anyhow!(
+                "unknown brush `{}`; valid brushes: {}",
+                f.preset,
+                presets::NAMES
+            )
+        })?;
+        let mut params = preset_params;
+        for (name, v) in &f.params {
+            let id = ParamId::from_name(name)
+                .ok_or_else(|| anyhow::anyhow!("[params]: unknown parameter `{name}`"))?;
+            params
+                .set(id, *v)
+                .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
+        }
+        params
+            .validate()
+            .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
+        let start = pose_from(&f.start).map_err(|e| anyhow::anyhow!("start: {e}"))?;
+        let p = &f.paper;
+        let bad = |v: f64| !v.is_finite();
+        if bad(p.x0_mm) || bad(p.y_top_mm) || !(p.px_per_mm > 0.0 && p.px_per_mm <= 100.0) {
+            bail!("[paper]: origin must be finite and px_per_mm in (0, 100]");
+        }
+        if p.width == 0 || p.height == 0 || p.width * p.height > 64_000_000 {
+            bail!(
+                "[paper]: {} x {} px is not a paper (1 to 64 Mpx)",
+                p.width,
+                p.height
+            );
+        }
+        let paper = Frame {
+            x0_mm: p.x0_mm,
+            y_top_mm: p.y_top_mm,
+            px_per_mm: p.px_per_mm,
+            width: p.width as usize,
+            height: p.height as usize,
+        };
+        // File line of the CSV's header, so errors point into the file.
+        let header_line = text
+            .lines()
+            .position(|l| {
+                l.trim_start_matches("poses = ")
+                    .trim_start_matches(['"', '\''])
+                    == POSES_HEADER
+            })
+            .map_or(1, |i| i + 1);
+        let poses = parse_poses(&f.poses, f.ticks, header_line)?;
+        let mut events = Vec::with_capacity(f.events.len());
+        let mut last = 0;
+        for (i, e) in f.events.iter().enumerate() {
+            let n = i + 1;
+            if e.tick < last || e.tick == 0 || e.tick > f.ticks + 1 {
+                bail!(
+                    "event {n}: tick {} out of order or outside 1..={}",
+                    e.tick,
+                    f.ticks + 1
+                );
+            }
+            last = e.tick;
+            let kinds = [
+                e.dip.is_some(),
+                e.param.is_some(),
+                e.preset.is_some(),
+                e.reset.is_some(),
+            ];
+            if kinds.iter().filter(|&&k| k).count() != 1 {
+                bail!("event {n}: needs exactly one of dip, param, preset, reset");
+            }
+            let ev = if let Some(w) = e.dip {
+                if !(0.0..=1.0).contains(&w) {
+                    bail!("event {n}: dip {w} outside 0..=1");
+                }
+                JournalEvent::Dip(w)
+            } else if let Some(name) = &e.param {
+                let id = ParamId::from_name(name)
+                    .ok_or_else(|| anyhow::anyhow!("event {n}: unknown parameter `{name}`"))?;
+                let v = e
+                    .value
+                    .ok_or_else(|| anyhow::anyhow!("event {n}: param `{name}` has no value"))?;
+                JournalEvent::Param(id, v)
+            } else if let Some(name) = &e.preset {
+                if presets::by_name(name).is_none() {
+                    bail!("event {n}: unknown brush `{name}`");
+                }
+                JournalEvent::Preset(name.clone())
+            } else {
+                let v = e.reset.unwrap_or_default();
+                JournalEvent::Reset(pose_from(&v).map_err(|e| anyhow::anyhow!("event {n}: {e}"))?)
+            };
+            events.push((e.tick, ev));
+        }
+        let mut inked: Vec<[u64; 2]> = Vec::with_capacity(f.inked.len());
+        for r in &f.inked {
+            if r[0] > r[1] || r[1] > f.ticks || inked.last().is_some_and(|l| l[1] >= r[0]) {
+                bail!(
+                    "inked: range {r:?} empty, overlapping or past the last tick {}",
+                    f.ticks
+                );
+            }
+            inked.push(*r);
+        }
+        let mut ops = Vec::with_capacity(f.canvas.len());
+        let mut last = 0;
+        for (i, c) in f.canvas.iter().enumerate() {
+            if c.after_tick < last || c.after_tick > f.ticks {
+                bail!(
+                    "canvas op {}: after_tick {} out of order or past the last tick",
+                    i + 1,
+                    c.after_tick
+                );
+            }
+            last = c.after_tick;
+            ops.push((c.after_tick, c.op));
+        }
+        let last_pose = poses.last().map_or(start, |p| p.1);
+        Ok(Session {
+            device: f.device,
+            journal: Journal {
+                preset: f.preset,
+                params,
+                start,
+                ticks: f.ticks,
+                poses,
+                events,
+                full_at: None,
+                last_pose,
+            },
+            paper,
+            ink: InkLog {
+                inked,
+                ops,
+                foreign: false,
+            },
+        })
+    }
+
+    /// Runs the session again: the model from its start, the same poses and commands at the
+    /// same ticks, the same ticks inked and the same undo/clear between them. `progress` is
+    /// called now and then with the fraction done.
+    pub fn rerender(&self, mut progress: impl FnMut(f64)) -> anyhow::Result<Rerender> {
+        let j = &self.journal;
+        let mut core = SimCore::at_pose(&j.preset, j.start)
+            .map_err(|e: DeviceError| anyhow::anyhow!("{e}"))?;
+        core.set_params(j.params)
+            .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
+        let mut paper = PaperView::new(self.paper);
+        let mut poses = j.poses.iter().peekable();
+        let mut events = j.events.iter().peekable();
+        let mut ops = self.ink.ops.iter().peekable();
+        let mut pose = j.start;
+        let mut replayed = InkLog::default();
+        while let Some((_, op)) = ops.next_if(|(t, _)| *t == 0) {
+            apply_op(&mut paper, *op);
+        }
+        for tick in 1..=j.ticks {
+            while let Some((_, e)) = events.next_if(|(t, _)| *t == tick) {
+                // A command that failed live was never journaled; one that fails here
+                // means the file was edited by hand.
+                core.replay_event(e)
+                    .map_err(|err| anyhow::anyhow!("tick {tick}: {e:?}: {err}"))?;
+            }
+            if let Some((_, p)) = poses.next_if(|(t, _)| *t == tick) {
+                pose = *p;
+            }
+            let frame = core.step_at(pose);
+            if self.ink.contains(tick) {
+                paper.ink(&frame);
+                replayed.inked(tick);
+            }
+            while let Some((_, op)) = ops.next_if(|(t, _)| *t == tick) {
+                apply_op(&mut paper, *op);
+                replayed.ops.push((tick, *op));
+            }
+            if tick % 4096 == 0 {
+                progress(tick as f64 / j.ticks as f64);
+            }
+        }
+        // Events after the last tick (commands given just before saving).
+        for (_, e) in events {
+            core.replay_event(e)
+                .map_err(|err| anyhow::anyhow!("after the last tick: {e:?}: {err}"))?;
+        }
+        progress(1.0);
+        core.resume_journal(j.clone());
+        Ok(Rerender {
+            core,
+            paper,
+            ink: self.ink.clone(),
+        })
+    }
+}
+
+fn apply_op(paper: &mut PaperView, op: CanvasOp) {
+    match op {
+        CanvasOp::Undo => {
+            paper.undo();
+        }
+        CanvasOp::Clear => paper.clear(),
+    }
+}
+
+fn pose_values(p: &Pose<f64>) -> [f64; 7] {
+    let v = p.pos.to_f64();
+    let q = p.rot.to_f64();
+    [v[0], v[1], v[2], q[0], q[1], q[2], q[3]]
+}
+
+fn pose_from(v: &[f64; 7]) -> Result<Pose<f64>, String> {
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("pose {v:?} is not finite"));
+    }
+    let n = (v[3] * v[3] + v[4] * v[4] + v[5] * v[5] + v[6] * v[6]).sqrt();
+    if (n - 1.0).abs() > 1e-3 {
+        return Err(format!("quaternion norm {n} is not 1 (within 1e-3)"));
+    }
+    Ok(Pose::new(
+        Vec3::new(v[0], v[1], v[2]),
+        Quat::new(v[3], v[4], v[5], v[6]),
+    ))
+}
+
+const POSES_HEADER: &str = "tick,x,y,z,qw,qx,qy,qz";
+
+/// Parses the `poses` CSV, whose header is on line `header_line` of the file (errors name
+/// file lines).
+fn parse_poses(
+    text: &str,
+    ticks: u64,
+    header_line: usize,
+) -> anyhow::Result<Vec<(u64, Pose<f64>)>> {
+    let mut lines = text.lines().enumerate();
+    match lines.next() {
+        Some((_, h)) if h.trim() == POSES_HEADER => {}
+        other => bail!(
+            "poses: the header must be `{POSES_HEADER}`, found `{}`",
+            other.map_or("", |(_, h)| h)
+        ),
+    }
+    let mut out = Vec::new();
+    let mut last = 0;
+    for (i, line) in lines {
+        let ln = header_line + i;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+        if cols.len() != 8 {
+            bail!("poses, line {ln}: {} columns, expected 8", cols.len());
+        }
+        let tick: u64 = cols[0]
+            .parse()
+            .map_err(|_| anyhow::anyhow!("poses, line {ln}, column tick: `{}`", cols[0]))?;
+        if tick <= last || tick > ticks {
+            bail!("poses, line {ln}: tick {tick} not after {last} or past the last tick {ticks}");
+        }
+        last = tick;
+        let mut v = [0.0; 7];
+        for (k, name) in ["x", "y", "z", "qw", "qx", "qy", "qz"].iter().enumerate() {
+            v[k] = cols[k + 1].parse().map_err(|_| {
+                anyhow::anyhow!("poses, line {ln}, column {name}: `{}`", cols[k + 1])
+            })?;
+        }
+        let p = pose_from(&v).map_err(|e| anyhow::anyhow!("poses, line {ln}: {e}"))?;
+        out.push((tick, p));
+    }
+    Ok(out)
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SessionFile {
+    format: String,
+    version: u32,
+    device: String,
+    preset: String,
+    ticks: u64,
+    start: [f64; 7],
+    inked: Vec<[u64; 2]>,
+    poses: String,
+    paper: PaperFile,
+    params: std::collections::BTreeMap<String, f32>,
+    #[serde(default)]
+    events: Vec<EventFile>,
+    #[serde(default)]
+    canvas: Vec<CanvasFile>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PaperFile {
+    x0_mm: f64,
+    y_top_mm: f64,
+    px_per_mm: f64,
+    width: u64,
+    height: u64,
+}
+
+#[derive(Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct EventFile {
+    tick: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    dip: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    param: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    value: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    preset: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reset: Option<[f64; 7]>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CanvasFile {
+    after_tick: u64,
+    op: CanvasOp,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ink_log_merges_consecutive_ticks_and_places_ops() {
+        let mut l = InkLog::default();
+        l.op(CanvasOp::Clear);
+        for t in [1, 2, 3, 7, 8] {
+            l.inked(t);
+        }
+        l.op(CanvasOp::Undo);
+        assert_eq!(l.inked, vec![[1, 3], [7, 8]]);
+        assert_eq!(l.ops, vec![(0, CanvasOp::Clear), (8, CanvasOp::Undo)]);
+        assert!(l.contains(2) && !l.contains(5) && l.contains(8));
+    }
+
+    #[test]
+    fn journal_keeps_only_pose_changes_and_stamps_events_on_the_next_tick() {
+        let p0 = Pose::new(Vec3::new(0.0, 0.0, 40.0), Quat::IDENTITY);
+        let p1 = Pose::new(Vec3::new(1.0, 0.0, 40.0), Quat::IDENTITY);
+        let mut j = Journal::new("large", presets::LARGE, p0);
+        j.tick(1, p0);
+        j.tick(2, p1);
+        j.event(JournalEvent::Dip(0.5));
+        j.tick(3, p1);
+        assert_eq!(j.poses, vec![(2, p1)]);
+        assert_eq!(j.events, vec![(3, JournalEvent::Dip(0.5))]);
+        assert_eq!(j.ticks, 3);
+    }
+}

@@ -69,6 +69,23 @@ fn the_app_inks_over_tcp_and_keeps_the_paper_when_the_link_drops() {
     let ink = h.state().paper().canvas().ink_fraction();
     assert!(ink > 0.001, "the replay inked the paper: {ink}");
     assert!(h.state().replay_frames() > 100);
+    // Every frame's ink went up in the first UI frame after it arrived (the reader thread
+    // wakes the UI; the UI drains and inks everything it has).
+    let lat = h.state().ink_latency();
+    println!("arrival to ink: {lat:?}");
+    assert!(lat.frames > 0);
+    assert_eq!(lat.late, 0, "frames waited more than one UI frame: {lat:?}");
+    // The live plots: the device's own tick period (from its telemetry) and our frame rate.
+    h.get_by_label("device tick period (ms)");
+    h.get_by_label("device frames received (1/s)");
+    assert!(
+        step_until(&mut h, Duration::from_secs(3), |a| a
+            .status()
+            .tick_period_ms
+            .is_some_and(|p| p > 0.5 && p < 2.0)),
+        "telemetry reports the tick period: {:?}",
+        h.state().status().tick_period_ms
+    );
 
     srv.stop();
     assert!(

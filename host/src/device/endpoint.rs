@@ -3,6 +3,7 @@
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
@@ -136,10 +137,150 @@ impl Endpoint {
     }
 }
 
-/// Serial ports on this machine (names only: without libudev there are no USB details);
-/// which one is the pen shows when the handshake answers.
-pub fn available_serial_ports() -> Vec<String> {
-    serialport::available_ports()
-        .map(|v| v.into_iter().map(|p| p.port_name).collect())
+/// A serial port and, for a USB one, its IDs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PortInfo {
+    /// The name to open (`/dev/ttyACM0`, `COM3`).
+    pub name: String,
+    pub usb: Option<UsbIds>,
+}
+
+/// What a USB serial port says of itself.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct UsbIds {
+    pub vid: u16,
+    pub pid: u16,
+    pub product: Option<String>,
+    pub serial: Option<String>,
+}
+
+impl PortInfo {
+    /// The port enumerates with Maobi's USB IDs ([`maobi_shared::protocol::USB_VID`],
+    /// [`USB_PID`](maobi_shared::protocol::USB_PID)). Only the handshake proves it.
+    pub fn is_maobi(&self) -> bool {
+        self.usb.as_ref().is_some_and(|u| {
+            u.vid == maobi_shared::protocol::USB_VID && u.pid == maobi_shared::protocol::USB_PID
+        })
+    }
+
+    /// `/dev/ttyACM0 (Maobi pen, 1209:0001)`, for the port list.
+    pub fn label(&self) -> String {
+        match &self.usb {
+            Some(u) => format!(
+                "{} ({}{:04x}:{:04x})",
+                self.name,
+                u.product
+                    .as_deref()
+                    .map(|p| format!("{p}, "))
+                    .unwrap_or_default(),
+                u.vid,
+                u.pid
+            ),
+            None => self.name.clone(),
+        }
+    }
+}
+
+/// Serial ports on this machine, Maobi's USB IDs first. `serialport` reports USB IDs on
+/// Windows and macOS; on Linux we build it without libudev (so the app needs no system
+/// library) and read the IDs from sysfs instead.
+pub fn serial_ports() -> Vec<PortInfo> {
+    let mut ports: Vec<PortInfo> = serialport::available_ports()
         .unwrap_or_default()
+        .into_iter()
+        .map(|p| {
+            let usb = match p.port_type {
+                serialport::SerialPortType::UsbPort(u) => Some(UsbIds {
+                    vid: u.vid,
+                    pid: u.pid,
+                    product: u.product,
+                    serial: u.serial_number,
+                }),
+                _ => usb_ids_from_sysfs(Path::new("/sys/class/tty"), &p.port_name),
+            };
+            PortInfo {
+                name: p.port_name,
+                usb,
+            }
+        })
+        .collect();
+    // Stable: Maobi's ports first, then USB ones, then the rest, each in the OS's order.
+    ports.sort_by_key(|p| (!p.is_maobi(), p.usb.is_none()));
+    ports
+}
+
+/// Serial port names, Maobi's USB IDs first (see [`serial_ports`]).
+pub fn available_serial_ports() -> Vec<String> {
+    serial_ports().into_iter().map(|p| p.name).collect()
+}
+
+/// The USB IDs of the tty `port` (`/dev/ttyACM0` or `ttyACM0`) from a Linux sysfs class
+/// directory (`/sys/class/tty`): its `device` link leads to the USB interface, whose
+/// ancestor holds `idVendor`, `idProduct`, `product` and `serial`. `None` for a port that
+/// is not USB or a system without sysfs.
+pub fn usb_ids_from_sysfs(class_tty: &Path, port: &str) -> Option<UsbIds> {
+    let name = port.rsplit('/').next()?;
+    let mut dir = std::fs::canonicalize(class_tty.join(name).join("device")).ok()?;
+    let read = |d: &Path, f: &str| {
+        std::fs::read_to_string(d.join(f))
+            .ok()
+            .map(|s| s.trim().to_string())
+    };
+    // Interface (…/1-1:1.0) → device (…/1-1); a USB-serial adapter's tty sits one lower.
+    for _ in 0..4 {
+        if let (Some(v), Some(p)) = (read(&dir, "idVendor"), read(&dir, "idProduct")) {
+            return Some(UsbIds {
+                vid: u16::from_str_radix(&v, 16).ok()?,
+                pid: u16::from_str_radix(&p, 16).ok()?,
+                product: read(&dir, "product"),
+                serial: read(&dir, "serial"),
+            });
+        }
+        dir = dir.parent()?.to_path_buf();
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sysfs tree as Linux lays it out for a CDC-ACM device and a plain UART.
+    #[test]
+    fn usb_ids_come_from_sysfs() {
+        let root = std::env::temp_dir().join(format!("maobi-sysfs-{}", std::process::id()));
+        let dev = root.join("devices/pci0000:00/usb1/1-2");
+        let intf = dev.join("1-2:1.0");
+        std::fs::create_dir_all(intf.join("tty/ttyACM0")).unwrap();
+        std::fs::write(dev.join("idVendor"), "1209\n").unwrap();
+        std::fs::write(dev.join("idProduct"), "0001\n").unwrap();
+        std::fs::write(dev.join("product"), "Maobi pen\n").unwrap();
+        std::fs::write(dev.join("serial"), "E66118604B1F\n").unwrap();
+        let class = root.join("class/tty");
+        std::fs::create_dir_all(class.join("ttyACM0")).unwrap();
+        std::fs::create_dir_all(class.join("ttyS0")).unwrap();
+        std::fs::create_dir_all(root.join("devices/platform/serial8250")).unwrap();
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(&intf, class.join("ttyACM0/device")).unwrap();
+            std::os::unix::fs::symlink(
+                root.join("devices/platform/serial8250"),
+                class.join("ttyS0/device"),
+            )
+            .unwrap();
+            let ids = usb_ids_from_sysfs(&class, "/dev/ttyACM0").expect("a USB port");
+            assert_eq!((ids.vid, ids.pid), (0x1209, 0x0001));
+            assert_eq!(ids.product.as_deref(), Some("Maobi pen"));
+            assert_eq!(ids.serial.as_deref(), Some("E66118604B1F"));
+            let p = PortInfo {
+                name: "/dev/ttyACM0".into(),
+                usb: Some(ids),
+            };
+            assert!(p.is_maobi());
+            assert_eq!(p.label(), "/dev/ttyACM0 (Maobi pen, 1209:0001)");
+            assert_eq!(usb_ids_from_sysfs(&class, "/dev/ttyS0"), None);
+        }
+        assert_eq!(usb_ids_from_sysfs(&class, "/dev/ttyUSB9"), None);
+        std::fs::remove_dir_all(&root).ok();
+    }
 }

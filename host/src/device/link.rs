@@ -203,6 +203,7 @@ impl LinkDevice {
             faults: Vec::new(),
             frames_dropped: 0,
             ticks_late: 0,
+            tick_period_ms: None,
             params,
             preset: opts.preset.clone(),
             forces_enabled: false,
@@ -760,6 +761,8 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
             false
         }
         DeviceMsg::Telemetry(t) => {
+            s.status.tick_period_ms =
+                (t.tick_period_mean_us > 0).then(|| f64::from(t.tick_period_mean_us) * 1e-3);
             s.device_dropped = t.frames_dropped;
             s.report.pose_gaps = t.pose_gaps;
             s.report.device_rx = t.rx;
@@ -813,6 +816,7 @@ pub fn frame_from_state(state: &BrushState, tick: u64, replaying: bool) -> Brush
         command: force,
         output,
         replaying,
+        received: std::time::Instant::now(),
     }
 }
 

@@ -15,6 +15,6 @@ pub mod endpoint;
 pub mod link;
 pub mod sim_device;
 
-pub use endpoint::{available_serial_ports, Conn, Endpoint};
+pub use endpoint::{available_serial_ports, serial_ports, Conn, Endpoint, PortInfo, UsbIds};
 pub use link::{identify, probe_serial_ports, LinkDevice, LinkOptions, LINK_TIMEOUT};
 pub use sim_device::{SimDeviceOptions, SimDeviceServer};

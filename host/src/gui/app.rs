@@ -18,7 +18,7 @@ use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use super::session::{CanvasOp, InkLog, Rerender, Session};
 use super::sim::{SimClock, SimDevice};
 use super::DeviceChoice;
-use crate::device::{available_serial_ports, Endpoint};
+use crate::device::{serial_ports, Endpoint, PortInfo};
 use crate::poses::PoseTrack;
 use crate::raster::Frame;
 use crate::render::write_png;
@@ -61,6 +61,27 @@ struct FrameTimes {
     /// Time spent in `ui` (inking, uploading and building the UI) during the replay.
     replay_ui: Vec<f64>,
     recent: VecDeque<[f64; 2]>,
+    /// Start of the UI frame before this one.
+    prev_begin: Option<Instant>,
+    /// Per UI frame that inked: age (ms) of its oldest frame when its ink was uploaded.
+    ink_latency: Vec<f64>,
+    /// Oldest frame inked in this UI frame (its arrival on the host).
+    oldest_inked: Option<Instant>,
+    /// Frames that had arrived before the previous UI frame began, i.e. waited more than
+    /// one frame for their ink.
+    late_inks: u64,
+}
+
+/// Latency from a frame's arrival on the host to its ink uploaded for the screen.
+#[derive(Clone, Debug, Default)]
+pub struct InkLatency {
+    /// UI frames that inked something.
+    pub frames: usize,
+    pub median_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    /// Device frames that waited past the next UI frame (the goal: none).
+    pub late: u64,
 }
 
 fn percentile(v: &[f64], p: f64) -> f64 {
@@ -98,6 +119,10 @@ pub struct MaobiApp {
     /// Live plot data: [t s, value].
     normal_n: VecDeque<[f64; 2]>,
     depth_mm: VecDeque<[f64; 2]>,
+    tick_period_ms: VecDeque<[f64; 2]>,
+    /// Device frames received per second, and the window being counted (start s, frames).
+    frame_rate: VecDeque<[f64; 2]>,
+    rate_window: (f64, u64),
     times: FrameTimes,
     /// The values shown in the parameter editors.
     param_edit: Vec<f32>,
@@ -120,7 +145,8 @@ pub struct MaobiApp {
     /// Device chooser: the kind (built-in simulator, TCP, serial) and the address.
     device_kind: DeviceKind,
     device_addr: String,
-    serial_ports: Vec<String>,
+    /// Serial ports found, Maobi's USB IDs first.
+    serial_ports: Vec<PortInfo>,
     /// A running search for the pen among the serial ports (handshake on each).
     probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
@@ -195,6 +221,9 @@ impl MaobiApp {
             pressure: None,
             normal_n: VecDeque::new(),
             depth_mm: VecDeque::new(),
+            tick_period_ms: VecDeque::new(),
+            frame_rate: VecDeque::new(),
+            rate_window: (0.0, 0),
             times: FrameTimes::default(),
             param_edit,
             param_msg: None,
@@ -405,6 +434,18 @@ impl MaobiApp {
         self.replay_frames
     }
 
+    /// Arrival-to-ink latency so far.
+    pub fn ink_latency(&self) -> InkLatency {
+        let v = &self.times.ink_latency;
+        InkLatency {
+            frames: v.len(),
+            median_ms: percentile(v, 0.5),
+            p99_ms: percentile(v, 0.99),
+            max_ms: v.iter().copied().fold(0.0, f64::max),
+            late: self.times.late_inks,
+        }
+    }
+
     /// Starts replaying a pose file through the device.
     pub fn start_replay(&mut self, path: &Path) -> anyhow::Result<()> {
         let track = PoseTrack::from_path(path)?;
@@ -464,6 +505,19 @@ impl MaobiApp {
         self.status = self.device.status();
         let t_now = self.started.elapsed().as_secs_f64();
         let n = frames.len().max(1) as f64;
+        self.times.oldest_inked = frames.iter().map(|f| f.received).min();
+        if let Some(prev) = self.times.prev_begin {
+            self.times.late_inks += frames.iter().filter(|f| f.received < prev).count() as u64;
+        }
+        self.rate_window.1 += frames.len() as u64;
+        if t_now - self.rate_window.0 >= 0.5 {
+            let rate = self.rate_window.1 as f64 / (t_now - self.rate_window.0);
+            push(&mut self.frame_rate, [t_now, rate]);
+            self.rate_window = (t_now, 0);
+        }
+        if let Some(p) = self.status.tick_period_ms {
+            push(&mut self.tick_period_ms, [t_now, p]);
+        }
         for (i, f) in frames.iter().enumerate() {
             self.paper.ink(f);
             self.ink_log.inked(f.tick);
@@ -589,6 +643,13 @@ impl MaobiApp {
                 percentile(&t.replay_ui, 0.99),
             ));
         }
+        let l = self.ink_latency();
+        if l.frames > 0 {
+            lines.push(format!(
+                "maobi gui: device frame arrival to ink uploaded ({} UI frames): median {:.2} ms, p99 {:.2} ms, max {:.2} ms; frames that waited past the next UI frame: {}",
+                l.frames, l.median_ms, l.p99_ms, l.max_ms, l.late
+            ));
+        }
         if let Ok(mut o) = self.outcome.lock() {
             o.summary = lines;
         }
@@ -676,8 +737,12 @@ impl MaobiApp {
         if self.device_kind != before {
             match self.device_kind {
                 DeviceKind::Serial => {
-                    self.serial_ports = available_serial_ports();
-                    self.device_addr = self.serial_ports.first().cloned().unwrap_or_default();
+                    self.serial_ports = serial_ports();
+                    self.device_addr = self
+                        .serial_ports
+                        .first()
+                        .map(|p| p.name.clone())
+                        .unwrap_or_default();
                 }
                 DeviceKind::Tcp => self.device_addr = "127.0.0.1:7878".into(),
                 DeviceKind::Sim => {}
@@ -699,14 +764,18 @@ impl MaobiApp {
         }
         if self.device_kind == DeviceKind::Serial {
             egui::ComboBox::from_label("ports")
-                .selected_text(format!("{} found", self.serial_ports.len()))
+                .selected_text(format!(
+                    "{} found, {} with Maobi's USB IDs",
+                    self.serial_ports.len(),
+                    self.serial_ports.iter().filter(|p| p.is_maobi()).count()
+                ))
                 .show_ui(ui, |ui| {
                     for p in self.serial_ports.clone() {
-                        ui.selectable_value(&mut self.device_addr, p.clone(), p);
+                        ui.selectable_value(&mut self.device_addr, p.name.clone(), p.label());
                     }
                 });
             if ui.button("Rescan").clicked() {
-                self.serial_ports = available_serial_ports();
+                self.serial_ports = serial_ports();
             }
             self.find_pen(ui);
         }
@@ -728,7 +797,7 @@ impl MaobiApp {
             match done {
                 Some(found) => {
                     self.probe = None;
-                    self.serial_ports = found.iter().map(|(p, _)| p.clone()).collect();
+                    self.serial_ports = serial_ports();
                     let pens: Vec<String> = found
                         .iter()
                         .filter_map(|(p, r)| r.as_ref().ok().map(|b| format!("{p}: {b}")))
@@ -966,7 +1035,7 @@ impl MaobiApp {
 
     fn plots(&mut self, ui: &mut egui::Ui) {
         use egui_plot::{Line, Plot};
-        let h = ((ui.available_height() - 60.0) / 3.0).max(50.0);
+        let h = ((ui.available_height() - 100.0) / 5.0).max(40.0);
         let now = self.started.elapsed().as_secs_f64();
         let x0 = now - PLOT_SECONDS;
         let series = [
@@ -981,7 +1050,17 @@ impl MaobiApp {
                 Color32::from_rgb(90, 160, 255),
             ),
             (
-                "frame time (ms)",
+                "device tick period (ms)",
+                &self.tick_period_ms,
+                Color32::from_rgb(200, 160, 240),
+            ),
+            (
+                "device frames received (1/s)",
+                &self.frame_rate,
+                Color32::from_rgb(240, 200, 90),
+            ),
+            (
+                "UI frame time (ms)",
                 &self.times.recent,
                 Color32::from_rgb(120, 220, 120),
             ),
@@ -1182,6 +1261,7 @@ impl MaobiApp {
         let begin = Instant::now();
         let ctx = ui.ctx().clone();
         let interval = self.times.last.map(|l| (begin - l).as_secs_f64() * 1e3);
+        self.times.prev_begin = self.times.last;
         self.times.last = Some(begin);
         self.pump();
         let drawing = self.status.replaying || self.latest.as_ref().is_some_and(|f| f.replaying);
@@ -1213,6 +1293,11 @@ impl MaobiApp {
         self.automation(&ctx);
 
         let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
+        // The ink of this frame's device frames has been uploaded (in `paper.show`): how
+        // long the oldest of them waited since it arrived.
+        if let Some(o) = self.times.oldest_inked.take() {
+            self.times.ink_latency.push(o.elapsed().as_secs_f64() * 1e3);
+        }
         if let Some(iv) = interval {
             push(
                 &mut self.times.recent,

@@ -48,6 +48,9 @@ pub struct BrushFrame {
     pub output: OutputState,
     /// The device is driving this tick from a pose file, not from the hand.
     pub replaying: bool,
+    /// When the host had this frame (decoded from the link, or made by the simulator): the
+    /// start of its latency to the screen.
+    pub received: std::time::Instant,
 }
 
 impl BrushFrame {
@@ -152,6 +155,9 @@ pub struct DeviceStatus {
     pub frames_dropped: u64,
     /// Model ticks the device could not run in real time (it fell behind and skipped).
     pub ticks_late: u64,
+    /// The device's measured tick period (ms; mean over its last report), when it has a
+    /// clock of its own.
+    pub tick_period_ms: Option<f64>,
     /// The parameters in force on the device.
     pub params: BrushParams,
     /// Name of the preset the parameters started from.

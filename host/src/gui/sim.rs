@@ -264,6 +264,7 @@ impl SimCore {
             command: command.to_f64(),
             output: self.stage.state(),
             replaying,
+            received: Instant::now(),
         }
     }
 
@@ -280,6 +281,7 @@ impl SimCore {
             faults,
             frames_dropped: 0,
             ticks_late: 0,
+            tick_period_ms: None,
             params: *self.brush.params(),
             preset: self.preset.clone(),
             forces_enabled: !matches!(
@@ -518,6 +520,9 @@ fn run_thread(
     let mut dropped: u64 = 0;
     let mut late: u64 = 0;
     let mut last_error: Option<String> = None;
+    // Tick period: wall time over ticks run, per window of about a second.
+    let mut window = (Instant::now(), 0u64);
+    let mut period_ms: Option<f64> = None;
     'run: while !stop.load(Ordering::Relaxed) {
         for cmd in cmds.try_iter() {
             if let Err(e) = core.apply(cmd) {
@@ -532,6 +537,7 @@ fn run_thread(
         while done < due {
             let frame = core.step();
             done += 1;
+            window.1 += 1;
             if frame.replaying {
                 if frames.send(frame).is_err() {
                     break 'run;
@@ -547,10 +553,16 @@ fn run_thread(
                 break 'run;
             }
         }
+        let w = window.0.elapsed();
+        if w >= Duration::from_secs(1) {
+            period_ms = (window.1 > 0).then(|| w.as_secs_f64() * 1e3 / window.1 as f64);
+            window = (Instant::now(), 0);
+        }
         if let Ok(mut s) = status.lock() {
             *s = core.status(NAME, true);
             s.frames_dropped = dropped;
             s.ticks_late = late;
+            s.tick_period_ms = period_ms;
             if let Some(e) = &last_error {
                 s.faults.push(format!("last command failed: {e}"));
             }

@@ -136,3 +136,13 @@ pub use state::{
 pub type DeviceRx = FrameDecoder<HostMsg, HOST_MSG_MAX>;
 /// The host's receiver: decodes device messages.
 pub type HostRx = FrameDecoder<DeviceMsg, DEVICE_MSG_MAX>;
+
+/// USB vendor ID the pen's firmware enumerates with (CDC-ACM): pid.codes, the open-hardware
+/// vendor ID.
+pub const USB_VID: u16 = 0x1209;
+/// USB product ID: pid.codes' test PID, until Maobi's own PID is allocated there. It only
+/// narrows the search: the handshake ([`DeviceInfo`]) is what identifies a Maobi device, so a
+/// board with another PID is still found by trying its port.
+pub const USB_PID: u16 = 0x0001;
+/// The product string the firmware reports.
+pub const USB_PRODUCT: &str = "Maobi pen";

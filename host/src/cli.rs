@@ -67,6 +67,10 @@ pub struct GuiArgs {
     /// After the replay, save a screenshot of the window here and exit.
     #[arg(long, value_name = "OUT.png")]
     pub screenshot: Option<PathBuf>,
+    /// Open this session (saved with "Save session") at start: its paper re-rendered, the
+    /// built-in simulator going on from where it ended.
+    #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "replay")]
+    pub session: Option<PathBuf>,
     /// Brush preset.
     #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
     pub brush: BrushChoice,
@@ -131,10 +135,14 @@ pub struct RenderArgs {
     #[arg(
         long,
         value_name = "POSES.csv",
-        required_unless_present = "stroke",
-        conflicts_with = "stroke"
+        required_unless_present_any = ["stroke", "session"],
+        conflicts_with_all = ["stroke", "session"]
     )]
     pub poses: Option<PathBuf>,
+    /// A session saved from the app (`.maobi.toml`): re-rendered exactly, on its own paper
+    /// (the brush, resolution and scalar options do not apply).
+    #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "stroke")]
+    pub session: Option<PathBuf>,
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
     pub stroke: Option<PathBuf>,
@@ -199,11 +207,41 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             brush: a.brush.name,
             replay: a.replay,
             screenshot: a.screenshot,
+            session: a.session,
             paper_mm: a.paper_mm,
             px_per_mm: a.px_per_mm,
         }),
         None => crate::gui::run(crate::gui::GuiOptions::default()),
     }
+}
+
+/// `maobi render --session`: the session's own paper, re-rendered through the model.
+fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<()> {
+    let session = crate::gui::session::Session::load(path)?;
+    let mut shown = -1i64;
+    let r = session.rerender(|f| {
+        let pct = (f * 100.0) as i64;
+        if pct / 10 > shown / 10 {
+            shown = pct;
+            eprint!("\rmaobi render: re-rendering {}: {pct:3}%", path.display());
+        }
+    })?;
+    eprintln!();
+    write_png(r.paper.canvas(), out)?;
+    let c = r.paper.canvas();
+    eprintln!(
+        "maobi render: {} ticks ({:.1} s) of the {} session, {} strokes, {} x {} px, ink {:.2}%, wrote {} in {:.2} s",
+        session.journal.ticks,
+        session.journal.ticks as f64 * 1e-3,
+        session.journal.preset,
+        r.paper.strokes(),
+        c.width(),
+        c.height(),
+        c.ink_fraction() * 100.0,
+        out.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
@@ -248,6 +286,9 @@ fn trace_as<S: Scalar>(
 
 fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
+    if let Some(path) = &a.session {
+        return render_session(path, &a.output, started);
+    }
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let params = a.brush.params;
     let frame = paper_frame(&track, &params, a.px_per_mm)?;

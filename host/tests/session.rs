@@ -242,3 +242,100 @@ fn bad_session_files_say_what_is_wrong() {
     h.get_by_label_contains("nope.maobi.toml");
     assert_eq!(h.state().paper().canvas().ink_fraction(), ink);
 }
+
+/// `maobi render --session` re-renders a saved session headless: the PNG is the app's paper.
+#[test]
+fn maobi_render_session_writes_the_apps_paper() {
+    let mut h = harness(SimClock::Stepped(TICKS_PER_FRAME));
+    h.run_steps(2);
+    replay(&mut h, "hook.csv");
+    h.state_mut().set_param(ParamId::Wetness, 0.5);
+    replay(&mut h, "shu.csv");
+    let path = tmp("cli.maobi.toml");
+    h.state_mut().save_session(&path).unwrap();
+    let png = tmp("cli.png");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["render", "--session"])
+        .arg(&path)
+        .arg("-o")
+        .arg(&png)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    println!("{err}");
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("2 strokes"), "{err}");
+    let want = h.state().paper().canvas().to_gray8();
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()));
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!(
+        (info.width as usize, info.height as usize),
+        (
+            h.state().paper().frame().width,
+            h.state().paper().frame().height
+        )
+    );
+    assert_eq!(info.color_type, png::ColorType::Grayscale);
+    assert_eq!(
+        &buf[..info.buffer_size()],
+        &want[..],
+        "the PNG is the app's paper"
+    );
+
+    // A broken session: a clear error and a non-zero exit, no PNG.
+    std::fs::write(&path, "format = \"maobi-session\"\nversion = 1\n").unwrap();
+    let bad = tmp("bad.png");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["render", "--session"])
+        .arg(&path)
+        .arg("-o")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("cli.maobi.toml") && err.contains("missing field"),
+        "{err}"
+    );
+    assert!(!bad.exists());
+}
+
+/// `maobi gui --session FILE` opens the session at start (the automation path).
+#[test]
+fn the_gui_opens_a_session_given_at_start() {
+    let clock = SimClock::Stepped(TICKS_PER_FRAME);
+    let mut h = harness(clock);
+    h.run_steps(2);
+    replay(&mut h, "heng.csv");
+    let path = tmp("start.maobi.toml");
+    h.state_mut().save_session(&path).unwrap();
+
+    let opts = GuiOptions {
+        paper_mm: 150.0,
+        px_per_mm: 4.0,
+        ..GuiOptions::default()
+    };
+    let device = SimDevice::new(clock, "small", start_hand(20.0)).unwrap();
+    let automation = Automation {
+        session: Some(path.clone()),
+        ..Automation::default()
+    };
+    let mut app = MaobiApp::new(
+        Box::new(device),
+        opts.frame(),
+        automation,
+        Default::default(),
+    );
+    app.set_session_clock(clock);
+    let mut h2 = Harness::builder()
+        .with_size(egui::vec2(1400.0, 900.0))
+        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app);
+    h2.run_steps(1);
+    run_until(&mut h2, Duration::from_secs(60), |a| !a.opening_session());
+    h2.run_steps(1);
+    assert_eq!(coverage(&h2), coverage(&h));
+    assert_eq!(h2.state().status().preset, "large", "the session's brush");
+}

@@ -35,6 +35,8 @@ pub struct Automation {
     pub replay: Option<PathBuf>,
     /// After the replay (or the first frames, without one), save a screenshot here and exit.
     pub screenshot: Option<PathBuf>,
+    /// Open this session at start (the screenshot waits for its re-render).
+    pub session: Option<PathBuf>,
 }
 
 /// How the run ended, for the process's exit code and the summary on stderr.
@@ -339,7 +341,12 @@ impl MaobiApp {
         self.opening = None;
         match result {
             Err(e) => {
-                self.message = Some((format!("cannot open {}: {e:#}", path.display()), true));
+                let msg = format!("cannot open {}: {e:#}", path.display());
+                if self.automation.screenshot.is_some() {
+                    // Unattended: the run fails rather than screenshot the wrong paper.
+                    self.fail(ctx, msg.clone());
+                }
+                self.message = Some((msg, true));
             }
             Ok(r) => {
                 let ticks = r.core.tick();
@@ -562,6 +569,9 @@ impl MaobiApp {
     fn automation(&mut self, ctx: &egui::Context) {
         if !self.replay_started {
             self.replay_started = true;
+            if let Some(p) = self.automation.session.clone() {
+                self.open_session(&p, Some(ctx));
+            }
             if let Some(p) = self.automation.replay.clone() {
                 if let Err(e) = self.start_replay(&p) {
                     self.fail(ctx, format!("cannot replay {}: {e:#}", p.display()));
@@ -569,8 +579,9 @@ impl MaobiApp {
                 }
             }
         }
-        let replay_done = self.automation.replay.is_none()
-            || (self.status.replays_done > 0 && !self.status.replaying);
+        let replay_done = (self.automation.replay.is_none()
+            || (self.status.replays_done > 0 && !self.status.replaying))
+            && self.opening.is_none();
         let Some(shot) = self.shot.take() else { return };
         self.shot = Some(match shot {
             Shot::Waiting(k) if !replay_done => Shot::Waiting(k),

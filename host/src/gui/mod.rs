@@ -100,6 +100,8 @@ pub struct GuiOptions {
     pub brush: String,
     pub replay: Option<PathBuf>,
     pub screenshot: Option<PathBuf>,
+    /// A session file to open at start.
+    pub session: Option<PathBuf>,
     /// Paper size (mm, square, centred on the origin) and resolution.
     pub paper_mm: f64,
     pub px_per_mm: f64,
@@ -112,6 +114,7 @@ impl Default for GuiOptions {
             brush: "large".into(),
             replay: None,
             screenshot: None,
+            session: None,
             paper_mm: 200.0,
             px_per_mm: 10.0,
         }
@@ -183,6 +186,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let automation = Automation {
         replay: opts.replay.clone(),
         screenshot: opts.screenshot.clone(),
+        session: opts.session.clone(),
     };
     let native = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,

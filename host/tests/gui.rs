@@ -168,3 +168,20 @@ fn outcome_defaults_are_empty() {
     let o = Outcome::default();
     assert!(o.error.is_none() && o.summary.is_empty());
 }
+
+#[test]
+fn dip_ink_loads_the_brush_as_much_as_asked() {
+    let mut h = harness();
+    h.run_steps(2);
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "ink load")
+        .set_value_accesskit(0.3);
+    h.run_steps(1);
+    h.get_by_label("Dip ink").click();
+    h.run_steps(2);
+    h.get_by_label("dipped: ink load 0.30");
+    let f = h.state().latest().expect("frames");
+    for l in &f.layers {
+        let w = maobi_shared::Scalar::to_f64(l.wetness);
+        assert!((w - 0.3).abs() < 0.02, "wetness {w} after a 0.3 dip");
+    }
+}

@@ -153,6 +153,8 @@ pub struct MaobiApp {
     probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
     brush_name: String,
+    /// Wetness a dip leaves the brush with (0..=1).
+    ink_load: f32,
     /// The paper's history for the session file (inked ticks, undo, clear).
     ink_log: InkLog,
     session_path: String,
@@ -250,6 +252,7 @@ impl MaobiApp {
             serial_ports: Vec::new(),
             probe: None,
             brush_name: "large".into(),
+            ink_load: 1.0,
             ink_log: InkLog::default(),
             session_path: "out/maobi-session.maobi.toml".into(),
             opening: None,
@@ -884,8 +887,21 @@ impl MaobiApp {
                     Err(e) => self.message = Some((e.to_string(), true)),
                 }
             }
+            let l = ui.label("ink load");
+            ui.add(
+                egui::DragValue::new(&mut self.ink_load)
+                    .range(0.0..=1.0)
+                    .speed(0.01)
+                    .fixed_decimals(2),
+            )
+            .labelled_by(l.id)
+            .on_hover_text("How wet a dip leaves the brush (0: dry, 1: fully loaded)");
             if ui.button("Dip ink").clicked() {
-                let _ = self.device.send(DeviceCommand::Dip(1.0));
+                let load = self.ink_load;
+                self.message = Some(match self.device.send(DeviceCommand::Dip(load)) {
+                    Ok(()) => (format!("dipped: ink load {load:.2}"), false),
+                    Err(e) => (format!("cannot dip: {e}"), true),
+                });
             }
             let enabled = self.status.forces_enabled;
             let out = self.latest.as_ref().map(|f| f.output);

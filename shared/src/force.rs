@@ -551,9 +551,22 @@ impl<S: Scalar> OutputStage<S> {
     /// The command for this tick. `hand_step` is the hand's displacement since the last tick
     /// (mm, i.e. its velocity in m/s), over which the last command was applied.
     pub fn apply(&mut self, wanted: Vec3<S>, hand_step: Vec3<S>) -> Vec3<S> {
+        self.apply_with_source(wanted, hand_step, 0.0)
+    }
+
+    /// As [`OutputStage::apply`], for a force that includes an intended source of energy:
+    /// `source_j`, what a guide's moving point supplied this tick
+    /// ([`crate::guide::GuideForce::source_j`]), is credited to the passivity observer so
+    /// the controller does not take back energy that was meant to lead the hand.
+    pub fn apply_with_source(
+        &mut self,
+        wanted: Vec3<S>,
+        hand_step: Vec3<S>,
+        source_j: f64,
+    ) -> Vec3<S> {
         // Passivity observer: the work the last command did on the hand.
         let work = self.last.dot(hand_step).to_f64() * 1e-3;
-        self.absorbed -= work;
+        self.absorbed += source_j - work;
 
         let holding = self.fault || !self.enabled;
         if holding {

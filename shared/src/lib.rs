@@ -25,6 +25,7 @@ pub mod brush;
 pub mod energy;
 pub mod footprint;
 pub mod force;
+pub mod guide;
 pub mod hand;
 pub mod kinematics;
 pub mod params;

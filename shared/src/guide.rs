@@ -1,0 +1,320 @@
+//! Guided writing: the device leads the hand along a stroke.
+//!
+//! A keyframed stroke ([`crate::stroke`]) gives, every tick, the *moving point*: where the
+//! ferrule should be now. The guide couples the hand to it with a gentle spring-damper,
+//!
+//! ```text
+//! F = g(t) * clamp(k (a - x) + b (v_a - v_x), F_max)
+//! ```
+//!
+//! with `a`, `v_a` the moving point and its velocity, `x`, `v_x` the stylus, and `g` a gain
+//! that fades in when guidance starts and out when it stops, so the hand never feels a step.
+//! The guide's force is added to the force model's before the [`OutputStage`], so the device's
+//! clamps, step limit, ramp and fault handling apply to it as to every other force.
+//!
+//! # Passivity
+//!
+//! A spring to a *moving* anchor is meant to put energy into the hand: that is what leading
+//! means. The energy comes from the anchor's motion (the stroke's playback) and, during a
+//! fade-in, from the gain rising on a stretched spring. [`Guide::tick`] reports both as
+//! [`GuideForce::source_j`]: the work the anchor does on the coupling this tick,
+//! `F . (a_k - a_{k-1})`, plus `dg * k |a - x|^2 / 2`. The output stage's passivity observer
+//! is credited with it ([`OutputStage::apply_with_source`]), so it only takes back energy the
+//! sampled loop *creates*, and the passivity audit (`tests/guide.rs`) checks the same balance:
+//! the energy delivered to the hand over any window never exceeds what the hand put in, plus
+//! what the brush, the filters and the coupling store, plus what the moving point supplied.
+//!
+//! # Defaults, and why
+//!
+//! `k = 100 N/m`, `b = 0.1 N s/m`, `F_max = 0.8 N`, fades of 0.3 s: 1 N only at 10 mm off
+//! the stroke, so a writer can always overpower it; under the Phantom Omni's continuous 0.88
+//! N; and within the Colgate-Brown budget at 1 kHz on top of the force model's paper-plane
+//! terms (`k T / 2 + b` = 0.15 N s/m, which with the model's 0.63 stays below the Omni's
+//! assumed 1 N s/m of physical damping).
+//!
+//! [`OutputStage`]: crate::force::OutputStage
+//! [`OutputStage::apply_with_source`]: crate::force::OutputStage::apply_with_source
+
+use crate::force::{LimitError, TICK_S};
+use crate::scalar::Scalar;
+use crate::vec::Vec3;
+
+/// The coupling's constants. Validated by [`GuideParams::validate`].
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct GuideParams {
+    /// Spring to the moving point (N/m).
+    pub stiffness_n_per_m: f32,
+    /// Damper on the velocity difference (N s/m).
+    pub damping_ns_per_m: f32,
+    /// Largest guide force (N), before the device's own limits.
+    pub max_force_n: f32,
+    /// Time to fade in after [`Guide::start`] and out after [`Guide::stop`] (s).
+    pub fade_s: f32,
+}
+
+/// Gentle guidance (see the module docs for why these numbers).
+pub const DEFAULT_GUIDE: GuideParams = GuideParams {
+    stiffness_n_per_m: 100.0,
+    damping_ns_per_m: 0.1,
+    max_force_n: 0.8,
+    fade_s: 0.3,
+};
+
+impl GuideParams {
+    pub fn validate(&self) -> Result<(), LimitError> {
+        let check = |name, value: f32, min, max| {
+            if value.is_finite() && value >= min && value <= max {
+                Ok(())
+            } else {
+                Err(LimitError {
+                    name,
+                    value,
+                    min,
+                    max,
+                })
+            }
+        };
+        // The stiffness bound keeps k T / 2 within a Phantom-class device's damping.
+        check(
+            "guide_stiffness_n_per_m",
+            self.stiffness_n_per_m,
+            0.0,
+            400.0,
+        )?;
+        check("guide_damping_ns_per_m", self.damping_ns_per_m, 0.0, 1.0)?;
+        check("guide_max_force_n", self.max_force_n, 0.0, 3.3)?;
+        check("guide_fade_s", self.fade_s, 0.0, 5.0)
+    }
+}
+
+/// One tick of guidance.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct GuideForce<S> {
+    /// The force on the hand (N, paper frame).
+    pub force: Vec3<S>,
+    /// How far the stylus is from the moving point (mm).
+    pub distance_mm: S,
+    /// Energy the moving point and the fade supplied this tick (J; may be negative).
+    pub source_j: f64,
+}
+
+/// The spring-damper coupling to the moving point, with its fade.
+#[derive(Clone, Debug)]
+pub struct Guide<S> {
+    params: GuideParams,
+    /// k in N per mm (positions are in mm).
+    k: S,
+    b: S,
+    max: S,
+    fade_step: S,
+    gain: S,
+    on: bool,
+    /// The moving point at the last tick, and the force then (for the anchor's work).
+    last_anchor: Option<Vec3<S>>,
+    last_force: Vec3<S>,
+}
+
+impl<S: Scalar> Guide<S> {
+    pub fn new(params: GuideParams) -> Result<Self, LimitError> {
+        params.validate()?;
+        let fade = params.fade_s as f64;
+        Ok(Guide {
+            params,
+            k: S::from_f64(params.stiffness_n_per_m as f64 * 1e-3),
+            b: S::from_f32(params.damping_ns_per_m),
+            max: S::from_f32(params.max_force_n),
+            fade_step: S::from_f64(if fade > 0.0 {
+                (TICK_S / fade).min(1.0)
+            } else {
+                1.0
+            }),
+            gain: S::ZERO,
+            on: false,
+            last_anchor: None,
+            last_force: Vec3::ZERO,
+        })
+    }
+
+    pub fn params(&self) -> &GuideParams {
+        &self.params
+    }
+
+    /// Starts leading (fades in from the current gain).
+    pub fn start(&mut self) {
+        self.on = true;
+    }
+    /// Stops leading (fades out); the moving point should keep coming until
+    /// [`Guide::active`] is false.
+    pub fn stop(&mut self) {
+        self.on = false;
+    }
+    /// Stops at once: the gain and the force are zero from the next tick (faults, link loss;
+    /// the output stage's own ramp-out still smooths the command).
+    pub fn cut(&mut self) {
+        self.on = false;
+        self.gain = S::ZERO;
+        self.last_anchor = None;
+        self.last_force = Vec3::ZERO;
+    }
+    /// Leading, or still fading out.
+    pub fn active(&self) -> bool {
+        self.on || self.gain > S::ZERO
+    }
+    pub fn gain(&self) -> S {
+        self.gain
+    }
+
+    /// One tick: the moving point `anchor` and its step since the last tick `anchor_step`
+    /// (mm; mm per tick is m/s), the stylus `hand` and its step `hand_step`.
+    pub fn tick(
+        &mut self,
+        anchor: Vec3<S>,
+        anchor_step: Vec3<S>,
+        hand: Vec3<S>,
+        hand_step: Vec3<S>,
+    ) -> GuideForce<S> {
+        let d = anchor - hand;
+        let d2 = d.norm2();
+        let distance_mm = d2.sqrt();
+        // The anchor's work on the coupling over the last tick, with the force held then.
+        let mut source_j = match self.last_anchor {
+            Some(_) => self.last_force.dot(anchor_step).to_f64() * 1e-3,
+            None => 0.0,
+        };
+        let old = self.gain;
+        self.gain = if self.on {
+            (self.gain + self.fade_step).min(S::ONE)
+        } else {
+            (self.gain - self.fade_step).max(S::ZERO)
+        };
+        // A rising gain stretches the spring's energy with no work from anyone: a source.
+        source_j += (self.gain - old).to_f64() * self.potential(distance_mm.to_f64());
+        let force = if self.gain > S::ZERO {
+            let raw = d.scale(self.k) + (anchor_step - hand_step).scale(self.b);
+            clamp_norm(raw, self.max).scale(self.gain)
+        } else {
+            Vec3::ZERO
+        };
+        self.last_anchor = Some(anchor);
+        self.last_force = force;
+        GuideForce {
+            force,
+            distance_mm,
+            source_j,
+        }
+    }
+
+    /// Energy the coupling's spring holds now (J): part of the stored energy in an audit.
+    pub fn stored_energy(&self, anchor: Vec3<S>, hand: Vec3<S>) -> f64 {
+        let d = (anchor - hand).norm2().to_f64().sqrt();
+        self.gain.to_f64() * self.potential(d)
+    }
+
+    /// The potential of the saturating spring at `d_mm` at full gain (J): `k d^2 / 2` up to
+    /// the clamp at `d0 = F_max / k`, then growing by `F_max` per metre.
+    fn potential(&self, d_mm: f64) -> f64 {
+        let k = self.params.stiffness_n_per_m as f64;
+        let f_max = self.params.max_force_n as f64;
+        let d = d_mm * 1e-3;
+        if k <= 0.0 {
+            return 0.0;
+        }
+        let d0 = f_max / k;
+        if d <= d0 {
+            0.5 * k * d * d
+        } else {
+            0.5 * k * d0 * d0 + f_max * (d - d0)
+        }
+    }
+}
+
+/// `v` scaled down to length `max` if it is longer.
+fn clamp_norm<S: Scalar>(v: Vec3<S>, max: S) -> Vec3<S> {
+    let n2 = v.norm2();
+    if n2 > max * max {
+        v.scale(max * n2.rsqrt())
+    } else {
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Fx;
+
+    #[test]
+    fn fades_in_and_out_without_steps_and_never_exceeds_its_limit() {
+        let mut g = Guide::<Fx>::new(DEFAULT_GUIDE).unwrap();
+        let hand = Vec3::<Fx>::ZERO;
+        let anchor = Vec3::<Fx>::from_f64([30.0, 0.0, 0.0]); // far: the clamp holds
+        let z = Vec3::<Fx>::ZERO;
+        assert_eq!(
+            g.tick(anchor, z, hand, z).force,
+            Vec3::ZERO,
+            "off until started"
+        );
+        g.start();
+        let mut last = 0.0;
+        for k in 0..400 {
+            let f = g.tick(anchor, z, hand, z).force.to_f64()[0];
+            assert!(
+                f - last <= 0.8 / 300.0 + 1e-6,
+                "tick {k}: step {}",
+                f - last
+            );
+            assert!(f <= 0.8 + 1e-6);
+            last = f;
+        }
+        assert!(
+            (last - 0.8).abs() < 1e-6,
+            "full gain clamps to 0.8 N: {last}"
+        );
+        g.stop();
+        for _ in 0..301 {
+            let f = g.tick(anchor, z, hand, z).force.to_f64()[0];
+            assert!(last - f <= 0.8 / 300.0 + 1e-6);
+            last = f;
+        }
+        assert_eq!(last, 0.0);
+        assert!(!g.active());
+    }
+
+    #[test]
+    fn pulls_toward_the_point_with_the_stated_stiffness() {
+        let mut g = Guide::<f64>::new(GuideParams {
+            fade_s: 0.0,
+            ..DEFAULT_GUIDE
+        })
+        .unwrap();
+        g.start();
+        let z = Vec3::ZERO;
+        let f = g.tick(Vec3::new(0.0, 5.0, 0.0), z, z, z);
+        // 100 N/m over 5 mm.
+        assert!((f.force.y - 0.5).abs() < 1e-12 && f.force.x == 0.0);
+        assert!((f.distance_mm - 5.0).abs() < 1e-12);
+        // Moving the anchor 1 mm further along the pull does 0.5 N x 1 mm of work.
+        let f2 = g.tick(Vec3::new(0.0, 6.0, 0.0), Vec3::new(0.0, 1.0, 0.0), z, z);
+        assert!((f2.source_j - 0.5e-3).abs() < 1e-12, "{}", f2.source_j);
+    }
+
+    #[test]
+    fn bad_parameters_are_rejected() {
+        for p in [
+            GuideParams {
+                stiffness_n_per_m: f32::NAN,
+                ..DEFAULT_GUIDE
+            },
+            GuideParams {
+                max_force_n: -1.0,
+                ..DEFAULT_GUIDE
+            },
+            GuideParams {
+                stiffness_n_per_m: 5000.0,
+                ..DEFAULT_GUIDE
+            },
+        ] {
+            assert!(Guide::<Fx>::new(p).is_err());
+        }
+    }
+}

@@ -412,6 +412,13 @@ impl Device for LinkDevice {
                 s.replay = Some(ReplaySpan::default());
                 s.status.replaying = true;
             }
+            DeviceCommand::Guide(_) => {
+                return Err(DeviceError::Rejected(
+                    "guided writing runs on the built-in simulator for now; the wire protocol \
+                     does not carry the moving point yet"
+                        .into(),
+                ));
+            }
             _ => {}
         }
         r.cmds
@@ -817,6 +824,7 @@ pub fn frame_from_state(state: &BrushState, tick: u64, replaying: bool) -> Brush
         output,
         replaying,
         received: std::time::Instant::now(),
+        guide: None,
     }
 }
 
@@ -895,6 +903,8 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                     pen = Pen::Approach(track.resample().collect());
                     None
                 }
+                // Refused in `send`.
+                DeviceCommand::Guide(_) => None,
                 DeviceCommand::StopReplay => {
                     let mut s = inner.shared();
                     match (&pen, &mut s.replay) {

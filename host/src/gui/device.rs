@@ -51,6 +51,8 @@ pub struct BrushFrame {
     /// When the host had this frame (decoded from the link, or made by the simulator): the
     /// start of its latency to the screen.
     pub received: std::time::Instant,
+    /// Guided writing, while the guide is active.
+    pub guide: Option<GuideFrame>,
 }
 
 impl BrushFrame {
@@ -116,6 +118,23 @@ pub enum DeviceCommand {
     Replay(Arc<PoseTrack>),
     /// Stop a replay.
     StopReplay,
+    /// Guided writing: the device pulls the hand toward the moving point of this pose track
+    /// (played in real time from the next tick) with `maobi_shared::guide`'s fading
+    /// spring-damper; `None` stops it (fading out).
+    Guide(Option<Arc<PoseTrack>>),
+}
+
+/// Guided writing at one tick, as the device reports it.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct GuideFrame {
+    /// The moving point (mm).
+    pub anchor: [f64; 3],
+    /// The pen's distance from it (mm).
+    pub distance_mm: f64,
+    /// The guide's fade gain in [0, 1].
+    pub gain: f64,
+    /// The guide's force on the hand (N), part of `force_total`.
+    pub force: [f64; 3],
 }
 
 /// Why a command was not carried out.

@@ -17,9 +17,12 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::guide::{Guide, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
-use super::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
+use super::device::{
+    BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput,
+};
 use super::session::{Journal, JournalEvent};
 
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
@@ -50,6 +53,10 @@ pub struct SimCore {
     replay: Option<(Vec<Pose<f64>>, usize)>,
     replays_done: u64,
     tick: u64,
+    /// Guided writing: the coupling and the moving point's poses with the next index.
+    guide: Guide<Fx>,
+    guide_track: Option<(Vec<Pose<f64>>, usize)>,
+    last_anchor: Option<Vec3<Fx>>,
     /// Every pose and brush command since the start, for saving the session
     /// ([`super::session`]). Shared so the GUI can read it while the model thread runs.
     journal: Arc<Mutex<Journal>>,
@@ -87,6 +94,9 @@ impl SimCore {
             replay: None,
             replays_done: 0,
             tick: 0,
+            guide: Guide::new(DEFAULT_GUIDE).map_err(|e| DeviceError::Rejected(e.to_string()))?,
+            guide_track: None,
+            last_anchor: None,
             journal: Arc::new(Mutex::new(Journal::new(preset, params, pose))),
         })
     }
@@ -187,6 +197,15 @@ impl SimCore {
                 self.replay = Some((poses, 0));
             }
             DeviceCommand::StopReplay => self.end_replay(),
+            DeviceCommand::Guide(Some(track)) => {
+                let poses: Vec<Pose<f64>> = track.resample().collect();
+                if poses.is_empty() {
+                    return Err(DeviceError::Rejected("the stroke is empty".into()));
+                }
+                self.guide_track = Some((poses, 0));
+                self.guide.start();
+            }
+            DeviceCommand::Guide(None) => self.guide.stop(),
         }
         Ok(())
     }
@@ -243,7 +262,12 @@ impl SimCore {
         self.brush.tick(target);
         let forces = self.model.tick(&self.brush, target.pos);
         let step: Vec3<Fx> = (pose.pos - last).cast();
-        let command = self.stage.apply(forces.total, step);
+        let guide = self.guide_tick(target.pos, step);
+        let (wanted, source) = match &guide {
+            Some((g, _)) => (forces.total + g.force, g.source_j),
+            None => (forces.total, 0.0),
+        };
+        let command = self.stage.apply_with_source(wanted, step, source);
         self.tick += 1;
         if let Ok(mut j) = self.journal.lock() {
             j.tick(self.tick, pose);
@@ -265,7 +289,44 @@ impl SimCore {
             output: self.stage.state(),
             replaying,
             received: Instant::now(),
+            guide: guide.map(|(g, anchor)| GuideFrame {
+                anchor: anchor.to_f64(),
+                distance_mm: g.distance_mm.to_f64(),
+                gain: self.guide.gain().to_f64(),
+                force: g.force.to_f64(),
+            }),
         }
+    }
+
+    /// The guide's force this tick, and the moving point, while guidance is active. The
+    /// moving point walks the track one pose per tick and holds its last pose while the
+    /// guide fades out.
+    fn guide_tick(
+        &mut self,
+        hand: Vec3<Fx>,
+        hand_step: Vec3<Fx>,
+    ) -> Option<(maobi_shared::guide::GuideForce<Fx>, Vec3<Fx>)> {
+        if !self.guide.active() {
+            self.guide_track = None;
+            self.last_anchor = None;
+            return None;
+        }
+        let (poses, k) = self.guide_track.as_mut()?;
+        let anchor: Vec3<Fx> = poses.get(*k).or(poses.last())?.pos.cast();
+        if *k + 1 < poses.len() {
+            *k += 1;
+        } else {
+            // The stroke is over: let go.
+            self.guide.stop();
+        }
+        let step = self.last_anchor.map_or(Vec3::ZERO, |a| anchor - a);
+        self.last_anchor = Some(anchor);
+        Some((self.guide.tick(anchor, step, hand, hand_step), anchor))
+    }
+
+    /// Guided writing is on (or fading out).
+    pub fn guiding(&self) -> bool {
+        self.guide.active()
     }
 
     fn status(&self, name: &str, connected: bool) -> DeviceStatus {

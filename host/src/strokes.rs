@@ -65,7 +65,7 @@ pub const FORMAT: &str = "maobi-stroke";
 pub const VERSION: i64 = 1;
 
 /// The file as written.
-#[derive(Debug, Default, Deserialize, Serialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct StrokeFile {
     pub format: Option<String>,
@@ -90,7 +90,7 @@ pub struct StrokeFile {
     pub stroke: Vec<StrokeSpec>,
 }
 
-#[derive(Debug, Default, Deserialize, Serialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct StrokeSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -105,7 +105,7 @@ pub struct StrokeSpec {
     pub moving: Vec<MovingSpec>,
 }
 
-#[derive(Debug, Default, Deserialize, Serialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeySpec {
     pub at: Option<Vec<f64>>,
@@ -123,7 +123,7 @@ pub struct KeySpec {
     pub t: Option<f64>,
 }
 
-#[derive(Debug, Deserialize, Serialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct StopSpec {
     /// Keyframe number (from 1).
@@ -131,7 +131,7 @@ pub struct StopSpec {
     pub s: f64,
 }
 
-#[derive(Debug, Deserialize, Serialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MovingSpec {
     pub t: f64,

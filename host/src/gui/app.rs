@@ -17,6 +17,7 @@ use super::canvas::PaperView;
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use super::session::{CanvasOp, InkLog, Rerender, Session};
 use super::sim::{SimClock, SimDevice};
+use super::timeline::{Timeline, TimelineAction};
 use super::DeviceChoice;
 use crate::device::{serial_ports, Endpoint, PortInfo};
 use crate::poses::PoseTrack;
@@ -155,6 +156,11 @@ pub struct MaobiApp {
     brush_name: String,
     /// Wetness a dip leaves the brush with (0..=1).
     ink_load: f32,
+    /// The stroke editor (keyframed strokes on a timeline) and whether it is shown.
+    timeline: Timeline,
+    show_timeline: bool,
+    /// Fonts set up (on the first frame, when there is a context): the outcome.
+    fonts: Option<Result<String, String>>,
     /// The paper's history for the session file (inked ticks, undo, clear).
     ink_log: InkLog,
     session_path: String,
@@ -253,6 +259,9 @@ impl MaobiApp {
             probe: None,
             brush_name: "large".into(),
             ink_load: 1.0,
+            timeline: Timeline::default(),
+            show_timeline: false,
+            fonts: None,
             ink_log: InkLog::default(),
             session_path: "out/maobi-session.maobi.toml".into(),
             opening: None,
@@ -444,6 +453,30 @@ impl MaobiApp {
         self.replay_frames
     }
 
+    pub fn timeline(&self) -> &Timeline {
+        &self.timeline
+    }
+    pub fn timeline_mut(&mut self) -> &mut Timeline {
+        &mut self.timeline
+    }
+    /// Shows or hides the stroke editor.
+    pub fn show_timeline(&mut self, on: bool) {
+        self.show_timeline = on;
+    }
+
+    /// Carries out what the stroke editor asked for.
+    pub fn timeline_action(&mut self, a: TimelineAction) {
+        let (cmd, what) = match a {
+            TimelineAction::Play(t) => (DeviceCommand::Replay(Arc::new(t)), "play"),
+            TimelineAction::Pause => (DeviceCommand::StopReplay, "pause"),
+            TimelineAction::Guide(t) => (DeviceCommand::Guide(Some(Arc::new(t))), "guide"),
+            TimelineAction::StopGuide => (DeviceCommand::Guide(None), "stop guiding"),
+        };
+        if let Err(e) = self.device.send(cmd) {
+            self.timeline.message = Some((format!("cannot {what}: {e}"), true));
+        }
+    }
+
     /// Arrival-to-ink latency so far.
     pub fn ink_latency(&self) -> InkLatency {
         let v = &self.times.ink_latency;
@@ -554,6 +587,8 @@ impl MaobiApp {
                 push(&mut self.depth_mm, [t, f.depth_mm]);
             }
         }
+        self.timeline
+            .follow(&frames, self.replay_frames, self.status.replaying);
         if let Some(f) = frames.pop() {
             self.latest = Some(f);
         }
@@ -935,6 +970,8 @@ impl MaobiApp {
             if ui.button("Fit").clicked() {
                 self.paper.fit();
             }
+            ui.toggle_value(&mut self.show_timeline, "Strokes")
+                .on_hover_text("The stroke editor: keyframes, timeline, play, guided writing");
             if ui.button("1:1").clicked() {
                 self.paper.actual_size(ui.ctx());
             }
@@ -1160,6 +1197,10 @@ impl MaobiApp {
             if self.recorder.is_some() {
                 ui.label(RichText::new("REC").color(Color32::from_rgb(230, 60, 60)));
             }
+            if let Some(Err(m)) = &self.fonts {
+                ui.label(RichText::new("no CJK font").color(Color32::from_rgb(220, 180, 60)))
+                    .on_hover_text(m);
+            }
         });
         // A protocol device's link: its state and our receiver's counters.
         if let Some(l) = &s.link {
@@ -1287,6 +1328,9 @@ impl MaobiApp {
     pub fn frame_ui(&mut self, ui: &mut egui::Ui) {
         let begin = Instant::now();
         let ctx = ui.ctx().clone();
+        if self.fonts.is_none() {
+            self.fonts = Some(super::fonts::setup(&ctx));
+        }
         let interval = self.times.last.map(|l| (begin - l).as_secs_f64() * 1e3);
         self.times.prev_begin = self.times.last;
         self.times.last = Some(begin);
@@ -1295,6 +1339,20 @@ impl MaobiApp {
 
         egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.status_bar(ui));
+        if self.show_timeline {
+            let mut action = None;
+            egui::Panel::bottom("timeline")
+                .resizable(true)
+                .default_size(230.0)
+                .show(ui, |ui| {
+                    action = self
+                        .timeline
+                        .ui(ui, self.replay_frames, self.latest.as_ref());
+                });
+            if let Some(a) = action {
+                self.timeline_action(a);
+            }
+        }
         egui::Panel::left("params")
             .resizable(true)
             .default_size(260.0)
@@ -1314,6 +1372,16 @@ impl MaobiApp {
             let (_, p) = self.paper.show(ui);
             pointer = p;
             self.overlay(ui);
+            if self.show_timeline {
+                let anchor = self.latest.as_ref().and_then(|f| f.guide.map(|g| g.anchor));
+                if self
+                    .timeline
+                    .paper_overlay(ui, &self.paper, p.mm, p.pressed, anchor)
+                {
+                    // Editing keyframes: the pen stays up.
+                    pointer.pressed = false;
+                }
+            }
         });
         self.hand_input(&ctx, pointer);
         self.finish_open(&ctx);

@@ -11,8 +11,10 @@ pub mod app;
 pub mod brush_view;
 pub mod canvas;
 pub mod device;
+pub mod fonts;
 pub mod session;
 pub mod sim;
+pub mod timeline;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};

@@ -20,10 +20,14 @@ use crate::trace::{time_decimals, TraceWriter};
     version,
     about = "The Maobi virtual calligraphy brush: the GUI (no subcommand), or simulate recorded handle poses"
 )]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct Cli {
     /// Without a subcommand, opens the GUI with the built-in simulated device.
     #[command(subcommand)]
     pub command: Option<Command>,
+    /// The GUI's options, without a subcommand (`maobi --device phantom`).
+    #[command(flatten)]
+    pub gui: GuiArgs,
 }
 
 #[derive(Debug, Subcommand)]
@@ -40,6 +44,93 @@ pub enum Command {
     /// Run the simulated brush behind the wire protocol on a TCP port (a stand-in for the
     /// pen: `maobi gui --device tcp:HOST:PORT` connects to it).
     SimDevice(SimDeviceArgs),
+    /// Run a Phantom Omni / Geomagic Touch (OpenHaptics' libHD, loaded at run time) behind
+    /// the wire protocol on a TCP port: `maobi gui --device tcp:HOST:PORT` connects to it.
+    Bridge(BridgeArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct BridgeArgs {
+    /// Address to listen on.
+    #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:7879")]
+    pub listen: String,
+    #[command(flatten)]
+    pub phantom: PhantomArgs,
+    /// Brush preset at start.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Brush state frames per second (1 to 1000).
+    #[arg(long, value_name = "HZ", default_value = "120")]
+    pub state_hz: u32,
+    /// Start with forces off (stylus button 2 or the host's command turns them on).
+    #[arg(long)]
+    pub no_forces: bool,
+    /// Stop after this many 1 ms servo ticks (scripted runs).
+    #[arg(long, value_name = "N")]
+    pub stop_after_ticks: Option<u32>,
+}
+
+/// Where libHD is and how the Phantom's workspace maps to the paper.
+#[derive(Debug, Args)]
+pub struct PhantomArgs {
+    /// OpenHaptics' libHD.so (default: $MAOBI_HD_LIB, then the usual install paths).
+    #[arg(long, value_name = "PATH")]
+    pub hd_lib: Option<PathBuf>,
+    /// Device x,z (mm) above the paper's centre.
+    #[arg(long, value_name = "X,Z", default_value = "0,0", value_parser = parse_origin, allow_hyphen_values = true)]
+    pub origin: [f64; 2],
+    /// Device height (mm) of the ferrule at the paper; both stylus buttons together
+    /// recalibrate it (hold the brush tip just touching the paper).
+    #[arg(
+        long,
+        value_name = "MM",
+        default_value = "-60",
+        allow_negative_numbers = true
+    )]
+    pub paper_height: f64,
+    /// Paper millimetres per device millimetre.
+    #[arg(long, value_name = "S", default_value = "1", value_parser = parse_px_per_mm)]
+    pub scale: f64,
+}
+
+impl PhantomArgs {
+    pub fn mapping(&self) -> crate::phantom::Mapping {
+        crate::phantom::Mapping {
+            origin_mm: self.origin,
+            paper_height_mm: self.paper_height,
+            scale: self.scale,
+        }
+    }
+}
+
+fn parse_origin(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("`{s}` is not X,Z"))?;
+    match v[..] {
+        [x, z] if x.is_finite() && z.is_finite() => Ok([x, z]),
+        _ => Err(format!("`{s}` is not X,Z (two numbers)")),
+    }
+}
+
+/// `--device` of the GUI: the choices of [`crate::gui::DeviceChoice`], or `phantom`.
+#[derive(Clone, Debug, PartialEq)]
+pub enum GuiDeviceArg {
+    Choice(crate::gui::DeviceChoice),
+    Phantom,
+}
+
+impl std::str::FromStr for GuiDeviceArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "phantom" {
+            Ok(GuiDeviceArg::Phantom)
+        } else {
+            s.parse().map(GuiDeviceArg::Choice)
+        }
+    }
 }
 
 #[derive(Debug, Args)]
@@ -58,9 +149,15 @@ pub struct SimDeviceArgs {
 #[derive(Debug, Args)]
 pub struct GuiArgs {
     /// The device: `sim` (the built-in simulator), `tcp:HOST:PORT` (the QEMU board, `maobi
-    /// sim-device`) or `serial:PATH` (the pen); connects at start.
+    /// sim-device`, `maobi bridge`), `serial:PATH` (the pen) or `phantom` (a Phantom Omni /
+    /// Geomagic Touch through libHD; falls back to the simulator if it cannot be used);
+    /// connects at start.
     #[arg(long, value_name = "DEVICE", default_value = "sim")]
-    pub device: crate::gui::DeviceChoice,
+    pub device: GuiDeviceArg,
+    /// With `--device phantom`: OpenHaptics' libHD.so (default: $MAOBI_HD_LIB, then the
+    /// usual install paths).
+    #[arg(long, value_name = "PATH")]
+    pub hd_lib: Option<PathBuf>,
     /// Replay this pose CSV (t,x,y,z,qw,qx,qy,qz) through the simulator at start.
     #[arg(long, value_name = "POSES.csv")]
     pub replay: Option<PathBuf>,
@@ -202,16 +299,118 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             server.wait();
             Ok(())
         }
-        Some(Command::Gui(a)) => crate::gui::run(crate::gui::GuiOptions {
-            device: a.device,
-            brush: a.brush.name,
-            replay: a.replay,
-            screenshot: a.screenshot,
-            session: a.session,
-            paper_mm: a.paper_mm,
-            px_per_mm: a.px_per_mm,
-        }),
-        None => crate::gui::run(crate::gui::GuiOptions::default()),
+        Some(Command::Bridge(a)) => run_bridge(&a),
+        Some(Command::Gui(a)) => crate::gui::run(gui_options(a)),
+        None => crate::gui::run(gui_options(cli.gui)),
+    }
+}
+
+fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
+    let (device, phantom) = match a.device {
+        GuiDeviceArg::Choice(c) => (c, None),
+        GuiDeviceArg::Phantom => (
+            crate::gui::DeviceChoice::Sim,
+            Some(crate::gui::PhantomChoice { hd_lib: a.hd_lib }),
+        ),
+    };
+    crate::gui::GuiOptions {
+        device,
+        phantom,
+        brush: a.brush.name,
+        replay: a.replay,
+        screenshot: a.screenshot,
+        session: a.session,
+        paper_mm: a.paper_mm,
+        px_per_mm: a.px_per_mm,
+    }
+}
+
+/// Set by SIGINT / SIGTERM while `maobi bridge` runs.
+static SIGNALLED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    // Only an atomic store: async-signal-safe.
+    SIGNALLED.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Routes SIGINT and SIGTERM to [`SIGNALLED`], so Ctrl-C stops the servo loop through its
+/// own shutdown (the last frame commands zero, the device is released) rather than ending
+/// the process in the middle of a frame.
+fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
+    let handler: extern "C" fn(libc::c_int) = on_signal;
+    // SAFETY: the handler only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, handler as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, handler as libc::sighandler_t);
+    }
+    &SIGNALLED
+}
+
+/// `maobi bridge`: libHD, the servo loop, the wire protocol on TCP, until the servo loop
+/// stops (an HD error, `--stop-after-ticks`) or the process is ended.
+fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
+    use crate::phantom::device::BridgeModel;
+    use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
+    let lib = std::sync::Arc::new(HdLib::find(a.phantom.hd_lib.as_deref())?);
+    eprintln!(
+        "maobi bridge: loaded {} (from {})",
+        lib.path().display(),
+        lib.source()
+    );
+    let opts = BridgeOptions {
+        preset: a.brush.name.clone(),
+        mapping: a.phantom.mapping(),
+        state_hz: a.state_hz,
+        forces_on: !a.no_forces,
+        stop_after_ticks: a.stop_after_ticks,
+    };
+    let bridge = Bridge::start(lib.clone(), &opts)?;
+    let limits = bridge.limits();
+    let model = BridgeModel::new(bridge);
+    let shared = model.shared();
+    let mut server = crate::device::SimDeviceServer::spawn_model(
+        &a.listen,
+        Box::new(model),
+        crate::device::SimDeviceOptions {
+            preset: a.brush.name.clone(),
+            state_hz: a.state_hz,
+            board: "maobi-phantom-bridge".into(),
+        },
+    )?;
+    eprintln!(
+        "maobi bridge: the {} brush, device limits {} N peak / {} N continuous, forces {}; \
+         listening on {}; connect with `maobi gui --device tcp:{}`",
+        a.brush.name,
+        limits.peak_n,
+        limits.continuous_n,
+        if a.no_forces { "off" } else { "ramping in" },
+        server.addr(),
+        server.addr()
+    );
+    let signalled = stop_on_signals();
+    while !shared.done() && !signalled.load(std::sync::atomic::Ordering::Relaxed) {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    if signalled.load(std::sync::atomic::Ordering::Relaxed) {
+        eprintln!("maobi bridge: interrupted; stopping the servo loop (forces to zero)");
+    }
+    let stopped = shared.stopped(&lib);
+    // Dropping the model (with the server) stops the scheduler and releases the device.
+    server.stop();
+    let (mean, max) = shared.callback_cost_us();
+    let (sent, skipped) = shared.state_counts();
+    eprintln!(
+        "maobi bridge: {} servo ticks, callback {mean:.1} us mean / {max:.1} us max, \
+         {sent} states handed over ({skipped} dropped: no host connected yet, or one too slow)",
+        shared.ticks()
+    );
+    match stopped {
+        Some(Stopped::TickLimit(n)) => {
+            eprintln!("maobi bridge: stopped after {n} servo ticks as asked");
+            Ok(())
+        }
+        Some(s) => anyhow::bail!("{s}"),
+        None => Ok(()),
     }
 }
 

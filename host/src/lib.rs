@@ -10,11 +10,13 @@
 //! * [`render`]: inking a simulated stroke and writing it as PNG.
 //! * [`device`]: devices over the wire protocol (TCP, serial) and the simulated protocol device.
 //! * [`gui`]: the desktop GUI (`maobi`, `maobi gui`) and its device backends.
+//! * [`phantom`]: the Phantom Omni / Geomagic Touch bridge (OpenHaptics' libHD at run time).
 //! * [`cli`]: the command-line interface.
 
 pub mod cli;
 pub mod device;
 pub mod gui;
+pub mod phantom;
 pub mod poses;
 pub mod raster;
 pub mod render;

@@ -207,3 +207,26 @@ fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
     assert_eq!(h.get_all_by_label_contains("connected to tcp:").count(), 2);
     assert_eq!(h.state().paper().canvas().ink_fraction(), ink);
 }
+
+#[test]
+fn the_chooser_offers_the_phantom_and_falls_back_with_the_reason() {
+    let mut h = harness(Endpoint::Tcp("127.0.0.1:9".into()));
+    h.run_steps(1);
+    let missing = std::env::temp_dir().join("maobi-no-such-libHD.so");
+    h.state_mut().choose_phantom(Some(&missing));
+    h.run_steps(1);
+    h.get_by_label("libHD.so");
+    let ctx = h.ctx.clone();
+    h.state_mut().switch_device(&ctx);
+    h.run_steps(2);
+    let s = h.state().status();
+    assert!(s.connected, "the fallback simulator runs: {s:?}");
+    assert!(
+        s.name.contains("Phantom unavailable") || s.faults.iter().any(|f| f.contains("Phantom")),
+        "the reason shows: {s:?}"
+    );
+    assert!(
+        format!("{s:?}").contains("maobi-no-such-libHD.so"),
+        "the path it looked for is named: {s:?}"
+    );
+}

@@ -1,5 +1,5 @@
-//! Devices over the wire protocol ([`maobi_shared::protocol`]), for the GUI and, later, the
-//! Phantom bridge.
+//! Devices over the wire protocol ([`maobi_shared::protocol`]), for the GUI and the Phantom
+//! bridge.
 //!
 //! * [`endpoint`]: where a device is (`tcp:HOST:PORT`, `serial:PATH`) and opening a byte
 //!   stream to it; serial port listing.
@@ -8,8 +8,9 @@
 //!   decodes frames and reconnects; a writer thread that streams the virtual pen's poses at
 //!   1 kHz and the commands.
 //! * [`sim_device`]: the shared simulator behind the wire protocol over TCP (`maobi
-//!   sim-device`): a stand-in for the pen in tests and demos, and the shape of the Phantom
-//!   bridge.
+//!   sim-device`): a stand-in for the pen in tests and demos. Its connection loop serves any
+//!   [`ProtocolModel`]; `maobi bridge` serves the Phantom through it
+//!   ([`crate::phantom::device::BridgeModel`]).
 
 pub mod endpoint;
 pub mod link;
@@ -17,4 +18,4 @@ pub mod sim_device;
 
 pub use endpoint::{available_serial_ports, serial_ports, Conn, Endpoint, PortInfo, UsbIds};
 pub use link::{identify, probe_serial_ports, LinkDevice, LinkOptions, LINK_TIMEOUT};
-pub use sim_device::{SimDeviceOptions, SimDeviceServer};
+pub use sim_device::{ProtocolModel, SimDeviceOptions, SimDeviceServer};

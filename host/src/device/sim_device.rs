@@ -20,9 +20,9 @@ use std::time::{Duration, Instant};
 use maobi_shared::force::{ForceModel, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command, CommandError, DeviceInfo, DeviceMsg, DeviceRx,
-    Event, EventKind, Faults, Haptics, HostMsg, Message, ParamReply, Telemetry,
+    Event, EventKind, Faults, Haptics, HostMsg, Message, ParamReply, PoseSample, Telemetry,
 };
-use maobi_shared::{presets, Brush, Fx, Pose, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
 use super::endpoint::Conn;
 use super::link::host_version;
@@ -158,6 +158,57 @@ pub const SENSOR_JUMP_MM: f64 = 10.0;
 /// `EIO`, as Linux and the BSDs number it.
 const EIO: i32 = 5;
 
+/// The device behind the wire protocol: the simulated brush here, the Phantom bridge
+/// ([`crate::phantom::device::BridgeModel`]) there. The connection loop (handshake, pings,
+/// parameters, commands, telemetry, framing) is the same for both.
+pub trait ProtocolModel: Send {
+    /// Capabilities and force limits (peak, continuous; N) for the handshake.
+    fn capabilities(&self) -> (Capabilities, f32, f32);
+    /// The device's tick now.
+    fn tick(&self) -> u32;
+    /// A virtual-pen pose sample from the host; true if it ran a model tick.
+    fn pose(&mut self, sample: &PoseSample) -> bool;
+    /// The state to send now, if any. `due`: the state period has elapsed (or enough pose
+    /// samples were consumed); a device with its own clock hands over what it produced.
+    fn poll_state(&mut self, due: bool) -> Option<BrushState>;
+    fn params(&self) -> BrushParams;
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), ParamError>;
+    fn command(&mut self, c: &Command) -> Result<(), CommandError>;
+    /// The device has stopped for good (the connection and the server end): why.
+    fn failed(&self) -> Option<String> {
+        None
+    }
+}
+
+impl ProtocolModel for Model {
+    fn capabilities(&self) -> (Capabilities, f32, f32) {
+        (
+            Capabilities::VIRTUAL_PEN | Capabilities::FORCE_OUTPUT,
+            PHANTOM_OMNI.peak_n,
+            PHANTOM_OMNI.continuous_n,
+        )
+    }
+    fn tick(&self) -> u32 {
+        self.tick
+    }
+    fn pose(&mut self, sample: &PoseSample) -> bool {
+        self.step(sample.pose(), sample.seq);
+        true
+    }
+    fn poll_state(&mut self, due: bool) -> Option<BrushState> {
+        due.then(|| self.state())
+    }
+    fn params(&self) -> BrushParams {
+        *self.brush.params()
+    }
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), ParamError> {
+        self.brush.set_param(id, value)
+    }
+    fn command(&mut self, c: &Command) -> Result<(), CommandError> {
+        Model::command(self, c)
+    }
+}
+
 /// A running simulated device; stops (closing its socket) when dropped.
 pub struct SimDeviceServer {
     addr: SocketAddr,
@@ -168,10 +219,19 @@ pub struct SimDeviceServer {
 impl SimDeviceServer {
     /// Listens on `addr` (`127.0.0.1:0` picks a free port: see [`SimDeviceServer::addr`]).
     pub fn spawn(addr: &str, opts: SimDeviceOptions) -> anyhow::Result<SimDeviceServer> {
+        let model = Model::new(&opts.preset)?;
+        SimDeviceServer::spawn_model(addr, Box::new(model), opts)
+    }
+
+    /// Serves `model` (any [`ProtocolModel`]) on `addr`; `opts.preset` is not used.
+    pub fn spawn_model(
+        addr: &str,
+        mut model: Box<dyn ProtocolModel>,
+        opts: SimDeviceOptions,
+    ) -> anyhow::Result<SimDeviceServer> {
         if !(1..=1000).contains(&opts.state_hz) {
             anyhow::bail!("--state-hz must be 1 ..= 1000");
         }
-        let model = Model::new(&opts.preset)?;
         let listener =
             TcpListener::bind(addr).map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
         listener.set_nonblocking(true)?;
@@ -181,7 +241,7 @@ impl SimDeviceServer {
             let stop = stop.clone();
             std::thread::Builder::new()
                 .name("maobi-sim-device".into())
-                .spawn(move || serve(listener, model, opts, &stop))?
+                .spawn(move || serve(listener, &mut *model, opts, &stop))?
         };
         Ok(SimDeviceServer {
             addr,
@@ -216,8 +276,13 @@ impl Drop for SimDeviceServer {
     }
 }
 
-fn serve(listener: TcpListener, mut model: Model, opts: SimDeviceOptions, stop: &AtomicBool) {
-    while !stop.load(Ordering::SeqCst) {
+fn serve(
+    listener: TcpListener,
+    model: &mut dyn ProtocolModel,
+    opts: SimDeviceOptions,
+    stop: &AtomicBool,
+) {
+    while !stop.load(Ordering::SeqCst) && model.failed().is_none() {
         match listener.accept() {
             Ok((stream, _)) => {
                 let setup = || -> std::io::Result<Box<dyn Conn>> {
@@ -228,7 +293,7 @@ fn serve(listener: TcpListener, mut model: Model, opts: SimDeviceOptions, stop: 
                     Ok(Box::new(stream.try_clone()?))
                 };
                 if let Ok(conn) = setup() {
-                    let _ = connection(conn, &mut model, &opts, stop);
+                    let _ = connection(conn, model, &opts, stop);
                 }
             }
             Err(e) if e.kind() == ErrorKind::WouldBlock => {
@@ -277,7 +342,7 @@ impl Tx {
 
 fn connection(
     stream: Box<dyn Conn>,
-    model: &mut Model,
+    model: &mut dyn ProtocolModel,
     opts: &SimDeviceOptions,
     stop: &AtomicBool,
 ) -> std::io::Result<()> {
@@ -302,6 +367,10 @@ fn connection(
     let mut greeted = false;
     let started = Instant::now();
     while !stop.load(Ordering::SeqCst) {
+        if model.failed().is_some() {
+            tx.flush()?;
+            return Ok(());
+        }
         let n = match rx_stream.read(&mut buf) {
             Ok(0) => return Ok(()),
             Ok(n) => n,
@@ -337,18 +406,14 @@ fn connection(
             match msg {
                 HostMsg::Hello(h) => {
                     if h.check().is_ok() {
-                        let info = DeviceInfo::new(
-                            &opts.board,
-                            host_version(),
-                            Capabilities::VIRTUAL_PEN | Capabilities::FORCE_OUTPUT,
-                            PHANTOM_OMNI.peak_n,
-                            PHANTOM_OMNI.continuous_n,
-                        );
+                        let (caps, peak, continuous) = model.capabilities();
+                        let info =
+                            DeviceInfo::new(&opts.board, host_version(), caps, peak, continuous);
                         tx.send(&DeviceMsg::Hello(info));
                         if !greeted {
                             greeted = true;
                             tx.send(&DeviceMsg::Event(Event {
-                                tick: model.tick,
+                                tick: model.tick(),
                                 kind: EventKind::LinkConnected,
                                 faults: Faults::empty(),
                             }));
@@ -358,25 +423,27 @@ fn connection(
                 HostMsg::Ping { seq } => tx.send(&DeviceMsg::Pong { seq }),
                 HostMsg::Pose(sample) => {
                     last_pose = now;
-                    model.step(sample.pose(), sample.seq);
-                    since_state += 1;
+                    if model.pose(&sample) {
+                        since_state += 1;
+                    }
                     if since_state >= ticks_per_state {
                         since_state = 0;
                         last_state = now;
-                        tx.send(&DeviceMsg::State(model.state()));
+                        if let Some(state) = model.poll_state(true) {
+                            tx.send(&DeviceMsg::State(state));
+                        }
                     }
                 }
-                HostMsg::GetParam { id } => tx.send(&DeviceMsg::Param(ParamReply::read(
-                    model.brush.params(),
-                    id,
-                ))),
+                HostMsg::GetParam { id } => {
+                    tx.send(&DeviceMsg::Param(ParamReply::read(&model.params(), id)))
+                }
                 HostMsg::SetParam { id, value } => {
                     let reply = match param_id(id) {
                         Some(p) => {
-                            let r = model.brush.set_param(p, value);
-                            ParamReply::written(id, r, model.brush.params())
+                            let r = model.set_param(p, value);
+                            ParamReply::written(id, r, &model.params())
                         }
-                        None => ParamReply::read(model.brush.params(), id),
+                        None => ParamReply::read(&model.params(), id),
                     };
                     tx.send(&DeviceMsg::Param(reply));
                 }
@@ -390,10 +457,18 @@ fn connection(
         if now.duration_since(last_pose) > Duration::from_millis(1) {
             pose_gaps = pose_gaps.saturating_add(1);
         }
-        if greeted && now.duration_since(last_state) >= period {
-            last_state = now;
-            since_state = 0;
-            tx.send(&DeviceMsg::State(model.state()));
+        if greeted {
+            // A device with its own clock may have several states waiting; a few per pass.
+            let mut due = now.duration_since(last_state) >= period;
+            for _ in 0..8 {
+                let Some(state) = model.poll_state(due) else {
+                    break;
+                };
+                due = false;
+                last_state = now;
+                since_state = 0;
+                tx.send(&DeviceMsg::State(state));
+            }
         }
         if now.duration_since(last_telemetry) >= Duration::from_secs(1) {
             last_telemetry = now;

@@ -182,6 +182,8 @@ pub enum DeviceKind {
     Sim,
     Tcp,
     Serial,
+    /// A Phantom Omni / Geomagic Touch through OpenHaptics' libHD, in this process.
+    Phantom,
 }
 
 impl DeviceKind {
@@ -190,6 +192,7 @@ impl DeviceKind {
             DeviceKind::Sim => "built-in simulator",
             DeviceKind::Tcp => "TCP (QEMU board, sim-device, bridge)",
             DeviceKind::Serial => "serial (the pen on USB)",
+            DeviceKind::Phantom => "Phantom (OpenHaptics libHD)",
         }
     }
 }
@@ -408,10 +411,43 @@ impl MaobiApp {
         }
     }
 
+    /// Shows the Phantom in the device chooser (`maobi --device phantom`); `hd_lib` is the
+    /// library given on the command line, if any.
+    pub fn choose_phantom(&mut self, hd_lib: Option<&Path>) {
+        self.device_kind = DeviceKind::Phantom;
+        self.device_addr = hd_lib.map(|p| p.display().to_string()).unwrap_or_default();
+    }
+
     /// Replaces the device with the chooser's choice and connects it; the paper is kept.
     pub fn switch_device(&mut self, ctx: &egui::Context) {
+        if self.device_kind == DeviceKind::Phantom {
+            let c2 = ctx.clone();
+            let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || c2.request_repaint());
+            let lib = self.device_addr.trim();
+            let lib = (!lib.is_empty()).then(|| PathBuf::from(lib));
+            let len = presets::by_name(&self.brush_name).map_or(50.0, |p| p.length_mm as f64);
+            // Connects, or falls back to the simulator with the reason in the status.
+            match crate::phantom::device::gui_device(
+                lib,
+                &self.brush_name,
+                super::start_hand(len),
+                Some(wake),
+            ) {
+                Ok(d) => {
+                    self.device.disconnect();
+                    self.device = d;
+                    self.status = self.device.status();
+                    self.message = Some((format!("device: {}", self.status.name), false));
+                    self.latest = None;
+                    self.restart_ink_log();
+                }
+                Err(e) => self.message = Some((format!("cannot use the Phantom: {e}"), true)),
+            }
+            return;
+        }
         let choice = match self.device_kind {
-            DeviceKind::Sim => Ok(DeviceChoice::Sim),
+            // (The Phantom returned above.)
+            DeviceKind::Sim | DeviceKind::Phantom => Ok(DeviceChoice::Sim),
             DeviceKind::Tcp => format!("tcp:{}", self.device_addr.trim()).parse(),
             DeviceKind::Serial => format!("serial:{}", self.device_addr.trim()).parse(),
         };
@@ -779,7 +815,12 @@ impl MaobiApp {
         egui::ComboBox::from_label("device")
             .selected_text(self.device_kind.label())
             .show_ui(ui, |ui| {
-                for k in [DeviceKind::Sim, DeviceKind::Tcp, DeviceKind::Serial] {
+                for k in [
+                    DeviceKind::Sim,
+                    DeviceKind::Tcp,
+                    DeviceKind::Serial,
+                    DeviceKind::Phantom,
+                ] {
                     ui.selectable_value(&mut self.device_kind, k, k.label());
                 }
             });
@@ -794,16 +835,17 @@ impl MaobiApp {
                         .unwrap_or_default();
                 }
                 DeviceKind::Tcp => self.device_addr = "127.0.0.1:7878".into(),
+                DeviceKind::Phantom => self.device_addr.clear(),
                 DeviceKind::Sim => {}
             }
         }
         if self.device_kind != DeviceKind::Sim {
-            let hint = if self.device_kind == DeviceKind::Tcp {
-                "HOST:PORT"
-            } else {
-                "/dev/ttyACM0"
+            let (hint, what) = match self.device_kind {
+                DeviceKind::Tcp => ("HOST:PORT", "address"),
+                DeviceKind::Phantom => ("empty: $MAOBI_HD_LIB, install paths", "libHD.so"),
+                _ => ("/dev/ttyACM0", "address"),
             };
-            let l = ui.label("address");
+            let l = ui.label(what);
             ui.add(
                 egui::TextEdit::singleline(&mut self.device_addr)
                     .hint_text(hint)

@@ -93,11 +93,20 @@ pub fn make_device(
     })
 }
 
+/// `--device phantom`: where libHD is (`None`: `$MAOBI_HD_LIB`, the install paths).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PhantomChoice {
+    pub hd_lib: Option<PathBuf>,
+}
+
 /// Options of `maobi gui`.
 #[derive(Clone, Debug)]
 pub struct GuiOptions {
     /// The device to connect to at start.
     pub device: DeviceChoice,
+    /// A Phantom instead of `device` (falling back to the built-in simulator, with the reason
+    /// in the status bar, when it cannot be used).
+    pub phantom: Option<PhantomChoice>,
     /// Brush preset name.
     pub brush: String,
     pub replay: Option<PathBuf>,
@@ -113,6 +122,7 @@ impl Default for GuiOptions {
     fn default() -> Self {
         GuiOptions {
             device: DeviceChoice::Sim,
+            phantom: None,
             brush: "large".into(),
             replay: None,
             screenshot: None,
@@ -183,6 +193,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         bail!("no display: neither DISPLAY nor WAYLAND_DISPLAY is set; {HEADLESS_HINT}");
     }
     let choice = opts.device.clone();
+    let phantom = opts.phantom.clone();
     let brush = opts.brush.clone();
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let automation = Automation {
@@ -204,9 +215,25 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         Box::new(move |cc| {
             let ctx = cc.egui_ctx.clone();
             let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || ctx.request_repaint());
-            let device = make_device(&choice, &brush, Some(wake))?;
+            let device = match &phantom {
+                Some(p) => {
+                    let length = maobi_shared::presets::by_name(&brush)
+                        .map(|p| p.length_mm as f64)
+                        .unwrap_or(50.0);
+                    crate::phantom::device::gui_device(
+                        p.hd_lib.clone(),
+                        &brush,
+                        start_hand(length),
+                        Some(wake),
+                    )?
+                }
+                None => make_device(&choice, &brush, Some(wake))?,
+            };
             let mut app = MaobiApp::new(device, frame, automation, out2);
             app.set_device_choice(&choice, &brush);
+            if let Some(p) = &phantom {
+                app.choose_phantom(p.hd_lib.as_deref());
+            }
             Ok(Box::new(app))
         }),
     );

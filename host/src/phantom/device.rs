@@ -1,0 +1,361 @@
+//! The bridge behind the two ways to run it: the wire protocol over TCP (`maobi bridge`,
+//! [`BridgeModel`] in the same connection loop as `maobi sim-device`) and the GUI's
+//! [`Device`] trait (`maobi --device phantom`, [`PhantomDevice`], with [`gui_device`] falling
+//! back to the built-in simulator when there is no library or no device).
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, PoseSample};
+use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
+
+use super::loader::HdLib;
+use super::servo::{Bridge, BridgeOptions, ServoCommand, ServoShared};
+use crate::device::link::frame_from_state;
+use crate::device::ProtocolModel;
+use crate::gui::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
+
+/// The running bridge as a wire-protocol device: real sensors (the stylus), force output,
+/// buttons; states come from the servo loop at its own pace.
+pub struct BridgeModel {
+    bridge: Bridge,
+    shared: Arc<ServoShared>,
+    params: BrushParams,
+}
+
+impl BridgeModel {
+    pub fn new(bridge: Bridge) -> BridgeModel {
+        BridgeModel {
+            shared: bridge.shared(),
+            params: *bridge.params(),
+            bridge,
+        }
+    }
+
+    pub fn shared(&self) -> Arc<ServoShared> {
+        self.shared.clone()
+    }
+
+    fn set_params(&mut self, p: BrushParams) {
+        self.params = p;
+        self.shared.send(ServoCommand::SetParams(p));
+    }
+}
+
+impl ProtocolModel for BridgeModel {
+    fn capabilities(&self) -> (Capabilities, f32, f32) {
+        let l = self.bridge.limits();
+        (
+            Capabilities::REAL_SENSORS | Capabilities::FORCE_OUTPUT | Capabilities::BUTTONS,
+            l.peak_n,
+            l.continuous_n,
+        )
+    }
+    fn tick(&self) -> u32 {
+        self.shared.ticks()
+    }
+    /// The stylus is the pen: a host's virtual-pen samples are not used.
+    fn pose(&mut self, _sample: &PoseSample) -> bool {
+        false
+    }
+    fn poll_state(&mut self, _due: bool) -> Option<BrushState> {
+        self.shared.take_state()
+    }
+    fn params(&self) -> BrushParams {
+        self.params
+    }
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), ParamError> {
+        let mut p = self.params;
+        p.set(id, value)?;
+        p.validate()?;
+        self.set_params(p);
+        Ok(())
+    }
+    fn command(&mut self, c: &Command) -> Result<(), CommandError> {
+        let s = &self.shared;
+        match c {
+            Command::EnableForces => s.send(ServoCommand::EnableForces(true)),
+            Command::DisableForces => s.send(ServoCommand::EnableForces(false)),
+            Command::Calibrate => s.send(ServoCommand::Calibrate),
+            Command::DipInk { wetness } => {
+                s.send(ServoCommand::Dip(Fx::from_bits(*wetness).to_f32()));
+            }
+            Command::ChoosePreset(r) => {
+                let p = r.resolve().ok_or(CommandError::UnknownPreset)?;
+                self.set_params(p);
+            }
+            Command::ClearFaults => s.send(ServoCommand::ClearFaults),
+            Command::ResetBrush => s.send(ServoCommand::ResetBrush),
+            #[allow(unreachable_patterns)]
+            _ => return Err(CommandError::Unsupported),
+        }
+        Ok(())
+    }
+    fn failed(&self) -> Option<String> {
+        self.bridge.stopped().map(|s| s.to_string())
+    }
+}
+
+/// The Phantom as the GUI's device: the servo loop in this process.
+pub struct PhantomDevice {
+    hd_lib: Option<PathBuf>,
+    opts: BridgeOptions,
+    bridge: Option<Bridge>,
+    params: BrushParams,
+    preset: String,
+    last_error: Option<String>,
+    wake: Option<Arc<dyn Fn() + Send + Sync>>,
+    waker: Option<(Arc<AtomicBool>, std::thread::JoinHandle<()>)>,
+}
+
+impl PhantomDevice {
+    /// Not yet connected: [`Device::connect`] loads libHD (`hd_lib`, `$MAOBI_HD_LIB`, the
+    /// install paths) and starts the servo loop.
+    pub fn new(hd_lib: Option<PathBuf>, opts: BridgeOptions) -> Result<PhantomDevice, DeviceError> {
+        let params = presets::by_name(&opts.preset).ok_or_else(|| {
+            DeviceError::Rejected(format!(
+                "unknown brush `{}`; valid brushes: {}",
+                opts.preset,
+                presets::NAMES
+            ))
+        })?;
+        Ok(PhantomDevice {
+            hd_lib,
+            preset: opts.preset.clone(),
+            opts,
+            bridge: None,
+            params,
+            last_error: None,
+            wake: None,
+            waker: None,
+        })
+    }
+
+    /// Calls `wake` (about 60 times a second) while connected, so the UI redraws.
+    pub fn on_frames(&mut self, wake: Arc<dyn Fn() + Send + Sync>) {
+        self.wake = Some(wake);
+    }
+
+    fn servo(&self, cmd: ServoCommand) -> Result<(), DeviceError> {
+        match &self.bridge {
+            Some(b) if b.stopped().is_none() => {
+                b.shared().send(cmd);
+                Ok(())
+            }
+            Some(b) => Err(DeviceError::Link(
+                b.stopped().map(|s| s.to_string()).unwrap_or_default(),
+            )),
+            None => Err(DeviceError::NotConnected),
+        }
+    }
+}
+
+impl Device for PhantomDevice {
+    fn connect(&mut self) -> Result<(), DeviceError> {
+        if self.bridge.is_some() {
+            return Ok(());
+        }
+        let lib = HdLib::find(self.hd_lib.as_deref()).map_err(|e| {
+            let e = DeviceError::Link(e.to_string());
+            self.last_error = Some(e.to_string());
+            e
+        })?;
+        let mut opts = self.opts.clone();
+        opts.preset = self.preset.clone();
+        let bridge = Bridge::start(Arc::new(lib), &opts).map_err(|e| {
+            let e = DeviceError::Link(format!("{e:#}"));
+            self.last_error = Some(e.to_string());
+            e
+        })?;
+        self.bridge = Some(bridge);
+        if let Some(w) = self.wake.clone() {
+            let run = Arc::new(AtomicBool::new(true));
+            let r2 = run.clone();
+            if let Ok(t) = std::thread::Builder::new()
+                .name("maobi-phantom-wake".into())
+                .spawn(move || {
+                    while r2.load(Ordering::Relaxed) {
+                        w();
+                        std::thread::sleep(Duration::from_millis(16));
+                    }
+                })
+            {
+                self.waker = Some((run, t));
+            }
+        }
+        Ok(())
+    }
+
+    fn disconnect(&mut self) {
+        if let Some((run, t)) = self.waker.take() {
+            run.store(false, Ordering::Relaxed);
+            let _ = t.join();
+        }
+        if let Some(mut b) = self.bridge.take() {
+            b.shutdown();
+        }
+    }
+
+    fn status(&self) -> DeviceStatus {
+        let mut faults = Vec::new();
+        let (name, connected, forces) = match &self.bridge {
+            Some(b) => {
+                if let Some(s) = b.stopped() {
+                    faults.push(s.to_string());
+                }
+                (
+                    format!("Phantom ({})", b.lib().path().display()),
+                    b.stopped().is_none(),
+                    b.shared().forces_on(),
+                )
+            }
+            None => ("Phantom (not connected)".to_string(), false, false),
+        };
+        if let Some(e) = &self.last_error {
+            faults.push(e.clone());
+        }
+        DeviceStatus {
+            name,
+            connected,
+            protocol_version: None,
+            firmware_version: None,
+            faults,
+            frames_dropped: self
+                .bridge
+                .as_ref()
+                .map(|b| b.shared().state_counts().1)
+                .unwrap_or(0),
+            ticks_late: 0,
+            // The servo loop runs on the HD scheduler's clock (1 kHz by hdSetSchedulerRate).
+            tick_period_ms: None,
+            params: self.params,
+            preset: self.preset.clone(),
+            forces_enabled: forces,
+            replaying: false,
+            replays_done: 0,
+            link: None,
+        }
+    }
+
+    fn poll(&mut self, out: &mut Vec<BrushFrame>) {
+        if let Some(b) = &self.bridge {
+            let shared = b.shared();
+            while let Some(s) = shared.take_state() {
+                out.push(frame_from_state(&s, u64::from(s.tick), false));
+            }
+        }
+    }
+
+    fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        match cmd {
+            // The stylus is the hand.
+            DeviceCommand::Hand(_) | DeviceCommand::StopReplay => Ok(()),
+            DeviceCommand::EnableForces(on) => self.servo(ServoCommand::EnableForces(on)),
+            DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
+            DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
+            DeviceCommand::Preset(name) => {
+                let p = presets::by_name(&name).ok_or_else(|| {
+                    DeviceError::Rejected(format!(
+                        "unknown brush `{name}`; valid brushes: {}",
+                        presets::NAMES
+                    ))
+                })?;
+                self.servo(ServoCommand::SetParams(p))?;
+                self.params = p;
+                self.preset = name;
+                Ok(())
+            }
+            DeviceCommand::SetParam(id, v) => {
+                let mut p = self.params;
+                p.set(id, v)
+                    .and_then(|()| p.validate())
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                self.servo(ServoCommand::SetParams(p))?;
+                self.params = p;
+                Ok(())
+            }
+            DeviceCommand::Replay(_) => Err(DeviceError::Rejected(
+                "the Phantom is driven by its stylus; replay pose files on the built-in simulator"
+                    .into(),
+            )),
+            DeviceCommand::Guide(_) => Err(DeviceError::Rejected(
+                "guided writing on the Phantom is not in the servo loop yet; it runs on the \
+                 built-in simulator"
+                    .into(),
+            )),
+        }
+    }
+}
+
+impl Drop for PhantomDevice {
+    fn drop(&mut self) {
+        self.disconnect();
+    }
+}
+
+/// The built-in simulator standing in for a Phantom that could not be used, saying why in
+/// the status bar (its name and its faults).
+pub struct FallbackDevice {
+    inner: Box<dyn Device>,
+    why: String,
+}
+
+impl Device for FallbackDevice {
+    fn connect(&mut self) -> Result<(), DeviceError> {
+        self.inner.connect()
+    }
+    fn disconnect(&mut self) {
+        self.inner.disconnect()
+    }
+    fn status(&self) -> DeviceStatus {
+        let mut s = self.inner.status();
+        s.name = format!("{} (Phantom unavailable, see faults)", s.name);
+        s.faults.insert(0, self.why.clone());
+        s
+    }
+    fn poll(&mut self, out: &mut Vec<BrushFrame>) {
+        self.inner.poll(out)
+    }
+    fn journal(&self) -> Option<crate::gui::session::Journal> {
+        self.inner.journal()
+    }
+    fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        self.inner.send(cmd)
+    }
+}
+
+/// `maobi --device phantom`: the Phantom, connected; or, when libHD or the device cannot be
+/// used, the built-in simulator with the reason in its status (also printed to stderr).
+pub fn gui_device(
+    hd_lib: Option<PathBuf>,
+    preset: &str,
+    hand: HandInput,
+    wake: Option<Arc<dyn Fn() + Send + Sync>>,
+) -> Result<Box<dyn Device>, DeviceError> {
+    let opts = BridgeOptions {
+        preset: preset.to_string(),
+        ..BridgeOptions::default()
+    };
+    let mut d = PhantomDevice::new(hd_lib, opts)?;
+    if let Some(w) = wake.clone() {
+        d.on_frames(w);
+    }
+    match d.connect() {
+        Ok(()) => Ok(Box::new(d)),
+        Err(e) => {
+            let why = format!("Phantom unavailable, using the built-in simulator: {e}");
+            eprintln!("maobi: {why}");
+            let mut sim =
+                crate::gui::sim::SimDevice::new(crate::gui::sim::SimClock::RealTime, preset, hand)?;
+            if let Some(w) = wake {
+                sim.on_frames(w);
+            }
+            Ok(Box::new(FallbackDevice {
+                inner: Box::new(sim),
+                why,
+            }))
+        }
+    }
+}

@@ -1,0 +1,1121 @@
+//! The servo loop: the shared brush and force model inside OpenHaptics' 1 kHz scheduler.
+//!
+//! [`ServoCore`] is the loop's arithmetic with no HD calls (unit-testable): the device pose
+//! (HD_CURRENT_TRANSFORM) mapped to the paper by a [`Mapping`], one `Brush<Fx>` tick, the
+//! force model and the output stage (limits from the device's own HD_NOMINAL_MAX_FORCE and
+//! HD_NOMINAL_MAX_CONTINUOUS_FORCE, ramp-in on enable), the command mapped back to device
+//! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback between
+//! `hdBeginFrame`/`hdEndFrame` and checks `hdGetError` every frame: on any error the force
+//! of that very callback is zero, the callback unschedules itself, and the error (with
+//! `hdGetErrorString`'s text) is reported to whoever watches the bridge.
+//!
+//! # Why `Fx` and not `f32`
+//! Measured by `servo_step_cost` in `host/tests/phantom.rs` (the test profile, opt-level 2,
+//! on the 2-core CI machine): see docs/phantom.md for the numbers. Both are far inside the
+//! 1 ms budget, so the cost does not decide it; what does is that the wire protocol's
+//! [`BrushState`] carries `Fx` bits, so with `Fx` the bridge's brush is bit for bit the
+//! brush the pen's firmware and `maobi sim-device` would compute for the same poses, and the
+//! GUI draws it with the same code.
+//!
+//! # The handoff to the GUI / TCP side never blocks the callback
+//! States (at `state_hz`, 120 by default) go into a bounded queue ([`STATE_QUEUE`] states,
+//! its memory reserved up front) that the callback only ever `try_lock`s: if the reader
+//! holds the lock at that instant the state is skipped and counted, never waited for; if the
+//! reader has fallen [`STATE_QUEUE`] states behind, the oldest is dropped and counted. A
+//! queue rather than a single slot, so a reader that wakes late (a loaded machine) still
+//! forwards every state. Commands come the other way through a `try_lock`ed queue (a busy
+//! queue is read the next tick). No allocation happens in the callback (the brush and
+//! `BrushState` are fixed-size; neither queue grows past its reserved capacity there).
+
+use std::collections::VecDeque;
+use std::ffi::{c_int, c_void};
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use maobi_shared::force::DEFAULT_FORCES;
+use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, OutputState, PHANTOM_OMNI};
+use maobi_shared::protocol::{BrushState, Faults, Haptics};
+use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+
+use super::hd::*;
+use super::loader::{HdFns, HdLib};
+
+/// States the handoff queue holds (half a second at 120 Hz).
+pub const STATE_QUEUE: usize = 64;
+
+/// Consecutive device poses further apart than this (paper mm) are a sensor fault, as in the
+/// firmware and `maobi sim-device` (a Phantom's hand cannot move 10 mm in 1 ms).
+pub const SENSOR_JUMP_MM: f64 = 10.0;
+/// Device positions beyond this (mm) are garbage, not a pose (the Omni's workspace is about
+/// 160 x 120 x 70 mm).
+pub const MAX_DEVICE_MM: f64 = 2000.0;
+
+/// How the Phantom's workspace maps to the paper.
+///
+/// Device frame (OpenHaptics): +x to the user's right, +y up, +z toward the user, mm. Paper
+/// frame (the model): +x right, +y away from the user, +z up, the paper at z = 0. So
+/// `paper = scale * (dx - ox, -(dz - oz), dy - paper_height)`. Orientation: the paper frame's
+/// rotation is the device rotation seen in paper axes, assuming the stylus points along its
+/// own -z (away from the user when the gimbal reads identity), so that holding the stylus
+/// upright, tip down, is the model's identity (brush hanging straight down). That stylus
+/// convention is from the OpenHaptics programmer's guide's description of the gimbal and has
+/// not been checked on a device (see docs/phantom.md).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Mapping {
+    /// Device (x, z) above the paper's centre (mm).
+    pub origin_mm: [f64; 2],
+    /// Device y of the ferrule when it is at the paper (mm): the paper's height.
+    pub paper_height_mm: f64,
+    /// Paper millimetres per device millimetre. Forces are not scaled: the device feels
+    /// `scale` times the model's stiffness (keep it near 1 for the passivity budget).
+    pub scale: f64,
+}
+
+impl Default for Mapping {
+    /// The Omni's and the Touch's workspace centre is near the device origin; a paper 60 mm
+    /// below it leaves the large brush (40 mm) room above the paper.
+    fn default() -> Self {
+        Mapping {
+            origin_mm: [0.0, 0.0],
+            paper_height_mm: -60.0,
+            scale: 1.0,
+        }
+    }
+}
+
+/// The device-to-paper axis change, `R_x(+90 degrees)` (w, x, y, z).
+fn axes_quat() -> Quat<f64> {
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    Quat::new(h, h, 0.0, 0.0)
+}
+
+impl Mapping {
+    /// Checks the numbers (finite, a positive scale).
+    pub fn validate(&self) -> Result<(), String> {
+        let all = [
+            self.origin_mm[0],
+            self.origin_mm[1],
+            self.paper_height_mm,
+            self.scale,
+        ];
+        if all.iter().any(|v| !v.is_finite()) {
+            return Err("the workspace mapping has a non-finite number".into());
+        }
+        if !(1e-3..=1e3).contains(&self.scale) {
+            return Err(format!("--scale {} is outside 0.001 ..= 1000", self.scale));
+        }
+        Ok(())
+    }
+
+    /// The paper pose of a device pose (position mm, unit quaternion w, x, y, z).
+    pub fn to_paper(&self, pos: [f64; 3], rot: Quat<f64>) -> Pose<f64> {
+        let s = self.scale;
+        let p = Vec3::new(
+            s * (pos[0] - self.origin_mm[0]),
+            -s * (pos[2] - self.origin_mm[1]),
+            s * (pos[1] - self.paper_height_mm),
+        );
+        Pose::new(p, axes_quat().compose(rot).normalized())
+    }
+
+    /// The device pose of a paper pose (the inverse of [`Mapping::to_paper`]).
+    pub fn to_device(&self, pose: Pose<f64>) -> ([f64; 3], Quat<f64>) {
+        let s = self.scale;
+        let p = pose.pos.to_f64();
+        let pos = [
+            p[0] / s + self.origin_mm[0],
+            p[2] / s + self.paper_height_mm,
+            -p[1] / s + self.origin_mm[1],
+        ];
+        (pos, axes_quat().conj().compose(pose.rot).normalized())
+    }
+
+    /// A paper-frame force in device axes (not scaled, see [`Mapping::scale`]).
+    pub fn force_to_device(f: [f64; 3]) -> [f64; 3] {
+        [f[0], f[2], -f[1]]
+    }
+
+    /// Calibration: the device's current height becomes "the brush tip just touches the
+    /// paper" for a brush of `length_mm` hanging straight down.
+    pub fn calibrate(&mut self, device_y_mm: f64, length_mm: f64) {
+        self.paper_height_mm = device_y_mm - length_mm / self.scale;
+    }
+}
+
+/// Position (mm) and rotation of a column-major 4x4 transform; `None` if it is not finite or
+/// not a rotation (a garbage read).
+pub fn pose_of_transform(m: &[f64; 16]) -> Option<([f64; 3], Quat<f64>)> {
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    // Column-major: element (row i, column j) is m[4 j + i].
+    let r = |i: usize, j: usize| m[4 * j + i];
+    let pos = [m[12], m[13], m[14]];
+    if pos.iter().any(|v| v.abs() > MAX_DEVICE_MM) {
+        return None;
+    }
+    // Shepperd's method: pick the largest of w, x, y, z to divide by.
+    let tr = r(0, 0) + r(1, 1) + r(2, 2);
+    let (w, x, y, z);
+    if tr > 0.0 {
+        let s = (tr + 1.0).sqrt() * 2.0;
+        w = 0.25 * s;
+        x = (r(2, 1) - r(1, 2)) / s;
+        y = (r(0, 2) - r(2, 0)) / s;
+        z = (r(1, 0) - r(0, 1)) / s;
+    } else if r(0, 0) > r(1, 1) && r(0, 0) > r(2, 2) {
+        let s = (1.0 + r(0, 0) - r(1, 1) - r(2, 2)).max(0.0).sqrt() * 2.0;
+        w = (r(2, 1) - r(1, 2)) / s;
+        x = 0.25 * s;
+        y = (r(0, 1) + r(1, 0)) / s;
+        z = (r(0, 2) + r(2, 0)) / s;
+    } else if r(1, 1) > r(2, 2) {
+        let s = (1.0 + r(1, 1) - r(0, 0) - r(2, 2)).max(0.0).sqrt() * 2.0;
+        w = (r(0, 2) - r(2, 0)) / s;
+        x = (r(0, 1) + r(1, 0)) / s;
+        y = 0.25 * s;
+        z = (r(1, 2) + r(2, 1)) / s;
+    } else {
+        let s = (1.0 + r(2, 2) - r(0, 0) - r(1, 1)).max(0.0).sqrt() * 2.0;
+        w = (r(1, 0) - r(0, 1)) / s;
+        x = (r(0, 2) + r(2, 0)) / s;
+        y = (r(1, 2) + r(2, 1)) / s;
+        z = 0.25 * s;
+    }
+    let n = (w * w + x * x + y * y + z * z).sqrt();
+    // A rotation's quaternion has norm 1; far from it the matrix was not a rotation.
+    if !n.is_finite() || (n - 1.0).abs() > 0.1 {
+        return None;
+    }
+    Some((pos, Quat::new(w / n, x / n, y / n, z / n)))
+}
+
+/// The column-major transform of a position and rotation (the stand-in's and the tests'
+/// side of [`pose_of_transform`]).
+pub fn transform_of_pose(pos: [f64; 3], q: Quat<f64>) -> [f64; 16] {
+    let (w, x, y, z) = (q.w, q.x, q.y, q.z);
+    let r = [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ];
+    let mut m = [0.0; 16];
+    for j in 0..3 {
+        for i in 0..3 {
+            m[4 * j + i] = r[i][j];
+        }
+    }
+    m[12] = pos[0];
+    m[13] = pos[1];
+    m[14] = pos[2];
+    m[15] = 1.0;
+    m
+}
+
+/// What the stylus buttons ask for, decided when the buttons are released (so a chord is
+/// not first taken for its single buttons).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum ButtonAction {
+    /// Button 1 alone: dip the brush in ink.
+    Dip,
+    /// Button 2 alone: forces on or off.
+    ToggleForces,
+    /// Both together (acted on as soon as both are down): calibrate the paper height.
+    Calibrate,
+}
+
+/// Turns the raw HD_CURRENT_BUTTONS mask into [`ButtonAction`]s.
+#[derive(Copy, Clone, Debug, Default)]
+pub struct Buttons {
+    /// Buttons seen down since all were last up.
+    pressed: c_int,
+    chord_done: bool,
+}
+
+impl Buttons {
+    pub fn update(&mut self, mask: c_int) -> Option<ButtonAction> {
+        let both = HD_DEVICE_BUTTON_1 | HD_DEVICE_BUTTON_2;
+        let mask = mask & both;
+        if mask != 0 {
+            self.pressed |= mask;
+            if self.pressed == both && !self.chord_done {
+                self.chord_done = true;
+                return Some(ButtonAction::Calibrate);
+            }
+            return None;
+        }
+        let was = std::mem::take(&mut self.pressed);
+        let chord = std::mem::take(&mut self.chord_done);
+        match was {
+            _ if chord => None,
+            HD_DEVICE_BUTTON_1 => Some(ButtonAction::Dip),
+            HD_DEVICE_BUTTON_2 => Some(ButtonAction::ToggleForces),
+            _ => None,
+        }
+    }
+}
+
+/// A command from the GUI or the TCP host to the servo loop.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ServoCommand {
+    EnableForces(bool),
+    ClearFaults,
+    /// Wet every layer to this wetness (clamped to [0, 1]).
+    Dip(f32),
+    /// Record the current height as the paper (see [`Mapping::calibrate`]).
+    Calibrate,
+    /// Replace the brush parameters (already validated); the brush is reset.
+    SetParams(BrushParams),
+    ResetBrush,
+}
+
+/// The servo loop's model, with no HD calls.
+pub struct ServoCore {
+    params: BrushParams,
+    /// Created at the first valid pose (the brush starts at rest where the hand is).
+    brush: Option<Brush<Fx>>,
+    forces: ForceModel<Fx>,
+    stage: OutputStage<Fx>,
+    mapping: Mapping,
+    buttons: Buttons,
+    last_pos: Vec3<Fx>,
+    last_device_y: f64,
+    faults: Faults,
+    tick: u32,
+    command: Vec3<Fx>,
+}
+
+impl ServoCore {
+    /// `limits`: the device's (from HD_NOMINAL_MAX_*); forces ramp in from the first tick
+    /// when `forces_on`.
+    pub fn new(
+        params: BrushParams,
+        limits: DeviceLimits,
+        mapping: Mapping,
+        forces_on: bool,
+    ) -> Result<ServoCore, String> {
+        params.validate().map_err(|e| e.to_string())?;
+        mapping.validate()?;
+        let mut stage = OutputStage::new(limits).map_err(|e| e.to_string())?;
+        if forces_on {
+            stage.enable();
+        }
+        Ok(ServoCore {
+            params,
+            brush: None,
+            forces: ForceModel::new(DEFAULT_FORCES).map_err(|e| e.to_string())?,
+            stage,
+            mapping,
+            buttons: Buttons::default(),
+            last_pos: Vec3::ZERO,
+            last_device_y: 0.0,
+            faults: Faults::empty(),
+            tick: 0,
+            command: Vec3::ZERO,
+        })
+    }
+
+    pub fn tick(&self) -> u32 {
+        self.tick
+    }
+    pub fn mapping(&self) -> Mapping {
+        self.mapping
+    }
+    pub fn params(&self) -> &BrushParams {
+        &self.params
+    }
+    pub fn output_state(&self) -> OutputState {
+        self.stage.state()
+    }
+    pub fn faults(&self) -> Faults {
+        self.faults
+    }
+    pub fn forces_enabled(&self) -> bool {
+        !matches!(
+            self.stage.state(),
+            OutputState::Disabled | OutputState::Faulted
+        )
+    }
+
+    pub fn apply(&mut self, cmd: ServoCommand) {
+        match cmd {
+            ServoCommand::EnableForces(true) if self.faults.is_empty() => self.stage.enable(),
+            // With faults latched, enabling waits for ClearFaults (as the firmware does).
+            ServoCommand::EnableForces(true) => {}
+            ServoCommand::EnableForces(false) => self.stage.disable(),
+            ServoCommand::ClearFaults => {
+                self.faults = Faults::empty();
+                self.stage.clear_fault();
+            }
+            ServoCommand::Dip(w) => {
+                if let Some(b) = &mut self.brush {
+                    let w = if w.is_finite() {
+                        w.clamp(0.0, 1.0)
+                    } else {
+                        0.0
+                    };
+                    b.dip(Fx::from_f32(w));
+                }
+            }
+            ServoCommand::Calibrate => {
+                let length = self.params.length_mm as f64;
+                self.mapping.calibrate(self.last_device_y, length);
+                // The paper moved under the hand: start the brush afresh where it now is.
+                self.brush = None;
+                self.forces.reset();
+            }
+            ServoCommand::SetParams(p) => {
+                if p.validate().is_ok() {
+                    self.params = p;
+                    self.brush = None;
+                    self.forces.reset();
+                }
+            }
+            ServoCommand::ResetBrush => {
+                self.brush = None;
+                self.forces.reset();
+            }
+        }
+    }
+
+    /// One 1 ms tick: the device transform and buttons in, the force to command (N, device
+    /// axes) out. Never panics; a garbage pose latches a sensor fault (zero force).
+    pub fn step(&mut self, transform: &[f64; 16], buttons: c_int) -> [f64; 3] {
+        self.tick = self.tick.wrapping_add(1);
+        match self.buttons.update(buttons) {
+            Some(ButtonAction::Dip) => self.apply(ServoCommand::Dip(1.0)),
+            Some(ButtonAction::ToggleForces) => {
+                if self.forces_enabled() {
+                    self.apply(ServoCommand::EnableForces(false));
+                } else {
+                    // The user asks for forces explicitly: clear a latched fault too.
+                    self.apply(ServoCommand::ClearFaults);
+                    self.apply(ServoCommand::EnableForces(true));
+                }
+            }
+            Some(ButtonAction::Calibrate) => {
+                if let Some((pos, _)) = pose_of_transform(transform) {
+                    self.last_device_y = pos[1];
+                }
+                self.apply(ServoCommand::Calibrate);
+            }
+            None => {}
+        }
+        let Some((pos, rot)) = pose_of_transform(transform) else {
+            return self.fault();
+        };
+        self.last_device_y = pos[1];
+        let pose: Pose<Fx> = self.mapping.to_paper(pos, rot).cast();
+        let brush = match &mut self.brush {
+            Some(b) => b,
+            None => match Brush::new(self.params, pose) {
+                Ok(b) => {
+                    self.last_pos = pose.pos;
+                    self.brush.insert(b)
+                }
+                Err(_) => return self.fault(),
+            },
+        };
+        let jump = (pose.pos - self.last_pos).to_f64();
+        if jump.iter().map(|d| d * d).sum::<f64>() > SENSOR_JUMP_MM * SENSOR_JUMP_MM {
+            self.faults |= Faults::SENSOR_JUMP;
+            self.stage.fault();
+        }
+        brush.tick(pose);
+        let f = self.forces.tick(brush, pose.pos);
+        self.command = self.stage.apply(f.total, pose.pos - self.last_pos);
+        self.last_pos = pose.pos;
+        self.device_force()
+    }
+
+    fn fault(&mut self) -> [f64; 3] {
+        self.faults |= Faults::SENSOR_JUMP;
+        self.stage.fault();
+        self.command = self.stage.apply(Vec3::ZERO, Vec3::ZERO);
+        self.device_force()
+    }
+
+    /// The stage's command in device axes, guarded once more against the peak force: the
+    /// stage clamps in fixed point, and a last-bit rounding above the device's nominal
+    /// maximum must not reach the motors.
+    fn device_force(&self) -> [f64; 3] {
+        let f = self.command.to_f64();
+        let peak = self.stage.limits().peak_n as f64;
+        let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        let f = if n.is_finite() && n <= peak {
+            f
+        } else if n.is_finite() {
+            let k = peak * (1.0 - 1e-9) / n;
+            [f[0] * k, f[1] * k, f[2] * k]
+        } else {
+            [0.0; 3]
+        };
+        Mapping::force_to_device(f)
+    }
+
+    /// The wire-protocol state of the brush now (`None` before the first valid pose).
+    pub fn state(&self) -> Option<BrushState> {
+        let brush = self.brush.as_ref()?;
+        Some(BrushState::from_brush(
+            brush,
+            self.tick,
+            0,
+            Haptics::new(self.command, [Fx::ZERO; 3], self.forces_enabled()),
+            self.faults,
+        ))
+    }
+}
+
+/// Options of the bridge.
+#[derive(Clone, Debug)]
+pub struct BridgeOptions {
+    /// Brush preset.
+    pub preset: String,
+    pub mapping: Mapping,
+    /// States per second to the GUI / TCP side (1 ..= 1000).
+    pub state_hz: u32,
+    /// Forces ramp in at start (otherwise button 2 or a command enables them).
+    pub forces_on: bool,
+    /// Stop by itself after this many servo ticks (scripted runs and tests).
+    pub stop_after_ticks: Option<u32>,
+}
+
+impl Default for BridgeOptions {
+    fn default() -> Self {
+        BridgeOptions {
+            preset: "large".into(),
+            mapping: Mapping::default(),
+            state_hz: 120,
+            forces_on: true,
+            stop_after_ticks: None,
+        }
+    }
+}
+
+/// Why the servo loop stopped.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Stopped {
+    /// `stop_after_ticks` reached.
+    TickLimit(u32),
+    /// An HD error: the servo tick it was seen at, the error, and `hdGetErrorString`'s text.
+    HdError {
+        tick: u32,
+        info: HdErrorInfo,
+        text: String,
+    },
+    /// The callback panicked (a bug); forces were zeroed.
+    Panicked(u32),
+}
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Stopped::TickLimit(n) => write!(f, "stopped after {n} servo ticks as asked"),
+            Stopped::HdError { tick, info, text } => write!(
+                f,
+                "HD error {} (0x{:04x}, device code {}) at servo tick {tick}: {text}; the force \
+                 was set to zero in that tick and the servo loop stopped",
+                error_name(info.error_code),
+                info.error_code,
+                info.internal_error_code
+            ),
+            Stopped::Panicked(t) => write!(
+                f,
+                "the servo callback failed at tick {t} (a bug); forces were set to zero"
+            ),
+        }
+    }
+}
+
+/// What the callback shares with the rest of the program. Everything the callback touches
+/// is an atomic or a `try_lock`.
+pub struct ServoShared {
+    states_q: Mutex<VecDeque<BrushState>>,
+    commands: Mutex<VecDeque<ServoCommand>>,
+    stop: AtomicBool,
+    /// The callback has returned HD_CALLBACK_DONE (and will not run again).
+    done: AtomicBool,
+    /// 0 running, 1 tick limit, 2 HD error, 3 panic.
+    why: AtomicU32,
+    error_code: AtomicU32,
+    internal_code: AtomicI32,
+    error_hhd: AtomicU32,
+    stop_tick: AtomicU32,
+    tick: AtomicU32,
+    states: AtomicU64,
+    states_skipped: AtomicU64,
+    cost_ns_total: AtomicU64,
+    cost_ns_max: AtomicU64,
+    forces_on: AtomicBool,
+}
+
+impl ServoShared {
+    fn new() -> ServoShared {
+        ServoShared {
+            states_q: Mutex::new(VecDeque::with_capacity(STATE_QUEUE)),
+            commands: Mutex::new(VecDeque::new()),
+            stop: AtomicBool::new(false),
+            done: AtomicBool::new(false),
+            why: AtomicU32::new(0),
+            error_code: AtomicU32::new(0),
+            internal_code: AtomicI32::new(0),
+            error_hhd: AtomicU32::new(0),
+            stop_tick: AtomicU32::new(0),
+            tick: AtomicU32::new(0),
+            states: AtomicU64::new(0),
+            states_skipped: AtomicU64::new(0),
+            cost_ns_total: AtomicU64::new(0),
+            cost_ns_max: AtomicU64::new(0),
+            forces_on: AtomicBool::new(false),
+        }
+    }
+
+    /// Servo ticks run so far.
+    pub fn ticks(&self) -> u32 {
+        self.tick.load(Ordering::Acquire)
+    }
+
+    /// The callback has stopped for good (error, tick limit, or asked to).
+    pub fn done(&self) -> bool {
+        self.done.load(Ordering::Acquire)
+    }
+
+    pub fn forces_on(&self) -> bool {
+        self.forces_on.load(Ordering::Relaxed)
+    }
+
+    /// The oldest state the callback handed over that was not taken yet.
+    pub fn take_state(&self) -> Option<BrushState> {
+        self.states_q.lock().ok()?.pop_front()
+    }
+
+    /// Queues a command for the next servo tick.
+    pub fn send(&self, cmd: ServoCommand) {
+        if let Ok(mut q) = self.commands.lock() {
+            // A stalled servo must not grow this without bound.
+            if q.len() < 64 {
+                q.push_back(cmd);
+            }
+        }
+    }
+
+    /// (mean, max) cost of one callback (microseconds).
+    pub fn callback_cost_us(&self) -> (f64, f64) {
+        let n = self.ticks().max(1) as f64;
+        (
+            self.cost_ns_total.load(Ordering::Relaxed) as f64 / n / 1e3,
+            self.cost_ns_max.load(Ordering::Relaxed) as f64 / 1e3,
+        )
+    }
+
+    /// States handed over, and states lost (the reader held the queue, or fell behind).
+    pub fn state_counts(&self) -> (u64, u64) {
+        (
+            self.states.load(Ordering::Relaxed),
+            self.states_skipped.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Why the servo loop stopped, if it has (`lib` gives the error text).
+    pub fn stopped(&self, lib: &HdLib) -> Option<Stopped> {
+        let (why, tick, info) = self.stopped_raw()?;
+        Some(match why {
+            1 => Stopped::TickLimit(tick),
+            2 => Stopped::HdError {
+                tick,
+                info,
+                text: lib.error_string(info.error_code),
+            },
+            3 => Stopped::Panicked(tick),
+            _ => return None,
+        })
+    }
+
+    fn stopped_raw(&self) -> Option<(u32, u32, HdErrorInfo)> {
+        if !self.done() {
+            return None;
+        }
+        Some((
+            self.why.load(Ordering::Acquire),
+            self.stop_tick.load(Ordering::Acquire),
+            HdErrorInfo {
+                error_code: self.error_code.load(Ordering::Acquire),
+                internal_error_code: self.internal_code.load(Ordering::Acquire),
+                h_hd: self.error_hhd.load(Ordering::Acquire),
+            },
+        ))
+    }
+}
+
+/// What the scheduler callback owns: the model, the HD functions and the shared side.
+struct ServoCtx {
+    fns: HdFns,
+    hhd: Hhd,
+    core: ServoCore,
+    shared: Arc<ServoShared>,
+    state_hz: u32,
+    stop_after: Option<u32>,
+}
+
+impl ServoCtx {
+    /// One scheduler frame. Returns the callback code.
+    fn frame(&mut self) -> HdCallbackCode {
+        let started = Instant::now();
+        let f = self.fns;
+        let zero = [0.0f64; 3];
+        // SAFETY: the HD functions are called from the scheduler thread, inside a frame,
+        // with buffers of the sizes hdDefines.h documents (16 doubles for the transform, one
+        // int for the buttons, 3 doubles for the force).
+        unsafe {
+            (f.begin_frame)(self.hhd);
+            let mut m = [0.0f64; 16];
+            (f.get_doublev)(HD_CURRENT_TRANSFORM, m.as_mut_ptr());
+            let mut buttons: c_int = 0;
+            (f.get_integerv)(HD_CURRENT_BUTTONS, &mut buttons);
+            let err = (f.get_error)();
+            if err.is_error() {
+                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                (f.end_frame)(self.hhd);
+                return self.finish(2, err);
+            }
+            if self.shared.stop.load(Ordering::Acquire) {
+                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                (f.end_frame)(self.hhd);
+                return self.finish(0, HdErrorInfo::none());
+            }
+            if let Ok(mut q) = self.shared.commands.try_lock() {
+                while let Some(c) = q.pop_front() {
+                    self.core.apply(c);
+                }
+            }
+            let force = self.core.step(&m, buttons);
+            (f.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
+            (f.end_frame)(self.hhd);
+            let err = (f.get_error)();
+            if err.is_error() {
+                // The error came with the frame's end (e.g. the force was refused): command
+                // zero in a frame of its own, still within this callback.
+                (f.begin_frame)(self.hhd);
+                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                (f.end_frame)(self.hhd);
+                return self.finish(2, err);
+            }
+        }
+        let tick = self.core.tick();
+        self.shared.tick.store(tick, Ordering::Release);
+        self.shared
+            .forces_on
+            .store(self.core.forces_enabled(), Ordering::Relaxed);
+        // A state whenever tick * state_hz / 1000 steps: deterministic in the tick number,
+        // so two runs of the same poses hand over states of the same ticks.
+        let hz = u64::from(self.state_hz);
+        if (u64::from(tick) * hz) / 1000 != (u64::from(tick.wrapping_sub(1)) * hz) / 1000 {
+            if let Some(state) = self.core.state() {
+                match self.shared.states_q.try_lock() {
+                    Ok(mut q) => {
+                        if q.len() >= STATE_QUEUE {
+                            q.pop_front();
+                            self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
+                        }
+                        // Within the reserved capacity: no allocation.
+                        q.push_back(state);
+                        self.shared.states.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(_) => {
+                        self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+        let ns = started.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64;
+        self.shared.cost_ns_total.fetch_add(ns, Ordering::Relaxed);
+        self.shared.cost_ns_max.fetch_max(ns, Ordering::Relaxed);
+        if self.stop_after.is_some_and(|n| tick >= n) {
+            // SAFETY: as above.
+            unsafe {
+                (f.begin_frame)(self.hhd);
+                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                (f.end_frame)(self.hhd);
+            }
+            return self.finish(1, HdErrorInfo::none());
+        }
+        HD_CALLBACK_CONTINUE
+    }
+
+    fn finish(&mut self, why: u32, err: HdErrorInfo) -> HdCallbackCode {
+        let s = &self.shared;
+        s.error_code.store(err.error_code, Ordering::Release);
+        s.internal_code
+            .store(err.internal_error_code, Ordering::Release);
+        s.error_hhd.store(err.h_hd, Ordering::Release);
+        s.stop_tick.store(self.core.tick(), Ordering::Release);
+        s.why.store(why, Ordering::Release);
+        s.forces_on.store(false, Ordering::Relaxed);
+        s.done.store(true, Ordering::Release);
+        HD_CALLBACK_DONE
+    }
+}
+
+impl HdErrorInfo {
+    fn none() -> HdErrorInfo {
+        HdErrorInfo {
+            error_code: HD_SUCCESS,
+            internal_error_code: 0,
+            h_hd: 0,
+        }
+    }
+}
+
+/// The scheduler callback: one servo frame. A panic inside (a bug) must not unwind into C:
+/// it is caught, the force zeroed, and the callback unschedules itself.
+unsafe extern "C" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
+    if user_data.is_null() {
+        return HD_CALLBACK_DONE;
+    }
+    // SAFETY: `user_data` is the `ServoCtx` that `Bridge::start` boxed and keeps alive until
+    // the scheduler is stopped and this callback unscheduled; only this thread uses it.
+    let ctx = unsafe { &mut *user_data.cast::<ServoCtx>() };
+    match std::panic::catch_unwind(AssertUnwindSafe(|| ctx.frame())) {
+        Ok(code) => code,
+        Err(_) => {
+            let zero = [0.0f64; 3];
+            // SAFETY: as in `ServoCtx::frame`.
+            unsafe {
+                (ctx.fns.begin_frame)(ctx.hhd);
+                (ctx.fns.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                (ctx.fns.end_frame)(ctx.hhd);
+            }
+            ctx.finish(3, HdErrorInfo::none())
+        }
+    }
+}
+
+/// The device limits the library reports, checked.
+pub fn device_limits(peak_n: f64, continuous_n: f64) -> Result<DeviceLimits, String> {
+    let limits = DeviceLimits {
+        peak_n: peak_n as f32,
+        continuous_n: continuous_n as f32,
+        ..PHANTOM_OMNI
+    };
+    limits.validate().map_err(|e| {
+        format!(
+            "the device reports unusable force limits (HD_NOMINAL_MAX_FORCE {peak_n} N, \
+             HD_NOMINAL_MAX_CONTINUOUS_FORCE {continuous_n} N): {e}"
+        )
+    })?;
+    if peak_n <= 0.0 {
+        return Err(format!(
+            "the device reports HD_NOMINAL_MAX_FORCE {peak_n} N"
+        ));
+    }
+    Ok(limits)
+}
+
+/// The running servo loop on a device.
+pub struct Bridge {
+    lib: Arc<HdLib>,
+    hhd: Hhd,
+    handle: HdSchedulerHandle,
+    ctx: *mut ServoCtx,
+    shared: Arc<ServoShared>,
+    limits: DeviceLimits,
+    params: BrushParams,
+    shut: bool,
+}
+
+// SAFETY: `ctx` is only dereferenced by the scheduler thread while scheduled and freed by
+// `shutdown` after the scheduler has stopped; the rest is `Send`.
+unsafe impl Send for Bridge {}
+
+impl Bridge {
+    /// Initialises the default device, reads its force limits, enables force output and
+    /// schedules the servo callback at 1 kHz.
+    pub fn start(lib: Arc<HdLib>, opts: &BridgeOptions) -> anyhow::Result<Bridge> {
+        let params = presets::by_name(&opts.preset).ok_or_else(|| {
+            anyhow::anyhow!(
+                "unknown brush `{}`; valid brushes: {}",
+                opts.preset,
+                presets::NAMES
+            )
+        })?;
+        if !(1..=1000).contains(&opts.state_hz) {
+            anyhow::bail!("--state-hz must be 1 ..= 1000");
+        }
+        opts.mapping.validate().map_err(anyhow::Error::msg)?;
+        let f = lib.fns();
+        let lib2 = lib.clone();
+        let hd_err = move |what: &str, e: HdErrorInfo| {
+            anyhow::anyhow!(
+                "{what}: {} (0x{:04x}, device code {}): {}",
+                error_name(e.error_code),
+                e.error_code,
+                e.internal_error_code,
+                lib2.error_string(e.error_code)
+            )
+        };
+        // SAFETY: plain calls of the HD API from one thread, before the scheduler runs.
+        let hhd = unsafe { (f.init_device)(HD_DEFAULT_DEVICE) };
+        let e = unsafe { (f.get_error)() };
+        if e.is_error() || hhd == HD_INVALID_HANDLE {
+            return Err(hd_err("cannot initialise the default haptic device", e));
+        }
+        let cleanup = |hhd| unsafe { (f.disable_device)(hhd) };
+        let mut peak = 0.0f64;
+        let mut cont = 0.0f64;
+        unsafe {
+            (f.get_doublev)(HD_NOMINAL_MAX_FORCE, &mut peak);
+            (f.get_doublev)(HD_NOMINAL_MAX_CONTINUOUS_FORCE, &mut cont);
+        }
+        let e = unsafe { (f.get_error)() };
+        if e.is_error() {
+            cleanup(hhd);
+            return Err(hd_err("cannot read the device's force limits", e));
+        }
+        let limits = match device_limits(peak, cont) {
+            Ok(l) => l,
+            Err(why) => {
+                cleanup(hhd);
+                anyhow::bail!(why);
+            }
+        };
+        let core = match ServoCore::new(params, limits, opts.mapping, opts.forces_on) {
+            Ok(c) => c,
+            Err(why) => {
+                cleanup(hhd);
+                anyhow::bail!(why);
+            }
+        };
+        let shared = Arc::new(ServoShared::new());
+        let ctx = Box::into_raw(Box::new(ServoCtx {
+            fns: f,
+            hhd,
+            core,
+            shared: shared.clone(),
+            state_hz: opts.state_hz,
+            stop_after: opts.stop_after_ticks,
+        }));
+        // SAFETY: `ctx` stays valid until `shutdown`, after hdStopScheduler.
+        let handle = unsafe {
+            (f.enable)(HD_FORCE_OUTPUT);
+            // The library's own clamp as a second line behind the output stage's.
+            (f.enable)(HD_MAX_FORCE_CLAMPING);
+            (f.set_scheduler_rate)(1000);
+            let h =
+                (f.schedule_asynchronous)(servo_callback, ctx.cast(), HD_MAX_SCHEDULER_PRIORITY);
+            (f.start_scheduler)();
+            h
+        };
+        let mut bridge = Bridge {
+            lib,
+            hhd,
+            handle,
+            ctx,
+            shared,
+            limits,
+            params,
+            shut: false,
+        };
+        let e = unsafe { (f.get_error)() };
+        if e.is_error() {
+            let err = hd_err("cannot start the servo loop", e);
+            bridge.shutdown();
+            return Err(err);
+        }
+        Ok(bridge)
+    }
+
+    /// The side shared with the callback (states, commands, counters).
+    pub fn shared(&self) -> Arc<ServoShared> {
+        self.shared.clone()
+    }
+
+    /// The limits read from the device.
+    pub fn limits(&self) -> DeviceLimits {
+        self.limits
+    }
+
+    pub fn params(&self) -> &BrushParams {
+        &self.params
+    }
+
+    pub fn lib(&self) -> &HdLib {
+        &self.lib
+    }
+
+    /// Why the servo loop stopped, if it has.
+    pub fn stopped(&self) -> Option<Stopped> {
+        self.shared.stopped(&self.lib)
+    }
+
+    /// Stops the servo loop (the callback's last frame commands zero force), the scheduler,
+    /// and releases the device. Idempotent.
+    pub fn shutdown(&mut self) {
+        if self.shut {
+            return;
+        }
+        self.shut = true;
+        let f = self.lib.fns();
+        self.shared.stop.store(true, Ordering::Release);
+        // Let the callback see the stop and command zero itself (a few frames at most).
+        let deadline = Instant::now() + Duration::from_millis(200);
+        while !self.shared.done() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // SAFETY: plain HD calls; after hdStopScheduler returns the callback no longer runs,
+        // so `ctx` can be freed.
+        unsafe {
+            (f.stop_scheduler)();
+            if !self.shared.done() {
+                (f.unschedule)(self.handle);
+            }
+            (f.disable)(HD_FORCE_OUTPUT);
+            (f.disable_device)(self.hhd);
+            // Errors of the teardown itself are of no use any more; drain them.
+            for _ in 0..16 {
+                if !(f.get_error)().is_error() {
+                    break;
+                }
+            }
+            drop(Box::from_raw(self.ctx));
+        }
+        self.ctx = std::ptr::null_mut();
+    }
+}
+
+impl Drop for Bridge {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn transform_round_trip() {
+        let q = Quat::new(0.9, 0.1, -0.3, 0.2).normalized();
+        let m = transform_of_pose([1.0, -2.0, 3.5], q);
+        let (p, q2) = pose_of_transform(&m).unwrap();
+        assert_eq!(p, [1.0, -2.0, 3.5]);
+        let d = (q.w - q2.w).abs() + (q.x - q2.x).abs() + (q.y - q2.y).abs() + (q.z - q2.z).abs();
+        assert!(d < 1e-12, "{q:?} {q2:?}");
+        // Rotations of every branch of Shepperd's method.
+        for q in [
+            Quat::new(0.0, 1.0, 0.0, 0.0),
+            Quat::new(0.0, 0.0, 1.0, 0.0),
+            Quat::new(0.0, 0.0, 0.0, 1.0),
+            Quat::new(0.1, 0.7, 0.7, 0.1).normalized(),
+        ] {
+            let (_, q2) = pose_of_transform(&transform_of_pose([0.0; 3], q)).unwrap();
+            let dot = q.w * q2.w + q.x * q2.x + q.y * q2.y + q.z * q2.z;
+            assert!((dot.abs() - 1.0).abs() < 1e-12, "{q:?} {q2:?}");
+        }
+    }
+
+    #[test]
+    fn garbage_transforms_are_no_pose() {
+        let mut m = transform_of_pose([0.0; 3], Quat::IDENTITY);
+        m[5] = f64::NAN;
+        assert!(pose_of_transform(&m).is_none());
+        assert!(pose_of_transform(&[0.0; 16]).is_none());
+        let far = transform_of_pose([1e9, 0.0, 0.0], Quat::IDENTITY);
+        assert!(pose_of_transform(&far).is_none());
+    }
+
+    #[test]
+    fn mapping_axes_and_inverse() {
+        let m = Mapping {
+            origin_mm: [10.0, 5.0],
+            paper_height_mm: -50.0,
+            scale: 2.0,
+        };
+        // Up on the device is up on the paper; toward the user is -y on the paper.
+        let p = m.to_paper([10.0, -40.0, 6.0], Quat::<f64>::IDENTITY);
+        let v = p.pos.to_f64();
+        assert_eq!(v, [0.0, -2.0, 20.0]);
+        let (back, _) = m.to_device(p);
+        assert_eq!(back, [10.0, -40.0, 6.0]);
+        // The stylus held upright, tip down (device rotation R_x(-90)) is the brush hanging
+        // straight down (identity).
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let upright = m.to_paper([0.0; 3], Quat::new(h, -h, 0.0, 0.0));
+        assert!(
+            (upright.rot.w.abs() - 1.0).abs() < 1e-12,
+            "{:?}",
+            upright.rot
+        );
+        // A force up on the paper pushes up on the device.
+        assert_eq!(Mapping::force_to_device([0.0, 0.0, 1.0]), [0.0, 1.0, 0.0]);
+        assert_eq!(Mapping::force_to_device([0.0, 1.0, 0.0]), [0.0, 0.0, -1.0]);
+    }
+
+    #[test]
+    fn calibration_puts_the_tip_on_the_paper() {
+        let mut m = Mapping::default();
+        m.calibrate(-20.0, 40.0);
+        let p = m.to_paper([0.0, -20.0, 0.0], Quat::<f64>::IDENTITY);
+        assert!((p.pos.to_f64()[2] - 40.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn buttons_act_on_release_and_chords_calibrate_once() {
+        let mut b = Buttons::default();
+        assert_eq!(b.update(1), None);
+        assert_eq!(b.update(1), None);
+        assert_eq!(b.update(0), Some(ButtonAction::Dip));
+        assert_eq!(b.update(2), None);
+        assert_eq!(b.update(0), Some(ButtonAction::ToggleForces));
+        assert_eq!(b.update(1), None);
+        assert_eq!(b.update(3), Some(ButtonAction::Calibrate));
+        assert_eq!(b.update(3), None);
+        assert_eq!(b.update(2), None);
+        assert_eq!(b.update(0), None);
+        assert_eq!(b.update(0), None);
+    }
+
+    #[test]
+    fn garbage_pose_latches_a_fault_and_zero_force() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        let q = Quat::new(
+            std::f64::consts::FRAC_1_SQRT_2,
+            -std::f64::consts::FRAC_1_SQRT_2,
+            0.0,
+            0.0,
+        );
+        let m = transform_of_pose([0.0, -10.0, 0.0], q);
+        for _ in 0..700 {
+            core.step(&m, 0);
+        }
+        assert!(core.forces_enabled());
+        let f = core.step(&[f64::NAN; 16], 0);
+        assert_eq!(f, [0.0; 3]);
+        assert!(!core.faults().is_empty());
+        // Stays at zero until cleared, whatever the pose.
+        assert_eq!(core.step(&m, 0), [0.0; 3]);
+    }
+
+    #[test]
+    fn unusable_limits_are_refused() {
+        assert!(device_limits(3.3, 0.88).is_ok());
+        assert!(device_limits(f64::NAN, 0.88).is_err());
+        assert!(device_limits(0.0, 0.0).is_err());
+        assert!(device_limits(1.0, 2.0).is_err());
+        assert!(device_limits(1e6, 1.0).is_err());
+    }
+}

@@ -1,0 +1,804 @@
+//! The Phantom bridge against the stand-in libHD (`maobi-hd-standin`, built as this test's
+//! dev-dependency), loaded through the same loader as the real library:
+//!
+//! * the bridge (`maobi bridge`, a real process) plays the hook stroke; the forces the stand-in
+//!   recorded are the shared model's for the same poses, computed here directly;
+//! * its TCP state stream matches an in-process bridge's states tick for tick;
+//! * without a library, the bridge names every file it looked for and exits non-zero, and the
+//!   GUI's `--device phantom` falls back to the simulator saying why;
+//! * an HD error injected mid-stroke zeroes the force in that very callback, is reported with
+//!   `hdGetErrorString`'s text, and the bridge stops cleanly;
+//! * the stand-in saw no force above the device's limit (and does catch one when sent).
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use maobi::phantom::hd::{self, HdErrorInfo};
+use maobi::phantom::loader::{HdLib, Source, DEFAULT_PATHS};
+use maobi::phantom::servo::{pose_of_transform, transform_of_pose, Mapping, ServoCore};
+use maobi::phantom::{Bridge, BridgeOptions, Stopped};
+use maobi::poses::PoseTrack;
+use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::protocol::{BrushState, DeviceMsg, HostHello, HostMsg, HostRx, Message};
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar};
+
+/// The stand-in's state is per process: the in-process tests take turns.
+static STANDIN: Mutex<()> = Mutex::new(());
+
+/// Extra ticks after the stroke's last pose (the brush held still).
+const HOLD_TICKS: usize = 300;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The stand-in cdylib: cargo builds it (as a dev-dependency) into the directory of this
+/// test binary, or a workspace build uplifts it one level up.
+fn standin() -> PathBuf {
+    let exe = std::env::current_exe().expect("the test binary's path");
+    let deps = exe.parent().expect("the test binary's directory");
+    let mut found: Vec<(std::time::SystemTime, PathBuf)> = Vec::new();
+    for dir in [deps, deps.parent().unwrap_or(deps)] {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with("libmaobi_hd_standin") && name.ends_with(".so") {
+                if let Ok(t) = e.metadata().and_then(|m| m.modified()) {
+                    found.push((t, e.path()));
+                }
+            }
+        }
+    }
+    found.sort();
+    found
+        .pop()
+        .map(|(_, p)| p)
+        .unwrap_or_else(|| panic!("no libmaobi_hd_standin*.so near {}", exe.display()))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("maobi-phantom-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// The hook stroke as the device would report it: one pose per 1 ms tick, mapped back from
+/// the paper to the device's frame with the bridge's default mapping.
+/// A device pose: position (mm) and rotation, in the device's frame.
+type DevicePose = ([f64; 3], Quat<f64>);
+
+fn hook_device_poses() -> (Vec<DevicePose>, Vec<Pose<f64>>) {
+    let track = PoseTrack::from_path(&repo().join("examples/poses/hook.csv")).unwrap();
+    let paper: Vec<Pose<f64>> = track.resample().collect();
+    let map = Mapping::default();
+    let device = paper.iter().map(|p| map.to_device(*p)).collect();
+    (device, paper)
+}
+
+fn write_pose_csv(rows: &[DevicePose], path: &Path) {
+    let mut s = String::from("t,x,y,z,qw,qx,qy,qz\n");
+    for (k, (p, q)) in rows.iter().enumerate() {
+        // `{}` is the shortest text that parses back to the same f64.
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{}\n",
+            k as f64 * 1e-3,
+            p[0],
+            p[1],
+            p[2],
+            q.w,
+            q.x,
+            q.y,
+            q.z
+        ));
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+/// The forces the shared model commands for these device poses, tick by tick, computed
+/// here from the model's own types (the stand-in holds the last pose after the script).
+fn model_forces(rows: &[DevicePose], limits: DeviceLimits, ticks: usize) -> Vec<[f64; 3]> {
+    let params = presets::by_name("large").unwrap();
+    let map = Mapping::default();
+    let mut forces = ForceModel::<Fx>::new(DEFAULT_FORCES).unwrap();
+    let mut stage = OutputStage::<Fx>::new(limits).unwrap();
+    stage.enable();
+    let mut brush: Option<Brush<Fx>> = None;
+    let mut last = maobi_shared::Vec3::<Fx>::ZERO;
+    let mut out = Vec::new();
+    for k in 0..ticks {
+        let (p, q) = rows[k.min(rows.len() - 1)];
+        let (p, q) = pose_of_transform(&transform_of_pose(p, q)).unwrap();
+        let pose: Pose<Fx> = map.to_paper(p, q).cast();
+        let b = brush.get_or_insert_with(|| {
+            last = pose.pos;
+            Brush::new(params, pose).unwrap()
+        });
+        b.tick(pose);
+        let f = forces.tick(b, pose.pos);
+        let cmd = stage.apply(f.total, pose.pos - last);
+        last = pose.pos;
+        out.push(Mapping::force_to_device(cmd.to_f64()));
+    }
+    out
+}
+
+fn read_record(path: &Path) -> Vec<[f64; 3]> {
+    let text = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("the stand-in's record {}: {e}", path.display()));
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').skip(1).map(|f| f.parse().unwrap()).collect();
+            [v[0], v[1], v[2]]
+        })
+        .collect()
+}
+
+fn read_summary(record: &Path) -> std::collections::HashMap<String, String> {
+    let p = PathBuf::from(format!("{}.summary", record.display()));
+    std::fs::read_to_string(&p)
+        .unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+        .lines()
+        .filter_map(|l| l.split_once('='))
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect()
+}
+
+fn norm(f: [f64; 3]) -> f64 {
+    (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt()
+}
+
+/// `maobi bridge` on the stand-in, in the background; returns the child and its address.
+fn spawn_bridge(
+    config: &str,
+    stop_after: usize,
+) -> (std::process::Child, String, Arc<Mutex<String>>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["bridge", "--listen", "127.0.0.1:0", "--stop-after-ticks"])
+        .arg(stop_after.to_string())
+        .arg("--hd-lib")
+        .arg(standin())
+        .env("MAOBI_HD_STANDIN", config)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("maobi bridge starts");
+    let stderr = child.stderr.take().unwrap();
+    let log = Arc::new(Mutex::new(String::new()));
+    let (tx, rx) = std::sync::mpsc::channel();
+    {
+        let log = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(rest) = line.split("listening on ").nth(1) {
+                    let addr = rest.split(';').next().unwrap_or("").trim().to_string();
+                    let _ = tx.send(addr);
+                }
+                log.lock().unwrap().push_str(&(line + "\n"));
+            }
+        });
+    }
+    let addr = rx
+        .recv_timeout(Duration::from_secs(20))
+        .unwrap_or_else(|_| {
+            let _ = child.kill();
+            panic!(
+                "the bridge did not start listening:\n{}",
+                log.lock().unwrap()
+            )
+        });
+    (child, addr, log)
+}
+
+fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("the bridge did not stop:\n{}", log.lock().unwrap());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Every state the bridge sends over TCP until it closes the connection.
+fn tcp_states(addr: &str) -> Vec<BrushState> {
+    let mut s = TcpStream::connect(addr).expect("connect to the bridge");
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let hello = HostMsg::Hello(HostHello::new(
+        "phantom-test",
+        maobi::device::link::host_version(),
+    ));
+    let mut frame = vec![0u8; 512];
+    let n = hello.encode(&mut frame).unwrap();
+    s.write_all(&frame[..n]).unwrap();
+    let mut dec = Box::new(HostRx::new());
+    let mut buf = vec![0u8; 65536];
+    let mut states = Vec::new();
+    let mut greeted = false;
+    loop {
+        let n = match s.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => n,
+        };
+        for msg in dec.feed(&buf[..n]).flatten() {
+            match msg {
+                DeviceMsg::Hello(info) => {
+                    greeted = true;
+                    assert_eq!(
+                        info.force_peak_n, 3.3,
+                        "the stand-in's limit in the handshake"
+                    );
+                }
+                DeviceMsg::State(st) => states.push(st),
+                _ => {}
+            }
+        }
+    }
+    assert!(greeted, "the bridge answered the handshake");
+    states
+}
+
+/// The hook through `maobi bridge` (a process) and through an in-process bridge: forces as
+/// the shared model's, the TCP states as the in-process ones, no limit violations.
+#[test]
+fn bridge_plays_the_hook_with_the_models_forces_and_streams_its_states() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let (device, paper) = hook_device_poses();
+    // The mapping is exact enough that the device script is the hook stroke.
+    let map = Mapping::default();
+    for ((p, q), want) in device.iter().zip(&paper) {
+        let back = map.to_paper(*p, *q);
+        let d = back.pos.to_f64();
+        let w = want.pos.to_f64();
+        assert!((0..3).all(|i| (d[i] - w[i]).abs() < 1e-9), "{d:?} vs {w:?}");
+    }
+    let poses = scratch("hook_device.csv");
+    write_pose_csv(&device, &poses);
+    let ticks = device.len() + HOLD_TICKS;
+
+    // The process over TCP.
+    let record = scratch("hook_record.csv");
+    let config = format!("poses={};record={}", poses.display(), record.display());
+    let (mut child, addr, log) = spawn_bridge(&config, ticks);
+    let tcp = tcp_states(&addr);
+    let status = wait(&mut child, &log);
+    let log = log.lock().unwrap().clone();
+    assert!(status.success(), "the bridge failed:\n{log}");
+    assert!(log.contains("stopped after"), "{log}");
+
+    // (a) The forces the stand-in recorded are the shared model's.
+    let got = read_record(&record);
+    assert!(
+        got.len() >= ticks,
+        "{} recorded ticks of {ticks}",
+        got.len()
+    );
+    let want = model_forces(&device, PHANTOM_OMNI, ticks);
+    // The last tick commands zero (the bridge stopping), so compare the ones before.
+    let mut worst = 0.0f64;
+    for k in 0..ticks - 1 {
+        let d = norm([
+            got[k][0] - want[k][0],
+            got[k][1] - want[k][1],
+            got[k][2] - want[k][2],
+        ]);
+        worst = worst.max(d);
+        assert!(
+            d <= 1e-6,
+            "tick {k}: recorded {:?}, model {:?}",
+            got[k],
+            want[k]
+        );
+    }
+    assert_eq!(got[ticks - 1], [0.0; 3], "the last callback commands zero");
+    assert!(
+        got[ticks..].iter().all(|f| *f == [0.0; 3]),
+        "zero after stopping"
+    );
+    // The stroke presses the brush: the forces are not trivially zero or constant.
+    let peak = want.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    assert!(peak > 0.3, "largest model force {peak} N");
+    eprintln!(
+        "forces: {} ticks, largest {peak:.3} N, worst difference {worst:e} N",
+        ticks - 1
+    );
+
+    // (e) The stand-in checked every frame against its limit.
+    let summary = read_summary(&record);
+    assert_eq!(summary["violations"], "0", "{summary:?}");
+    assert!(summary["max_force_n"].parse::<f64>().unwrap() <= 3.3);
+
+    // (b) The same run in this process, through the same loader.
+    let lib = Arc::new(HdLib::open(&standin(), Source::Flag).expect("the stand-in loads"));
+    let record2 = scratch("hook_record_inproc.csv");
+    configure(
+        &lib,
+        &format!("poses={};record={}", poses.display(), record2.display()),
+    );
+    let mut bridge = Bridge::start(
+        lib.clone(),
+        &BridgeOptions {
+            stop_after_ticks: Some(ticks as u32),
+            ..BridgeOptions::default()
+        },
+    )
+    .expect("the bridge starts on the stand-in");
+    let shared = bridge.shared();
+    let mut local = std::collections::BTreeMap::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !shared.done() && Instant::now() < deadline {
+        while let Some(s) = shared.take_state() {
+            local.insert(s.tick, s);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    while let Some(s) = shared.take_state() {
+        local.insert(s.tick, s);
+    }
+    // Every state of the run reached this side (the queue never overflowed).
+    assert_eq!(shared.state_counts().1, 0, "states lost");
+    assert_eq!(local.len() as u64, shared.state_counts().0);
+    assert_eq!(bridge.stopped(), Some(Stopped::TickLimit(ticks as u32)));
+    bridge.shutdown();
+    // Two runs of the same poses command the same forces, tick for tick (the records run on
+    // past the stop for as long as each process took to tear down).
+    let again = read_record(&record2);
+    assert!(again.len() >= ticks);
+    if let Some(k) = (0..ticks).find(|&k| again[k] != got[k]) {
+        panic!(
+            "tick {k}: in-process {:?}, bridge process {:?}",
+            again[k], got[k]
+        );
+    }
+
+    assert!(tcp.len() > 100, "{} states over TCP", tcp.len());
+    let mut common = 0;
+    for s in &tcp {
+        if let Some(l) = local.get(&s.tick) {
+            assert_eq!(
+                s, l,
+                "tick {}: the TCP state differs from the in-process one",
+                s.tick
+            );
+            common += 1;
+        }
+    }
+    assert!(
+        common > 50,
+        "{common} ticks in both streams ({} TCP, {} local)",
+        tcp.len(),
+        local.len()
+    );
+    // About 120 states a second.
+    let span = (tcp.last().unwrap().tick - tcp[0].tick) as f64 / 1000.0;
+    let rate = (tcp.len() - 1) as f64 / span;
+    assert!((100.0..=125.0).contains(&rate), "{rate} states/s");
+    // The brush touched the paper in the stream.
+    assert!(tcp.iter().any(|s| s.contacts != 0));
+}
+
+fn configure(lib: &HdLib, config: &str) {
+    type Configure = unsafe extern "C" fn(*const std::ffi::c_char) -> std::ffi::c_int;
+    // SAFETY: the stand-in's control function, with its declared type.
+    let f: Configure = unsafe { lib.extra("maobi_standin_configure") }.expect("a stand-in");
+    let c = std::ffi::CString::new(config).unwrap();
+    // SAFETY: a NUL-terminated string.
+    assert_eq!(unsafe { f(c.as_ptr()) }, 0, "config `{config}`");
+}
+
+/// An HD error in the middle of the stroke: zero force from that callback on, the error
+/// reported with the library's text, a clean stop (the device released, the record written).
+#[test]
+fn injected_hd_error_zeroes_the_force_and_stops_cleanly() {
+    let (device, _) = hook_device_poses();
+    let poses = scratch("err_device.csv");
+    write_pose_csv(&device, &poses);
+    let record = scratch("err_record.csv");
+    const AT: usize = 700;
+    let config = format!(
+        "poses={};record={};error={AT}:0x0302",
+        poses.display(),
+        record.display()
+    );
+    let (mut child, addr, log) = spawn_bridge(&config, device.len() + HOLD_TICKS);
+    // A host is connected when it happens; the connection ends with the servo loop.
+    let states = tcp_states(&addr);
+    let status = wait(&mut child, &log);
+    let log = log.lock().unwrap().clone();
+    assert!(!status.success(), "an HD error is a failure:\n{log}");
+    assert!(log.contains("HD_COMM_ERROR"), "{log}");
+    assert!(
+        log.contains("Communication error with the device (maobi stand-in)"),
+        "hdGetErrorString's text is reported:\n{log}"
+    );
+    assert!(log.contains(&format!("servo tick {AT}")), "{log}");
+    let got = read_record(&record);
+    assert!(
+        norm(got[AT - 1]) > 0.1,
+        "forces were on before: {:?}",
+        got[AT - 1]
+    );
+    assert_eq!(got[AT], [0.0; 3], "zero in the callback that saw the error");
+    assert!(got[AT..].iter().all(|f| *f == [0.0; 3]), "and after it");
+    assert_eq!(read_summary(&record)["violations"], "0");
+    assert!(states.iter().all(|s| s.tick <= AT as u32));
+}
+
+/// No library: every place looked in, a non-zero exit.
+#[test]
+fn without_a_library_the_bridge_says_where_it_looked() {
+    if DEFAULT_PATHS.iter().any(|p| Path::new(p).exists()) {
+        eprintln!("skipped: OpenHaptics is installed on this machine");
+        return;
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["bridge", "--listen", "127.0.0.1:0"])
+        .env_remove("MAOBI_HD_LIB")
+        .env_remove("LD_LIBRARY_PATH")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    for p in DEFAULT_PATHS {
+        assert!(err.contains(p), "{p} missing from:\n{err}");
+    }
+    assert!(
+        err.contains("libHD.so") && err.contains("MAOBI_HD_LIB") && err.contains("--hd-lib"),
+        "{err}"
+    );
+
+    // A named file that is not there is the error (no silent fallback to another copy).
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args([
+            "bridge",
+            "--listen",
+            "127.0.0.1:0",
+            "--hd-lib",
+            "/nonexistent/x/libHD.so",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("/nonexistent/x/libHD.so"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["bridge", "--listen", "127.0.0.1:0"])
+        .env("MAOBI_HD_LIB", "/nonexistent/y/libHD.so")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("/nonexistent/y/libHD.so") && err.contains("MAOBI_HD_LIB"),
+        "{err}"
+    );
+}
+
+/// A library without the HD symbols: the error names the file and the first missing symbol.
+#[test]
+fn a_library_without_the_symbols_names_the_missing_one() {
+    let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
+    let Some(libc) = maps
+        .split_whitespace()
+        .find(|w| w.contains("/libc.so") || w.contains("/libc-"))
+    else {
+        eprintln!("skipped: no libc path in /proc/self/maps");
+        return;
+    };
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["bridge", "--listen", "127.0.0.1:0", "--hd-lib", libc])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(libc) && err.contains("`hdInitDevice`"),
+        "{err}"
+    );
+}
+
+/// `maobi --device phantom` without a library: the built-in simulator, saying why.
+#[test]
+fn the_gui_falls_back_to_the_simulator_with_the_reason() {
+    let hand = maobi::gui::start_hand(46.0);
+    let mut d = maobi::phantom::device::gui_device(
+        Some(PathBuf::from("/nonexistent/z/libHD.so")),
+        "large",
+        hand,
+        None,
+    )
+    .expect("a device, the simulator");
+    let s = d.status();
+    assert!(
+        s.name.contains("built-in simulator") && s.name.contains("Phantom unavailable"),
+        "{}",
+        s.name
+    );
+    assert!(
+        s.faults[0].contains("/nonexistent/z/libHD.so"),
+        "{:?}",
+        s.faults
+    );
+    // And it is a working simulator.
+    d.connect().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut frames = Vec::new();
+    while frames.is_empty() && Instant::now() < deadline {
+        d.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(!frames.is_empty());
+}
+
+/// The `maobi --device phantom` parse reaches the GUI options (no window is opened: no
+/// display is needed for a parse error of another argument).
+#[test]
+fn the_top_level_device_flag_accepts_phantom() {
+    use clap::Parser;
+    let cli = maobi::cli::Cli::try_parse_from([
+        "maobi",
+        "--device",
+        "phantom",
+        "--hd-lib",
+        "/x/libHD.so",
+    ])
+    .expect("parses");
+    assert!(cli.command.is_none());
+    assert_eq!(cli.gui.device, maobi::cli::GuiDeviceArg::Phantom);
+    assert_eq!(cli.gui.hd_lib.as_deref(), Some(Path::new("/x/libHD.so")));
+    assert!(maobi::cli::Cli::try_parse_from(["maobi", "--device", "phantom", "trace"]).is_err());
+}
+
+/// The stand-in really checks the limit: a force above it is counted and raises
+/// HD_EXCEEDED_MAX_FORCE (so the zero-violation checks above can fail).
+#[test]
+fn the_standin_catches_a_force_above_the_limit() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    let record = scratch("violation.csv");
+    configure(&lib, &format!("record={}", record.display()));
+    let f = lib.fns();
+    type Count = extern "C" fn() -> u64;
+    // SAFETY: the stand-in's control function, with its declared type.
+    let violations: Count = unsafe { lib.extra("maobi_standin_violations") }.unwrap();
+    // SAFETY: the HD API as declared, on one thread.
+    unsafe {
+        let h = (f.init_device)(hd::HD_DEFAULT_DEVICE);
+        assert_ne!(h, hd::HD_INVALID_HANDLE);
+        let before = violations();
+        (f.begin_frame)(h);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [3.0, 2.0, 0.0].as_ptr());
+        (f.end_frame)(h);
+        let e: HdErrorInfo = (f.get_error)();
+        assert_eq!(e.error_code, hd::HD_EXCEEDED_MAX_FORCE);
+        assert_eq!(violations(), before + 1);
+        (f.begin_frame)(h);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [3.0, 1.0, 0.0].as_ptr());
+        (f.end_frame)(h);
+        assert!(!(f.get_error)().is_error(), "3.16 N is within 3.3 N");
+        (f.disable_device)(h);
+    }
+    assert_eq!(read_summary(&record)["violations"], "1");
+}
+
+/// The servo step's cost, `Fx` (what the bridge runs) and `f32`, on the hook stroke.
+#[test]
+fn servo_step_cost() {
+    let (device, paper) = hook_device_poses();
+    let params = presets::by_name("large").unwrap();
+    let transforms: Vec<[f64; 16]> = device
+        .iter()
+        .map(|(p, q)| transform_of_pose(*p, *q))
+        .collect();
+    let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+    let reps = 3;
+    let t = Instant::now();
+    for _ in 0..reps {
+        for m in &transforms {
+            std::hint::black_box(core.step(m, 0));
+        }
+    }
+    let fx_us = t.elapsed().as_secs_f64() * 1e6 / (reps * transforms.len()) as f64;
+
+    let poses: Vec<Pose<f32>> = paper.iter().map(|p| p.cast()).collect();
+    let mut brush = Brush::<f32>::new(params, poses[0]).unwrap();
+    let mut forces = ForceModel::<f32>::new(DEFAULT_FORCES).unwrap();
+    let mut stage = OutputStage::<f32>::new(PHANTOM_OMNI).unwrap();
+    stage.enable();
+    let t = Instant::now();
+    for _ in 0..reps {
+        let mut last = poses[0].pos;
+        for p in &poses {
+            brush.tick(*p);
+            let f = forces.tick(&brush, p.pos);
+            std::hint::black_box(stage.apply(f.total, p.pos - last));
+            last = p.pos;
+        }
+    }
+    let f32_us = t.elapsed().as_secs_f64() * 1e6 / (reps * poses.len()) as f64;
+    eprintln!("servo step: Fx {fx_us:.1} us, f32 {f32_us:.1} us (mean per 1 ms tick)");
+    // The callback shares its millisecond with libHD's own work: keep it well inside.
+    assert!(fx_us < 250.0, "Fx step {fx_us} us");
+}
+
+/// The stylus buttons, through the stand-in's script: button 2 toggles forces, both together
+/// calibrate the paper height, button 1 dips the brush.
+#[test]
+fn stylus_buttons_toggle_forces_calibrate_and_dip() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    // The stylus upright (the brush hanging straight down), 50 mm above the default paper.
+    let (y, q) = (-10.0, [h, -h, 0.0, 0.0]);
+    let presses = [
+        (0.0, 0),
+        (0.100, 2),
+        (0.150, 0),
+        (0.300, 3),
+        (0.350, 0),
+        (0.500, 2),
+        (0.550, 0),
+        (0.600, 1),
+        (0.650, 0),
+    ];
+    let mut csv = String::from("t,x,y,z,qw,qx,qy,qz,buttons\n");
+    for (t, b) in presses {
+        csv.push_str(&format!(
+            "{t},0,{y},0,{},{},{},{},{b}\n",
+            q[0], q[1], q[2], q[3]
+        ));
+    }
+    let poses = scratch("buttons.csv");
+    std::fs::write(&poses, csv).unwrap();
+    let record = scratch("buttons_record.csv");
+    let lib = Arc::new(HdLib::open(&standin(), Source::Flag).unwrap());
+    configure(
+        &lib,
+        &format!("poses={};record={}", poses.display(), record.display()),
+    );
+    let mut bridge = Bridge::start(
+        lib,
+        &BridgeOptions {
+            stop_after_ticks: Some(800),
+            ..BridgeOptions::default()
+        },
+    )
+    .unwrap();
+    let shared = bridge.shared();
+    let mut states = std::collections::BTreeMap::new();
+    let mut dipped = false;
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !shared.done() && Instant::now() < deadline {
+        // Dry the brush (a host's command) after the calibration (which starts the brush
+        // afresh) and before button 1 re-dips it.
+        if !dipped && shared.ticks() >= 420 {
+            shared.send(maobi::phantom::ServoCommand::Dip(0.25));
+            dipped = true;
+        }
+        while let Some(s) = shared.take_state() {
+            states.insert(s.tick, s);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    while let Some(s) = shared.take_state() {
+        states.insert(s.tick, s);
+    }
+    bridge.shutdown();
+    let f = read_record(&record);
+    let on = |k: usize| norm(f[k]) > 1e-3;
+    assert!(on(140), "forces ramping in: {:?}", f[140]);
+    assert!((151..540).all(|k| !on(k)), "button 2 turned forces off");
+    assert!((600..790).all(on), "button 2 again turned them on");
+    let at = |tick: u32| {
+        states
+            .range(tick..)
+            .next()
+            .map(|(_, s)| s.clone())
+            .unwrap_or_else(|| panic!("no state at or after tick {tick}"))
+    };
+    let z = |s: &BrushState| s.handle.pose().pos.z.to_f64();
+    assert!((z(&at(200)) - 50.0).abs() < 1e-6, "{}", z(&at(200)));
+    // The chord: the brush (40 mm) now just reaches the paper from where the stylus is.
+    let length = presets::by_name("large").unwrap().length_mm as f64;
+    assert!((z(&at(400)) - length).abs() < 1e-6, "{}", z(&at(400)));
+    let wet = |s: &BrushState| Fx::from_bits(s.layers[1].wetness).to_f64();
+    assert!(
+        (wet(&at(590)) - 0.25).abs() < 1e-6,
+        "dried by the command: {}",
+        wet(&at(590))
+    );
+    assert!(
+        (wet(&at(700)) - 1.0).abs() < 1e-6,
+        "button 1 dipped it: {}",
+        wet(&at(700))
+    );
+}
+
+/// Ctrl-C (SIGINT) stops `maobi bridge` through its shutdown: zero force, the device
+/// released (the stand-in writes its record only then), a zero exit.
+#[test]
+fn sigint_stops_the_bridge_cleanly() {
+    let (device, _) = hook_device_poses();
+    let poses = scratch("sigint_device.csv");
+    write_pose_csv(&device, &poses);
+    let record = scratch("sigint_record.csv");
+    let config = format!("poses={};record={}", poses.display(), record.display());
+    // No tick limit: only the signal stops it.
+    let (mut child, _addr, log) = spawn_bridge(&config, usize::MAX >> 33);
+    std::thread::sleep(Duration::from_millis(900));
+    // SAFETY: signalling our own child process.
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+        0
+    );
+    let status = wait(&mut child, &log);
+    let log = log.lock().unwrap().clone();
+    assert!(status.success(), "{log}");
+    assert!(log.contains("interrupted"), "{log}");
+    let got = read_record(&record);
+    assert!(got.len() > 500, "{} ticks recorded", got.len());
+    assert!(got.iter().any(|f| norm(*f) > 0.1), "forces were on");
+    assert_eq!(*got.last().unwrap(), [0.0; 3], "the last force is zero");
+    assert_eq!(read_summary(&record)["violations"], "0");
+}
+
+/// `maobi --device phantom` with a library: the GUI's device is the Phantom, its frames
+/// come from the servo loop, and its commands reach it.
+#[test]
+fn the_gui_device_runs_the_servo_loop() {
+    use maobi::gui::device::DeviceCommand;
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let poses = scratch("gui_hold.csv");
+    std::fs::write(
+        &poses,
+        format!("t,x,y,z,qw,qx,qy,qz\n0,0,-10,0,{h},{},0,0\n", -h),
+    )
+    .unwrap();
+    let record = scratch("gui_record.csv");
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    configure(
+        &lib,
+        &format!("poses={};record={}", poses.display(), record.display()),
+    );
+    let mut d = maobi::phantom::device::gui_device(
+        Some(standin()),
+        "large",
+        maobi::gui::start_hand(46.0),
+        None,
+    )
+    .unwrap();
+    let s = d.status();
+    assert!(s.name.starts_with("Phantom (") && s.connected, "{s:?}");
+    assert!(s.faults.is_empty(), "{:?}", s.faults);
+    let mut frames = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while frames.len() < 60 && Instant::now() < deadline {
+        d.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(frames.len() >= 60, "{} frames", frames.len());
+    // The stylus 50 mm above the paper, upright: the brush hangs from there.
+    assert!((frames[0].pose.pos.z - 50.0).abs() < 1e-6);
+    assert!(d.send(DeviceCommand::EnableForces(false)).is_ok());
+    assert!(d.send(DeviceCommand::Preset("nope".into())).is_err());
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while d.status().forces_enabled && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(!d.status().forces_enabled);
+    d.disconnect();
+    drop(lib);
+    let got = read_record(&record);
+    assert_eq!(*got.last().unwrap(), [0.0; 3]);
+}

@@ -45,6 +45,7 @@ struct Paper {
     frames: usize,
     touching: usize,
     kept: Vec<BrushFrame>,
+    kept_last_tick: Option<u64>,
 }
 
 impl Paper {
@@ -56,12 +57,18 @@ impl Paper {
             frames: 0,
             touching: 0,
             kept: Vec::new(),
+            kept_last_tick: None,
         }
     }
     fn ink(&mut self, frames: &[BrushFrame]) {
         for f in frames {
             self.frames += 1;
-            if self.inker.stamp_geometry(&f.geometry(), &mut self.canvas) {
+            // A device may repeat its last state when no pose came in time (its state timer
+            // fired); stamping it again changes nothing (ink combines by max), but it is
+            // the same tick touching, not another.
+            let repeat = self.kept_last_tick == Some(f.tick);
+            self.kept_last_tick = Some(f.tick);
+            if self.inker.stamp_geometry(&f.geometry(), &mut self.canvas) && !repeat {
                 self.touching += 1;
             }
         }
@@ -367,6 +374,13 @@ fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper
         paper.kept.extend(replay);
         let s = dev.status();
         if s.replays_done > done0 && !s.replaying {
+            // The last frames may have landed between the poll above and the status: the
+            // app polls on every frame and would ink them next, so take them too.
+            frames.clear();
+            dev.poll(&mut frames);
+            let replay: Vec<BrushFrame> = frames.drain(..).filter(|f| f.replaying).collect();
+            paper.ink(&replay);
+            paper.kept.extend(replay);
             break;
         }
         assert!(Instant::now() < end, "the replay finishes: {s:?}");

@@ -125,6 +125,8 @@ struct Derived<S> {
     contact_tol: S,
     /// 1 / TIE_RAMP_MM.
     inv_tie_ramp: S,
+    /// 2 TIE_RAMP_MM: from this height up the tie weight is one.
+    tie_clear: S,
     inv_substeps: S,
     /// Below this length a direction is treated as undefined (mm).
     tiny: S,
@@ -210,7 +212,8 @@ impl<S: Scalar> Brush<S> {
         let pose = clamp_to_paper(pose);
         self.handle = pose;
         self.skel_dir = [-Vec3::Z; MAX_LAYERS];
-        self.rebuild_skeleton(false);
+        let offsets = self.skeleton_offsets();
+        self.rebuild_skeleton(false, &offsets);
         self.skel_vel = [Vec3::ZERO; MAX_LAYERS];
         let n = self.d.n;
         for i in 0..n {
@@ -368,6 +371,9 @@ impl<S: Scalar> Brush<S> {
     pub fn tick(&mut self, target: Pose<S>) {
         let start = self.handle;
         let n = self.d.substeps;
+        // The skeleton's shape in the handle frame changes only in `end_tick` (plastic flow),
+        // so its node offsets are summed once here for all the tick's substeps.
+        let offsets = self.skeleton_offsets();
         for s in 1..=n {
             let pose = if s == n {
                 target
@@ -378,7 +384,7 @@ impl<S: Scalar> Brush<S> {
                     Quat::nlerp(start.rot, target.rot, t),
                 )
             };
-            self.substep(pose);
+            self.substep_with(pose, &offsets);
         }
         self.end_tick();
     }
@@ -396,88 +402,122 @@ impl<S: Scalar> Brush<S> {
 
     /// One substep of length h with the handle at `pose`.
     pub fn substep(&mut self, pose: Pose<S>) {
-        self.substep_dynamics(pose);
-        self.project_onto_paper();
+        let offsets = self.skeleton_offsets();
+        self.substep_with(pose, &offsets);
+    }
+
+    /// One substep with the skeleton's node offsets ([`Self::skeleton_offsets`]) given.
+    fn substep_with(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
+        // Dynamics, integration and the paper projection of the free masses in one pass.
+        self.substep_dynamics(pose, offsets);
+        self.contact[0] = self.spine[0].z <= self.d.contact_tol;
         self.substeps_done = self.substeps_done.wrapping_add(1);
     }
 
-    /// Everything in a substep but the paper projection.
-    fn substep_dynamics(&mut self, pose: Pose<S>) {
+    /// Everything in a substep: handle, dynamics, paper drag and projection (steps 1-3).
+    fn substep_dynamics(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
         let pose = clamp_to_paper(pose);
         let n = self.d.n;
         let old_ferrule = self.spine[0];
         let old_ferrule_vel = self.vel[0];
         self.handle = pose;
-        self.rebuild_skeleton(true);
+        self.rebuild_skeleton(true, offsets);
         // The ferrule moves rigidly: its velocity change is prescribed.
         self.spine[0] = self.skel[0];
         self.vel[0] = self.skel[0] - old_ferrule;
         let du0 = self.vel[0] - old_ferrule_vel;
 
+        let d = &self.d;
+        // Every row includes the tie (see the module docs), so only two rows occur: the
+        // interior masses 1..n-1 share one, the tip has its own.
+        let inner = d.rows[0][1];
+        let tip = d.rows[1][1];
+
         // Spring term of each segment j (between masses j-1 and j), computed once and used with
-        // opposite signs by both ends: (1 - L/|d|) d with d = S_j - S_{j-1}.
-        let mut seg_force = [Vec3::<S>::ZERO; MAX_LAYERS];
-        for j in 1..n {
-            seg_force[j] = self.spring(self.spine[j] - self.spine[j - 1]);
+        // opposite signs by both ends: (1 - L/|d|) d with d = S_j - S_{j-1}. `seg[n]` stays
+        // zero: the tip has no outer segment, so its row needs no special case here.
+        let mut seg = [Vec3::<S>::ZERO; MAX_LAYERS + 1];
+        for (f, pair) in seg[1..n].iter_mut().zip(self.spine[..n].windows(2)) {
+            *f = spring(d, pair[1] - pair[0]);
+        }
+
+        // The tie weight of each mass, once: the tie and the paper drag both read it, and both
+        // read it before the mass moves.
+        let mut ties = [S::ZERO; MAX_LAYERS];
+        for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
+            *t = tie_weight_at(d, x.z);
         }
 
         // Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs).
-        let mut p = [Vec3::<S>::ZERO; MAX_LAYERS];
-        let mut rows = [self.d.rows[0][0]; MAX_LAYERS];
-        for i in 1..n {
-            let tip = usize::from(i == n - 1);
-            let row = self.d.rows[tip][1];
-            rows[i] = row;
-            let xi = self.spine[i];
-            let ui = self.vel[i];
-            let mut spring = -seg_force[i];
-            let mut rel = self.vel[i - 1] - ui;
-            if i + 1 < n {
-                spring += seg_force[i + 1];
-                rel += self.vel[i + 1] - ui;
-            }
-            let mut pi = spring.scale(row.c_k) + rel.scale(row.c_j);
-            let w = self.tie_weight(i);
+        let row_rhs = |row: &Row<S>, i: usize, spring: Vec3<S>, rel: Vec3<S>| {
+            // The coefficients are in [0, 1) (fractions of the mass's W'), and so is a tie
+            // weight below one.
+            let mut pi = spring.scale_coef(row.c_k) + rel.scale_coef(row.c_j);
+            let w = ties[i];
             if w > S::ZERO {
-                pi += ((self.skel[i] - xi).scale(row.c_t)
-                    + (self.skel_vel[i] - ui).scale(row.c_tv))
-                .scale(w);
+                let tie = (self.skel[i] - self.spine[i]).scale_coef(row.c_t)
+                    + (self.skel_vel[i] - self.vel[i]).scale_coef(row.c_tv);
+                // A mass clear of the paper has weight exactly one, and scaling by one is
+                // exact in every scalar type: skip those three multiplies.
+                pi += if w < S::ONE { tie.scale_coef(w) } else { tie };
             }
-            p[i] = pi;
-        }
-        p[n - 1] += self.tip_load.scale(rows[n - 1].c_f);
-
-        let du = if self.d.exact_solve {
-            self.solve_exact(&p, &rows, du0)
-        } else {
-            // Jacobi iterations (eq. 2.33).
-            let mut du = p;
-            let mut next = p;
-            for _ in 0..self.d.iterations {
-                for i in 1..n {
-                    let mut sum = if i == 1 { du0 } else { du[i - 1] };
-                    if i + 1 < n {
-                        sum += du[i + 1];
-                    }
-                    next[i] = p[i] + sum.scale(rows[i].c_j);
-                }
-                du[1..n].copy_from_slice(&next[1..n]);
-            }
-            du
+            pi
         };
+        // p is kept flattened (x_0, y_0, z_0, x_1, ...) for the solve, see [`jacobi`].
+        let last = n - 1;
+        let mut p = [S::ZERO; FLAT];
+        // Entry 0 (the ferrule has no row) holds du_0 for the solve.
+        p[..3].copy_from_slice(&[du0.x, du0.y, du0.z]);
+        for (i, (pi, (v, s))) in p[3..3 * last]
+            .chunks_exact_mut(3)
+            .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
+            .enumerate()
+        {
+            let ui = v[1];
+            let r = row_rhs(&inner, i + 1, s[1] - s[0], (v[0] - ui) + (v[2] - ui));
+            pi.copy_from_slice(&[r.x, r.y, r.z]);
+        }
+        let r = row_rhs(&tip, last, -seg[last], self.vel[last - 1] - self.vel[last])
+            + self.tip_load.scale(tip.c_f);
+        p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
-        // Integrate, paper drag, projection.
-        for i in 1..n {
-            let mut u = self.vel[i] + du[i];
+        let mut du = [S::ZERO; FLAT];
+        if d.exact_solve {
+            self.solve_exact(&p, du0, &mut du);
+        } else {
+            jacobi(&p, inner.c_j, tip.c_j, n, d.iterations, &mut du);
+        }
+
+        // Integrate, paper drag, projection (Fig. 4-5), all per mass.
+        let drag_loss = self.d.drag_loss;
+        let tol = self.d.contact_tol;
+        for ((((x, u), du), w), touching) in self.spine[1..n]
+            .iter_mut()
+            .zip(&mut self.vel[1..n])
+            .zip(du[3..3 * n].chunks_exact(3))
+            .zip(&ties[1..n])
+            .zip(&mut self.contact[1..n])
+        {
+            let mut v = *u + Vec3::new(du[0], du[1], du[2]);
             // Drag in proportion to how much the mass is lying on the paper.
-            let on_paper = S::ONE - self.tie_weight(i);
+            let on_paper = S::ONE - *w;
             if on_paper > S::ZERO {
-                let keep = S::ONE - on_paper * self.d.drag_loss;
-                u.x = u.x * keep;
-                u.y = u.y * keep;
+                // drag_loss and on_paper are in [0, 1], so keep is too.
+                let keep = S::ONE - on_paper.mul_coef(drag_loss);
+                v.x = v.x.mul_coef(keep);
+                v.y = v.y.mul_coef(keep);
             }
-            self.vel[i] = u;
-            self.spine[i] += u;
+            let mut s = *x + v;
+            // A mass below the paper is put back onto it with its downward velocity removed.
+            if s.z < S::ZERO {
+                s.z = S::ZERO;
+                if v.z < S::ZERO {
+                    v.z = S::ZERO;
+                }
+            }
+            *u = v;
+            *x = s;
+            *touching = s.z <= tol;
         }
     }
 
@@ -485,13 +525,9 @@ impl<S: Scalar> Brush<S> {
     /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
     /// lie on the paper... and since the tie is weighted on the right-hand side, not at all:
     /// they are computed once per parameter change.
-    fn solve_exact(
-        &mut self,
-        p: &[Vec3<S>; MAX_LAYERS],
-        rows: &[Row<S>; MAX_LAYERS],
-        du0: Vec3<S>,
-    ) -> [Vec3<S>; MAX_LAYERS] {
+    fn solve_exact(&mut self, p: &[S; FLAT], du0: Vec3<S>, out: &mut [S; FLAT]) {
         let n = self.d.n;
+        let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
         // The rows no longer depend on contact (the tie is weighted in the right-hand side),
         // so the pivots change only with the parameters.
         let mask = 0;
@@ -500,7 +536,7 @@ impl<S: Scalar> Brush<S> {
             // with m_i = 1 - c_i * (-cp_{i-1})... written for sub = super = -c_j,i.
             let mut prev_cp = S::ZERO;
             for i in 1..n {
-                let c = rows[i].c_j;
+                let c = c_j(i);
                 let m = S::ONE - c * prev_cp;
                 let inv_m = S::ONE.div(m);
                 self.inv_pivot[i] = inv_m;
@@ -512,45 +548,28 @@ impl<S: Scalar> Brush<S> {
         let mut d = [Vec3::<S>::ZERO; MAX_LAYERS];
         let mut prev = Vec3::ZERO;
         for i in 1..n {
-            let mut rhs = p[i];
+            let mut rhs = Vec3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
             if i == 1 {
-                rhs += du0.scale(rows[1].c_j);
+                rhs += du0.scale(c_j(1));
             }
             // d'_i = (d_i - a_i d'_{i-1}) / m_i with a_i = -c_j,i.
-            prev = (rhs + prev.scale(rows[i].c_j)).scale(self.inv_pivot[i]);
+            prev = (rhs + prev.scale(c_j(i))).scale(self.inv_pivot[i]);
             d[i] = prev;
         }
         let mut du = d;
         for i in (1..n - 1).rev() {
             du[i] = d[i] + du[i + 1].scale(self.cprime[i]);
         }
-        du
+        for (f, v) in out.chunks_exact_mut(3).zip(&du[..n]) {
+            f.copy_from_slice(&[v.x, v.y, v.z]);
+        }
     }
 
     /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
     /// [`TIE_RAMP_MM`] up.
     #[inline]
     pub fn tie_weight(&self, i: usize) -> S {
-        (self.spine[i].z * self.d.inv_tie_ramp).clamp(S::ZERO, S::ONE)
-    }
-
-    /// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm).
-    #[inline]
-    fn spring(&self, d: Vec3<S>) -> Vec3<S> {
-        let len2 = d.norm2();
-        if len2 > self.d.tiny2 {
-            let strain = S::ONE - self.d.segment * len2.rsqrt();
-            // Negative strain: the segment is compressed and the hairs buckle.
-            let strain = if strain < S::ZERO {
-                strain * self.d.compression_ratio
-            } else {
-                strain
-            };
-            d.scale(strain)
-        } else {
-            // Coincident masses (piled on the paper): no defined direction, no force.
-            Vec3::ZERO
-        }
+        tie_weight_at(&self.d, self.spine[i].z)
     }
 
     fn project_onto_paper(&mut self) {
@@ -569,19 +588,53 @@ impl<S: Scalar> Brush<S> {
         self.contact[0] = self.spine[0].z <= tol;
     }
 
-    /// Rebuilds VS_i from the handle (eqs. 3-5, 3-6); records their displacement if `track`.
-    fn rebuild_skeleton(&mut self, track: bool) {
+    /// The skeleton nodes relative to VS_0 in the handle frame, `sum_{j<i} V_j L` (eq. 3-6
+    /// unrolled), one array per component. They change only when the directions do (plastic
+    /// flow, once per tick), so a tick sums them once and each substep only rotates and
+    /// translates them: node i then costs one rotation, not a rotation and a serial chain of
+    /// sums, and the nodes are independent of each other.
+    fn skeleton_offsets(&self) -> Offsets<S> {
         let n = self.d.n;
-        let m = RotMat::from_quat(self.handle.rot);
-        let mut node = self.handle.pos;
-        for i in 0..n {
-            if i > 0 {
-                node += m.apply(self.skel_dir[i - 1]).scale(self.d.segment);
-            }
+        let mut out = [[S::ZERO; MAX_LAYERS]; 3];
+        let [ox, oy, oz] = &mut out;
+        let mut acc = Vec3::ZERO;
+        for (((x, y), z), dir) in ox[1..n]
+            .iter_mut()
+            .zip(&mut oy[1..n])
+            .zip(&mut oz[1..n])
+            .zip(&self.skel_dir[..n - 1])
+        {
+            acc += dir.scale(self.d.segment);
+            (*x, *y, *z) = (acc.x, acc.y, acc.z);
+        }
+        out
+    }
+
+    /// Rebuilds VS_i from the handle (eqs. 3-5, 3-6) and the node offsets
+    /// ([`Self::skeleton_offsets`]); records their displacement if `track`.
+    fn rebuild_skeleton(&mut self, track: bool, offsets: &Offsets<S>) {
+        let n = self.d.n;
+        let m = RotMat::from_quat(self.handle.rot).m;
+        let pos = self.handle.pos;
+        let [ox, oy, oz] = offsets;
+        // Node 0 is the handle itself (offset zero).
+        for ((((node, vel), &x), &y), &z) in self.skel[..n]
+            .iter_mut()
+            .zip(&mut self.skel_vel[..n])
+            .zip(&ox[..n])
+            .zip(&oy[..n])
+            .zip(&oz[..n])
+        {
+            // A rotation's entries are in [-1, 1]: coefficient products (the same values).
+            let next = Vec3::new(
+                pos.x + (x.mul_coef(m[0][0]) + y.mul_coef(m[0][1]) + z.mul_coef(m[0][2])),
+                pos.y + (x.mul_coef(m[1][0]) + y.mul_coef(m[1][1]) + z.mul_coef(m[1][2])),
+                pos.z + (x.mul_coef(m[2][0]) + y.mul_coef(m[2][1]) + z.mul_coef(m[2][2])),
+            );
             if track {
-                self.skel_vel[i] = node - self.skel[i];
+                *vel = next - *node;
             }
-            self.skel[i] = node;
+            *node = next;
         }
     }
 
@@ -708,6 +761,106 @@ impl<S: Scalar> Brush<S> {
     }
 }
 
+/// Skeleton node offsets in the handle frame, per component ([`Brush::skeleton_offsets`]).
+type Offsets<S> = [[S; MAX_LAYERS]; 3];
+
+/// Entries of a flattened [`Vec3`] array: `x_0, y_0, z_0, x_1, ...`.
+const FLAT: usize = 3 * MAX_LAYERS;
+
+/// `iterations` Jacobi sweeps of eq. 2.33, `du_i <- p_i + c_j,i (du_{i-1} + du_{i+1})`, from
+/// `du = p`, with the ferrule's prescribed `du_0` and `du_n = 0` beyond the tip, into `du`.
+/// `p` and `du` are flattened [`Vec3`] arrays (x_0, y_0, z_0, x_1, ...); entry 0 of `p` holds
+/// `du_0`, which the sweeps read as mass 1's inner neighbour.
+///
+/// The sweeps run over the three components as one flat array: an interior row multiplies
+/// all three components of both neighbours by the same `c_j`, so component k of mass i reads
+/// entries `3i + k - 3` and `3i + k + 3`, one stride for the whole chain. That loop has no
+/// per-mass branch or struct shuffling, and for the float types it vectorises. The two
+/// buffers swap roles between sweeps instead of being copied. Each entry is computed with the
+/// same operations in the same order as per [`Vec3`], so the results are the same bits.
+fn jacobi<S: Scalar>(
+    p: &[S; FLAT],
+    c: S,
+    c_tip: S,
+    n: usize,
+    iterations: usize,
+    du: &mut [S; FLAT],
+) {
+    // Components of the interior masses 1..n-1, and of the tip.
+    let (lo, tip) = (3, 3 * (n - 1));
+    let sweep = |src: &[S; FLAT], dst: &mut [S; FLAT]| {
+        for (((o, pk), left), right) in dst[lo..tip]
+            .iter_mut()
+            .zip(&p[lo..tip])
+            .zip(&src[lo - 3..tip - 3])
+            .zip(&src[lo + 3..tip + 3])
+        {
+            *o = *pk + (*left + *right).mul_coef(c);
+        }
+        for ((o, pk), left) in dst[tip..tip + 3]
+            .iter_mut()
+            .zip(&p[tip..tip + 3])
+            .zip(&src[tip - 3..tip])
+        {
+            *o = *pk + left.mul_coef(c_tip);
+        }
+    };
+    // The first sweep reads p itself (du starts at p); the buffers alternate so that the last
+    // sweep writes `du`, and nothing is copied.
+    let mut other = [S::ZERO; FLAT];
+    other[..3].copy_from_slice(&p[..3]);
+    du[..3].copy_from_slice(&p[..3]);
+    let mut left = iterations;
+    if left == 0 {
+        // (Not a valid parameter; kept total.) No sweep: du = p.
+        *du = *p;
+    } else if left % 2 == 1 {
+        sweep(p, du);
+        left -= 1;
+    } else {
+        sweep(p, &mut other);
+        sweep(&other, du);
+        left -= 2;
+    }
+    while left >= 2 {
+        sweep(du, &mut other);
+        sweep(&other, du);
+        left -= 2;
+    }
+}
+
+/// How strongly a mass at height `z` is tied to the skeleton (see [`Brush::tie_weight`]).
+#[inline]
+fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
+    // Twice the ramp up, z / ramp is at least 2 whatever the rounding: weight one, without
+    // the multiply (most masses are in the air).
+    if z >= d.tie_clear {
+        S::ONE
+    } else {
+        (z * d.inv_tie_ramp).clamp(S::ZERO, S::ONE)
+    }
+}
+
+/// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm).
+#[inline]
+fn spring<S: Scalar>(dv: &Derived<S>, d: Vec3<S>) -> Vec3<S> {
+    let len2 = d.norm2();
+    if len2 > dv.tiny2 {
+        let strain = S::ONE - dv.segment * len2.rsqrt();
+        // Negative strain: the segment is compressed and the hairs buckle.
+        // A compression ratio is in [0, 1], and so is a stretched segment's strain.
+        let strain = if strain < S::ZERO {
+            strain.mul_coef(dv.compression_ratio)
+        } else {
+            strain
+        };
+        d.scale_coef(strain)
+    } else {
+        // Coincident masses (piled on the paper): no defined direction, no force.
+        Vec3::ZERO
+    }
+}
+
 /// The ferrule cannot enter the paper (the god-object of Liang 4.2.3 keeps the drawn brush on
 /// the surface; the force model sees the hand's real penetration).
 fn clamp_to_paper<S: Scalar>(mut pose: Pose<S>) -> Pose<S> {
@@ -717,34 +870,27 @@ fn clamp_to_paper<S: Scalar>(mut pose: Pose<S>) -> Pose<S> {
     pose
 }
 
-/// A rotation matrix from a unit quaternion: 9 multiplies per vector instead of 18.
+/// A rotation matrix from a unit quaternion: 9 multiplies per rotated vector instead of 18.
 struct RotMat<S> {
     m: [[S; 3]; 3],
 }
 
 impl<S: Scalar> RotMat<S> {
     fn from_quat(q: Quat<S>) -> Self {
-        let two = S::ONE + S::ONE;
+        // 2a as a + a: the same value in every scalar type (saturating alike), no multiply.
+        let two = |a: S| a + a;
         let (w, x, y, z) = (q.w, q.x, q.y, q.z);
-        let (xx, yy, zz) = (x * x, y * y, z * z);
-        let (xy, xz, yz) = (x * y, x * z, y * z);
-        let (wx, wy, wz) = (w * x, w * y, w * z);
+        // A unit quaternion's components are in [-1, 1]: coefficient products.
+        let (xx, yy, zz) = (x.mul_coef(x), y.mul_coef(y), z.mul_coef(z));
+        let (xy, xz, yz) = (x.mul_coef(y), x.mul_coef(z), y.mul_coef(z));
+        let (wx, wy, wz) = (w.mul_coef(x), w.mul_coef(y), w.mul_coef(z));
         RotMat {
             m: [
-                [S::ONE - two * (yy + zz), two * (xy - wz), two * (xz + wy)],
-                [two * (xy + wz), S::ONE - two * (xx + zz), two * (yz - wx)],
-                [two * (xz - wy), two * (yz + wx), S::ONE - two * (xx + yy)],
+                [S::ONE - two(yy + zz), two(xy - wz), two(xz + wy)],
+                [two(xy + wz), S::ONE - two(xx + zz), two(yz - wx)],
+                [two(xz - wy), two(yz + wx), S::ONE - two(xx + yy)],
             ],
         }
-    }
-    #[inline]
-    fn apply(&self, v: Vec3<S>) -> Vec3<S> {
-        let m = &self.m;
-        Vec3::new(
-            m[0][0] * v.x + m[0][1] * v.y + m[0][2] * v.z,
-            m[1][0] * v.x + m[1][1] * v.y + m[1][2] * v.z,
-            m[2][0] * v.x + m[2][1] * v.y + m[2][2] * v.z,
-        )
     }
 }
 
@@ -822,6 +968,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         layer_frac,
         contact_tol: S::from_f64(CONTACT_TOLERANCE_MM),
         inv_tie_ramp: S::from_f64(1.0 / TIE_RAMP_MM),
+        tie_clear: S::from_f64(2.0 * TIE_RAMP_MM),
         inv_substeps: S::from_f64(1.0 / p.substeps_per_tick as f64),
         tiny: S::from_f64(1e-6),
         tiny2: S::from_f64(1e-12),

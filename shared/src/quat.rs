@@ -77,9 +77,11 @@ impl<S: Scalar> Quat<S> {
     }
     /// Scales to unit length; the identity for a zero quaternion.
     pub fn normalized(self) -> Self {
-        let n = self.norm2().sqrt();
-        if n > S::ZERO {
-            let inv = S::ONE.div(n);
+        let n2 = self.norm2();
+        if n2 > S::ZERO {
+            // One reciprocal square root instead of a square root and a division (the
+            // fixed-point division is the dearer of the two; nlerp runs every substep).
+            let inv = n2.rsqrt();
             Quat::new(self.w * inv, self.x * inv, self.y * inv, self.z * inv)
         } else {
             Self::IDENTITY
@@ -89,17 +91,20 @@ impl<S: Scalar> Quat<S> {
     /// poses inside one tick, where the rotation is tiny and nlerp equals slerp to far below
     /// the format's resolution.
     pub fn nlerp(a: Self, b: Self, t: S) -> Self {
-        let d = a.w * b.w + a.x * b.x + a.y * b.y + a.z * b.z;
+        // Unit quaternions: components in [-1, 1], coefficient products (the same values).
+        let d = a.w.mul_coef(b.w) + a.x.mul_coef(b.x) + a.y.mul_coef(b.y) + a.z.mul_coef(b.z);
         let b = if d < S::ZERO {
             Quat::new(-b.w, -b.x, -b.y, -b.z)
         } else {
             b
         };
+        // t is usually in [0, 1): the coefficient product (the same value, cheaper in fixed
+        // point).
         Quat::new(
-            a.w + (b.w - a.w) * t,
-            a.x + (b.x - a.x) * t,
-            a.y + (b.y - a.y) * t,
-            a.z + (b.z - a.z) * t,
+            a.w + (b.w - a.w).mul_coef(t),
+            a.x + (b.x - a.x).mul_coef(t),
+            a.y + (b.y - a.y).mul_coef(t),
+            a.z + (b.z - a.z).mul_coef(t),
         )
         .normalized()
     }

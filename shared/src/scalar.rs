@@ -84,18 +84,41 @@ impl core::fmt::Display for Fx {
     }
 }
 
+// Saturating add and subtract as a checked operation with the clamp on a cold path: the same
+// results as `saturating_add` / `saturating_sub` (an overflowing sum saturates toward the
+// sign of `rhs`, a difference toward the opposite sign), but the usual case is the add and a
+// branch on the overflow flag that is never taken, instead of a branch-free select that
+// computes the clamp on every call (about a third of the fixed-point tick's instructions on
+// the host). `add_sub_saturate` tests the edges.
 impl Add for Fx {
     type Output = Fx;
     #[inline]
     fn add(self, rhs: Fx) -> Fx {
-        Fx(self.0.saturating_add(rhs.0))
+        match self.to_bits().checked_add(rhs.to_bits()) {
+            Some(v) => Fx::from_bits(v),
+            None => saturated(rhs.to_bits() > 0),
+        }
     }
 }
 impl Sub for Fx {
     type Output = Fx;
     #[inline]
     fn sub(self, rhs: Fx) -> Fx {
-        Fx(self.0.saturating_sub(rhs.0))
+        match self.to_bits().checked_sub(rhs.to_bits()) {
+            Some(v) => Fx::from_bits(v),
+            None => saturated(rhs.to_bits() < 0),
+        }
+    }
+}
+
+/// The bound an overflowing sum or difference saturates to.
+#[cold]
+#[inline(never)]
+fn saturated(up: bool) -> Fx {
+    if up {
+        Fx::MAX
+    } else {
+        Fx::MIN
     }
 }
 impl Mul for Fx {
@@ -112,17 +135,17 @@ impl Mul for Fx {
 ///
 /// On 64-bit hosts one 128-bit multiply. On 32-bit targets (the Cortex-M4) a 128-bit multiply
 /// is a library call of about 70 instructions; four 32 x 32 -> 64 partial products (single
-/// `SMULL`/`UMULL`-class instructions) summed in 128 bits (cheap add-with-carry chains) give
-/// the same bits in a fraction of that. `mul_paths_agree` tests the two against each other.
+/// `SMULL`/`UMULL`-class instructions) give the same bits in a fraction of that. `mul_paths_agree`
+/// tests the two against each other.
 #[inline]
 fn mul_bits(a: i64, b: i64) -> i64 {
     #[cfg(target_pointer_width = "64")]
     {
-        clamp_i128(mul_wide(a, b) >> 32)
+        narrow(mul_wide(a, b))
     }
     #[cfg(not(target_pointer_width = "64"))]
     {
-        clamp_i128(mul_partial(a, b) >> 32)
+        mul_floor_partial(a, b)
     }
 }
 
@@ -132,20 +155,105 @@ fn mul_wide(a: i64, b: i64) -> i128 {
     a as i128 * b as i128
 }
 
-/// The 128-bit product from 32-bit halves: a = ah 2^32 + al with ah signed, al unsigned.
+/// `floor(a c / 2^32)` for a raw coefficient `|c| < 2^32` (`|c| < 1` as a number): the product
+/// then has magnitude below `|a|`, so it cannot overflow and needs no saturation test.
+///
+/// On 64-bit hosts one 128-bit multiply and a shift, no range test. On 32-bit targets write
+/// `c` as `cl - s 2^32` with `cl` its low word (a `u32`) and `s` 1 for negative `c`, else 0, and
+/// `a = ah 2^32 + al` (`ah` signed, `al` unsigned). Then `floor(a c / 2^32) = ah cl +
+/// floor(al cl / 2^32) - s a` exactly (the other terms are multiples of 2^32). `|ah cl| <
+/// 2^63` and `al cl < 2^64`; the first two terms sum to `floor(a cl / 2^32)`, of magnitude at
+/// most `|a|`, and the whole to the true product: no step can overflow, and it takes two
+/// 32 x 32 -> 64 multiplies (one `SMULL`, one `UMULL` on the Cortex-M4) instead of four and
+/// 128-bit sums. `mul_coef_is_the_product` tests both forms against the saturating product.
+#[inline]
+fn mul_coef_bits(a: i64, c: i64) -> i64 {
+    #[cfg(target_pointer_width = "64")]
+    {
+        // |a c| < 2^63 2^32: the shifted product fits i64, the cast drops only sign bits.
+        (mul_wide(a, c) >> 32) as i64
+    }
+    #[cfg(not(target_pointer_width = "64"))]
+    {
+        mul_coef_partial(a, c)
+    }
+}
+
+/// The 32-bit targets' form of [`mul_coef_bits`] (tested on every target).
 #[inline]
 #[allow(dead_code)]
-fn mul_partial(a: i64, b: i64) -> i128 {
+fn mul_coef_partial(a: i64, c: i64) -> i64 {
+    let cl = c as u32 as u64;
+    let high = (a >> 32) * cl as i64;
+    let low = (((a as u32) as u64 * cl) >> 32) as i64;
+    // c >> 63 is all ones for a negative c: subtract a, else nothing.
+    high + low - (a & (c >> 63))
+}
+
+/// `floor(a b / 2^32)` clamped to `i64`, from 32-bit halves: a = ah 2^32 + al with ah signed,
+/// al unsigned. The product is hh 2^64 + (hl + lh) 2^32 + ll and only ll has bits below 2^32,
+/// so the quotient is exactly hh 2^32 + hl + lh + floor(ll / 2^32): the low word of ll is
+/// never needed and nothing is shifted right in 128 bits.
+///
+/// Usually |hh| < 2^31 and the sum fits `i64` step by step: two checked 64-bit adds. Only when
+/// a step overflows (a product at or near the format's range, or intermediate sums that
+/// cancel) is the sum formed in 128 bits and clamped, so the result is exact either way.
+#[inline]
+#[allow(dead_code)]
+fn mul_floor_partial(a: i64, b: i64) -> i64 {
     let (ah, al) = ((a >> 32) as i32, a as u32);
     let (bh, bl) = ((b >> 32) as i32, b as u32);
     let hh = ah as i64 * bh as i64; // signed x signed
     let hl = ah as i64 * bl as i64; // signed x unsigned: |.| < 2^63
     let lh = al as i64 * bh as i64;
     let ll = al as u64 * bl as u64; // unsigned x unsigned
-    ((hh as i128) << 64) + (((hl as i128) + (lh as i128)) << 32) + ll as i128
+
+    // hl + floor(ll / 2^32) cannot overflow: |hl| <= 2^31 (2^32 - 1) and the other < 2^32.
+    let mid = hl + (ll >> 32) as i64;
+    if let Ok(hh32) = i32::try_from(hh) {
+        let step = ((hh32 as i64) << 32).checked_add(mid);
+        if let Some(q) = step.and_then(|s| s.checked_add(lh)) {
+            return q;
+        }
+    }
+    mul_floor_slow(hh, mid, lh)
 }
 
+/// The overflowing case of [`mul_floor_partial`]: `hh 2^32 + mid + lh` in 128 bits, clamped.
+#[cold]
+#[inline(never)]
+#[allow(dead_code)]
+fn mul_floor_slow(hh: i64, mid: i64, lh: i64) -> i64 {
+    let q = ((hh as i128) << 32) + mid as i128 + lh as i128;
+    let (hi, lo) = ((q >> 64) as i64, q as i64);
+    if hi == lo >> 63 {
+        lo
+    } else if hi < 0 {
+        i64::MIN
+    } else {
+        i64::MAX
+    }
+}
+
+/// `floor(p / 2^32)` clamped to `i64`, for a full 128-bit product `p`. The quotient fits in
+/// `i64` exactly when `p`'s upper 64 bits lie in `[-2^31, 2^31)`, i.e. are the sign extension
+/// of their low 32 bits: one 64-bit test instead of two 128-bit comparisons after the shift
+/// (the comparisons were a quarter of the host's fixed-point tick). `narrow_matches_clamp`
+/// tests it against the plain clamp.
 #[inline]
+#[allow(dead_code)]
+fn narrow(p: i128) -> i64 {
+    let hi = (p >> 64) as i64;
+    if hi == (hi as i32) as i64 {
+        (p >> 32) as i64
+    } else if hi < 0 {
+        i64::MIN
+    } else {
+        i64::MAX
+    }
+}
+
+#[cfg(test)]
 fn clamp_i128(p: i128) -> i64 {
     if p > i64::MAX as i128 {
         i64::MAX
@@ -207,6 +315,15 @@ pub trait Scalar:
     /// `1 / sqrt(self)`; the largest value for zero or negative input. One call replaces a
     /// square root and a division when normalising.
     fn rsqrt(self) -> Self;
+    /// `self * c`, the same value in every implementation, for the model's coefficients: a
+    /// `c` with `|c| < 1` (the implicit solve's `c_k`, `c_j`, `c_t`, tie weights, drag
+    /// factors, rotation matrix entries) cannot make the product overflow, so the fixed-point
+    /// format skips the overflow check and half of the partial products. Any other `c` takes
+    /// the ordinary product.
+    #[inline]
+    fn mul_coef(self, c: Self) -> Self {
+        self * c
+    }
     /// Sine and cosine of an angle in radians.
     fn sin_cos(self) -> (Self, Self);
     /// Angle of the point (x, y) = (`x`, `self`) in (-pi, pi]; 0 for (0, 0).
@@ -306,17 +423,83 @@ fn recip(b: Fx) -> Fx {
     y * (two - b * y)
 }
 
+/// `x / 2` rounded toward -inf: the same bits as `x * 0.5` (the product `floor(x 2^31 / 2^32)`
+/// is `floor(x / 2)`, an arithmetic shift, and cannot overflow) without a multiply.
+#[inline]
+fn half(x: Fx) -> Fx {
+    Fx(FxRaw::from_bits(x.0.to_bits() >> 1))
+}
+
 /// `Fx` to `f32`, rounded to nearest (exact integer-to-float conversion, then a power of two).
 #[inline]
 fn to_f32_fast(x: Fx) -> f32 {
-    x.0.to_bits() as f32 * (1.0 / 4_294_967_296.0)
+    #[cfg(target_pointer_width = "64")]
+    {
+        x.0.to_bits() as f32 * (1.0 / 4_294_967_296.0)
+    }
+    #[cfg(not(target_pointer_width = "64"))]
+    {
+        to_f32_split(x)
+    }
+}
+
+/// [`to_f32_fast`] without a 64-bit integer-to-float conversion, which the Cortex-M4 does in
+/// software (`__aeabi_l2f`): the magnitude normalised so its top 32 bits hold the significand,
+/// with a sticky bit for anything below them (so round-to-nearest-even still sees whether the
+/// dropped part is exactly half), one hardware `u32` to `f32` conversion (correctly rounded),
+/// and an exact power-of-two scale. The same bits as [`to_f32_fast`]; `conversions_agree`
+/// tests it.
+#[inline]
+#[allow(dead_code)]
+fn to_f32_split(x: Fx) -> f32 {
+    let v = x.0.to_bits();
+    let m = v.unsigned_abs();
+    if m == 0 {
+        return 0.0;
+    }
+    let lz = m.leading_zeros(); // 0..=63
+    let t = m << lz;
+    let top = (t >> 32) as u32 | u32::from(t as u32 != 0);
+    // m / 2^32 = top 2^(32 - lz) / 2^32 = top 2^-lz, and 2^-lz is a normal f32.
+    let f = top as f32 * f32::from_bits((127 - lz) << 23);
+    if v < 0 {
+        -f
+    } else {
+        f
+    }
 }
 
 /// `f32` to `Fx`, truncating toward zero and saturating (Rust's `as` cast): used only for
 /// estimates that a Newton step then refines.
 #[inline]
 fn from_f32_fast(v: f32) -> Fx {
-    Fx(FxRaw::from_bits((v * 4_294_967_296.0) as i64))
+    #[cfg(target_pointer_width = "64")]
+    {
+        Fx(FxRaw::from_bits((v * 4_294_967_296.0) as i64))
+    }
+    #[cfg(not(target_pointer_width = "64"))]
+    {
+        from_f32_split(v)
+    }
+}
+
+/// [`from_f32_fast`] without a software `f32` to 64-bit conversion (`__aeabi_f2lz` on the
+/// Cortex-M4) for magnitudes below 2^31: the integer part and the fraction (exact in `f32`:
+/// both are bits of `v`) each converted by hardware, the fraction scaled by 2^32 (exact) and
+/// truncated, so the result is `trunc(v 2^32)` as before. Other values (and NaN) take the
+/// plain cast. The same bits as [`from_f32_fast`]; `conversions_agree` tests it.
+#[inline]
+#[allow(dead_code)]
+fn from_f32_split(v: f32) -> Fx {
+    let a = v.abs();
+    if a < 2_147_483_648.0 {
+        let whole = a as u32; // truncated; a < 2^31
+        let frac = ((a - whole as f32) * 4_294_967_296.0) as u32; // in [0, 2^32)
+        let bits = ((whole as i64) << 32) | frac as i64;
+        Fx(FxRaw::from_bits(if v < 0.0 { -bits } else { bits }))
+    } else {
+        Fx(FxRaw::from_bits((v * 4_294_967_296.0) as i64))
+    }
 }
 
 impl Scalar for Fx {
@@ -339,6 +522,28 @@ impl Scalar for Fx {
     fn to_f64(self) -> f64 {
         // Exact for |x| < 2^21; correctly rounded above.
         self.0.to_bits() as f64 * (1.0 / 4_294_967_296.0)
+    }
+    /// The integer shifted into place: the same value as `from_f64(v as f64)` (exact below
+    /// 2^31, saturated above) without the software `f64` conversion (about 500 instructions
+    /// on the Cortex-M4, and `tick` converts a substep index every substep).
+    #[inline]
+    fn from_usize(v: usize) -> Self {
+        if v < 1 << 31 {
+            Fx::from_bits((v as i64) << 32)
+        } else {
+            Fx::MAX
+        }
+    }
+    /// `self * c` without the overflow test for `|c| < 1` (see [`mul_coef_bits`]).
+    #[inline]
+    fn mul_coef(self, c: Self) -> Self {
+        let cb = c.0.to_bits();
+        // -2^32 < cb < 2^32, as one unsigned comparison of the shifted range.
+        if (cb.wrapping_add((1 << 32) - 1) as u64) < (1 << 33) - 1 {
+            Fx(FxRaw::from_bits(mul_coef_bits(self.0.to_bits(), cb)))
+        } else {
+            self * c
+        }
     }
     #[inline]
     fn div(self, rhs: Self) -> Self {
@@ -364,10 +569,10 @@ impl Scalar for Fx {
     fn sqrt(self) -> Self {
         if self.0 > FxRaw::ZERO {
             let r = self.rsqrt();
-            let s = self * r;
+            // r < 1 for x > 1: the coefficient product (the same bits) where it applies.
+            let s = self.mul_coef(r);
             if self.0 > FxRaw::ONE {
-                let half = Fx(FxRaw::from_bits(1 << 31));
-                s + r * (self - s * s) * half
+                s + half((self - s * s).mul_coef(r))
             } else {
                 // r > 1 would scale the residual's rounding up: x r is already accurate.
                 s
@@ -386,15 +591,16 @@ impl Scalar for Fx {
             let est = 1.0 / libm::sqrtf(to_f32_fast(self));
             let y = from_f32_fast(est);
             let three = Fx(FxRaw::from_bits(3 << 32));
-            let half = Fx(FxRaw::from_bits(1 << 31));
             // x y^2 grouped to keep significant bits: (x y) y for large x (y^2 is tiny),
             // x (y y) for small x (x y is tiny).
+            // The factor below one (y for x > 1, x itself otherwise) goes in as the coefficient
+            // of `mul_coef`: the same bits as the plain product, cheaper.
             let u = if self.0 > FxRaw::ONE {
-                (self * y) * y
+                self.mul_coef(y).mul_coef(y)
             } else {
-                self * (y * y)
+                (y * y).mul_coef(self)
             };
-            (y * (three - u)) * half
+            half((three - u).mul_coef(y))
         } else {
             Fx::MAX
         }
@@ -491,15 +697,215 @@ mod tests {
             -(1 << 32),
             i64::MAX - 1,
             3 << 31,
+            (1 << 31) << 32,
+            -(1 << 31) << 32,
+            ((1 << 31) - 1) << 32,
+            (((1 << 31) - 1) << 32) | 0xFFFF_FFFF,
+            0xFFFF_FFFF,
+            -0xFFFF_FFFF,
+            1 << 47,
+            -(1 << 47),
+            (1 << 47) + 12345,
         ];
+        let want = |a: i64, b: i64| clamp_i128(mul_wide(a, b) >> 32);
         for &a in &edges {
             for &b in &edges {
-                assert_eq!(mul_partial(a, b), mul_wide(a, b), "{a} * {b}");
+                assert_eq!(mul_floor_partial(a, b), want(a, b), "{a} * {b}");
             }
         }
         for _ in 0..200_000 {
-            let (a, b) = (next(), next() >> (next() & 63));
-            assert_eq!(mul_partial(a, b), mul_wide(a, b), "{a} * {b}");
+            let (a, b) = (next() >> (next() & 63), next() >> (next() & 63));
+            assert_eq!(mul_floor_partial(a, b), want(a, b), "{a} * {b}");
+        }
+    }
+
+    #[test]
+    fn conversions_agree() {
+        let mut x: u64 = 0x1234_5678_9ABC_DEF1;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as i64
+        };
+        let plain_to = |x: Fx| x.0.to_bits() as f32 * (1.0 / 4_294_967_296.0);
+        let plain_from = |v: f32| Fx(FxRaw::from_bits((v * 4_294_967_296.0) as i64));
+        let edges = [
+            0,
+            1,
+            -1,
+            i64::MAX,
+            i64::MIN,
+            1 << 32,
+            (1 << 56) + 1,
+            0x80_0000_8000,
+        ];
+        for &b in &edges {
+            let x = Fx::from_bits(b);
+            assert_eq!(to_f32_split(x).to_bits(), plain_to(x).to_bits(), "{b}");
+        }
+        let floats = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.5,
+            2_147_483_520.0,
+            2_147_483_648.0,
+            -2_147_483_648.0,
+            1e12,
+            -1e12,
+            1e-12,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        for &v in &floats {
+            assert_eq!(from_f32_split(v), plain_from(v), "{v}");
+        }
+        for _ in 0..200_000 {
+            let x = Fx::from_bits(next() >> (next() & 63));
+            assert_eq!(to_f32_split(x).to_bits(), plain_to(x).to_bits(), "{x:?}");
+            let v = f32::from_bits(next() as u32);
+            assert_eq!(from_f32_split(v), plain_from(v), "{v}");
+            let v = plain_to(x);
+            assert_eq!(from_f32_split(v), plain_from(v), "{v}");
+        }
+    }
+
+    #[test]
+    fn from_usize_is_the_conversion_through_f64() {
+        for v in [0, 1, 2, 25, 99, 1 << 20, (1 << 31) - 1, 1 << 31, usize::MAX] {
+            assert_eq!(
+                <Fx as Scalar>::from_usize(v),
+                <Fx as Scalar>::from_f64(v as f64)
+            );
+        }
+    }
+
+    #[test]
+    fn add_sub_saturate() {
+        let edges = [
+            0,
+            1,
+            -1,
+            2,
+            -2,
+            i64::MAX,
+            i64::MIN,
+            i64::MAX - 1,
+            i64::MIN + 1,
+            1 << 62,
+            -(1 << 62),
+            1 << 32,
+        ];
+        for &a in &edges {
+            for &b in &edges {
+                let (x, y) = (Fx::from_bits(a), Fx::from_bits(b));
+                assert_eq!((x + y).to_bits(), a.saturating_add(b), "{a} + {b}");
+                assert_eq!((x - y).to_bits(), a.saturating_sub(b), "{a} - {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn half_is_the_product_with_one_half() {
+        let one_half = Fx(FxRaw::from_bits(1 << 31));
+        for &bits in &[0, 1, -1, 3, -3, i64::MAX, i64::MIN, 1 << 40, -(1 << 40) - 7] {
+            let x = Fx::from_bits(bits);
+            assert_eq!(half(x), x * one_half, "{bits}");
+        }
+    }
+
+    /// The 32-bit form of the coefficient product, wherever it applies.
+    fn check_partial(a: Fx, c: Fx) {
+        if c.to_bits().unsigned_abs() < 1 << 32 {
+            let got = mul_coef_partial(a.to_bits(), c.to_bits());
+            assert_eq!(Fx::from_bits(got), a * c, "{a:?} * {c:?}");
+        }
+    }
+
+    #[test]
+    fn mul_coef_is_the_product() {
+        let mut x: u64 = 0xD1B5_4A32_D192_ED03;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as i64
+        };
+        let values = [
+            0,
+            1,
+            -1,
+            i64::MAX,
+            i64::MIN,
+            1 << 32,
+            -(1 << 32),
+            3 << 31,
+            -7,
+        ];
+        let coefs = [
+            0,
+            1,
+            (1 << 32) - 1,
+            1 << 31,
+            1 << 32,
+            -1,
+            -(1 << 31),
+            1 - (1 << 32),
+            -(1 << 32),
+            i64::MAX,
+            i64::MIN,
+            5 << 32,
+        ];
+        for &a in &values {
+            for &c in &coefs {
+                let (a, c) = (Fx::from_bits(a), Fx::from_bits(c));
+                assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
+                check_partial(a, c);
+            }
+        }
+        for _ in 0..200_000 {
+            let a = Fx::from_bits(next() >> (next() & 63));
+            // Mostly coefficients in (-1, 1), some outside.
+            let c = Fx::from_bits(next() >> (28 + (next() & 7)));
+            assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
+            check_partial(a, c);
+        }
+    }
+
+    #[test]
+    fn narrow_matches_clamp() {
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as i64
+        };
+        let edges = [
+            0,
+            1,
+            -1,
+            i64::MAX,
+            i64::MIN,
+            1 << 31,
+            -(1 << 31),
+            (1 << 31) - 1,
+            1 << 32,
+            -(1 << 32),
+            3 << 31,
+        ];
+        for &a in &edges {
+            for &b in &edges {
+                let p = mul_wide(a, b);
+                assert_eq!(narrow(p), clamp_i128(p >> 32), "{a} * {b}");
+            }
+        }
+        for _ in 0..200_000 {
+            let (a, b) = (next() >> (next() & 63), next() >> (next() & 63));
+            let p = mul_wide(a, b);
+            assert_eq!(narrow(p), clamp_i128(p >> 32), "{a} * {b}");
         }
     }
 

@@ -5,6 +5,7 @@
 //! address, interrupt number and linker-script detail. A second board plugs in by
 //! implementing the same traits and adding a `board-*` feature (see `build.rs`).
 
+use maobi_shared::guide::GuideInput;
 use maobi_shared::{Fx, Pose};
 
 /// The three motor channels of the pen.
@@ -47,6 +48,11 @@ pub trait PoseSource {
     /// for a pen with its own sensors).
     fn pose_seq(&self) -> u32 {
         0
+    }
+    /// The guide sample that came with the pose `next_pose` just returned, once (guided
+    /// writing; the virtual pen gets it from the host with the pose of the same `seq`).
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        None
     }
     /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
     fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];

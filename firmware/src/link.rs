@@ -26,12 +26,13 @@ use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
 use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::guide::GuideInput;
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command as Wire, CommandError, DeviceInfo, DeviceMsg,
-    DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, ParamRejected, ParamReply,
-    Telemetry, Version,
+    DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg, Message, ParamRejected,
+    ParamReply, Telemetry, Version,
 };
-use maobi_shared::{BrushParams, Fx, Pose, Vec3};
+use maobi_shared::{BrushParams, Fx, Vec3};
 
 use crate::app::{self, Command, FAULTS, FORCES_ENABLED, SNAPSHOT, TICKS};
 use crate::board::LinkTransport;
@@ -63,7 +64,9 @@ struct Link {
     inbuf: [u8; 64],
     in_start: usize,
     in_end: usize,
-    pending_pose: Option<(u32, Pose<Fx>)>,
+    pending_pose: Option<app::PoseIn>,
+    /// The last guide sample, waiting for the pose of its `seq`.
+    guide: Option<GuideSample>,
     /// The parameters in force (mirror of the force loop's brush), for validation.
     params: BrushParams,
     frames_dropped: u32,
@@ -88,6 +91,7 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
         in_start: 0,
         in_end: 0,
         pending_pose: None,
+        guide: None,
         params,
         frames_dropped: 0,
         pose_gaps: 0,
@@ -206,11 +210,28 @@ impl Link {
             }
             HostMsg::Ping { seq } => self.send(&DeviceMsg::Pong { seq }).await,
             HostMsg::Pose(s) => {
-                let p = (s.seq, s.pose());
+                // The guide sample sent for this tick rides with its pose, so the force loop
+                // applies it at the tick that consumes the pose (as the host's mirror does).
+                let guide = match self.guide {
+                    Some(g) if g.seq == s.seq => {
+                        self.guide = None;
+                        Some(GuideInput {
+                            anchor: g.anchor(),
+                            on: g.on,
+                        })
+                    }
+                    _ => None,
+                };
+                let p = app::PoseIn {
+                    seq: s.seq,
+                    pose: s.pose(),
+                    guide,
+                };
                 if self.parts.poses.enqueue(p).is_err() {
                     self.pending_pose = Some(p);
                 }
             }
+            HostMsg::Guide(g) => self.guide = Some(g),
             HostMsg::GetParam { id } => {
                 let r = ParamReply::read(&self.params, id);
                 self.send(&DeviceMsg::Param(r)).await;

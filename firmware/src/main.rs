@@ -175,7 +175,11 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
     let start = embassy_time::Instant::now();
     while done < ticks {
         while k <= ticks && parts.poses.ready() {
-            let _ = parts.poses.enqueue((k, bench::stroke_pose(k)));
+            let _ = parts.poses.enqueue(app::PoseIn {
+                seq: k,
+                pose: bench::stroke_pose(k),
+                guide: None,
+            });
             k += 1;
         }
         SNAPSHOT.request();

@@ -93,6 +93,12 @@ fn host_samples() -> Vec<HostMsg> {
             id: ParamId::Wetness as u8,
             value: 0.25,
         },
+        HostMsg::Guide(GuideSample::new(
+            123_456,
+            Vec3::from_f64([12.0, -3.5, 0.25]),
+            true,
+        )),
+        HostMsg::Guide(GuideSample::new(u32::MAX, Vec3::ZERO, false)),
     ];
     v.extend(commands().into_iter().map(HostMsg::Command));
     v
@@ -216,6 +222,7 @@ fn host_kind(m: &HostMsg) -> &'static str {
             Command::ResetBrush => "reset",
             Command::InjectOverrun => "inject overrun",
         },
+        HostMsg::Guide(_) => "guide",
     }
 }
 
@@ -257,7 +264,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
 fn every_message_round_trips() {
     let hosts = host_samples();
     let kinds: std::collections::BTreeSet<_> = hosts.iter().map(host_kind).collect();
-    assert_eq!(kinds.len(), 14, "host samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 15, "host samples cover {kinds:?}");
     let mut rx = DeviceRx::new();
     let mut stream = Vec::new();
     for m in &hosts {
@@ -422,6 +429,17 @@ fn state_frame_size_and_link_share() {
         n as f64 * 1e3 / LINK_BYTES_PER_S * 100.0
     );
     assert!(n < 64);
+    let g = HostMsg::Guide(GuideSample::new(
+        1_000_000,
+        Vec3::from_f64([150.0, 120.0, 30.0]),
+        true,
+    ));
+    let n = frame(&g).len();
+    println!(
+        "guide sample: {n} bytes, {:.1}% of the link at 1 kHz",
+        n as f64 * 1e3 / LINK_BYTES_PER_S * 100.0
+    );
+    assert!(n < 32);
 }
 
 /// The largest message of each direction, with every value at its longest varint, fits the
@@ -467,6 +485,11 @@ fn largest_messages_fit_their_bounds() {
 
     let long_name = "x".repeat(NAME_LEN);
     let worst_host = [
+        HostMsg::Guide(GuideSample {
+            seq: u32::MAX,
+            anchor: [i64::MIN; 3],
+            on: true,
+        }),
         HostMsg::Pose(PoseSample {
             seq: u32::MAX,
             pose: worst_pose,
@@ -609,6 +632,8 @@ fn valid_host_msg() -> impl Strategy<Value = HostMsg> {
                 buttons: Buttons::from_bits_retain(b),
             })),
         (any::<u8>(), -1e6f32..1e6).prop_map(|(id, value)| HostMsg::SetParam { id, value }),
+        (any::<u32>(), any::<[i64; 3]>(), any::<bool>())
+            .prop_map(|(seq, anchor, on)| { HostMsg::Guide(GuideSample { seq, anchor, on }) }),
         Just(HostMsg::Command(Command::EnableForces)),
     ]
 }
@@ -835,4 +860,42 @@ fn inject_overrun_is_appended_after_the_existing_commands() {
     let mut rx = DeviceRx::new();
     let got: Vec<_> = rx.feed(&buf[..n]).collect();
     assert_eq!(got, [Ok(HostMsg::Command(Command::InjectOverrun))]);
+}
+
+/// Guide samples were appended in protocol version 2: every earlier host message keeps its
+/// wire tag, the guide's follows them, and its point crosses the link bit for bit.
+#[test]
+fn guide_samples_are_appended_and_exact() {
+    assert_eq!(PROTOCOL_VERSION, 2);
+    let tag = |m: &HostMsg| {
+        let mut b = [0u8; 64];
+        postcard::to_slice(m, &mut b).unwrap()[0]
+    };
+    assert_eq!(tag(&HostMsg::Ping { seq: 1 }), 1);
+    assert_eq!(tag(&HostMsg::Pose(PoseSample::default())), 2);
+    assert_eq!(tag(&HostMsg::Command(Command::EnableForces)), 5);
+    let a = Vec3::<Fx>::from_f64([123.456, -7.5, 0.001]);
+    let m = HostMsg::Guide(GuideSample::new(77, a, true));
+    assert_eq!(tag(&m), 6);
+    let mut rx = DeviceRx::new();
+    match decode(&mut rx, &frame(&m)).pop() {
+        Some(Ok(HostMsg::Guide(g))) => {
+            assert_eq!(g.anchor(), a);
+            assert_eq!(g.seq, 77);
+            assert!(g.on);
+        }
+        other => panic!("expected a guide sample, got {other:?}"),
+    }
+    // The longest guide sample is well inside the host bound.
+    let worst = HostMsg::Guide(GuideSample {
+        seq: u32::MAX,
+        anchor: [i64::MIN; 3],
+        on: true,
+    });
+    let n = frame(&worst).len();
+    println!(
+        "worst-case guide frame: {n} bytes of {}",
+        HostMsg::MAX_FRAME
+    );
+    assert!(n < 64, "{n} bytes of {}", HostMsg::MAX_FRAME);
 }

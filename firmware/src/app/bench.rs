@@ -11,6 +11,7 @@
 
 use core::fmt::Write;
 
+use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use super::{CmdQueue, ForceLoop};
@@ -43,11 +44,15 @@ pub fn stroke_pose(k: u32) -> Pose<Fx> {
 
 struct ScriptPen {
     next: Option<Pose<Fx>>,
+    guide: Option<GuideInput<Fx>>,
 }
 
 impl PoseSource for ScriptPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
         self.next.take()
+    }
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        self.guide.take()
     }
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
         f
@@ -120,7 +125,10 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     };
     let Some(mut fl) = ForceLoop::new(
         brush,
-        ScriptPen { next: None },
+        ScriptPen {
+            next: None,
+            guide: None,
+        },
         NullMotors([Fx::ZERO; 3]),
         NullWatchdog,
         rx,
@@ -162,10 +170,63 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         );
     }
 
-    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
+    // Guided writing: the same stroke at the preset's substeps with a guide sample every
+    // tick (the moving point 3 mm to the side of the hand and 2 ticks ahead), so the guide
+    // leads from the first tick on; the difference to the unguided line is the guide's cost.
     let _ = fl
         .brush
         .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
+    fl.brush.reset(stroke_pose(0));
+    fl.forces.reset();
+    let side = Vec3::from_f64([0.0, 3.0, 0.0]);
+    let mut st = Stats::default();
+    let mut guiding = 0;
+    for k in 1..=STROKE_TICKS {
+        fl.pen.next = Some(stroke_pose(k));
+        fl.pen.guide = Some(GuideInput {
+            anchor: stroke_pose(k + 2).pos + side,
+            on: true,
+        });
+        let a = clk.now();
+        fl.tick();
+        let b = clk.now();
+        st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+        guiding += fl.forces.guiding() as u32;
+    }
+    // The guide alone (GuideStream::tick with a sample, at full gain after the run above's
+    // fade-in), 100 calls.
+    let mut g = Stats::default();
+    if let Ok(mut gs) = GuideStream::<Fx>::new(DEFAULT_GUIDE) {
+        for k in 1..=400 {
+            let hand = stroke_pose(k).pos;
+            let sample = Some(GuideInput {
+                anchor: stroke_pose(k + 2).pos + side,
+                on: true,
+            });
+            let step = hand - stroke_pose(k - 1).pos;
+            let a = clk.now();
+            let f = gs.tick(core::hint::black_box(sample), hand, step);
+            let b = clk.now();
+            core::hint::black_box(f);
+            if k > 300 {
+                g.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            }
+        }
+    }
+    let _ = writeln!(
+        out,
+        "BENCH guided substeps={} ticks={} guiding_ticks={guiding} min_counts={} mean_counts={} max_counts={} guide_alone_mean_counts={} guide_alone_max_counts={}",
+        params.substeps_per_tick,
+        st.n,
+        st.min,
+        st.mean(),
+        st.max,
+        g.mean(),
+        g.max,
+    );
+    fl.forces.reset();
+
+    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
     fl.brush.reset(stroke_pose(0));
     for k in 1..=300 {
         fl.brush.tick(stroke_pose(k));

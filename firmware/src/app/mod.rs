@@ -24,6 +24,7 @@ pub mod mailbox;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
+use maobi_shared::guide::GuideInput;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{Motors, PoseSource, Watchdog};
@@ -158,6 +159,15 @@ pub enum Command {
     Dip(Fx),
 }
 
+/// A pose sample as the link task queues it for the virtual pen, with the guide sample the
+/// host sent for the same tick (guided writing), if any.
+#[derive(Copy, Clone, Debug)]
+pub struct PoseIn {
+    pub seq: u32,
+    pub pose: Pose<Fx>,
+    pub guide: Option<GuideInput<Fx>>,
+}
+
 /// Capacity of the virtual pen's pose queue and of the command queue.
 pub const POSE_QUEUE: usize = 64;
 pub const CMD_QUEUE: usize = 8;
@@ -277,13 +287,14 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             cortex_m::asm::delay(8_000_000);
         }
 
-        match self.pen.next_pose() {
+        let fresh = match self.pen.next_pose() {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
                 self.brush.reset(pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.last_pose = Some(pose);
+                true
             }
             Some(pose) => {
                 if let Some(prev) = self.last_pose {
@@ -294,9 +305,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.brush.tick(pose);
                 self.brush_tick = self.brush_tick.wrapping_add(1);
                 self.last_pose = Some(pose);
+                true
             }
-            None => self.pose_gaps = self.pose_gaps.wrapping_add(1),
-        }
+            None => {
+                self.pose_gaps = self.pose_gaps.wrapping_add(1);
+                false
+            }
+        };
 
         if LINK_ARMED.load(Ordering::Relaxed)
             && now.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed)) > LINK_TIMEOUT_TICKS
@@ -304,13 +319,19 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             latch(fault::LINK_SILENT);
         }
 
-        // Any latched fault switches the forces off: the host must clear it and enable again.
-        if FAULTS.load(Ordering::SeqCst) != 0 {
+        // Any latched fault switches the forces off (and cuts the guide): the host must clear
+        // it and enable again.
+        let faulted = FAULTS.load(Ordering::SeqCst) != 0;
+        if faulted {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
         }
         let allowed = FORCES_ENABLED.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
-        let cmd = self.forces.tick(&self.brush, hand, allowed);
+        // The guide sample that came with this tick's pose (none on a gap tick).
+        let guide = self.pen.take_guide();
+        let cmd = self
+            .forces
+            .tick(&self.brush, hand, guide, fresh, allowed, faulted);
         let w = self.forces.wanted;
         self.force = [w.x, w.y, w.z];
         self.apply_outputs(allowed, cmd);

@@ -27,6 +27,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use critical_section::Mutex;
 
 use cortex_m::peripheral::NVIC;
+use maobi_shared::guide::GuideInput;
 use maobi_shared::{Fx, Pose};
 
 use crate::app::{self, fault, POSE_QUEUE};
@@ -63,24 +64,29 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
 // ---------------------------------------------------------------------------------------
 // The virtual pen
 
-/// A pose the host sent, with its sequence number.
-pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
-pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
+/// A pose the host sent, with its sequence number and the guide sample of the same tick.
+pub type PoseQueue = heapless::spsc::Queue<app::PoseIn, POSE_QUEUE>;
+pub type PoseProducer = heapless::spsc::Producer<'static, app::PoseIn>;
 
 /// The pen of the QEMU board: poses the host sent, one per force tick.
 pub struct VirtualPen {
-    rx: heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>,
+    rx: heapless::spsc::Consumer<'static, app::PoseIn>,
     seq: u32,
+    guide: Option<GuideInput<Fx>>,
 }
 
 impl PoseSource for VirtualPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
-        let (seq, pose) = self.rx.dequeue()?;
-        self.seq = seq;
-        Some(pose)
+        let p = self.rx.dequeue()?;
+        self.seq = p.seq;
+        self.guide = p.guide;
+        Some(p.pose)
     }
     fn pose_seq(&self) -> u32 {
         self.seq
+    }
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        self.guide.take()
     }
     /// The virtual pen has no linkage: its "motors" are the three Cartesian axes with a unit
     /// lever arm, so the reported torques (N·m) equal the force's components (N).
@@ -194,6 +200,7 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
         VirtualPen {
             rx: pose_rx,
             seq: 0,
+            guide: None,
         },
         ReportedMotors { _private: () },
         TimerWatchdog { _private: () },

@@ -12,8 +12,11 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 /// Version of the wire format. Byte 0 of every decoded frame, in every version, forever; any
-/// change to a message's layout (a new field, a reordered variant) increments it.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// change to a message's layout (a new field, a new or reordered variant) increments it.
+///
+/// * 1: the first link (hello, ping, poses, parameters, commands, states, events, telemetry).
+/// * 2: [`HostMsg::Guide`](super::HostMsg::Guide) (guided writing), appended.
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

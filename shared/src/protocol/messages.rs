@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::frame::{
     check_version, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE, PROTOCOL_VERSION,
 };
-use super::state::{BrushState, PoseSample};
+use super::state::{BrushState, GuideSample, PoseSample};
 use crate::params::{BrushParams, ParamError, ParamId};
 use crate::presets;
 
@@ -48,6 +48,10 @@ pub enum HostMsg {
     SetParam { id: u8, value: f32 },
     /// A command; answered by [`DeviceMsg::CommandDone`].
     Command(Command),
+    /// Guided writing: the stroke's moving point for the next [`HostMsg::Pose`] with the
+    /// same `seq` (sent just before it, one per tick while guiding). Appended in protocol
+    /// version 2: every earlier variant keeps its wire tag.
+    Guide(GuideSample),
 }
 
 /// Device to host.

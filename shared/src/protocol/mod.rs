@@ -41,6 +41,7 @@
 //! | `Hello(`[`HostHello`]`)`: protocol version, host program and version | `Hello(`[`DeviceInfo`]`)`: protocol version, firmware version, board name, [`Capabilities`], force limits (peak, continuous, N) |
 //! | `Ping { seq }` | `Pong { seq }` |
 //! | `Pose(`[`PoseSample`]`)`: the virtual pen, each 1 ms tick | `State(`[`BrushState`]`)`: the brush, about 120 Hz |
+//! | `Guide(`[`GuideSample`]`)`: guided writing's moving point for the pose of the same `seq` (version 2) | |
 //! | `GetParam { id }`, `SetParam { id, value }` | `Param(`[`ParamReply`]`)`: the value in force, or [`ParamRejected`] |
 //! | `Command(`[`Command`]`)`: enable / disable forces, calibrate, dip ink, choose preset, clear faults, reset brush | `CommandDone { command, result }` |
 //! | | `Event(`[`Event`]`)`: fault raised / cleared, forces enabled / disabled, link (re)connected, with the latched [`Faults`] |
@@ -99,6 +100,7 @@
 //! | state, small preset (12 layers), at rest / pressed and dragged | 642 / 702 | 7.7% / 8.4% at 120 Hz |
 //! | state, 24 layers, every value at its longest varint | 3786 | (the bound: [`DEVICE_MSG_MAX`]) |
 //! | pose sample | 43 | 4.3% at 1 kHz |
+//! | guide sample (worst case 45) | 31 | 3.1% at 1 kHz (while guiding) |
 //! | longest host message | 85 | (the bound: [`HOST_MSG_MAX`]) |
 //!
 //! A 512-byte frame limit would not hold one exact state of the large brush (every
@@ -128,8 +130,8 @@ pub use messages::{
     RejectReason, Telemetry, Version, DEVICE_MSG_MAX, HOST_MSG_MAX, NAME_LEN, REASON_LEN,
 };
 pub use state::{
-    vec3_bits, vec3_from_bits, BrushShape, BrushState, Haptics, LayerState, PoseBits, PoseSample,
-    Vec3Bits,
+    vec3_bits, vec3_from_bits, BrushShape, BrushState, GuideSample, Haptics, LayerState, PoseBits,
+    PoseSample, Vec3Bits,
 };
 
 /// The device's receiver: decodes host messages.

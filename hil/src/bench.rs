@@ -36,6 +36,8 @@ pub struct Report {
     pub guided: Option<TickCost>,
     /// `GuideStream::tick` alone, mean and max (instructions).
     pub guide_alone: (u64, u64),
+    /// The same stroke from the same start without guide samples, mean and max.
+    pub unguided: (u64, u64),
     /// Per call of each scalar operation.
     pub ops: BTreeMap<String, f64>,
     pub raw: String,
@@ -78,6 +80,7 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         end_tick: 0,
         guided: None,
         guide_alone: (0, 0),
+        unguided: (0, 0),
         ops: BTreeMap::new(),
         raw: out.to_string(),
     };
@@ -105,6 +108,10 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
             r.guide_alone = (
                 to_instr(num(&m, "guide_alone_mean_counts")?),
                 to_instr(num(&m, "guide_alone_max_counts")?),
+            );
+            r.unguided = (
+                to_instr(num(&m, "unguided_mean_counts")?),
+                to_instr(num(&m, "unguided_max_counts")?),
             );
         } else if rest.starts_with("parts ") {
             r.substep = to_instr(num(&m, "substep_mean_counts")?);
@@ -171,22 +178,20 @@ pub fn render(r: &Report) -> String {
             if t.max <= BUDGET { "yes" } else { "no" }
         );
     }
-    if let (Some(g), Some(t)) = (
-        &r.guided,
-        r.ticks
-            .iter()
-            .find(|t| Some(t.substeps) == r.guided.as_ref().map(|g| g.substeps)),
-    ) {
+    if let Some(g) = &r.guided {
         let _ = writeln!(
             s,
             "guided writing ({} substeps, a guide sample every tick): min {} mean {} max {}; \
-             extra per tick: mean {:+}, max {:+}; GuideStream::tick alone: mean {} max {}",
+             the same stroke unguided from the same start: mean {} max {}; extra per tick: \
+             mean {:+}, max {:+}; GuideStream::tick alone: mean {} max {}",
             g.substeps,
             g.min,
             g.mean,
             g.max,
-            g.mean as i64 - t.mean as i64,
-            g.max as i64 - t.max as i64,
+            r.unguided.0,
+            r.unguided.1,
+            g.mean as i64 - r.unguided.0 as i64,
+            g.max as i64 - r.unguided.1 as i64,
             r.guide_alone.0,
             r.guide_alone.1
         );

@@ -103,6 +103,19 @@ impl Stats {
     }
 }
 
+/// Back to the stroke's start as a new stroke: the brush at rest there, the forces (and the
+/// guide) from zero, and no previous pose, so the jump back from the stroke's end is not a
+/// sensor fault that would switch the forces (and the guide) off for the next run.
+fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
+    fl: &mut ForceLoop<ScriptPen, M, W>,
+) {
+    fl.brush.reset(stroke_pose(0));
+    fl.forces.reset();
+    fl.last_pose = None;
+    super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
+    super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
+}
+
 /// Runs the bench and writes `BENCH ...` lines to `out`. Call with interrupts masked.
 pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     static mut CMDS: CmdQueue = CmdQueue::new();
@@ -146,7 +159,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         {
             continue;
         }
-        fl.brush.reset(stroke_pose(0));
+        restart(&mut fl);
         let mut st = Stats::default();
         let mut contact_max = 0;
         for k in 1..=STROKE_TICKS {
@@ -170,28 +183,33 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         );
     }
 
-    // Guided writing: the same stroke at the preset's substeps with a guide sample every
-    // tick (the moving point 3 mm to the side of the hand and 2 ticks ahead), so the guide
-    // leads from the first tick on; the difference to the unguided line is the guide's cost.
+    // Guided writing: the same stroke at the preset's substeps twice from the same start
+    // (brush and forces reset, the output stage ramped in by the runs above): without guide
+    // samples, then with one every tick (the moving point 3 mm to the side of the hand and 2
+    // ticks ahead, so the guide leads from the first tick on). The difference is the guide's
+    // cost on the force path.
     let _ = fl
         .brush
         .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
-    fl.brush.reset(stroke_pose(0));
-    fl.forces.reset();
     let side = Vec3::from_f64([0.0, 3.0, 0.0]);
+    let mut base = Stats::default();
     let mut st = Stats::default();
     let mut guiding = 0;
-    for k in 1..=STROKE_TICKS {
-        fl.pen.next = Some(stroke_pose(k));
-        fl.pen.guide = Some(GuideInput {
-            anchor: stroke_pose(k + 2).pos + side,
-            on: true,
-        });
-        let a = clk.now();
-        fl.tick();
-        let b = clk.now();
-        st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
-        guiding += fl.forces.guiding() as u32;
+    for guided in [false, true] {
+        restart(&mut fl);
+        for k in 1..=STROKE_TICKS {
+            fl.pen.next = Some(stroke_pose(k));
+            fl.pen.guide = guided.then(|| GuideInput {
+                anchor: stroke_pose(k + 2).pos + side,
+                on: true,
+            });
+            let a = clk.now();
+            fl.tick();
+            let b = clk.now();
+            let stats = if guided { &mut st } else { &mut base };
+            stats.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            guiding += fl.forces.guiding() as u32;
+        }
     }
     // The guide alone (GuideStream::tick with a sample, at full gain after the run above's
     // fade-in), 100 calls.
@@ -215,7 +233,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     }
     let _ = writeln!(
         out,
-        "BENCH guided substeps={} ticks={} guiding_ticks={guiding} min_counts={} mean_counts={} max_counts={} guide_alone_mean_counts={} guide_alone_max_counts={}",
+        "BENCH guided substeps={} ticks={} guiding_ticks={guiding} min_counts={} mean_counts={} max_counts={} guide_alone_mean_counts={} guide_alone_max_counts={} unguided_mean_counts={} unguided_max_counts={}",
         params.substeps_per_tick,
         st.n,
         st.min,
@@ -223,6 +241,8 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         st.max,
         g.mean(),
         g.max,
+        base.mean(),
+        base.max,
     );
     fl.forces.reset();
 

@@ -236,8 +236,9 @@ pub struct GuideInput<S> {
     pub on: bool,
 }
 
-/// Ticks without a guide sample after which a stream fades out on its own, holding the last
-/// point (50 ms: a host that stopped sending, or a link in trouble).
+/// Ticks with a new pose but no guide sample after which a stream fades out on its own,
+/// holding the last point (50 ms of the pen's time: a host that stopped guiding without
+/// saying so; a host that stopped sending altogether is the link watchdog's, which cuts it).
 pub const GUIDE_TIMEOUT_TICKS: u32 = 50;
 
 /// [`Guide`] fed by a stream of samples, one per tick, as the device receives them: the

@@ -28,13 +28,16 @@
 //! records the raw readings there, and from then on
 //! `q_j = inkwell_j + sign_j (counts_j - zero_j) 2 pi / (counts_per_rev_j ratio_j)`.
 
+use serde::{Deserialize, Serialize};
+
 use crate::force::LimitError;
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
 /// Geometry, transmission and sensors of a pen. Defaults: [`PenConfig::OMNI_LIKE`].
-#[derive(Copy, Clone, Debug, PartialEq)]
+/// Serialisable: it is part of the configuration the pen stores ([`crate::pen_io::DeviceConfig`]).
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PenConfig {
     /// Shoulder to elbow (mm).
     pub upper_arm_mm: f32,
@@ -168,8 +171,9 @@ impl EncoderUnwrap {
     }
 }
 
-/// Raw sensor readings: unwrapped encoder counts and gimbal ADC codes.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+/// Raw sensor readings: unwrapped encoder counts and gimbal ADC codes. Serialisable: the
+/// readings at the inkwell are the stored calibration ([`crate::pen_io::DeviceConfig`]).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RawReadings {
     pub encoders: [i64; 3],
     pub gimbal: [i32; 3],

@@ -329,9 +329,7 @@ impl Link {
             self.config_state = ConfigState::NotApplicable;
             self.config = None;
         } else {
-            let mut buf = [0u8; CONFIG_IMAGE_MAX];
-            let n = self.parts.config.load(&mut buf);
-            let loaded = pen_io::decode(buf.get(..n).unwrap_or(&[]));
+            let loaded = self.read_store();
             self.config_state = ConfigState::of(&loaded);
             self.config = loaded.ok();
             match &self.config_state {
@@ -340,9 +338,31 @@ impl Link {
             }
         }
         if let Some(c) = self.config {
-            self.command(Command::Configure(c)).await;
+            critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
+            self.command(Command::Configure).await;
         }
         CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+    }
+
+    /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
+    /// not in the task's future for its lifetime.
+    fn read_store(&mut self) -> Result<DeviceConfig, pen_io::ConfigError> {
+        let mut buf = [0u8; CONFIG_IMAGE_MAX];
+        let n = self.parts.config.load(&mut buf);
+        pen_io::decode(buf.get(..n).unwrap_or(&[]))
+    }
+
+    /// Encodes `cfg` and writes it to the store (as `read_store`, not async).
+    fn write_store(
+        &mut self,
+        cfg: &DeviceConfig,
+    ) -> Result<Result<(), crate::board::StoreError>, ConfigRejected> {
+        let mut buf = [0u8; CONFIG_IMAGE_MAX];
+        let n = pen_io::encode(cfg, &mut buf).map_err(|e| match e {
+            pen_io::ConfigError::Invalid(field) => ConfigRejected::Invalid(field),
+            _ => ConfigRejected::StoreFailed,
+        })?;
+        Ok(self.parts.config.store(buf.get(..n).unwrap_or(&[])))
     }
 
     /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
@@ -368,20 +388,14 @@ impl Link {
     /// Encodes, stores, reads back and decodes `cfg`, then puts it in force. On a failure
     /// the state says what the store now holds.
     async fn write_config(&mut self, cfg: DeviceConfig) -> Result<(), ConfigRejected> {
-        let mut buf = [0u8; CONFIG_IMAGE_MAX];
-        let n = pen_io::encode(&cfg, &mut buf).map_err(|e| match e {
-            pen_io::ConfigError::Invalid(field) => ConfigRejected::Invalid(field),
-            _ => ConfigRejected::StoreFailed,
-        })?;
-        let stored = self.parts.config.store(buf.get(..n).unwrap_or(&[]));
-        let mut back = [0u8; CONFIG_IMAGE_MAX];
-        let m = self.parts.config.load(&mut back);
-        let loaded = pen_io::decode(back.get(..m).unwrap_or(&[]));
+        let stored = self.write_store(&cfg)?;
+        let loaded = self.read_store();
         let ok = stored.is_ok() && loaded.as_ref() == Ok(&cfg);
         self.config_state = ConfigState::of(&loaded);
         self.config = loaded.ok();
         if let Some(c) = self.config {
-            self.command(Command::Configure(c)).await;
+            critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
+            self.command(Command::Configure).await;
         }
         CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
         if ok {

@@ -292,7 +292,8 @@ fn damaged_images_start_safe_and_say_why() {
     let crc = crc32(&other_version[..n]);
     other_version[n..].copy_from_slice(&crc.to_le_bytes());
 
-    let cases: [(&str, Vec<u8>, fn(&ConfigState) -> bool); 4] = [
+    type Expect = fn(&ConfigState) -> bool;
+    let cases: [(&str, Vec<u8>, Expect); 4] = [
         ("corrupt byte", corrupt, |c| {
             matches!(c, ConfigState::Corrupt(ConfigError::CrcMismatch { .. }))
         }),

@@ -11,7 +11,7 @@ use hil::run::run_session;
 use maobi::poses::PoseTrack;
 use maobi_shared::protocol::{
     encode_raw, BrushState, Capabilities, DeviceInfo, DeviceMsg, DeviceRx, HostMsg, Message,
-    Version, DEVICE_MSG_MAX, DEVICE_TO_HOST,
+    Version, DEVICE_MSG_MAX, DEVICE_TO_HOST, PROTOCOL_VERSION,
 };
 use maobi_shared::{presets, Brush, Fx};
 use serialport::{SerialPort, TTYPort};
@@ -106,12 +106,13 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         return;
     };
     let t = std::thread::spawn(move || {
-        // Whatever the host sends, answer with a frame of protocol version 2.
+        // Whatever the host sends, answer with a frame of the next protocol version.
         let mut buf = [0u8; 64];
         dev.set_timeout(Duration::from_millis(500)).unwrap();
         let _ = dev.read(&mut buf);
         let mut out = [0u8; 64];
-        let n = encode_raw(&[2, DEVICE_TO_HOST, 0], DEVICE_MSG_MAX, &mut out).unwrap();
+        let next = PROTOCOL_VERSION + 1;
+        let n = encode_raw(&[next, DEVICE_TO_HOST, 0], DEVICE_MSG_MAX, &mut out).unwrap();
         dev.write_all(&out[..n]).unwrap();
         std::thread::sleep(Duration::from_secs(2));
     });
@@ -120,9 +121,10 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         .handshake(Duration::from_secs(5), &mut vec![])
         .unwrap_err()
         .to_string();
-    assert!(
-        err.contains("protocol version 2") && err.contains("this host 1"),
-        "{err}"
+    let (theirs, ours) = (
+        format!("protocol version {}", PROTOCOL_VERSION + 1),
+        format!("this host {PROTOCOL_VERSION}"),
     );
+    assert!(err.contains(&theirs) && err.contains(&ours), "{err}");
     t.join().unwrap();
 }

@@ -17,7 +17,9 @@ use maobi::raster::{Canvas, Frame};
 use maobi::render::Inker;
 use maobi_shared::params::MAX_LAYERS;
 use maobi_shared::presets;
-use maobi_shared::protocol::{encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST};
+use maobi_shared::protocol::{
+    encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST, PROTOCOL_VERSION,
+};
 
 fn length() -> f64 {
     presets::by_name("large").unwrap().length_mm as f64
@@ -125,7 +127,7 @@ fn handshake_then_poses_in_states_out_and_ink() {
     dev.connect().expect("connects");
     let s = dev.status();
     assert!(s.connected);
-    assert_eq!(s.protocol_version, Some(1));
+    assert_eq!(s.protocol_version, Some(u32::from(PROTOCOL_VERSION)));
     assert!(
         s.firmware_version
             .as_deref()
@@ -306,8 +308,8 @@ fn version_mismatch_is_a_clear_error() {
             let Ok(mut s) = stream else { break };
             let mut buf = [0u8; 512];
             let _ = s.read(&mut buf);
-            // A frame of protocol version 2: version byte, direction, some message.
-            let content = [2u8, DEVICE_TO_HOST, 0, 2, 0, 0];
+            // A frame of the next protocol version: version byte, direction, some message.
+            let content = [PROTOCOL_VERSION + 1, DEVICE_TO_HOST, 0, 2, 0, 0];
             let mut out = [0u8; 64];
             let n = encode_raw(&content, content.len() + CRC_LEN, &mut out).unwrap();
             let _ = s.write_all(&out[..n]);
@@ -315,10 +317,13 @@ fn version_mismatch_is_a_clear_error() {
         }
     });
     let mut dev = link(Endpoint::Tcp(addr));
-    let err = dev.connect().expect_err("a version-2 device is refused");
+    let err = dev
+        .connect()
+        .expect_err("a device of another version is refused");
     let msg = err.to_string();
     assert!(msg.contains("protocol version mismatch"), "{msg}");
-    assert!(msg.contains("peer speaks 2"), "{msg}");
+    let theirs = format!("peer speaks {}", PROTOCOL_VERSION + 1);
+    assert!(msg.contains(&theirs), "{msg}");
     let s = dev.status();
     assert!(!s.connected);
     let l = s.link.unwrap();

@@ -79,6 +79,10 @@ pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
 /// calibrated configuration, or none needed). Off at boot until the link task has loaded the
 /// store: the pen starts safe. The force loop drives the motors only while it is set.
 pub static CONFIG_OK: AtomicBool = AtomicBool::new(false);
+/// The configuration in force, for [`Command::Configure`]: written by the link task before
+/// it sends the command, read by the force loop when it applies it.
+pub static CONFIG: critical_section::Mutex<core::cell::Cell<DeviceConfig>> =
+    critical_section::Mutex::new(core::cell::Cell::new(DeviceConfig::DEFAULT));
 /// Raw sensor readings for bring-up: the link task requests, the force loop fills it at the
 /// next tick from [`PoseSource::raw_sensors`] (`None`: the board cannot tell).
 pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
@@ -165,9 +169,11 @@ pub enum Command {
     SetParams(BrushParams),
     /// Wet every layer (`Brush::dip`).
     Dip(Fx),
-    /// A new stored configuration is in force: the pen and the motors take it (sent by the
-    /// link task at boot and after a write, with forces off).
-    Configure(DeviceConfig),
+    /// A new stored configuration is in force: the pen and the motors take it from
+    /// [`CONFIG`] (sent by the link task at boot and after a write, with forces off). The
+    /// configuration travels through that slot, not in the command, so that every queued
+    /// command does not grow to its ~270 bytes.
+    Configure,
     /// Drive one motor with `torque_nm` for `ticks` ticks while forces are off (bring-up);
     /// the motors are off again afterwards. Checked by the link task (caps, forces off,
     /// configuration); cancelled by `EnableForces` and by any fault.
@@ -416,7 +422,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 }
             }
             Command::Dip(w) => self.brush.dip(w),
-            Command::Configure(cfg) => {
+            Command::Configure => {
+                let cfg = critical_section::with(|cs| CONFIG.borrow(cs).get());
                 self.motors.disable();
                 self.pen.configure(&cfg);
                 self.motors.configure(&cfg);

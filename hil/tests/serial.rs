@@ -111,12 +111,8 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         dev.set_timeout(Duration::from_millis(500)).unwrap();
         let _ = dev.read(&mut buf);
         let mut out = [0u8; 64];
-        let n = encode_raw(
-            &[PROTOCOL_VERSION + 1, DEVICE_TO_HOST, 0],
-            DEVICE_MSG_MAX,
-            &mut out,
-        )
-        .unwrap();
+        let next = PROTOCOL_VERSION + 1;
+        let n = encode_raw(&[next, DEVICE_TO_HOST, 0], DEVICE_MSG_MAX, &mut out).unwrap();
         dev.write_all(&out[..n]).unwrap();
         std::thread::sleep(Duration::from_secs(2));
     });
@@ -125,10 +121,10 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         .handshake(Duration::from_secs(5), &mut vec![])
         .unwrap_err()
         .to_string();
-    assert!(
-        err.contains(&format!("protocol version {}", PROTOCOL_VERSION + 1))
-            && err.contains(&format!("this host {PROTOCOL_VERSION}")),
-        "{err}"
+    let (theirs, ours) = (
+        format!("protocol version {}", PROTOCOL_VERSION + 1),
+        format!("this host {PROTOCOL_VERSION}"),
     );
+    assert!(err.contains(&theirs) && err.contains(&ours), "{err}");
     t.join().unwrap();
 }

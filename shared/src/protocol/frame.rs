@@ -16,7 +16,10 @@ use serde::{Deserialize, Serialize};
 ///
 /// * 1: the first link (hello, ping, poses, parameters, commands, states, events, telemetry).
 /// * 2: [`HostMsg::Guide`](super::HostMsg::Guide) (guided writing), appended.
-pub const PROTOCOL_VERSION: u8 = 2;
+/// * 3: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
+///   `SetConfig`, `DeviceMsg::Config` / `Sensors`, `Command::StreamSensors` / `NudgeMotor`,
+///   four `CommandError`s, `Capabilities::STORED_CONFIG`; host frames up to 512 bytes.
+pub const PROTOCOL_VERSION: u8 = 3;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

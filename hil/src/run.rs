@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use maobi::poses::PoseTrack;
 use maobi_shared::presets;
+use maobi_shared::protocol::Capabilities;
 
 use crate::link::{self, Session, StreamLog, StreamOptions, Transport};
 use crate::qemu::{free_port, Clock, Guest, Run};
@@ -137,6 +138,24 @@ pub fn run_session<T: Transport>(
             info.force_continuous_n
         ),
     }];
+    if !info.capabilities.contains(Capabilities::VIRTUAL_PEN) {
+        // A pen that reads its own sensors ignores host poses: the stream would only stall.
+        checks.push(Check {
+            name: "device takes poses from the host".into(),
+            pass: false,
+            detail: format!(
+                "capabilities {}: this firmware reads the pen's own sensors; the pose-file \
+                 checks need a build that takes the pose from the host (VIRTUAL_PEN)",
+                info.capabilities
+            ),
+        });
+        return Ok(RunReport {
+            figures: link::Figures::default(),
+            checks,
+            round_trip: vec![],
+            log,
+        });
+    }
     let mut round_trip = vec![];
     for seq in 0..5 {
         round_trip.push(s.ping(seq, Duration::from_secs(5), &mut log.received)?);

@@ -795,6 +795,10 @@ fn step_nudges(
     virtual_pen: bool,
     streaming: bool,
 ) {
+    // Nudges are refused while forces are on (and the arm should be still anyway).
+    if streaming {
+        let _ = wire.command(Command::DisableForces, opts.reply_timeout);
+    }
     for (ch, joint) in ARM_JOINTS.iter().enumerate() {
         let step = format!("3 motor {ch} ({joint})");
         if !streaming {
@@ -968,5 +972,66 @@ fn step_calibrate(
             format!("reading the configuration back: {why}"),
         ),
         Err(e) => report.push(step, Outcome::Fail, e),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_virtual_motion_moves_every_axis_in_small_steps_and_comes_back() {
+        let start = Pose::new(Vec3::new(10.0, -20.0, 30.0), Quat::IDENTITY);
+        let m = virtual_motion(start);
+        let mut reach = [0.0f64; 6];
+        for w in m.windows(2) {
+            // Far below the firmware's 10 mm sensor-jump limit.
+            assert!((w[1].pos - w[0].pos).norm() <= 0.25 + 1e-9);
+        }
+        for p in &m {
+            let d = p.pos - start.pos;
+            for (i, v) in [d.x, d.y, d.z].into_iter().enumerate() {
+                reach[i] = reach[i].max(v);
+            }
+            // The rotation's vector part is sin(angle / 2) times the axis.
+            for (i, v) in [p.rot.x, p.rot.y, p.rot.z].into_iter().enumerate() {
+                reach[3 + i] = reach[3 + i].max(v);
+            }
+        }
+        for r in &reach[..3] {
+            assert!((r - 15.0).abs() < 1e-9, "{reach:?}");
+        }
+        for r in &reach[3..] {
+            assert!((r - (7.5f64).to_radians().sin()).abs() < 1e-9, "{reach:?}");
+        }
+        let last = m.last().unwrap();
+        assert!((last.pos - start.pos).norm() < 1e-9);
+        assert!((last.rot.w - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_excursion_keeps_the_sign_of_the_largest_move() {
+        let mut e = Excursion::default();
+        for v in [100, 110, 95, 40, 90] {
+            e.add(v);
+        }
+        assert_eq!(e.largest, -60);
+        assert_eq!(sign(e.largest), "-");
+    }
+
+    #[test]
+    fn the_summary_fails_on_any_fail_and_not_on_skips() {
+        let mut r = CheckReport::default();
+        assert!(!r.passed(), "an empty check is no pass");
+        r.push("1 handshake", Outcome::Pass, "ok");
+        r.push("3 motor 0", Outcome::Skip, "declined");
+        assert!(r.passed());
+        r.push("4 calibration", Outcome::Fail, "refused");
+        assert!(!r.passed());
+        let t = r.table();
+        assert!(
+            t.lines().nth(3).unwrap().starts_with("4 calibration  FAIL"),
+            "{t}"
+        );
     }
 }

@@ -5,6 +5,8 @@
 //! address, interrupt number and linker-script detail. A second board plugs in by
 //! implementing the same traits and adding a `board-*` feature (see `build.rs`).
 
+use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Fx, Pose};
 
 /// The three motor channels of the pen.
@@ -18,6 +20,10 @@ pub trait Motors {
     fn disable(&mut self);
     /// The last command actually applied (zero while disabled): reported in state frames.
     fn applied(&self) -> [Fx; 3];
+    /// A new stored configuration is in force (at boot and after `SetConfig` / `Calibrate`,
+    /// always with the motors disabled): a physical board takes its drive settings
+    /// (`DeviceConfig::drive`) and the torque-to-command scale (`DeviceConfig::pen`) from it.
+    fn configure(&mut self, cfg: &DeviceConfig);
 }
 
 /// One raw reading of the pen's joints: encoder counts of the three motor joints and the
@@ -50,6 +56,44 @@ pub trait PoseSource {
     }
     /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
     fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];
+    /// A new stored configuration is in force (geometry, calibration): a physical pen
+    /// rebuilds its kinematics from it. Called by the force loop between ticks.
+    fn configure(&mut self, cfg: &DeviceConfig);
+    /// The raw readings behind the latest pose, for bring-up ([`SensorReport`]: unwrapped
+    /// encoder counts, filtered gimbal codes, buttons), at force-loop tick `tick`. Called by
+    /// the force loop only when the link task asked for one; `None` when the board cannot
+    /// tell.
+    fn raw_sensors(&mut self, tick: u32) -> Option<SensorReport>;
+}
+
+/// Why the configuration could not be stored.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum StoreError {
+    /// The image does not fit the store.
+    TooLarge,
+    /// Erasing or programming failed (flash; the QEMU board's RAM cannot fail to write).
+    #[allow(dead_code)] // constructed by flash-backed boards
+    Write,
+    /// What reads back differs from what was written.
+    Verify,
+}
+
+/// Where the pen keeps its configuration image (`maobi_shared::pen_io::encode` /
+/// `decode`): a flash page on a physical board, a RAM region the host preloads under QEMU.
+/// Used by the link task only (thread mode), never by the force loop.
+pub trait ConfigStore {
+    /// Copies the stored bytes (at most `buf.len()`) into `buf`; returns how many. Erased
+    /// flash is copied as it is (`0xFF`): `decode` tells.
+    fn load(&mut self, buf: &mut [u8]) -> usize;
+    /// Replaces the stored image with `image` (erase, program, verify).
+    fn store(&mut self, image: &[u8]) -> Result<(), StoreError>;
+    /// Whether this pen needs a valid configuration to render forces. A physical pen always
+    /// does; the QEMU board's virtual pen only once an image was loaded into (or written to)
+    /// its store, so that a run without one behaves as before
+    /// (`ConfigState::NotApplicable`).
+    fn needs_config(&self) -> bool {
+        true
+    }
 }
 
 /// The byte-stream link to the host, non-blocking on both sides: the force loop never

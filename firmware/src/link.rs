@@ -15,6 +15,19 @@
 //!   finds the transmit ring full is dropped and counted (`Telemetry::frames_dropped`).
 //! * Commands and parameters are validated here and handed to the force loop as
 //!   [`app::Command`]s; every one is answered.
+//! * The stored configuration ([`ConfigStore`]): loaded and decoded when the task starts;
+//!   the handshake reports its [`ConfigState`]. Until it allows forces (valid and
+//!   calibrated, or none needed: QEMU without an image) [`app::CONFIG_OK`] stays off, so
+//!   the force loop never drives the motors, and `EnableForces` / `NudgeMotor` are refused
+//!   with `ConfigNotValid`. `SetConfig` is refused while forces are enabled, validated
+//!   whole before anything is written, written, read back and decoded, and only then put in
+//!   force (`app::Command::Configure`). `Calibrate` records one raw reading (the pen resting
+//!   in its inkwell) into the configuration and stores it the same way.
+//! * Bring-up: `StreamSensors` asks the force loop for raw readings
+//!   ([`app::SENSORS`]) every `1000 / rate_hz` ticks and sends them as `Sensors` (dropped and
+//!   counted when the link is busy); `NudgeMotor` hands the force loop a capped torque for a
+//!   number of ticks ([`app::Command::Nudge`]), shown in the state frames' applied motor
+//!   commands, motors off afterwards.
 //! * Events: faults raised and cleared, forces enabled and disabled, link connected and
 //!   reconnected (with the silence and the faults latched meanwhile, re-sent because the
 //!   originals went nowhere). Telemetry every `telemetry_ticks` ticks.
@@ -26,15 +39,17 @@ use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
 use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::kinematics::RawReadings;
+use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message,
-    ParamRejected, ParamReply, Telemetry, Version,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, Nudge,
+    ParamRejected, ParamReply, SensorReport, Telemetry, Version, SENSOR_RATE_MAX_HZ,
 };
 use maobi_shared::{BrushParams, Fx, Pose, Vec3};
 
-use crate::app::{self, Command, FAULTS, FORCES_ENABLED, SNAPSHOT, TICKS};
-use crate::board::LinkTransport;
+use crate::app::{self, Command, CONFIG_OK, FAULTS, FORCES_ENABLED, SENSORS, SNAPSHOT, TICKS};
+use crate::board::{ConfigStore, LinkTransport};
 use crate::qemu::Parts;
 
 /// The board's name in the handshake.
@@ -76,6 +91,13 @@ struct Link {
     next_telemetry: u32,
     /// Commands queued for the force loop so far.
     cmds_sent: u32,
+    /// What the store held at start, or the last write.
+    config_state: ConfigState,
+    /// The configuration in force (`Valid` only).
+    config: Option<DeviceConfig>,
+    /// Sensor reports every this many ticks (0: not streaming), next at `next_sensors`.
+    sensors_every: u32,
+    next_sensors: u32,
 }
 
 #[embassy_executor::task]
@@ -97,11 +119,17 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
         silence_reported: false,
         next_telemetry: cfg.telemetry_ticks,
         cmds_sent: 0,
+        config_state: ConfigState::NotApplicable,
+        config: None,
+        sensors_every: 0,
+        next_sensors: 0,
     };
+    link.load_config().await;
     link.parts.uart.write(&[maobi_shared::protocol::DELIMITER]);
     loop {
         link.receive().await;
         link.send_state();
+        link.sensors();
         link.events().await;
         link.telemetry().await;
         link.wait().await;
@@ -117,7 +145,7 @@ impl Link {
         let mut readable = pin!(self.parts.uart.readable());
         poll_fn(|cx| {
             app::SNAPSHOT_WAKER.register(cx.waker());
-            if SNAPSHOT.is_full() {
+            if SNAPSHOT.is_full() || SENSORS.is_full() {
                 return Poll::Ready(());
             }
             if !blocked && readable.as_mut().poll(cx).is_ready() {
@@ -191,10 +219,13 @@ impl Link {
                     firmware_version(),
                     // Forces are computed and reported in state frames; the QEMU board drives
                     // no motor.
-                    Capabilities::VIRTUAL_PEN | Capabilities::FORCE_OUTPUT,
+                    Capabilities::VIRTUAL_PEN
+                        | Capabilities::FORCE_OUTPUT
+                        | Capabilities::STORED_CONFIG,
                     PHANTOM_OMNI.peak_n,
                     PHANTOM_OMNI.continuous_n,
-                );
+                )
+                .with_config(self.config_state.clone());
                 self.send(&DeviceMsg::Hello(info)).await;
                 self.command(Command::Reanchor).await;
                 app::LINK_ARMED.store(true, Ordering::SeqCst);
@@ -238,9 +269,14 @@ impl Link {
                 self.send(&DeviceMsg::CommandDone { command: c, result })
                     .await;
             }
-            // No configuration store on this board yet.
-            HostMsg::GetConfig | HostMsg::SetConfig(_) => {
-                let reply = Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
+            HostMsg::GetConfig => {
+                let reply = self
+                    .config
+                    .ok_or_else(|| ConfigRejected::NotStored(self.config_state.clone()));
+                self.send(&DeviceMsg::Config(reply)).await;
+            }
+            HostMsg::SetConfig(cfg) => {
+                let reply = self.set_config(cfg).await;
                 self.send(&DeviceMsg::Config(reply)).await;
             }
         }
@@ -255,10 +291,12 @@ impl Link {
             Wire::EnableForces if faults != 0 => {
                 return Err(CommandError::FaultsLatched(faults_of(faults)))
             }
+            Wire::EnableForces if !self.config_allows_forces() => {
+                return Err(CommandError::ConfigNotValid)
+            }
             Wire::EnableForces => Command::EnableForces,
             Wire::DisableForces => Command::DisableForces,
-            // The virtual pen has no sensors to zero.
-            Wire::Calibrate => return Err(CommandError::Unsupported),
+            Wire::Calibrate => return self.calibrate().await,
             Wire::DipInk { wetness } => Command::Dip(Fx::from_bits(*wetness)),
             Wire::ChoosePreset(p) => {
                 let params = p.resolve().ok_or(CommandError::UnknownPreset)?;
@@ -268,13 +306,172 @@ impl Link {
             Wire::ClearFaults => Command::ClearFaults,
             Wire::ResetBrush => Command::ResetBrush,
             Wire::InjectOverrun => Command::InjectOverrun,
-            // No sensors and no motors to nudge on the virtual pen yet.
-            Wire::StreamSensors { .. } | Wire::NudgeMotor(_) => {
-                return Err(CommandError::Unsupported)
+            Wire::StreamSensors { rate_hz } => {
+                if *rate_hz > SENSOR_RATE_MAX_HZ {
+                    return Err(CommandError::OutOfRange);
+                }
+                self.sensors_every = match *rate_hz {
+                    0 => 0,
+                    hz => (1000 / u32::from(hz)).max(1),
+                };
+                self.next_sensors = TICKS.load(Ordering::Relaxed);
+                return Ok(());
             }
+            Wire::NudgeMotor(n) => self.nudge(n, faults)?,
         };
         self.command(cmd).await;
         Ok(())
+    }
+
+    /// Reads the store and puts what it holds in force (at start).
+    async fn load_config(&mut self) {
+        if !self.parts.config.needs_config() {
+            self.config_state = ConfigState::NotApplicable;
+            self.config = None;
+        } else {
+            let mut buf = [0u8; CONFIG_IMAGE_MAX];
+            let n = self.parts.config.load(&mut buf);
+            let loaded = pen_io::decode(buf.get(..n).unwrap_or(&[]));
+            self.config_state = ConfigState::of(&loaded);
+            self.config = loaded.ok();
+            match &self.config_state {
+                ConfigState::Valid => defmt::info!("configuration valid"),
+                _ => defmt::warn!("no valid configuration: forces refused"),
+            }
+        }
+        if let Some(c) = self.config {
+            self.command(Command::Configure(c)).await;
+        }
+        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+    }
+
+    /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
+    fn config_allows_forces(&self) -> bool {
+        match self.config_state {
+            ConfigState::NotApplicable => true,
+            ConfigState::Valid => self.config.is_some_and(|c| c.calibration.is_some()),
+            ConfigState::Missing | ConfigState::Corrupt(_) => false,
+        }
+    }
+
+    /// `SetConfig`: refuse while forces are on, validate all of it, then write.
+    async fn set_config(&mut self, cfg: DeviceConfig) -> Result<DeviceConfig, ConfigRejected> {
+        self.settle().await;
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(ConfigRejected::ForcesEnabled);
+        }
+        cfg.validate().map_err(ConfigRejected::Invalid)?;
+        self.write_config(cfg).await?;
+        Ok(cfg)
+    }
+
+    /// Encodes, stores, reads back and decodes `cfg`, then puts it in force. On a failure
+    /// the state says what the store now holds.
+    async fn write_config(&mut self, cfg: DeviceConfig) -> Result<(), ConfigRejected> {
+        let mut buf = [0u8; CONFIG_IMAGE_MAX];
+        let n = pen_io::encode(&cfg, &mut buf).map_err(|e| match e {
+            pen_io::ConfigError::Invalid(field) => ConfigRejected::Invalid(field),
+            _ => ConfigRejected::StoreFailed,
+        })?;
+        let stored = self.parts.config.store(buf.get(..n).unwrap_or(&[]));
+        let mut back = [0u8; CONFIG_IMAGE_MAX];
+        let m = self.parts.config.load(&mut back);
+        let loaded = pen_io::decode(back.get(..m).unwrap_or(&[]));
+        let ok = stored.is_ok() && loaded.as_ref() == Ok(&cfg);
+        self.config_state = ConfigState::of(&loaded);
+        self.config = loaded.ok();
+        if let Some(c) = self.config {
+            self.command(Command::Configure(c)).await;
+        }
+        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+        if ok {
+            Ok(())
+        } else {
+            defmt::error!("configuration store failed");
+            Err(ConfigRejected::StoreFailed)
+        }
+    }
+
+    /// `Calibrate`: the pen rests in its inkwell; its raw readings become the stored zeros.
+    async fn calibrate(&mut self) -> Result<(), CommandError> {
+        if !self.parts.config.needs_config() {
+            // A virtual pen without a stored configuration has nothing to calibrate.
+            return Err(CommandError::Unsupported);
+        }
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(CommandError::ForcesEnabled);
+        }
+        let Some(mut cfg) = self.config else {
+            return Err(CommandError::ConfigNotValid);
+        };
+        // No reading: the virtual pen's pose is outside the configured pen's workspace.
+        let r = self
+            .sample_sensors()
+            .await
+            .ok_or(CommandError::OutOfRange)?;
+        cfg.calibration = Some(RawReadings {
+            encoders: r.encoders,
+            gimbal: r.gimbal.map(i32::from),
+        });
+        self.write_config(cfg)
+            .await
+            .map_err(|_| CommandError::StoreFailed)
+    }
+
+    /// One raw reading from the force loop (within 100 ticks), if the board can tell.
+    async fn sample_sensors(&mut self) -> Option<SensorReport> {
+        let _ = SENSORS.take(|_| ()); // a stale stream report
+        SENSORS.request();
+        for _ in 0..200 {
+            if let Some(r) = SENSORS.take(|s| s.clone()) {
+                return r;
+            }
+            Timer::after_micros(u64::from(self.cfg.tick_us / 2).max(100)).await;
+        }
+        None
+    }
+
+    /// `NudgeMotor`: checked against the caps and the pen's state, as a torque for the
+    /// force loop (the fraction of the channel's full torque, ratio x k_t x I_max).
+    fn nudge(&self, n: &Nudge, faults: u32) -> Result<Command, CommandError> {
+        if !n.is_within_caps() {
+            return Err(CommandError::OutOfRange);
+        }
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(CommandError::ForcesEnabled);
+        }
+        if faults != 0 {
+            return Err(CommandError::FaultsLatched(faults_of(faults)));
+        }
+        if !self.config_allows_forces() {
+            return Err(CommandError::ConfigNotValid);
+        }
+        let pen = self.config.unwrap_or(DeviceConfig::DEFAULT).pen;
+        let channel = usize::from(n.channel);
+        let full = [0, 1, 2].map(|j| pen.ratio[j] * pen.torque_constant[j] * pen.max_current[j]);
+        let full = full.get(channel).copied().unwrap_or(0.0);
+        let torque = f32::from(n.command_permille) / 1000.0 * full;
+        Ok(Command::Nudge {
+            channel,
+            torque_nm: <Fx as maobi_shared::Scalar>::from_f32(torque),
+            ticks: u32::from(n.duration_ms),
+        })
+    }
+
+    /// A sensor report from the force loop, if one is waiting; asks for the next when due.
+    fn sensors(&mut self) {
+        if let Some(Some(report)) = SENSORS.take(|s| s.clone()) {
+            if !self.try_send(&DeviceMsg::Sensors(report)) {
+                self.frames_dropped = self.frames_dropped.saturating_add(1);
+            }
+        }
+        if self.sensors_every == 0 {
+            return;
+        }
+        let now = TICKS.load(Ordering::Relaxed);
+        if (now.wrapping_sub(self.next_sensors) as i32) >= 0 && SENSORS.request() {
+            self.next_sensors = now.wrapping_add(self.sensors_every);
+        }
     }
 
     /// Queues a command for the force loop, waiting for room.

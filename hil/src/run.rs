@@ -24,12 +24,24 @@ impl QemuDevice {
     /// Starts QEMU (`-icount shift=0,sleep=off`, the force loop paced at
     /// [`EMULATED_TICK_US`]) with `extra` boot arguments, and connects to its UART0.
     pub fn start(elf: &Path, extra: &[&str], timeout: Duration) -> Result<(Self, TcpStream)> {
+        Self::start_with(elf, extra, &[], timeout)
+    }
+
+    /// As [`Self::start`], with further QEMU arguments (`qemu_args`, e.g.
+    /// [`crate::qemu::config_loader_args`]).
+    pub fn start_with(
+        elf: &Path,
+        extra: &[&str],
+        qemu_args: &[String],
+        timeout: Duration,
+    ) -> Result<(Self, TcpStream)> {
         let port = free_port()?;
         let tick = format!("tick_us={EMULATED_TICK_US}");
         let mut args = vec!["run", tick.as_str()];
         args.extend_from_slice(extra);
         let mut run = Run::new(elf, &args, Clock::Deterministic { shift: 0 }, timeout);
         run.uart_port = Some(port);
+        run.qemu_args = qemu_args.to_vec();
         let guest = run.spawn()?;
         let mut dev = QemuDevice { guest, port };
         let stream = dev.connect(Duration::from_secs(20))?;

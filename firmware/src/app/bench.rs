@@ -52,6 +52,11 @@ impl PoseSource for ScriptPen {
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
         f
     }
+    // The bench measures the force loop, not bring-up: no configuration, no sensors.
+    fn configure(&mut self, _cfg: &maobi_shared::pen_io::DeviceConfig) {}
+    fn raw_sensors(&mut self, _tick: u32) -> Option<maobi_shared::protocol::SensorReport> {
+        None
+    }
 }
 
 struct NullMotors([Fx; 3]);
@@ -65,6 +70,7 @@ impl Motors for NullMotors {
     fn applied(&self) -> [Fx; 3] {
         self.0
     }
+    fn configure(&mut self, _cfg: &maobi_shared::pen_io::DeviceConfig) {}
 }
 
 struct NullWatchdog;

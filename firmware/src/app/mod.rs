@@ -24,6 +24,8 @@ pub mod mailbox;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
+use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{Motors, PoseSource, Watchdog};
@@ -73,6 +75,13 @@ pub static STATES_MISSED: AtomicU32 = AtomicU32::new(0);
 pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
+/// The stored configuration lets the motors be driven (set by the link task: a valid,
+/// calibrated configuration, or none needed). Off at boot until the link task has loaded the
+/// store: the pen starts safe. The force loop drives the motors only while it is set.
+pub static CONFIG_OK: AtomicBool = AtomicBool::new(false);
+/// Raw sensor readings for bring-up: the link task requests, the force loop fills it at the
+/// next tick from [`PoseSource::raw_sensors`] (`None`: the board cannot tell).
+pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
 
 /// Latches fault bits (any context) and notes the tick of the newly raised ones.
 pub fn latch(bits: u32) {
@@ -156,6 +165,17 @@ pub enum Command {
     SetParams(BrushParams),
     /// Wet every layer (`Brush::dip`).
     Dip(Fx),
+    /// A new stored configuration is in force: the pen and the motors take it (sent by the
+    /// link task at boot and after a write, with forces off).
+    Configure(DeviceConfig),
+    /// Drive one motor with `torque_nm` for `ticks` ticks while forces are off (bring-up);
+    /// the motors are off again afterwards. Checked by the link task (caps, forces off,
+    /// configuration); cancelled by `EnableForces` and by any fault.
+    Nudge {
+        channel: usize,
+        torque_nm: Fx,
+        ticks: u32,
+    },
 }
 
 /// Capacity of the virtual pen's pose queue and of the command queue.
@@ -230,6 +250,8 @@ pub struct ForceLoop<P, M, W> {
     force: [Fx; 3],
     enabled: bool,
     jump2: Fx,
+    /// A bring-up nudge in progress: the torques and the ticks left.
+    nudge: Option<([Fx; 3], u32)>,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
@@ -257,6 +279,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             force: [Fx::ZERO; 3],
             enabled: false,
             jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
+            nudge: None,
         })
     }
 
@@ -304,9 +327,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             latch(fault::LINK_SILENT);
         }
 
-        // Any latched fault switches the forces off: the host must clear it and enable again.
-        if FAULTS.load(Ordering::SeqCst) != 0 {
+        // Any latched fault switches the forces off (and ends a nudge): the host must clear it
+        // and enable again. So does a configuration that does not allow forces.
+        if FAULTS.load(Ordering::SeqCst) != 0 || !CONFIG_OK.load(Ordering::SeqCst) {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
+            if FAULTS.load(Ordering::SeqCst) != 0 {
+                self.nudge = None;
+            }
         }
         let allowed = FORCES_ENABLED.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
@@ -316,6 +343,10 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         self.apply_outputs(allowed, cmd);
         self.enabled = allowed;
 
+        if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
+            SNAPSHOT_WAKER.wake();
+        }
+
         let due = state_due(now, STATE_HZ.load(Ordering::Relaxed));
         if SNAPSHOT.offer(due, |s| self.snapshot(now, s)) {
             SNAPSHOT_WAKER.wake();
@@ -324,11 +355,16 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
     }
 
-    /// Motors on only while the host has enabled them and no fault is latched.
+    /// Motors on only while the host has enabled them and no fault is latched, or for a
+    /// bring-up nudge (forces off) until it runs out.
     fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
         if allowed {
+            self.nudge = None;
             let t = self.pen.torques_for(cmd);
             self.motors.command(t);
+        } else if let Some((torque, left)) = self.nudge {
+            self.motors.command(torque);
+            self.nudge = left.checked_sub(1).filter(|&l| l > 0).map(|l| (torque, l));
         } else {
             self.motors.disable();
         }
@@ -336,6 +372,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
 
     /// Turns the motors off now (called by the board when it detects an overrun).
     pub fn motors_off(&mut self) {
+        self.nudge = None;
         self.motors.disable();
         FORCES_ENABLED.store(false, Ordering::SeqCst);
     }
@@ -351,7 +388,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             }
             Command::Reanchor => self.reanchor = true,
             Command::EnableForces => {
-                if FAULTS.load(Ordering::SeqCst) == 0 {
+                if FAULTS.load(Ordering::SeqCst) == 0 && CONFIG_OK.load(Ordering::SeqCst) {
                     FORCES_ENABLED.store(true, Ordering::SeqCst);
                 }
             }
@@ -379,6 +416,24 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 }
             }
             Command::Dip(w) => self.brush.dip(w),
+            Command::Configure(cfg) => {
+                self.motors.disable();
+                self.pen.configure(&cfg);
+                self.motors.configure(&cfg);
+            }
+            Command::Nudge {
+                channel,
+                torque_nm,
+                ticks,
+            } => {
+                let mut torque = [Fx::ZERO; 3];
+                if let Some(t) = torque.get_mut(channel) {
+                    *t = torque_nm;
+                }
+                if !FORCES_ENABLED.load(Ordering::SeqCst) && ticks > 0 {
+                    self.nudge = Some((torque, ticks));
+                }
+            }
         }
     }
 

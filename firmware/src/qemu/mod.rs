@@ -10,10 +10,15 @@
 //!
 //! The pen is virtual: its poses come from the host's PoseSamples through a queue
 //! ([`VirtualPen`]); the motor commands are not sent anywhere but reported back in the
-//! state frames ([`ReportedMotors`]). Output and exit go through semihosting (enable it
+//! state frames ([`ReportedMotors`]). Its raw sensor readings (bring-up's
+//! `StreamSensors`) are synthesised from the latest pose through the reference pen's
+//! inverse kinematics ([`VirtualPen`]). The configuration store is a RAM region the host
+//! can preload with QEMU's generic loader at [`config_store::CONFIG_REGION`]
+//! (`-device loader,file=cfg.bin,addr=0x21000000`; see [`config_store`]). Output and exit go through semihosting (enable it
 //! with `-semihosting-config enable=on,target=native`): text on the host's stdout, defmt
 //! frames on stderr (see [`logger`]), and the exit code becomes QEMU's.
 
+pub mod config_store;
 pub mod executor;
 pub mod logger;
 pub mod regs;
@@ -27,6 +32,9 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use critical_section::Mutex;
 
 use cortex_m::peripheral::NVIC;
+use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
+use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::{Buttons, SensorReport};
 use maobi_shared::{Fx, Pose};
 
 use crate::app::{self, fault, POSE_QUEUE};
@@ -68,15 +76,39 @@ pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
 pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
 
 /// The pen of the QEMU board: poses the host sent, one per force tick.
+///
+/// Its sensor readings are synthesised for bring-up: the latest pose through the stored
+/// configuration's kinematics (the reference pen, [`PenConfig::OMNI_LIKE`], until one is
+/// configured) back to encoder counts and 12-bit gimbal codes, with the inkwell at the
+/// calibration's readings (counts 0, codes 2048 while uncalibrated). A pose outside that
+/// pen's workspace has no readings (`None`: no report). Buttons are not passed from the
+/// pose samples to the force loop: reported empty.
 pub struct VirtualPen {
     rx: heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>,
     seq: u32,
+    last: Option<Pose<Fx>>,
+    /// The pen whose sensors are synthesised (None only if its config would not validate,
+    /// which `configure` never passes).
+    synth: Option<Pen<Fx>>,
+}
+
+/// The virtual pen's readings at the inkwell while no calibration is stored.
+const UNCALIBRATED_ZERO: RawReadings = RawReadings {
+    encoders: [0; 3],
+    gimbal: [2048; 3],
+};
+
+fn synth_pen(cfg: &PenConfig, zero: Option<RawReadings>) -> Option<Pen<Fx>> {
+    let mut pen = Pen::new(*cfg).ok()?;
+    pen.calibrate(zero.unwrap_or(UNCALIBRATED_ZERO));
+    Some(pen)
 }
 
 impl PoseSource for VirtualPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
         let (seq, pose) = self.rx.dequeue()?;
         self.seq = seq;
+        self.last = Some(pose);
         Some(pose)
     }
     fn pose_seq(&self) -> u32 {
@@ -86,6 +118,24 @@ impl PoseSource for VirtualPen {
     /// lever arm, so the reported torques (N·m) equal the force's components (N).
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
         f
+    }
+    /// Only the synthesised sensors follow the configuration: the virtual pen's forces are
+    /// Cartesian whatever the linkage.
+    fn configure(&mut self, cfg: &DeviceConfig) {
+        self.synth = synth_pen(&cfg.pen, cfg.calibration);
+    }
+    fn raw_sensors(&mut self, tick: u32) -> Option<SensorReport> {
+        let pen = self.synth.as_ref()?;
+        let joints = pen.inverse(&self.last?).ok()?;
+        let raw = pen.raw_readings(&joints).ok()?;
+        Some(SensorReport {
+            tick,
+            encoders: raw.encoders,
+            // A 12-bit converter reads no further than its rails.
+            gimbal: raw.gimbal.map(|g| g.clamp(0, 4095) as u16),
+            buttons: Buttons::empty(),
+            synthetic: true,
+        })
     }
 }
 
@@ -115,6 +165,8 @@ impl Motors for ReportedMotors {
             [Fx::from_bits(0); 3]
         }
     }
+    /// Reported torques need no drive settings.
+    fn configure(&mut self, _cfg: &DeviceConfig) {}
 }
 
 /// All motors off; callable from any context (fault handlers included).
@@ -172,6 +224,7 @@ static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
 /// Everything `main` gets from the board.
 pub struct Parts {
     pub uart: uart::Uart0,
+    pub config: config_store::RamConfigStore,
     pub poses: PoseProducer,
     pub cmds: app::CmdProducer,
 }
@@ -194,6 +247,8 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
         VirtualPen {
             rx: pose_rx,
             seq: 0,
+            last: None,
+            synth: synth_pen(&PenConfig::OMNI_LIKE, None),
         },
         ReportedMotors { _private: () },
         TimerWatchdog { _private: () },
@@ -241,6 +296,7 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
 
     Parts {
         uart,
+        config: config_store::RamConfigStore::new(),
         poses: pose_tx,
         cmds: cmd_tx,
     }

@@ -9,13 +9,14 @@ use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use maobi::device::bringup::{run_check, CheckOptions, Outcome, Scripted};
+use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Outcome, Scripted};
 use maobi::device::Endpoint;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
-    Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState, DeviceConfig,
-    DeviceInfo, DeviceMsg, DeviceRx, HostMsg, Message, SensorReport, Version,
+    BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
+    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, HostMsg, Message, SensorReport, Version,
 };
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Vec3};
 
 /// What the fake pen is and what happened to it.
 #[derive(Clone, Debug)]
@@ -140,7 +141,16 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
         let mut streaming = false;
         let mut last_report = Instant::now();
         let mut tick = 0u32;
+        let mut last_tick = 0u32;
         let mut reports = 0usize;
+        let mut last_seq = 0u32;
+        let mut queued = std::collections::VecDeque::new();
+        let clock = Instant::now();
+        let mut ms = 0u32;
+        // A virtual pen's states say which pose it consumed last (the wizard paces its poses
+        // by them); the brush itself stays at rest at the start pose.
+        let start = Pose::new(Vec3::new(0.0, 0.0, 30.0), Quat::IDENTITY).cast::<Fx>();
+        let brush = Brush::<Fx>::new(presets::LARGE, start).unwrap();
         loop {
             let n = match s.read(&mut buf) {
                 Ok(0) => return,
@@ -156,13 +166,7 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
                     HostMsg::Ping { seq } => DeviceMsg::Pong { seq },
                     HostMsg::Pose(sample) => {
                         p.poses_received += 1;
-                        // Synthetic readings, linear in the pose (the QEMU board uses the
-                        // pen's inverse kinematics).
-                        let pose = sample.pose().cast::<f64>();
-                        let pos = pose.pos;
-                        p.encoders = [pos.x, pos.y, pos.z].map(|v| (v * 10.0).round() as i64);
-                        let q = pose.rot;
-                        p.gimbal = [q.x, q.y, q.z].map(|v| (2048.0 + v * 2000.0) as u16);
+                        queued.push_back(sample);
                         continue;
                     }
                     HostMsg::Command(c) => {
@@ -187,9 +191,39 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
                 };
                 send(&mut s, &reply);
             }
-            if streaming && last_report.elapsed() >= Duration::from_millis(20) {
+            // One pose per millisecond, as a 1 kHz pen consumes them.
+            let mut consumed = false;
+            while clock.elapsed() > Duration::from_millis(u64::from(ms)) {
+                ms += 1;
+                let Some(sample) = queued.pop_front() else {
+                    continue;
+                };
+                consumed = true;
+                last_seq = sample.seq;
+                // Synthetic readings, linear in the pose (the QEMU board uses the pen's
+                // inverse kinematics).
+                let pose = sample.pose().cast::<f64>();
+                let pos = pose.pos;
+                p.encoders = [pos.x, pos.y, pos.z].map(|v| (v * 10.0).round() as i64);
+                let q = pose.rot;
+                p.gimbal = [q.x, q.y, q.z].map(|v| (2048.0 + v * 2000.0) as u16);
+            }
+            if p.virtual_pen && (consumed || last_report.elapsed() >= Duration::from_millis(20)) {
+                let st = BrushState::from_brush(
+                    &brush,
+                    tick,
+                    last_seq,
+                    Default::default(),
+                    Default::default(),
+                );
+                send(&mut s, &DeviceMsg::State(st));
+            }
+            if last_report.elapsed() >= Duration::from_millis(20) {
                 last_report = Instant::now();
                 tick += 20;
+            }
+            if streaming && tick > last_tick {
+                last_tick = tick;
                 reports += 1;
                 let r = SensorReport {
                     tick,
@@ -212,6 +246,15 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
     (addr, shared)
 }
 
+/// A step's detail, by its name (an uncalibrated pen is calibrated before the nudges).
+fn detail<'a>(r: &'a CheckReport, step: &str) -> &'a str {
+    &r.steps
+        .iter()
+        .find(|s| s.step == step)
+        .unwrap_or_else(|| panic!("no step {step}:\n{}", r.table()))
+        .detail
+}
+
 fn opts(addr: &str) -> CheckOptions {
     let mut o = CheckOptions::new(Endpoint::Tcp(addr.to_string()));
     // The scripted hand is done after 36 reports (0.72 s at 50 Hz); room for a slow machine.
@@ -219,7 +262,7 @@ fn opts(addr: &str) -> CheckOptions {
     o
 }
 
-fn run(pen: Pen) -> (maobi::device::bringup::CheckReport, Pen, Vec<String>) {
+fn run(pen: Pen) -> (CheckReport, Pen, Vec<String>) {
     let (addr, state) = serve(pen);
     let mut op = Scripted::default();
     let r = run_check(&opts(&addr), &mut op);
@@ -246,9 +289,12 @@ fn a_reversed_motor_is_flipped_and_every_step_passes() {
     assert!(sensors.contains("shoulder: PASS -60 counts"), "{sensors}");
     assert!(sensors.contains("base (yaw): PASS +60 counts"), "{sensors}");
     assert!(sensors.contains("gimbal 3: PASS +30 codes"), "{sensors}");
-    let elbow = &r.steps[4].detail;
+    let elbow = detail(&r, "3 motor 2 (elbow)");
     assert!(elbow.contains("was reversed (-30 counts)"), "{elbow}");
     assert!(elbow.contains("again: +30 counts"), "{elbow}");
+    // The reference configuration is not calibrated: calibration ran before the nudges.
+    let order: Vec<&str> = r.steps.iter().map(|s| s.step.as_str()).collect();
+    assert_eq!(order[2], "4 calibration", "{order:?}");
     let cfg = pen.config.unwrap();
     assert_eq!(cfg.pen.motor_sign, [1, 1, -1]);
     assert!(cfg.calibration.is_some());
@@ -281,7 +327,11 @@ fn a_dead_motor_and_a_joint_that_never_moves_fail() {
     assert_eq!(r.outcome("2 sensors"), Some(Outcome::Fail));
     assert!(r.steps[1].detail.contains("gimbal 3: FAIL +0 codes"));
     assert_eq!(r.outcome("3 motor 1 (shoulder)"), Some(Outcome::Fail));
-    assert!(r.steps[3].detail.contains("did not move"), "{}", r.table());
+    assert!(
+        detail(&r, "3 motor 1 (shoulder)").contains("did not move"),
+        "{}",
+        r.table()
+    );
     assert_eq!(r.outcome("3 motor 0 (base (yaw))"), Some(Outcome::Pass));
     assert_eq!(r.outcome("4 calibration"), Some(Outcome::Pass));
 }
@@ -321,14 +371,12 @@ fn a_virtual_pen_is_moved_by_the_wizard_and_says_what_it_cannot_show() {
     }
     assert_eq!(r.outcome("4 calibration"), Some(Outcome::Skip));
     assert!(said.iter().any(|l| l.contains("virtual pen")));
-    assert_eq!(
-        pen.poses_received,
-        maobi::device::bringup::virtual_motion(maobi_shared::Pose::new(
-            maobi_shared::Vec3::new(0.0, 0.0, 30.0),
-            maobi_shared::Quat::IDENTITY
-        ))
-        .len()
-    );
+    // The whole motion, then the last pose held while the nudges ran.
+    let motion = maobi::device::bringup::virtual_motion(Pose::new(
+        Vec3::new(0.0, 0.0, 30.0),
+        Quat::IDENTITY,
+    ));
+    assert!(pen.poses_received > motion.len(), "{}", pen.poses_received);
 }
 
 #[test]

@@ -32,8 +32,6 @@ use super::endpoint::{Conn, Endpoint};
 
 /// Sensor reports per second asked for while the check runs.
 pub const SENSOR_HZ: u16 = 50;
-/// Poses per second the wizard streams to a virtual pen.
-pub const VIRTUAL_POSE_HZ: f64 = 200.0;
 /// The names of the three motor joints and the three gimbal axes, in channel order.
 pub const ARM_JOINTS: [&str; 3] = ["base (yaw)", "shoulder", "elbow"];
 pub const GIMBAL_AXES: [&str; 3] = ["gimbal 1", "gimbal 2", "gimbal 3"];
@@ -262,7 +260,27 @@ pub struct Wire {
     pub handle: Option<Pose<f64>>,
     last_sent: Instant,
     ping: u32,
+    /// A virtual pen's pose stream, once started.
+    pen: Option<VirtualPen>,
 }
+
+/// The pose stream of a virtual pen: poses queued to send, then the last one held. Paced
+/// by the device: at most [`POSES_AHEAD`] poses beyond the last one a state reported
+/// consumed, so a device slower than real time (the firmware in QEMU) is never overrun, and
+/// one that runs its clock ahead while idle (QEMU's `-icount sleep=off`) always has a pose
+/// to tick on and never sees the host fall silent.
+struct VirtualPen {
+    queue: VecDeque<Pose<f64>>,
+    hold: Pose<f64>,
+    next_seq: u32,
+    first_seq: u32,
+    acked: Option<u32>,
+    /// The sequence number of the last queued (not held) pose.
+    last_queued: Option<u32>,
+}
+
+/// Poses sent ahead of the device's consumption (its queue holds 64).
+pub const POSES_AHEAD: u32 = 32;
 
 /// Sensor reports kept for [`Wire::take_sensor_reports`]: a minute at [`SENSOR_HZ`].
 const SENSOR_BACKLOG: usize = 3000;
@@ -289,6 +307,7 @@ impl Wire {
             handle: None,
             last_sent: Instant::now(),
             ping: 0,
+            pen: None,
         })
     }
 
@@ -305,6 +324,7 @@ impl Wire {
 
     /// One read (at most the endpoint's read poll), decoded into `pending`.
     fn pump(&mut self) -> Result<(), String> {
+        self.feed_pen()?;
         if self.last_sent.elapsed() >= KEEPALIVE {
             self.ping = self.ping.wrapping_add(1);
             self.send(&HostMsg::Ping { seq: self.ping })?;
@@ -331,7 +351,18 @@ impl Wire {
                     }
                     self.backlog.push_back(r.clone());
                 }
-                DeviceMsg::State(s) => self.handle = Some(s.shape().handle().cast()),
+                DeviceMsg::State(s) => {
+                    self.handle = Some(s.shape().handle().cast());
+                    if let Some(pen) = &mut self.pen {
+                        if s.pose_seq.wrapping_sub(pen.first_seq) < 1 << 31
+                            && pen.acked.is_none_or(|a| {
+                                s.pose_seq.wrapping_sub(a).wrapping_sub(1) < 1 << 31
+                            })
+                        {
+                            pen.acked = Some(s.pose_seq);
+                        }
+                    }
+                }
                 _ => {}
             }
             self.pending.push_back(m);
@@ -358,6 +389,73 @@ impl Wire {
             }
             self.pump()?;
         }
+    }
+
+    /// Starts streaming poses for a virtual pen, holding `at`.
+    pub fn start_virtual_pen(&mut self, at: Pose<f64>) {
+        self.pen = Some(VirtualPen {
+            queue: VecDeque::new(),
+            hold: at,
+            next_seq: 1,
+            first_seq: 1,
+            acked: None,
+            last_queued: None,
+        });
+    }
+
+    /// Queues `poses` for the virtual pen (then it holds the last).
+    pub fn move_virtual_pen(&mut self, poses: &[Pose<f64>]) {
+        if let Some(pen) = &mut self.pen {
+            pen.queue.extend(poses.iter().copied());
+        }
+    }
+
+    /// Whether every queued pose has been sent and reported consumed.
+    pub fn virtual_pen_arrived(&self) -> bool {
+        self.pen.as_ref().is_none_or(|p| {
+            p.queue.is_empty()
+                && match (p.last_queued, p.acked) {
+                    (Some(l), Some(a)) => a.wrapping_sub(l) < 1 << 31,
+                    (Some(_), None) => false,
+                    (None, _) => true,
+                }
+        })
+    }
+
+    /// Tops up the virtual pen's poses in flight.
+    fn feed_pen(&mut self) -> Result<(), String> {
+        let Some(pen) = &mut self.pen else {
+            return Ok(());
+        };
+        let consumed_to = pen.acked.unwrap_or(pen.first_seq.wrapping_sub(1));
+        let in_flight = pen.next_seq.wrapping_sub(consumed_to).wrapping_sub(1);
+        let room = POSES_AHEAD.saturating_sub(in_flight);
+        let mut batch = Vec::new();
+        let mut frame = [0u8; HostMsg::MAX_FRAME];
+        for _ in 0..room {
+            let pose = match pen.queue.pop_front() {
+                Some(p) => {
+                    pen.hold = p;
+                    pen.last_queued = Some(pen.next_seq);
+                    p
+                }
+                None => pen.hold,
+            };
+            let sample = PoseSample::new(pen.next_seq, pose.cast(), Buttons::empty());
+            pen.next_seq = pen.next_seq.wrapping_add(1);
+            let n = HostMsg::Pose(sample)
+                .encode(&mut frame)
+                .map_err(|e| format!("encoding: {e}"))?;
+            batch.extend_from_slice(&frame[..n]);
+        }
+        if !batch.is_empty() {
+            self.conn
+                .write_all(&batch)
+                .and_then(|()| self.conn.flush())
+                .map_err(|e| format!("writing to the device: {e}"))?;
+            self.last_sent = Instant::now();
+        }
+        Ok(())
     }
 
     /// The sensor reports received since the last call, in order.
@@ -527,8 +625,21 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
         return report;
     }
     let streaming = step_sensors(&mut wire, opts, op, &mut report, virtual_pen);
-    step_nudges(&mut wire, opts, op, &mut report, virtual_pen, streaming);
-    step_calibrate(&mut wire, opts, op, &mut report);
+    // The firmware keeps the motors off until the pen is calibrated (a configuration just
+    // written, or never calibrated): then calibration comes before the nudges.
+    let uncalibrated = wire.info.config != ConfigState::NotApplicable
+        && matches!(wire.get_config(opts.reply_timeout), Ok(Ok(c)) if c.calibration.is_none());
+    if uncalibrated {
+        op.say(
+            "The pen is not calibrated yet and its firmware keeps the motors off until it is: \
+             calibrating (step 4) before the motor nudges.",
+        );
+        step_calibrate(&mut wire, opts, op, &mut report);
+        step_nudges(&mut wire, opts, op, &mut report, virtual_pen, streaming);
+    } else {
+        step_nudges(&mut wire, opts, op, &mut report, virtual_pen, streaming);
+        step_calibrate(&mut wire, opts, op, &mut report);
+    }
     let _ = wire.command(Command::StreamSensors { rate_hz: 0 }, opts.reply_timeout);
     report
 }
@@ -645,17 +756,24 @@ fn step_sensors(
             return false;
         }
     }
-    let mut motion = vec![];
     if virtual_pen {
         // Start where the device's pen is (its first state says), so the first sample is no
         // jump; a device that sends no state starts from the reference pose.
-        let _ = wire.wait(Duration::from_secs(1), |m| {
+        // Its states also pace the poses (they say which one it consumed last).
+        let _ = wire.wait(Duration::from_secs(2), |m| {
             matches!(m, DeviceMsg::State(_)).then_some(())
         });
-        let start = wire
-            .handle
-            .unwrap_or_else(|| Pose::new(Vec3::new(0.0, 0.0, 30.0), Quat::IDENTITY));
-        motion = virtual_motion(start);
+        let Some(start) = wire.handle else {
+            report.push(
+                "2 sensors",
+                Outcome::Fail,
+                "a virtual pen that sends no brush states cannot be moved (nothing paces the poses)",
+            );
+            return true;
+        };
+        let motion = virtual_motion(start);
+        wire.start_virtual_pen(start);
+        wire.move_virtual_pen(&motion);
         op.say(&format!(
             "Moving the virtual pen through {} poses (each axis 15 mm, each turn 15 degrees) \
              while reading its sensors.",
@@ -674,23 +792,8 @@ fn step_sensors(
     let mut reports = 0usize;
     let mut synthetic = false;
     let start = Instant::now();
-    let mut next_pose = 0usize;
-    let mut seq = 1u32;
+    let mut arrived: Option<Instant> = None;
     loop {
-        if virtual_pen {
-            // Every pose due by now at VIRTUAL_POSE_HZ: slower than the QEMU board consumes
-            // them (250 a second at its 4 ms tick), so its 64-pose queue never overflows.
-            let due = (start.elapsed().as_secs_f64() * VIRTUAL_POSE_HZ) as usize;
-            while next_pose < due.min(motion.len()) {
-                let s = PoseSample::new(seq, motion[next_pose].cast(), Buttons::empty());
-                if let Err(e) = wire.send(&HostMsg::Pose(s)) {
-                    report.push("2 sensors", Outcome::Fail, e);
-                    return false;
-                }
-                seq += 1;
-                next_pose += 1;
-            }
-        }
         if let Err(e) = wire.idle(Duration::from_millis(5)) {
             report.push("2 sensors", Outcome::Fail, e);
             return false;
@@ -709,8 +812,15 @@ fn step_sensors(
             op.live(&live_line(r));
         }
         let done = if virtual_pen {
-            // The whole motion sent, and a moment for the last readings.
-            next_pose >= motion.len() && start.elapsed() > Duration::from_millis(300)
+            // The whole motion consumed, and a moment for the last readings.
+            match arrived {
+                None if wire.virtual_pen_arrived() => {
+                    arrived = Some(Instant::now());
+                    false
+                }
+                Some(t) => t.elapsed() > Duration::from_millis(300),
+                None => false,
+            }
         } else {
             start.elapsed() >= opts.sensor_time || op.enter_pressed()
         };
@@ -746,7 +856,14 @@ fn step_sensors(
     for i in 0..3 {
         line(GIMBAL_AXES[i], &gim[i], i64::from(opts.min_codes), "codes");
     }
-    op.say(&format!("  buttons seen pressed: {buttons}"));
+    op.say(&format!(
+        "  buttons seen pressed: {}",
+        if buttons.is_empty() {
+            "none".to_string()
+        } else {
+            buttons.to_string()
+        }
+    ));
     report.push(
         "2 sensors",
         if all { Outcome::Pass } else { Outcome::Fail },
@@ -799,6 +916,8 @@ fn step_nudges(
     // Nudges are refused while forces are on (and the arm should be still anyway).
     if streaming {
         let _ = wire.command(Command::DisableForces, opts.reply_timeout);
+        // A fault latched meanwhile (a virtual pen's link gap) would refuse the nudges.
+        let _ = wire.command(Command::ClearFaults, opts.reply_timeout);
     }
     for (ch, joint) in ARM_JOINTS.iter().enumerate() {
         let step = format!("3 motor {ch} ({joint})");

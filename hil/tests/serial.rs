@@ -12,7 +12,7 @@ use common::{fake_device, pair};
 use hil::link::{Session, StreamOptions};
 use hil::run::run_session;
 use maobi::poses::PoseTrack;
-use maobi_shared::protocol::{encode_raw, DEVICE_MSG_MAX, DEVICE_TO_HOST};
+use maobi_shared::protocol::{encode_raw, DEVICE_MSG_MAX, DEVICE_TO_HOST, PROTOCOL_VERSION};
 use serialport::SerialPort;
 
 #[test]
@@ -37,12 +37,17 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         return;
     };
     let t = std::thread::spawn(move || {
-        // Whatever the host sends, answer with a frame of protocol version 2.
+        // Whatever the host sends, answer with a frame of the next protocol version.
         let mut buf = [0u8; 64];
         dev.set_timeout(Duration::from_millis(500)).unwrap();
         let _ = dev.read(&mut buf);
         let mut out = [0u8; 64];
-        let n = encode_raw(&[2, DEVICE_TO_HOST, 0], DEVICE_MSG_MAX, &mut out).unwrap();
+        let n = encode_raw(
+            &[PROTOCOL_VERSION + 1, DEVICE_TO_HOST, 0],
+            DEVICE_MSG_MAX,
+            &mut out,
+        )
+        .unwrap();
         dev.write_all(&out[..n]).unwrap();
         std::thread::sleep(Duration::from_secs(2));
     });
@@ -52,7 +57,8 @@ fn serial_backend_names_a_protocol_version_mismatch() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("protocol version 2") && err.contains("this host 1"),
+        err.contains(&format!("protocol version {}", PROTOCOL_VERSION + 1))
+            && err.contains(&format!("this host {PROTOCOL_VERSION}")),
         "{err}"
     );
     t.join().unwrap();

@@ -76,6 +76,9 @@ enum Cmd {
         /// starts (flashing included).
         #[arg(long, default_value_t = 30)]
         port_timeout: u64,
+        /// Backend `probe-rs`: the defmt record that says the firmware booted.
+        #[arg(long, default_value = hil::probe_rs::BOOT_LINE)]
+        boot_line: String,
         /// State frames per 1000 device ticks (QEMU boot argument; 1000: every tick).
         #[arg(long, default_value_t = 120)]
         state_hz: u32,
@@ -117,6 +120,7 @@ fn main() -> Result<()> {
         probe,
         probe_rs,
         port_timeout,
+        boot_line,
         poses,
         ..
     } = &cli.cmd
@@ -133,6 +137,7 @@ fn main() -> Result<()> {
         opts.probe = probe.clone();
         opts.port = port.clone();
         opts.port_timeout = Duration::from_secs(*port_timeout);
+        opts.boot_line = boot_line.clone();
         let r = hil::probe_rs::run_probe_rs(elf, poses, &opts)?;
         println!("{}", r.render());
         if !r.passed() {

@@ -25,8 +25,9 @@ use crate::run::{run_session, Check, RunReport};
 
 /// The pen's microcontroller as probe-rs names it (the STM32F411CE "Black Pill").
 pub const DEFAULT_CHIP: &str = "STM32F411CEUx";
-/// What the firmware logs once it has started (`defmt::info!` in `firmware/src/main.rs`).
-pub const BOOT_LINE: &str = "maobi-fw up";
+/// What the pen's firmware logs once it has started (`maobi-pen up, config ...`, the Black
+/// Pill board's boot record; the QEMU image says `maobi-pen up`).
+pub const BOOT_LINE: &str = "maobi-pen up";
 /// How long the log may lag the link at the end of a run (probe-rs's idle RTT poll is 100 ms).
 pub const LOG_SETTLE: Duration = Duration::from_millis(300);
 /// How to get the tool, for the error when it is missing.
@@ -504,27 +505,27 @@ mod tests {
 
     #[test]
     fn a_clean_log_passes_and_a_panic_or_restart_fails() {
-        let ok = lines("0.000000 INFO  maobi-fw up\n1.2 WARN  uart rx ring overflowed: 3 bytes\n");
+        let ok = lines("0.000000 INFO  maobi-pen up\n1.2 WARN  uart rx ring overflowed: 3 bytes\n");
         assert!(log_checks(&ok, BOOT_LINE).iter().all(|c| c.pass));
 
-        let panic = lines("0.0 INFO  maobi-fw up\n2.5 ERROR panicked at src/main.rs:3:5: boom\n");
+        let panic = lines("0.0 INFO  maobi-pen up\n2.5 ERROR panicked at src/main.rs:3:5: boom\n");
         let c = log_checks(&panic, BOOT_LINE);
         assert!(c[0].pass);
         assert!(!c[1].pass && c[1].detail.contains("boom"), "{}", c[1]);
 
-        let fault = lines("INFO  maobi-fw up\nHardFault at pc=0x08000123; motors off\n");
+        let fault = lines("INFO  maobi-pen up\nHardFault at pc=0x08000123; motors off\n");
         assert!(!log_checks(&fault, BOOT_LINE)[1].pass);
-        let trace = lines("INFO  maobi-fw up\nFrame 0: HardFault @ 0x08000400\n");
+        let trace = lines("INFO  maobi-pen up\nFrame 0: HardFault @ 0x08000400\n");
         assert!(!log_checks(&trace, BOOT_LINE)[1].pass);
 
-        let twice = lines("INFO  maobi-fw up\nINFO  maobi-fw up\n");
+        let twice = lines("INFO  maobi-pen up\nINFO  maobi-pen up\n");
         let c = log_checks(&twice, BOOT_LINE);
         assert!(!c[0].pass && c[0].detail.contains("2 times"), "{}", c[0]);
 
         let none = lines("INFO  something else\n");
         assert!(!log_checks(&none, BOOT_LINE)[0].pass);
         // A function named after panics in a location line is not a panic.
-        let loc = lines("INFO  maobi-fw up\n└─ maobi_fw::panic_hooks::arm @ src/x.rs:1\n");
+        let loc = lines("INFO  maobi-pen up\n└─ maobi_fw::panic_hooks::arm @ src/x.rs:1\n");
         assert!(log_checks(&loc, BOOT_LINE).iter().all(|c| c.pass));
     }
 

@@ -38,7 +38,7 @@ esac
 echo "      Erasing ✔ [00:00:01] 64.00 KiB/64.00 KiB" >&2
 echo "  Programming ✔ [00:00:02] 60.12 KiB/60.12 KiB" >&2
 echo "     Finished in 3.1s" >&2
-echo "0.000000 INFO  maobi-fw up"
+echo "0.000000 INFO  maobi-pen up, config Valid"
 # While the link session runs (it takes a few tenths of a second against the fake pen).
 if [ "$mode" = panic ]; then echo "0.010000 ERROR panicked at src/board.rs:12:5: index out of bounds"; fi
 if [ "$mode" = halt ]; then sleep 0.05; echo "Frame 0: HardFault @ 0x08000400"; echo "Error: the core halted" >&2; exit 1; fi
@@ -113,7 +113,7 @@ fn flashes_runs_the_checks_and_reads_a_clean_log() {
     );
     let session = r.session.as_ref().expect("the link session ran");
     assert!(session.figures.states > 0);
-    assert_eq!(r.log, ["0.000000 INFO  maobi-fw up"]);
+    assert_eq!(r.log, ["0.000000 INFO  maobi-pen up, config Valid"]);
     let args = std::fs::read_to_string(elf.with_extension("elf.args")).unwrap();
     assert_eq!(
         args.trim(),
@@ -249,8 +249,47 @@ fn a_port_that_never_appears_times_out_and_probe_rs_is_stopped() {
         .to_string();
     assert!(e.contains("ttyACM-never did not appear within 1 s"), "{e}");
     // The fake tool's log is quoted, and it was stopped, not left running.
-    assert!(e.contains("maobi-fw up"), "{e}");
+    assert!(e.contains("maobi-pen up"), "{e}");
     assert!(t0.elapsed() < Duration::from_secs(8), "{:?}", t0.elapsed());
     let args = std::fs::read_to_string(dir().join("noport.elf.args")).unwrap_or_default();
     assert!(args.starts_with("run --chip STM32F411CEUx"), "{args}");
+}
+
+/// The Black Pill pen reads its own sensors: no poses are streamed, its link and force loop
+/// are checked instead; a tick that overran fails.
+#[test]
+fn a_pen_with_its_own_sensors_gets_link_and_loop_checks() {
+    for (tick_max_us, pass) in [(1012, true), (2300, false)] {
+        let Some((dev, host)) = pair() else { return };
+        let name = PathBuf::from(host.name().unwrap());
+        std::thread::spawn(move || {
+            common::fake_sensor_pen(dev, Duration::from_secs(30), tick_max_us)
+        });
+        let r = run_probe_rs_with(
+            &elf(&format!("sensorpen{tick_max_us}"), "ok"),
+            &poses(),
+            &opts(Some(name)),
+            &no_ports,
+        )
+        .unwrap();
+        println!("{}", r.render());
+        let session = r.session.as_ref().unwrap();
+        let names: Vec<&str> = session.checks.iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "handshake",
+                "pose file",
+                "brush states stream",
+                "force loop holds 1 ms",
+                "decoders clean"
+            ]
+        );
+        assert_eq!(session.passed(), pass, "{}", r.render());
+        assert_eq!(r.passed(), pass);
+        assert!(session.checks[3]
+            .detail
+            .contains(&format!("/1000/{tick_max_us} us")));
+        drop(host);
+    }
 }

@@ -91,3 +91,64 @@ pub fn fake_device(mut port: TTYPort, run_for: Duration) {
         }
     }
 }
+
+/// A pen that reads its own sensors (no `VIRTUAL_PEN`): hello, pong, a brush state every
+/// 8 ms and a telemetry report every 100 ms whose longest tick is `tick_max_us`.
+pub fn fake_sensor_pen(mut port: TTYPort, run_for: Duration, tick_max_us: u32) {
+    use maobi_shared::protocol::Telemetry;
+    port.set_timeout(Duration::from_millis(2)).unwrap();
+    let mut rx = DeviceRx::new();
+    let brush = Brush::<Fx>::new(
+        presets::LARGE,
+        maobi_shared::Pose::new(
+            maobi_shared::Vec3::new(0.0, 0.0, 30.0),
+            maobi_shared::Quat::IDENTITY,
+        )
+        .cast::<Fx>(),
+    )
+    .unwrap();
+    let mut buf = [0u8; 256];
+    let start = Instant::now();
+    let (mut last_state, mut last_telemetry) = (Instant::now(), Instant::now());
+    let mut greeted = false;
+    while start.elapsed() < run_for {
+        let n = port.read(&mut buf).unwrap_or(0);
+        let msgs: Vec<_> = rx.feed(&buf[..n]).filter_map(Result::ok).collect();
+        for m in msgs {
+            match m {
+                HostMsg::Hello(_) => {
+                    greeted = true;
+                    let info = DeviceInfo::new(
+                        "fake-sensor-pen",
+                        Version::default(),
+                        Capabilities::REAL_SENSORS | Capabilities::FORCE_OUTPUT,
+                        3.3,
+                        0.88,
+                    );
+                    write_msg(&mut port, &DeviceMsg::Hello(info));
+                }
+                HostMsg::Ping { seq } => write_msg(&mut port, &DeviceMsg::Pong { seq }),
+                _ => {}
+            }
+        }
+        let tick = start.elapsed().as_millis() as u32;
+        if greeted && last_state.elapsed() >= Duration::from_millis(8) {
+            last_state = Instant::now();
+            let st =
+                BrushState::from_brush(&brush, tick, 0, Default::default(), Default::default());
+            write_msg(&mut port, &DeviceMsg::State(st));
+        }
+        if greeted && last_telemetry.elapsed() >= Duration::from_millis(100) {
+            last_telemetry = Instant::now();
+            let t = Telemetry {
+                tick,
+                tick_period_min_us: 996,
+                tick_period_mean_us: 1000,
+                tick_period_max_us: tick_max_us,
+                load_percent: 41,
+                ..Default::default()
+            };
+            write_msg(&mut port, &DeviceMsg::Telemetry(t));
+        }
+    }
+}

@@ -12,11 +12,16 @@
 //!    reversed motor can have its `motor_sign` flipped in the stored configuration, and is
 //!    nudged again to confirm;
 //! 4. calibration: the pen in its inkwell, [`Command::Calibrate`], the configuration read back
-//!    valid and calibrated;
+//!    valid and calibrated (before step 3 when the pen is not calibrated yet: the firmware
+//!    keeps the motors off until it is);
 //! 5. a summary; any FAIL makes the command's exit code non-zero.
 //!
 //! The terminal is behind [`Operator`], so scripts and tests run it without one ([`Scripted`]:
 //! `--yes`).
+//!
+//! Assumes the board applies the configuration's `motor_sign` to a nudge (a positive nudge
+//! is meant to turn the joint the positive way) and that a joint's direction is its encoder
+//! count times `encoder_sign`.
 
 use std::collections::VecDeque;
 use std::io::ErrorKind;
@@ -758,8 +763,7 @@ fn step_sensors(
     }
     if virtual_pen {
         // Start where the device's pen is (its first state says), so the first sample is no
-        // jump; a device that sends no state starts from the reference pose.
-        // Its states also pace the poses (they say which one it consumed last).
+        // jump; its states also pace the poses (they say which one it consumed last).
         let _ = wire.wait(Duration::from_secs(2), |m| {
             matches!(m, DeviceMsg::State(_)).then_some(())
         });

@@ -7,6 +7,7 @@
 //! | link: UART0 RX / TX | 0x4000_4000, IRQ 0 / 1 | 2 |
 //! | embassy time driver: dual timer | 0x4000_2000, IRQ 10 | 3 |
 //! | thread-mode executor (WFI when idle) | | thread |
+//! | configuration store: RAM the host preloads ([`config_store`]) | 0x2100_0000, 4 KiB of PSRAM | (used by the link task) |
 //!
 //! The pen is virtual: its poses come from the host's PoseSamples through a queue
 //! ([`VirtualPen`]); the motor commands are not sent anywhere but reported back in the
@@ -14,7 +15,9 @@
 //! `StreamSensors`) are synthesised from the latest pose through the reference pen's
 //! inverse kinematics ([`VirtualPen`]). The configuration store is a RAM region the host
 //! can preload with QEMU's generic loader at [`config_store::CONFIG_REGION`]
-//! (`-device loader,file=cfg.bin,addr=0x21000000`; see [`config_store`]). Output and exit go through semihosting (enable it
+//! (`-device loader,file=cfg.bin,addr=0x21000000`; see [`config_store`]).
+//!
+//! Output and exit go through semihosting (enable it
 //! with `-semihosting-config enable=on,target=native`): text on the host's stdout, defmt
 //! frames on stderr (see [`logger`]), and the exit code becomes QEMU's.
 

@@ -542,7 +542,7 @@ fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usiz
 /// Sends our `Hello` on `conn` and waits up to `timeout` for the device's; `None` when
 /// `stop` said to give up. A version mismatch (in a frame's version byte or in the device's
 /// hello) is an error that says so.
-fn handshake(
+pub(crate) fn handshake(
     conn: &mut dyn Conn,
     dec: &mut HostRx,
     host_name: &str,

@@ -1,4 +1,6 @@
-//! The link task: the wire protocol (`maobi_shared::protocol`) over the board's UART.
+//! The link task: the wire protocol (`maobi_shared::protocol`) over the board's byte link
+//! (QEMU's UART, the Black Pill's USB CDC-ACM), the same on every board: a board calls
+//! [`run`] from its own task with its [`LinkTransport`] and its [`BoardInfo`].
 //!
 //! * On start it writes one `0x00` so the host's decoder drops any partial frame.
 //! * `Hello` is answered with the device's [`DeviceInfo`] and arms the link supervision
@@ -25,7 +27,6 @@ use core::sync::atomic::Ordering;
 use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
-use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command as Wire, CommandError, DeviceInfo, DeviceMsg,
     DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, ParamRejected, ParamReply,
@@ -35,10 +36,27 @@ use maobi_shared::{BrushParams, Fx, Pose, Vec3};
 
 use crate::app::{self, Command, FAULTS, FORCES_ENABLED, SNAPSHOT, TICKS};
 use crate::board::LinkTransport;
-use crate::qemu::Parts;
 
-/// The board's name in the handshake.
-pub const BOARD: &str = "qemu-mps2-an386";
+/// What the link says about the board and lets the host do with it.
+pub struct BoardInfo {
+    /// The board's name in the handshake.
+    pub name: &'static str,
+    pub capabilities: Capabilities,
+    /// Force limits in the handshake (N).
+    pub force_peak_n: f32,
+    pub force_continuous_n: f32,
+    /// `Calibrate` is queued for the force loop (else answered `Unsupported`).
+    pub can_calibrate: bool,
+}
+
+/// What the link task drives.
+pub struct LinkParts<T> {
+    pub transport: T,
+    /// The virtual pen's pose queue (`None` on a board with its own sensors: pose samples
+    /// from the host are then ignored).
+    pub poses: Option<app::PoseProducer>,
+    pub cmds: app::CmdProducer,
+}
 
 /// Link settings from the boot command line.
 #[derive(Copy, Clone, Debug)]
@@ -55,8 +73,9 @@ struct TxBuf(core::cell::UnsafeCell<[u8; DeviceMsg::MAX_FRAME]>);
 unsafe impl Sync for TxBuf {}
 static TX_BUF: TxBuf = TxBuf(core::cell::UnsafeCell::new([0; DeviceMsg::MAX_FRAME]));
 
-struct Link {
-    parts: Parts,
+struct Link<T> {
+    parts: LinkParts<T>,
+    board: &'static BoardInfo,
     cfg: LinkConfig,
     rx: DeviceRx,
     /// Bytes read from the UART but not yet fed to the decoder (a pose is waiting for room).
@@ -78,10 +97,17 @@ struct Link {
     cmds_sent: u32,
 }
 
-#[embassy_executor::task]
-pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
+/// The link task's body (each board wraps it in its own `#[embassy_executor::task]`, since
+/// tasks cannot be generic over the transport).
+pub async fn run<T: LinkTransport>(
+    parts: LinkParts<T>,
+    board: &'static BoardInfo,
+    params: BrushParams,
+    cfg: LinkConfig,
+) -> ! {
     let mut link = Link {
         parts,
+        board,
         cfg,
         rx: DeviceRx::new(),
         inbuf: [0; 64],
@@ -98,7 +124,9 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
         next_telemetry: cfg.telemetry_ticks,
         cmds_sent: 0,
     };
-    link.parts.uart.write(&[maobi_shared::protocol::DELIMITER]);
+    link.parts
+        .transport
+        .write(&[maobi_shared::protocol::DELIMITER]);
     loop {
         link.receive().await;
         link.send_state();
@@ -108,13 +136,13 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
     }
 }
 
-impl Link {
+impl<T: LinkTransport> Link<T> {
     /// Waits for received bytes, a filled snapshot or half a tick, whichever comes first.
     async fn wait(&mut self) {
         let period = Duration::from_micros(u64::from(self.cfg.tick_us / 2).max(100));
         let mut timer = pin!(Timer::after(period));
         let blocked = self.pending_pose.is_some() || self.in_start < self.in_end;
-        let mut readable = pin!(self.parts.uart.readable());
+        let mut readable = pin!(self.parts.transport.readable());
         poll_fn(|cx| {
             app::SNAPSHOT_WAKER.register(cx.waker());
             if SNAPSHOT.is_full() {
@@ -131,15 +159,15 @@ impl Link {
     /// Reads and handles what the host sent, until the UART is empty or the pose queue full.
     async fn receive(&mut self) {
         loop {
-            if let Some(p) = self.pending_pose {
-                if self.parts.poses.enqueue(p).is_err() {
+            if let (Some(p), Some(poses)) = (self.pending_pose, self.parts.poses.as_mut()) {
+                if poses.enqueue(p).is_err() {
                     return;
                 }
                 self.pending_pose = None;
             }
             if self.in_start == self.in_end {
                 self.in_start = 0;
-                self.in_end = self.parts.uart.read(&mut self.inbuf);
+                self.in_end = self.parts.transport.read(&mut self.inbuf);
                 if self.in_end == 0 {
                     return;
                 }
@@ -187,13 +215,11 @@ impl Link {
         match m {
             HostMsg::Hello(_) => {
                 let info = DeviceInfo::new(
-                    BOARD,
+                    self.board.name,
                     firmware_version(),
-                    // Forces are computed and reported in state frames; the QEMU board drives
-                    // no motor.
-                    Capabilities::VIRTUAL_PEN | Capabilities::FORCE_OUTPUT,
-                    PHANTOM_OMNI.peak_n,
-                    PHANTOM_OMNI.continuous_n,
+                    self.board.capabilities,
+                    self.board.force_peak_n,
+                    self.board.force_continuous_n,
                 );
                 self.send(&DeviceMsg::Hello(info)).await;
                 self.command(Command::Reanchor).await;
@@ -206,9 +232,12 @@ impl Link {
             }
             HostMsg::Ping { seq } => self.send(&DeviceMsg::Pong { seq }).await,
             HostMsg::Pose(s) => {
-                let p = (s.seq, s.pose());
-                if self.parts.poses.enqueue(p).is_err() {
-                    self.pending_pose = Some(p);
+                // A pen with its own sensors has no use for the host's poses: ignored.
+                if let Some(poses) = self.parts.poses.as_mut() {
+                    let p = (s.seq, s.pose());
+                    if poses.enqueue(p).is_err() {
+                        self.pending_pose = Some(p);
+                    }
                 }
             }
             HostMsg::GetParam { id } => {
@@ -245,13 +274,16 @@ impl Link {
         // Decide on the state after every earlier command (a ClearFaults just before an
         // EnableForces, say).
         self.settle().await;
-        let faults = FAULTS.load(Ordering::SeqCst);
+        // A pen that is not calibrated (or has no valid configuration) reports it as a fault
+        // here, though nothing is latched: forces stay off until it is.
+        let faults = FAULTS.load(Ordering::SeqCst) | app::PEN_NOT_READY.load(Ordering::SeqCst);
         let cmd = match c {
             Wire::EnableForces if faults != 0 => {
                 return Err(CommandError::FaultsLatched(faults_of(faults)))
             }
             Wire::EnableForces => Command::EnableForces,
             Wire::DisableForces => Command::DisableForces,
+            Wire::Calibrate if self.board.can_calibrate => Command::Calibrate,
             // The virtual pen has no sensors to zero.
             Wire::Calibrate => return Err(CommandError::Unsupported),
             Wire::DipInk { wetness } => Command::Dip(Fx::from_bits(*wetness)),
@@ -351,10 +383,10 @@ impl Link {
         }
         self.next_telemetry = now.wrapping_add(self.cfg.telemetry_ticks);
         let (min, mean, max, load) = app::timing::take();
-        let overflows = self.parts.uart.rx_overflows();
+        let overflows = self.parts.transport.rx_overflows();
         if overflows != 0 {
             // Bytes lost to a full receive ring show up as framing / CRC errors too.
-            defmt::warn!("uart rx ring overflowed: {} bytes dropped", overflows);
+            defmt::warn!("link rx ring overflowed: {} bytes dropped", overflows);
         }
         let t = Telemetry {
             tick: now,
@@ -392,10 +424,10 @@ impl Link {
             // Cannot happen for messages within the bound; drop rather than stall.
             return true;
         };
-        if self.parts.uart.tx_space() < n {
+        if self.parts.transport.tx_space() < n {
             return false;
         }
-        self.parts.uart.write(&buf[..n]);
+        self.parts.transport.write(&buf[..n]);
         true
     }
 }

@@ -35,7 +35,7 @@ impl HandForces {
             None => Vec3::ZERO,
         };
         self.last_hand = Some(hand);
-        self.wanted = self.model.tick(brush, hand).total;
+        self.wanted = maobi_fast::force_model_tick(&mut self.model, brush, hand).total;
         if allowed {
             if self.out.faulted() {
                 self.out.clear_fault();
@@ -44,7 +44,7 @@ impl HandForces {
         } else {
             self.out.fault();
         }
-        let c = self.out.apply(self.wanted, step);
+        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step);
         if allowed {
             [c.x, c.y, c.z]
         } else {

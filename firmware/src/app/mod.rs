@@ -17,17 +17,26 @@
 //! switches the host's force enable off. Only an explicit [`Command::ClearFaults`] clears
 //! them; the host then enables the forces again.
 
+#[cfg(feature = "board-qemu")]
 pub mod bench;
 pub mod force;
 pub mod mailbox;
+// The pose of a pen with its own sensors: compiled (and checked) for every board, used by
+// the physical ones.
+#[cfg_attr(feature = "board-qemu", allow(dead_code, unused_imports))]
+pub mod sensor_pen;
+pub mod slot;
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
-use crate::board::{Motors, PoseSource, Watchdog};
+use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 pub use mailbox::Mailbox;
+#[cfg_attr(feature = "board-qemu", allow(unused_imports))]
+pub use sensor_pen::SensorPen;
+pub use slot::ForceLoopSlot;
 
 /// Latched fault bits (the same bits as the wire protocol's `Faults`).
 pub mod fault {
@@ -41,8 +50,11 @@ pub mod fault {
     pub const PARAM_REJECTED: u32 = 1 << 3;
     /// The force loop stopped (caught by the watchdog or the supervisor task).
     pub const LOOP_STALLED: u32 = 1 << 4;
-    /// Number of fault bits.
+    /// Number of latched fault bits.
     pub const COUNT: usize = 5;
+    /// Not latched but reported alongside ([`super::PEN_NOT_READY`]): a pen with sensors
+    /// is not calibrated or has no valid configuration.
+    pub const NOT_CALIBRATED: u32 = 1 << 5;
 }
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
@@ -71,6 +83,37 @@ pub static CMDS_APPLIED: AtomicU32 = AtomicU32::new(0);
 pub static STATES_MISSED: AtomicU32 = AtomicU32::new(0);
 /// State frames are due at this rate of force-loop ticks (1000: every tick).
 pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
+/// [`fault::NOT_CALIBRATED`] while the pen may not drive its motors
+/// ([`PoseSource::forces_allowed`]; never for the virtual pen), kept by the force loop:
+/// reported with the faults in state frames and refusing `EnableForces`.
+pub static PEN_NOT_READY: AtomicU32 = AtomicU32::new(0);
+/// The board is stalling the force loop on purpose, with the motors off (writing its
+/// configuration to flash, which the core cannot read meanwhile): the supervisor and the
+/// overrun check do not count the pause, and the motors stay off until it ends.
+pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
+
+/// A deliberate pause of the force loop ([`MAINTENANCE`]) for as long as the value lives.
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // boards with a flash store
+pub struct Maintenance(());
+
+#[cfg_attr(feature = "board-qemu", allow(dead_code))]
+impl Maintenance {
+    /// Turns the motors off (`motors_off`, the board's any-context switch) and marks the
+    /// pause until the returned value is dropped.
+    pub fn begin(motors_off: fn()) -> Self {
+        MAINTENANCE.store(true, Ordering::SeqCst);
+        motors_off();
+        Maintenance(())
+    }
+}
+
+impl Drop for Maintenance {
+    fn drop(&mut self) {
+        // The ticks that fell due meanwhile ran late once; the supervisor starts afresh.
+        MAINTENANCE.store(false, Ordering::SeqCst);
+    }
+}
+
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
 
@@ -156,6 +199,10 @@ pub enum Command {
     SetParams(BrushParams),
     /// Wet every layer (`Brush::dip`).
     Dip(Fx),
+    /// The pen rests in its inkwell: its current readings are the calibration zeros
+    /// ([`PoseSource::calibrate`]; the link task answers `Unsupported` on boards without
+    /// sensors and never sends it there).
+    Calibrate,
 }
 
 /// Capacity of the virtual pen's pose queue and of the command queue.
@@ -165,6 +212,15 @@ pub const CMD_QUEUE: usize = 8;
 pub type CmdQueue = heapless::spsc::Queue<Command, CMD_QUEUE>;
 pub type CmdConsumer = heapless::spsc::Consumer<'static, Command>;
 pub type CmdProducer = heapless::spsc::Producer<'static, Command>;
+
+/// A pose the host sent for a virtual pen, with its sequence number.
+pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
+pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
+pub type PoseConsumer = heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>;
+
+/// Cycles [`Command::InjectOverrun`] burns in one tick unless the board says otherwise:
+/// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
+pub const OVERRUN_BURN_CYCLES: u32 = 8_000_000;
 
 /// The state the link task reports, copied out of the force loop when a state frame is due
 /// (or when the link task asks).
@@ -226,6 +282,7 @@ pub struct ForceLoop<P, M, W> {
     /// The next pose places the brush at rest rather than dragging it there.
     reanchor: bool,
     inject_overrun: bool,
+    overrun_burn_cycles: u32,
     forces: force::HandForces,
     force: [Fx; 3],
     enabled: bool,
@@ -253,6 +310,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             last_pose: None,
             reanchor: false,
             inject_overrun: false,
+            overrun_burn_cycles: OVERRUN_BURN_CYCLES,
             forces: force::HandForces::new()?,
             force: [Fx::ZERO; 3],
             enabled: false,
@@ -260,7 +318,24 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         })
     }
 
-    /// One 1 ms tick: commands, sensors, brush, forces, motors, snapshot.
+    /// The cycles [`Command::InjectOverrun`] burns: enough to overrun one tick, short of
+    /// the board's hardware watchdog (which would reset the chip instead).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
+    pub fn with_overrun_burn(mut self, cycles: u32) -> Self {
+        self.overrun_burn_cycles = cycles;
+        self
+    }
+
+    /// The next pose places the brush at rest there (a board whose sensors start the pen
+    /// somewhere unknown asks for this at boot).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
+    pub fn reanchor(&mut self) {
+        self.reanchor = true;
+    }
+
+    /// One 1 ms tick, in this order on every board: feed the watchdog, apply the link's
+    /// commands, **read the sensors** (`PoseSource::next_pose`), step the brush, compute the
+    /// force, **write the motors** (`Motors::command` or `disable`), offer the snapshot.
     pub fn tick(&mut self) {
         self.watchdog.feed();
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
@@ -272,15 +347,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
         if self.inject_overrun {
             self.inject_overrun = false;
-            // Several million instructions: more than a millisecond at any -icount shift
-            // the runner uses, and on any real clock.
-            cortex_m::asm::delay(8_000_000);
+            cortex_m::asm::delay(self.overrun_burn_cycles);
         }
 
         match self.pen.next_pose() {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
-                self.brush.reset(pose);
+                maobi_fast::brush_reset(&mut self.brush, pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.last_pose = Some(pose);
@@ -291,7 +364,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                         latch(fault::SENSOR_JUMP);
                     }
                 }
-                self.brush.tick(pose);
+                maobi_fast::brush_tick(&mut self.brush, pose);
                 self.brush_tick = self.brush_tick.wrapping_add(1);
                 self.last_pose = Some(pose);
             }
@@ -308,7 +381,15 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         if FAULTS.load(Ordering::SeqCst) != 0 {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
         }
-        let allowed = FORCES_ENABLED.load(Ordering::SeqCst);
+        // A pen with sensors also needs a valid configuration and its calibration.
+        let pen_ready = self.pen.forces_allowed();
+        PEN_NOT_READY.store(
+            if pen_ready { 0 } else { fault::NOT_CALIBRATED },
+            Ordering::Relaxed,
+        );
+        let allowed = FORCES_ENABLED.load(Ordering::SeqCst)
+            && pen_ready
+            && !MAINTENANCE.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
         let cmd = self.forces.tick(&self.brush, hand, allowed);
         let w = self.forces.wanted;
@@ -344,7 +425,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         match cmd {
             Command::ResetBrush => {
                 let pose = self.last_pose.unwrap_or(self.brush.handle());
-                self.brush.reset(pose);
+                maobi_fast::brush_reset(&mut self.brush, pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.reanchor = true;
@@ -374,12 +455,25 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                     latch(fault::PARAM_REJECTED);
                 } else {
                     let pose = self.brush.handle();
-                    self.brush.reset(pose);
+                    maobi_fast::brush_reset(&mut self.brush, pose);
                     self.forces.reset();
                 }
             }
             Command::Dip(w) => self.brush.dip(w),
+            Command::Calibrate => {
+                if self.pen.calibrate() {
+                    // The pose jumps to the inkwell's: start the brush at rest there.
+                    self.reanchor = true;
+                    self.last_pose = None;
+                }
+            }
         }
+    }
+
+    /// The pose source (the board reads its sensor state through it outside the tick).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
+    pub fn pen(&self) -> &P {
+        &self.pen
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {
@@ -387,13 +481,76 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         s.brush_tick = self.brush_tick;
         s.pose_seq = self.pen.pose_seq();
         s.pose_gaps = self.pose_gaps;
-        s.faults = FAULTS.load(Ordering::Relaxed);
+        s.faults = FAULTS.load(Ordering::Relaxed) | PEN_NOT_READY.load(Ordering::Relaxed);
         s.enabled = self.enabled;
         s.force = self.force;
         s.motors = self.motors.applied();
         match &mut s.brush {
+            // A copy, not hot enough to be built for speed (state frames are due at 120 Hz).
             Some(b) => b.clone_from(&self.brush),
             None => s.brush = Some(self.brush.clone()),
         }
+    }
+}
+
+/// The board's force-tick interrupt, the same on every board: runs one [`ForceLoop::tick`],
+/// records its period and busy time with the board's counter (`counts_per_us` counts per
+/// microsecond), and if `overran()` says the next tick fell due meanwhile, counts the
+/// overrun, latches [`fault::LOOP_OVERRUN`] and turns the motors off.
+pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
+    fl: &mut ForceLoop<P, M, W>,
+    clock: &C,
+    counts_per_us: u32,
+    overran: impl FnOnce() -> bool,
+) {
+    static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
+    let start = clock.now();
+    fl.tick();
+    let end = clock.now();
+    let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
+    if last != 0 {
+        timing::record(
+            start.wrapping_sub(last) / counts_per_us,
+            end.wrapping_sub(start) / counts_per_us,
+        );
+    }
+    // A pause the board made on purpose (motors off) is not an overrun.
+    if overran() && !MAINTENANCE.load(Ordering::SeqCst) {
+        OVERRUNS.fetch_add(1, Ordering::Relaxed);
+        latch(fault::LOOP_OVERRUN);
+        fl.motors_off();
+    }
+}
+
+/// Force-loop ticks that overran (each also latched [`fault::LOOP_OVERRUN`]).
+pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
+
+/// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
+/// or it never returns while the watchdog is somehow not firing), `motors_off` runs and the
+/// fault latches. Spawned by every board with its own `motors_off`.
+///
+/// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
+/// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
+#[embassy_executor::task]
+pub async fn supervisor(tick_us: u32, motors_off: fn()) {
+    let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
+    let mut last = TICKS.load(Ordering::Relaxed);
+    let mut ticker = embassy_time::Ticker::every(period);
+    let mut last_look = embassy_time::Instant::now();
+    loop {
+        ticker.next().await;
+        // After the executor was held up (a flash write), the ticker fires its missed
+        // periods back to back: judge once per real period, not on each catch-up.
+        let t = embassy_time::Instant::now();
+        if t - last_look < period / 2 {
+            continue;
+        }
+        last_look = t;
+        let now = TICKS.load(Ordering::Relaxed);
+        if now == last && !MAINTENANCE.load(Ordering::SeqCst) {
+            motors_off();
+            latch(fault::LOOP_STALLED);
+        }
+        last = now;
     }
 }

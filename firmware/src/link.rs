@@ -28,9 +28,9 @@ use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
 use maobi_shared::protocol::{
-    param_id, BrushState, Capabilities, Command as Wire, CommandError, DeviceInfo, DeviceMsg,
-    DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, ParamRejected, ParamReply,
-    Telemetry, Version,
+    param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message,
+    ParamRejected, ParamReply, Telemetry, Version,
 };
 use maobi_shared::{BrushParams, Fx, Pose, Vec3};
 
@@ -267,6 +267,11 @@ impl<T: LinkTransport> Link<T> {
                 self.send(&DeviceMsg::CommandDone { command: c, result })
                     .await;
             }
+            // No configuration store on this board yet.
+            HostMsg::GetConfig | HostMsg::SetConfig(_) => {
+                let reply = Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
+                self.send(&DeviceMsg::Config(reply)).await;
+            }
         }
     }
 
@@ -295,6 +300,10 @@ impl<T: LinkTransport> Link<T> {
             Wire::ClearFaults => Command::ClearFaults,
             Wire::ResetBrush => Command::ResetBrush,
             Wire::InjectOverrun => Command::InjectOverrun,
+            // No sensors and no motors to nudge on the virtual pen yet.
+            Wire::StreamSensors { .. } | Wire::NudgeMotor(_) => {
+                return Err(CommandError::Unsupported)
+            }
         };
         self.command(cmd).await;
         Ok(())

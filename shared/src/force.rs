@@ -190,8 +190,9 @@ impl ForceParams {
     }
 }
 
-/// What a device can and may do with a force (newtons, seconds).
-#[derive(Copy, Clone, Debug, PartialEq)]
+/// What a device can and may do with a force (newtons, seconds). Serialisable: a physical
+/// pen stores its own in its configuration ([`crate::pen_io::DeviceConfig`]).
+#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DeviceLimits {
     /// Largest force, briefly.
     pub peak_n: f32,

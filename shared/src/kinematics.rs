@@ -28,13 +28,16 @@
 //! records the raw readings there, and from then on
 //! `q_j = inkwell_j + sign_j (counts_j - zero_j) 2 pi / (counts_per_rev_j ratio_j)`.
 
+use serde::{Deserialize, Serialize};
+
 use crate::force::LimitError;
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
 /// Geometry, transmission and sensors of a pen. Defaults: [`PenConfig::OMNI_LIKE`].
-#[derive(Copy, Clone, Debug, PartialEq)]
+/// Serialisable: it is part of the configuration the pen stores ([`crate::pen_io::DeviceConfig`]).
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PenConfig {
     /// Shoulder to elbow (mm).
     pub upper_arm_mm: f32,
@@ -168,8 +171,9 @@ impl EncoderUnwrap {
     }
 }
 
-/// Raw sensor readings: unwrapped encoder counts and gimbal ADC codes.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+/// Raw sensor readings: unwrapped encoder counts and gimbal ADC codes. Serialisable: the
+/// readings at the inkwell are the stored calibration ([`crate::pen_io::DeviceConfig`]).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RawReadings {
     pub encoders: [i64; 3],
     pub gimbal: [i32; 3],
@@ -305,6 +309,61 @@ impl<S: Scalar> Pen<S> {
             }
         }
         Ok(q)
+    }
+
+    /// Inverse kinematics of the whole pen: the arm and gimbal angles that put the ferrule at
+    /// `pose` (the arm through [`Self::inverse_wrist`], the gimbal by splitting the rotation
+    /// left after the arm's `Rz(q1) Rx(q2 + q3)` into `Rz(g1) Rx(g2) Ry(g3)`). With
+    /// [`Self::raw_readings`] it synthesises what a pen's sensors would read at a pose (the
+    /// QEMU board's virtual pen, for bring-up tests).
+    pub fn inverse(&self, pose: &Pose<S>) -> Result<Joints<S>, KinematicsError> {
+        let wrist = pose.pos
+            + pose
+                .rot
+                .rotate(Vec3::Z)
+                .scale(S::from_f32(self.cfg.stylus_mm));
+        let arm = self.inverse_wrist(wrist)?;
+        let forearm = axis_quat(2, arm[0]).compose(axis_quat(0, arm[1] + arm[2]));
+        let g = forearm.conj().compose(pose.rot);
+        // Columns of Rz(a) Rx(b) Ry(c): e_y -> (-sin a cos b, cos a cos b, sin b), and the z
+        // row is (-sin c cos b, sin b, cos c cos b).
+        let ey = g.rotate(Vec3::new(S::ZERO, S::ONE, S::ZERO));
+        let ex = g.rotate(Vec3::new(S::ONE, S::ZERO, S::ZERO));
+        let ez = g.rotate(Vec3::Z);
+        let g1 = (-ey.x).atan2(ey.y);
+        let g2 = ey.z.atan2((ey.x * ey.x + ey.y * ey.y).sqrt());
+        let g3 = (-ex.z).atan2(ez.z);
+        Ok(Joints {
+            arm,
+            gimbal: [g1, g2, g3],
+        })
+    }
+
+    /// The raw readings at joint angles `j`: the inverse of [`Self::joints`], rounded to
+    /// whole counts and codes.
+    pub fn raw_readings(&self, j: &Joints<S>) -> Result<RawReadings, KinematicsError> {
+        let zero = self.zero.ok_or(KinematicsError::NotCalibrated)?;
+        let steps = |angle: S, at_zero: f32, per_step: S| -> i64 {
+            let d = (angle - S::from_f32(at_zero)).div(per_step).to_f64();
+            // Saturating: a reading beyond i64 cannot come from a joint within its limits.
+            libm::round(d) as i64
+        };
+        let mut raw = zero;
+        for k in 0..3 {
+            raw.encoders[k] = zero.encoders[k].saturating_add(steps(
+                j.arm[k],
+                self.cfg.inkwell_joints[k],
+                self.rad_per_count[k],
+            ));
+            let code = steps(
+                j.gimbal[k],
+                self.cfg.inkwell_gimbal[k],
+                self.rad_per_code[k],
+            );
+            raw.gimbal[k] = (i64::from(zero.gimbal[k]) + code)
+                .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32;
+        }
+        Ok(raw)
     }
 
     /// Whether the wrist position `p` is inside the workspace (reachable within limits).

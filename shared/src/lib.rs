@@ -14,6 +14,8 @@
 //! * [`force`]: the forces for the hand (Liang 4.2.3) and the output stage that keeps them safe.
 //! * [`kinematics`]: the reference pen's arm and gimbal, from raw sensor readings to the pose
 //!   and from forces to motor commands.
+//! * [`pen_io`]: the physical pen's board logic without the hardware: H-bridge duty from a
+//!   motor command, the gimbal sensors' filter, the stored configuration and its flash image.
 //! * [`hand`]: a simulated hand holding the stylus, for tests of the force loop.
 //!
 //! Coordinates: millimetres, the paper is the plane z = 0 with +z up, the pose is the
@@ -29,6 +31,7 @@ pub mod guide;
 pub mod hand;
 pub mod kinematics;
 pub mod params;
+pub mod pen_io;
 pub mod presets;
 pub mod protocol;
 pub mod quat;

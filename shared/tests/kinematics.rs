@@ -167,3 +167,83 @@ fn motor_commands_follow_ratio_torque_constant_and_clamp() {
     bad.ratio[2] = f32::NAN;
     assert!(Pen::<f64>::new(bad).is_err());
 }
+
+/// Whole-pen inverse kinematics and synthesised readings (the QEMU board's virtual pen
+/// reports these for bring-up): forward(inverse(pose)) is the pose, and the readings that
+/// `raw_readings` makes give the same joints back through `joints`.
+#[test]
+fn inverse_and_raw_readings_round_trip() {
+    let mut cfg = PenConfig::OMNI_LIKE;
+    cfg.stylus_mm = 40.0;
+    cfg.encoder_sign = [1, -1, 1];
+    cfg.gimbal_sign = [-1, 1, 1];
+    let mut p = Pen::<f64>::new(cfg).unwrap();
+    let zero = RawReadings {
+        encoders: [100, -2000, 70_000],
+        gimbal: [2048, 1900, 2100],
+    };
+    assert_eq!(
+        p.raw_readings(&Joints {
+            arm: [0.0; 3],
+            gimbal: [0.0; 3]
+        }),
+        Err(KinematicsError::NotCalibrated)
+    );
+    p.calibrate(zero);
+    let mut checked = 0;
+    for (arm, gimbal) in [
+        ([0.0, 0.2, -1.2], [0.0, 0.0, 0.0]),
+        ([0.3, 0.5, -1.0], [0.4, -0.3, 0.2]),
+        ([-0.7, 1.0, -2.0], [-1.2, 0.9, -0.6]),
+        ([0.9, -0.2, -0.4], [2.5, -1.1, 1.4]),
+    ] {
+        let j = Joints { arm, gimbal };
+        let pose = p.forward(&j);
+        let back = p.inverse(&pose).expect("reachable");
+        for k in 0..3 {
+            assert!(
+                (back.arm[k] - arm[k]).abs() < 1e-9,
+                "{arm:?} -> {:?}",
+                back.arm
+            );
+            assert!(
+                (back.gimbal[k] - gimbal[k]).abs() < 1e-9,
+                "{gimbal:?} -> {:?}",
+                back.gimbal
+            );
+        }
+        let raw = p.raw_readings(&back).unwrap();
+        let again = p.joints(&raw).unwrap();
+        // Whole counts: within half a count (2 pi / (2048 * 13.2) / 2 = 0.12 mrad) and half
+        // a code (0.77 mrad).
+        for k in 0..3 {
+            assert!((again.arm[k] - arm[k]).abs() <= 0.5 * 2.33e-4, "{k}");
+            assert!((again.gimbal[k] - gimbal[k]).abs() <= 0.5 * 1.534e-3, "{k}");
+        }
+        checked += 1;
+    }
+    // At the inkwell, the readings are the calibration's.
+    let ink = Joints {
+        arm: cfg.inkwell_joints.map(f64::from),
+        gimbal: cfg.inkwell_gimbal.map(f64::from),
+    };
+    assert_eq!(p.raw_readings(&ink), Ok(zero));
+    // Fixed point agrees with f64 to a count.
+    let mut pf = Pen::<Fx>::new(cfg).unwrap();
+    pf.calibrate(zero);
+    let j = Joints {
+        arm: [0.3, 0.5, -1.0],
+        gimbal: [0.4, -0.3, 0.2],
+    };
+    let rf = pf.inverse(&pf.forward(&Joints {
+        arm: j.arm.map(Fx::from_f64),
+        gimbal: j.gimbal.map(Fx::from_f64),
+    }));
+    let rf = pf.raw_readings(&rf.unwrap()).unwrap();
+    let rd = p.raw_readings(&j).unwrap();
+    for k in 0..3 {
+        assert!((rf.encoders[k] - rd.encoders[k]).abs() <= 1);
+        assert!((rf.gimbal[k] - rd.gimbal[k]).abs() <= 1);
+    }
+    assert_eq!(checked, 4);
+}

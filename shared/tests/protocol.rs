@@ -93,6 +93,8 @@ fn host_samples() -> Vec<HostMsg> {
             id: ParamId::Wetness as u8,
             value: 0.25,
         },
+        HostMsg::GetConfig,
+        HostMsg::SetConfig(calibrated_config()),
     ];
     v.extend(commands().into_iter().map(HostMsg::Command));
     v
@@ -111,7 +113,36 @@ fn commands() -> Vec<Command> {
         Command::ClearFaults,
         Command::ResetBrush,
         Command::InjectOverrun,
+        Command::StreamSensors { rate_hz: 50 },
+        Command::NudgeMotor(Nudge {
+            channel: 2,
+            command_permille: -120,
+            duration_ms: 250,
+        }),
     ]
+}
+
+/// A configuration with every varint at its longest: the longest `SetConfig` / `Config`.
+fn longest_config() -> DeviceConfig {
+    let mut c = DeviceConfig::DEFAULT;
+    c.pen.counts_per_rev = [u32::MAX; 3];
+    for d in &mut c.drive {
+        d.pwm_hz = u32::MAX;
+    }
+    c.calibration = Some(maobi_shared::kinematics::RawReadings {
+        encoders: [i64::MIN; 3],
+        gimbal: [i32::MIN; 3],
+    });
+    c
+}
+
+fn calibrated_config() -> DeviceConfig {
+    let mut c = DeviceConfig::DEFAULT;
+    c.calibration = Some(maobi_shared::kinematics::RawReadings {
+        encoders: [120, -40_000, 7],
+        gimbal: [2048, 1999, 2100],
+    });
+    c
 }
 
 fn device_samples() -> Vec<DeviceMsg> {
@@ -142,6 +173,19 @@ fn device_samples() -> Vec<DeviceMsg> {
             3.3,
             0.88,
         )),
+        DeviceMsg::Hello(
+            DeviceInfo::new(
+                "stm32f411-blackpill",
+                Version::default(),
+                Capabilities::REAL_SENSORS | Capabilities::STORED_CONFIG,
+                3.3,
+                0.88,
+            )
+            .with_config(ConfigState::Corrupt(ConfigError::CrcMismatch {
+                stored: 1,
+                computed: 2,
+            })),
+        ),
         DeviceMsg::Pong { seq: 7 },
         DeviceMsg::State(state),
         DeviceMsg::Param(ParamReply::read(&params, wetness)),
@@ -158,6 +202,10 @@ fn device_samples() -> Vec<DeviceMsg> {
         Err(CommandError::FaultsLatched(
             Faults::NOT_CALIBRATED | Faults::LINK_SILENT,
         )),
+        Err(CommandError::ConfigNotValid),
+        Err(CommandError::ForcesEnabled),
+        Err(CommandError::OutOfRange),
+        Err(CommandError::StoreFailed),
     ];
     for (command, result) in commands().into_iter().zip(results.into_iter().cycle()) {
         v.push(DeviceMsg::CommandDone { command, result });
@@ -176,6 +224,31 @@ fn device_samples() -> Vec<DeviceMsg> {
             faults: Faults::PARAM_REJECTED,
         }));
     }
+    let invalid = {
+        let mut c = DeviceConfig::DEFAULT;
+        c.drive[1].deadband = 0.9;
+        match c.validate() {
+            Err(e) => e,
+            Ok(()) => panic!("a deadband of 0.9 must be invalid"),
+        }
+    };
+    assert_eq!(invalid.field.as_str(), "drive[1].deadband");
+    for reply in [
+        Ok(calibrated_config()),
+        Err(ConfigRejected::NotStored(ConfigState::Missing)),
+        Err(ConfigRejected::Invalid(invalid)),
+        Err(ConfigRejected::ForcesEnabled),
+        Err(ConfigRejected::StoreFailed),
+    ] {
+        v.push(DeviceMsg::Config(reply));
+    }
+    v.push(DeviceMsg::Sensors(SensorReport {
+        tick: 12,
+        encoders: [-5, 70_000, i64::MIN],
+        gimbal: [0, 2048, 4095],
+        buttons: Buttons::PRIMARY,
+        synthetic: true,
+    }));
     v.push(DeviceMsg::Telemetry(Telemetry {
         tick: 1_000_000,
         tick_period_min_us: 990,
@@ -215,7 +288,11 @@ fn host_kind(m: &HostMsg) -> &'static str {
             Command::ClearFaults => "clear",
             Command::ResetBrush => "reset",
             Command::InjectOverrun => "inject overrun",
+            Command::StreamSensors { .. } => "stream sensors",
+            Command::NudgeMotor(_) => "nudge",
         },
+        HostMsg::GetConfig => "get config",
+        HostMsg::SetConfig(_) => "set config",
     }
 }
 
@@ -240,6 +317,10 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
             Err(CommandError::Unsupported) => "unsupported",
             Err(CommandError::UnknownPreset) => "no preset",
             Err(CommandError::FaultsLatched(_)) => "latched",
+            Err(CommandError::ConfigNotValid) => "config not valid",
+            Err(CommandError::ForcesEnabled) => "forces enabled",
+            Err(CommandError::OutOfRange) => "out of range",
+            Err(CommandError::StoreFailed) => "store failed",
         },
         DeviceMsg::Event(e) => match e.kind {
             EventKind::FaultRaised(_) => "raised",
@@ -250,6 +331,14 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
             EventKind::LinkReconnected { .. } => "reconnected",
         },
         DeviceMsg::Telemetry(_) => "telemetry",
+        DeviceMsg::Config(r) => match r {
+            Ok(_) => "config",
+            Err(ConfigRejected::NotStored(_)) => "config not stored",
+            Err(ConfigRejected::Invalid(_)) => "config invalid",
+            Err(ConfigRejected::ForcesEnabled) => "config forces on",
+            Err(ConfigRejected::StoreFailed) => "config store failed",
+        },
+        DeviceMsg::Sensors(_) => "sensors",
     }
 }
 
@@ -257,7 +346,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
 fn every_message_round_trips() {
     let hosts = host_samples();
     let kinds: std::collections::BTreeSet<_> = hosts.iter().map(host_kind).collect();
-    assert_eq!(kinds.len(), 14, "host samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 18, "host samples cover {kinds:?}");
     let mut rx = DeviceRx::new();
     let mut stream = Vec::new();
     for m in &hosts {
@@ -275,7 +364,7 @@ fn every_message_round_trips() {
 
     let devices = device_samples();
     let kinds: std::collections::BTreeSet<_> = devices.iter().map(device_kind).collect();
-    assert_eq!(kinds.len(), 21, "device samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 31, "device samples cover {kinds:?}");
     let mut rx = HostRx::new();
     for m in &devices {
         assert_eq!(decode(&mut rx, &frame(m)), vec![Ok(m.clone())]);
@@ -487,10 +576,36 @@ fn largest_messages_fit_their_bounds() {
             id: u8::MAX,
             value: f32::MAX,
         },
+        HostMsg::SetConfig(longest_config()),
+        HostMsg::Command(Command::NudgeMotor(Nudge {
+            channel: u8::MAX,
+            command_permille: i16::MIN,
+            duration_ms: u16::MAX,
+        })),
     ];
     let n = worst_host.iter().map(|m| frame(m).len()).max().unwrap();
     println!("worst-case host frame: {n} bytes of {}", HostMsg::MAX_FRAME);
     assert!(n <= HostMsg::MAX_FRAME);
+    // The decoded SetConfig: header 2, tag 1, the longest config image payload, CRC 4.
+    let mut buf = vec![0u8; HostMsg::MAX_FRAME];
+    let set = HostMsg::SetConfig(longest_config());
+    let payload = postcard::to_slice(&set, &mut buf).unwrap().len();
+    assert_eq!(payload, 1 + maobi_shared::pen_io::CONFIG_PAYLOAD_MAX);
+    assert_eq!(2 + payload + CRC_LEN, 267);
+    assert!(2 + payload + CRC_LEN <= HOST_MSG_MAX);
+    // The device's longest config reply and sensor report fit too.
+    for m in [
+        DeviceMsg::Config(Ok(longest_config())),
+        DeviceMsg::Sensors(SensorReport {
+            tick: u32::MAX,
+            encoders: [i64::MIN; 3],
+            gimbal: [u16::MAX; 3],
+            buttons: Buttons::from_bits_retain(u8::MAX),
+            synthetic: true,
+        }),
+    ] {
+        assert!(frame(&m).len() <= DeviceMsg::MAX_FRAME);
+    }
 }
 
 #[test]
@@ -835,4 +950,88 @@ fn inject_overrun_is_appended_after_the_existing_commands() {
     let mut rx = DeviceRx::new();
     let got: Vec<_> = rx.feed(&buf[..n]).collect();
     assert_eq!(got, [Ok(HostMsg::Command(Command::InjectOverrun))]);
+}
+
+/// Protocol 2 appended its variants: every earlier message keeps its encoding, the new ones
+/// take the next tags.
+#[test]
+fn protocol_2_variants_are_appended() {
+    let bytes = |m: &dyn Fn(&mut [u8]) -> usize| {
+        let mut buf = [0u8; 600];
+        let n = m(&mut buf);
+        buf[..n].to_vec()
+    };
+    let host = |m: HostMsg| bytes(&|b| postcard::to_slice(&m, b).unwrap().len());
+    let dev = |m: DeviceMsg| bytes(&|b| postcard::to_slice(&m, b).unwrap().len());
+    // Earlier encodings, as protocol 1 wrote them.
+    assert_eq!(host(HostMsg::Ping { seq: 5 }), [1, 5]);
+    assert_eq!(host(HostMsg::Command(Command::InjectOverrun)), [5, 7]);
+    assert_eq!(dev(DeviceMsg::Pong { seq: 5 }), [1, 5]);
+    // The new tags follow.
+    assert_eq!(host(HostMsg::GetConfig), [6]);
+    assert_eq!(host(HostMsg::SetConfig(DeviceConfig::DEFAULT))[0], 7);
+    assert_eq!(
+        host(HostMsg::Command(Command::StreamSensors { rate_hz: 3 })),
+        [5, 8, 3]
+    );
+    assert_eq!(
+        host(HostMsg::Command(Command::NudgeMotor(Nudge {
+            channel: 1,
+            command_permille: -1,
+            duration_ms: 2,
+        }))),
+        [5, 9, 1, 1, 2] // zigzag: -1 is 1
+    );
+    assert_eq!(
+        dev(DeviceMsg::Config(Ok(DeviceConfig::DEFAULT)))[..2],
+        [7, 0]
+    );
+    assert_eq!(
+        dev(DeviceMsg::CommandDone {
+            command: Command::EnableForces,
+            result: Err(CommandError::ConfigNotValid)
+        }),
+        [4, 0, 1, 3]
+    );
+    // DeviceInfo's config state is its last field.
+    let info = DeviceInfo::new("p", Version::default(), Capabilities::empty(), 0.0, 0.0);
+    let encoded = dev(DeviceMsg::Hello(
+        info.clone().with_config(ConfigState::Missing),
+    ));
+    assert_eq!(encoded.last(), Some(&1));
+    assert_eq!(dev(DeviceMsg::Hello(info)).last(), Some(&3));
+}
+
+#[test]
+fn nudge_caps() {
+    let ok = Nudge {
+        channel: 2,
+        command_permille: -150,
+        duration_ms: 300,
+    };
+    assert!(ok.is_within_caps());
+    for bad in [
+        Nudge {
+            channel: 3,
+            ..ok.clone()
+        },
+        Nudge {
+            command_permille: 151,
+            ..ok.clone()
+        },
+        Nudge {
+            command_permille: i16::MIN,
+            ..ok.clone()
+        },
+        Nudge {
+            duration_ms: 301,
+            ..ok.clone()
+        },
+        Nudge {
+            duration_ms: 0,
+            ..ok.clone()
+        },
+    ] {
+        assert!(!bad.is_within_caps(), "{bad:?}");
+    }
 }

@@ -624,6 +624,8 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
         s.report.state = format!("connected to {} ({})", opts.endpoint, info.board);
         s.report.board = Some(info.board.to_string());
         s.report.capabilities = info.capabilities.to_string();
+        s.report.config = info.config.to_string();
+        s.report.config_allows_forces = info.config.allows_forces();
         s.report.sessions += 1;
         s.last_tick = None;
         s.device_handle = None;
@@ -777,8 +779,16 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
         }
         DeviceMsg::Hello(info) => {
             s.capabilities = info.capabilities;
+            s.report.config = info.config.to_string();
+            s.report.config_allows_forces = info.config.allows_forces();
             false
         }
+        DeviceMsg::Config(Err(rej)) => {
+            s.report.last_error = Some(format!("configuration: {rej}"));
+            false
+        }
+        // Configuration and raw sensor readings are for bring-up tools, not the brush view.
+        DeviceMsg::Config(Ok(_)) | DeviceMsg::Sensors(_) => false,
         DeviceMsg::Pong { .. } => false,
     }
 }

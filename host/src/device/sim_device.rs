@@ -19,8 +19,9 @@ use std::time::{Duration, Instant};
 
 use maobi_shared::force::{ForceModel, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::protocol::{
-    param_id, BrushState, Capabilities, Command, CommandError, DeviceInfo, DeviceMsg, DeviceRx,
-    Event, EventKind, Faults, Haptics, HostMsg, Message, ParamReply, PoseSample, Telemetry,
+    param_id, BrushState, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message,
+    ParamReply, PoseSample, Telemetry,
 };
 use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
@@ -450,6 +451,12 @@ fn connection(
                 HostMsg::Command(c) => {
                     let result = model.command(&c);
                     tx.send(&DeviceMsg::CommandDone { command: c, result });
+                }
+                // A simulated device keeps no configuration (its handshake says
+                // NotApplicable).
+                HostMsg::GetConfig | HostMsg::SetConfig(_) => {
+                    let reply = Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
+                    tx.send(&DeviceMsg::Config(reply));
                 }
             }
         }

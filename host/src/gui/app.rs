@@ -1253,6 +1253,13 @@ impl MaobiApp {
                     Color32::from_rgb(230, 80, 70)
                 };
                 ui.label(RichText::new(&l.state).color(c));
+                if s.connected && !l.config_allows_forces {
+                    // A physical pen without a valid stored configuration refuses forces.
+                    ui.label(
+                        RichText::new(format!("configuration {}: no forces", l.config))
+                            .color(Color32::from_rgb(230, 80, 70)),
+                    );
+                }
                 ui.label(format!(
                     "rx ok {}  crc {}  framing {}  oversized {}  decode {}  version {}  lost {}",
                     l.rx.frames_ok,

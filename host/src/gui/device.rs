@@ -199,6 +199,11 @@ pub struct LinkReport {
     pub board: Option<String>,
     /// The device's capabilities, from its handshake.
     pub capabilities: String,
+    /// The device's stored configuration, from its handshake (protocol 2): "valid",
+    /// "missing (never written)", "corrupt: ...", "not applicable ...".
+    pub config: String,
+    /// Whether that configuration state lets the device render forces.
+    pub config_allows_forces: bool,
     /// Our decoder's counters (frames decoded; framing, CRC, oversized, decode and version
     /// errors), over all sessions.
     pub rx: maobi_shared::protocol::LinkStats,

@@ -13,7 +13,12 @@ use serde::{Deserialize, Serialize};
 
 /// Version of the wire format. Byte 0 of every decoded frame, in every version, forever; any
 /// change to a message's layout (a new field, a reordered variant) increments it.
-pub const PROTOCOL_VERSION: u8 = 1;
+///
+/// * 1: the first.
+/// * 2: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
+///   `SetConfig`, `DeviceMsg::Config` / `Sensors`, `Command::StreamSensors` / `NudgeMotor`,
+///   four `CommandError`s, `Capabilities::STORED_CONFIG`; host frames up to 512 bytes.
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

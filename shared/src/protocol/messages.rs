@@ -11,13 +11,14 @@ use super::frame::{
 };
 use super::state::{BrushState, PoseSample};
 use crate::params::{BrushParams, ParamError, ParamId};
+use crate::pen_io::{ConfigState, DeviceConfig, InvalidField};
 use crate::presets;
 
 /// Largest decoded host-to-device frame (header + message + CRC). The biggest host
-/// message, a [`PoseSample`] with every value at its longest varint, is an 85-byte frame
-/// (test `largest_messages_fit_their_bounds`); the rest is room to grow. The device's
-/// receive buffer is this size.
-pub const HOST_MSG_MAX: usize = 256;
+/// message, a [`HostMsg::SetConfig`] with every value at its longest varint, is a 267-byte
+/// frame (a [`PoseSample`]: 85 bytes; test `largest_messages_fit_their_bounds`); the rest
+/// is room to grow. The device's receive buffer is this size.
+pub const HOST_MSG_MAX: usize = 512;
 /// Largest decoded device-to-host frame. A [`BrushState`] of [`crate::params::MAX_LAYERS`]
 /// layers with every value at its longest varint (10 bytes per fixed-point value) is a
 /// 3786-byte frame (test `largest_messages_fit_their_bounds`), so any brush state the model
@@ -33,6 +34,9 @@ pub const REASON_LEN: usize = 64;
 ///
 /// The variant order is the wire tag: any change to it or to a message's fields bumps
 /// [`PROTOCOL_VERSION`].
+// `SetConfig` makes it ~330 bytes; messages are decoded one at a time into place and there
+// is no allocator to box the configuration.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum HostMsg {
     /// Opens a session; the device answers [`DeviceMsg::Hello`].
@@ -48,6 +52,15 @@ pub enum HostMsg {
     SetParam { id: u8, value: f32 },
     /// A command; answered by [`DeviceMsg::CommandDone`].
     Command(Command),
+    // Protocol 2: the stored configuration (appended: earlier variants keep their tags).
+    /// Reads the configuration in force; answered by [`DeviceMsg::Config`] (an error when
+    /// none is: [`ConfigRejected::NotStored`] with the [`ConfigState`]).
+    GetConfig,
+    /// Validates `config`, writes it to the pen's store, reads it back and puts it in force;
+    /// answered by [`DeviceMsg::Config`] with the configuration now stored, or why not
+    /// ([`ConfigRejected`]: the invalid field, forces enabled, the store failed). Nothing is
+    /// written unless the whole configuration is valid, and never while forces are enabled.
+    SetConfig(DeviceConfig),
 }
 
 /// Device to host.
@@ -75,6 +88,12 @@ pub enum DeviceMsg {
     Event(Event),
     /// Loop timing and link health (sent periodically, about once a second).
     Telemetry(Telemetry),
+    // Protocol 2 (appended: earlier variants keep their tags).
+    /// Answer to [`HostMsg::GetConfig`] and [`HostMsg::SetConfig`].
+    Config(Result<DeviceConfig, ConfigRejected>),
+    /// Raw sensor readings for bring-up, streamed at the rate [`Command::StreamSensors`]
+    /// asked for.
+    Sensors(SensorReport),
 }
 
 impl Message for HostMsg {
@@ -127,6 +146,9 @@ bitflags::bitflags! {
         const NEEDS_CALIBRATION = 1 << 3;
         /// The pen has buttons (for a virtual pen: reported in [`PoseSample::buttons`]).
         const BUTTONS = 1 << 4;
+        /// The board keeps a configuration ([`HostMsg::GetConfig`], [`HostMsg::SetConfig`];
+        /// its state in [`DeviceInfo::config`]).
+        const STORED_CONFIG = 1 << 5;
     }
 }
 flag_fmt!(Capabilities);
@@ -224,10 +246,17 @@ pub struct DeviceInfo {
     pub force_peak_n: f32,
     /// Largest force the motors may exert indefinitely (N).
     pub force_continuous_n: f32,
+    /// The stored configuration (protocol 2). Forces are refused
+    /// ([`CommandError::ConfigNotValid`]) unless it [allows them](ConfigState::allows_forces):
+    /// a physical pen needs a valid one; a virtual pen says
+    /// [`ConfigState::NotApplicable`].
+    pub config: ConfigState,
 }
 
 impl DeviceInfo {
-    /// This build's protocol version, `board` cut to [`NAME_LEN`] bytes.
+    /// This build's protocol version, `board` cut to [`NAME_LEN`] bytes, configuration
+    /// [`ConfigState::NotApplicable`] (a board with a store sets its state with
+    /// [`Self::with_config`]).
     pub fn new(
         board: &str,
         firmware: Version,
@@ -242,7 +271,13 @@ impl DeviceInfo {
             capabilities,
             force_peak_n,
             force_continuous_n,
+            config: ConfigState::NotApplicable,
         }
+    }
+    /// The same, with the stored configuration's state.
+    pub fn with_config(mut self, config: ConfigState) -> Self {
+        self.config = config;
+        self
     }
     /// On the host: `VersionMismatch` unless the device speaks our version.
     pub fn check(&self) -> Result<(), ProtocolError> {
@@ -401,6 +436,90 @@ pub enum Command {
     /// at the end: every earlier variant keeps its wire tag. Boards that do not offer the
     /// hook answer [`CommandError::Unsupported`].
     InjectOverrun,
+    // Protocol 2: bring-up (appended: earlier variants keep their tags).
+    /// Stream [`DeviceMsg::Sensors`] at `rate_hz` (1 ..= [`SENSOR_RATE_MAX_HZ`]); 0 stops.
+    /// Refused with [`CommandError::OutOfRange`] above the maximum.
+    StreamSensors {
+        rate_hz: u16,
+    },
+    /// Drive one motor gently for a moment, to check its wiring and direction. Refused while
+    /// forces are enabled ([`CommandError::ForcesEnabled`]), while the configuration is not
+    /// valid ([`CommandError::ConfigNotValid`]), and outside the caps
+    /// ([`CommandError::OutOfRange`]); the motors are off again after `duration_ms`.
+    NudgeMotor(Nudge),
+}
+
+/// Most sensor reports per second [`Command::StreamSensors`] asks for: one per force tick.
+pub const SENSOR_RATE_MAX_HZ: u16 = 1000;
+
+/// A gentle, short motor command ([`Command::NudgeMotor`]).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Nudge {
+    /// Motor channel, 0 ..= 2.
+    pub channel: u8,
+    /// Command in thousandths of full current, signed, at most [`Nudge::MAX_PERMILLE`] in
+    /// magnitude.
+    pub command_permille: i16,
+    /// How long (ms), 1 ..= [`Nudge::MAX_MS`].
+    pub duration_ms: u16,
+}
+
+impl Nudge {
+    /// Largest nudge: 15% of full current, enough to turn a motor against its friction,
+    /// too little to throw the arm.
+    pub const MAX_PERMILLE: i16 = 150;
+    /// Longest nudge (ms): a visible twitch, not a run into a joint limit.
+    pub const MAX_MS: u16 = 300;
+
+    /// Whether the nudge is within the caps.
+    pub fn is_within_caps(&self) -> bool {
+        self.channel < 3
+            && self.command_permille.unsigned_abs() <= Self::MAX_PERMILLE.unsigned_abs()
+            && (1..=Self::MAX_MS).contains(&self.duration_ms)
+    }
+}
+
+/// Raw sensor readings ([`DeviceMsg::Sensors`]), for bring-up: what the pen's own sensors
+/// say, before calibration and kinematics.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SensorReport {
+    /// Device tick (1 ms) of the reading.
+    pub tick: u32,
+    /// Encoder counts, unwrapped (`kinematics::EncoderUnwrap`), per motor.
+    pub encoders: [i64; 3],
+    /// Gimbal ADC codes after the filter (`pen_io::AdcFilter`), 12-bit.
+    pub gimbal: [u16; 3],
+    pub buttons: Buttons,
+    /// The readings are computed, not measured: the QEMU board derives them from the host's
+    /// pose through the pen's inverse kinematics.
+    pub synthetic: bool,
+}
+
+/// Why [`HostMsg::GetConfig`] or [`HostMsg::SetConfig`] was refused.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ConfigRejected {
+    /// No valid configuration in force (answer to `GetConfig`): the stored state.
+    NotStored(ConfigState),
+    /// A value out of range, by field (`"pen.ratio"`, `"drive[1].deadband"`); nothing was
+    /// written.
+    Invalid(InvalidField),
+    /// Forces are enabled: disable them before writing the configuration.
+    ForcesEnabled,
+    /// The store failed to write, or the image read back differs.
+    StoreFailed,
+}
+
+impl fmt::Display for ConfigRejected {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ConfigRejected::NotStored(state) => write!(f, "no configuration in force: {state}"),
+            ConfigRejected::Invalid(field) => write!(f, "{field}"),
+            ConfigRejected::ForcesEnabled => {
+                f.write_str("forces are enabled: disable them before writing the configuration")
+            }
+            ConfigRejected::StoreFailed => f.write_str("the configuration store failed"),
+        }
+    }
 }
 
 /// A preset, by its index in [`presets::PRESETS`] or by one of the names
@@ -431,6 +550,16 @@ pub enum CommandError {
     UnknownPreset,
     /// Forces stay off while these faults are latched.
     FaultsLatched(Faults),
+    // Protocol 2 (appended).
+    /// The pen's stored configuration is missing or corrupt (see [`DeviceInfo::config`]),
+    /// or not calibrated: forces (and nudges) stay off until a valid one is written.
+    ConfigNotValid,
+    /// Forces are enabled: the command (nudge, calibration) needs them off.
+    ForcesEnabled,
+    /// An argument outside its range (a nudge beyond its caps, a sensor rate too high).
+    OutOfRange,
+    /// The configuration store failed to write (calibration).
+    StoreFailed,
 }
 
 /// Something that happened on the device, at a tick, with the faults latched after it.

@@ -18,8 +18,8 @@
 //! | `0x00` | [`DELIMITER`] |
 //!
 //! The decoded content (header + message + CRC) is bounded per direction: [`HOST_MSG_MAX`]
-//! = 256 bytes host to device, [`DEVICE_MSG_MAX`] = 4096 bytes device to host; on the wire
-//! that is at most [`max_frame_len`] of it ([`Message::MAX_FRAME`]: 259 and 4114 bytes).
+//! = 512 bytes host to device, [`DEVICE_MSG_MAX`] = 4096 bytes device to host; on the wire
+//! that is at most [`max_frame_len`] of it ([`Message::MAX_FRAME`]: 516 and 4114 bytes).
 //! Encoding ([`Message::encode`]) streams postcard's output through the CRC and its COBS
 //! flavour straight into the caller's buffer: no scratch buffer, no allocation.
 //!
@@ -42,9 +42,29 @@
 //! | `Ping { seq }` | `Pong { seq }` |
 //! | `Pose(`[`PoseSample`]`)`: the virtual pen, each 1 ms tick | `State(`[`BrushState`]`)`: the brush, about 120 Hz |
 //! | `GetParam { id }`, `SetParam { id, value }` | `Param(`[`ParamReply`]`)`: the value in force, or [`ParamRejected`] |
-//! | `Command(`[`Command`]`)`: enable / disable forces, calibrate, dip ink, choose preset, clear faults, reset brush | `CommandDone { command, result }` |
+//! | `Command(`[`Command`]`)`: enable / disable forces, calibrate, dip ink, choose preset, clear faults, reset brush, stream sensors, nudge a motor | `CommandDone { command, result }` |
 //! | | `Event(`[`Event`]`)`: fault raised / cleared, forces enabled / disabled, link (re)connected, with the latched [`Faults`] |
 //! | | `Telemetry(`[`Telemetry`]`)`: tick period min / mean / max (us), load (%), frames dropped, virtual-pen pose gaps, the device receiver's [`LinkStats`] |
+//! | `GetConfig`, `SetConfig(`[`DeviceConfig`]`)` (protocol 2) | `Config(Result<`[`DeviceConfig`]`, `[`ConfigRejected`]`>)`: the configuration in force, or why not (the invalid field by name, forces enabled, store failed, none stored) |
+//! | `Command(StreamSensors { rate_hz })`, `Command(NudgeMotor(`[`Nudge`]`))` (protocol 2) | `Sensors(`[`SensorReport`]`)`: unwrapped encoder counts, filtered gimbal codes, buttons, at the rate asked |
+//!
+//! ## The stored configuration and bring-up (protocol 2)
+//!
+//! [`DeviceInfo::config`] says what the pen knows about its stored configuration
+//! ([`ConfigState`]): `Valid`, `Missing` (erased flash), `Corrupt(`[`ConfigError`]`)` (bad
+//! magic, another format version, truncated, CRC mismatch, undecodable, a value out of
+//! range: see [`crate::pen_io::config`] for the image), or `NotApplicable` (a virtual pen
+//! needs none). While the state does not [allow forces](ConfigState::allows_forces),
+//! `EnableForces` and `NudgeMotor` are refused with [`CommandError::ConfigNotValid`] and
+//! the motors stay off. `SetConfig` validates the whole configuration before it writes
+//! anything and is refused while forces are enabled; a valid write puts the configuration in
+//! force and the state becomes `Valid`. `Calibrate` (physical pen) records the raw readings
+//! at the inkwell into the configuration and stores it.
+//!
+//! Bring-up: `StreamSensors { rate_hz }` starts (0 stops) [`DeviceMsg::Sensors`];
+//! `NudgeMotor` drives one motor at most 15% of full current for at most 300 ms
+//! ([`Nudge::MAX_PERMILLE`], [`Nudge::MAX_MS`]), only with forces off and a valid
+//! configuration, and the motor is off again afterwards.
 //!
 //! Two enums, one per direction, so each end can only decode what the other may send; the
 //! direction byte makes an echoed frame an error rather than a message (without it an
@@ -99,11 +119,11 @@
 //! | state, small preset (12 layers), at rest / pressed and dragged | 642 / 702 | 7.7% / 8.4% at 120 Hz |
 //! | state, 24 layers, every value at its longest varint | 3786 | (the bound: [`DEVICE_MSG_MAX`]) |
 //! | pose sample | 43 | 4.3% at 1 kHz |
-//! | longest host message | 85 | (the bound: [`HOST_MSG_MAX`]) |
+//! | longest host message: `SetConfig`, every varint at its longest | 267 decoded | (the bound: [`HOST_MSG_MAX`]) |
 //!
 //! A 512-byte frame limit would not hold one exact state of the large brush (every
 //! fixed-point value costs 5-6 bytes: 32 fraction bits of live data), hence the per-direction
-//! bounds above; the host-to-device bound keeps the device's receive buffer at 256 bytes.
+//! bounds above; the host-to-device bound keeps the device's receive buffer at 512 bytes.
 
 // The device path must not panic on any input: no indexing, no unwrap.
 #![deny(
@@ -117,15 +137,17 @@ mod frame;
 mod messages;
 mod state;
 
+pub use crate::pen_io::{ConfigError, ConfigState, DeviceConfig, InvalidField};
 pub use frame::{
     check_version, crc32, encode_raw, max_frame_len, Feed, FrameDecoder, LinkStats, Message,
     ProtocolError, CRC_LEN, DELIMITER, DEVICE_TO_HOST, HEADER_LEN, HOST_TO_DEVICE,
     PROTOCOL_VERSION,
 };
 pub use messages::{
-    bounded_str, param_id, Buttons, Capabilities, Command, CommandError, DeviceInfo, DeviceMsg,
-    Event, EventKind, Faults, HostHello, HostMsg, ParamRejected, ParamReply, PresetRef,
-    RejectReason, Telemetry, Version, DEVICE_MSG_MAX, HOST_MSG_MAX, NAME_LEN, REASON_LEN,
+    bounded_str, param_id, Buttons, Capabilities, Command, CommandError, ConfigRejected,
+    DeviceInfo, DeviceMsg, Event, EventKind, Faults, HostHello, HostMsg, Nudge, ParamRejected,
+    ParamReply, PresetRef, RejectReason, SensorReport, Telemetry, Version, DEVICE_MSG_MAX,
+    HOST_MSG_MAX, NAME_LEN, REASON_LEN, SENSOR_RATE_MAX_HZ,
 };
 pub use state::{
     vec3_bits, vec3_from_bits, BrushShape, BrushState, Haptics, LayerState, PoseBits, PoseSample,

@@ -1,0 +1,342 @@
+//! What a physical pen stores in flash, and the image format it is stored in.
+//!
+//! # The image
+//!
+//! | bytes | what |
+//! |---|---|
+//! | 4 | [`CONFIG_MAGIC`], `b"MBCF"` |
+//! | 2 | format version, little-endian: [`CONFIG_FORMAT_VERSION`] |
+//! | 2 | payload length `n`, little-endian, at most [`CONFIG_PAYLOAD_MAX`] |
+//! | n | the [`DeviceConfig`], postcard-encoded |
+//! | 4 | CRC-32/ISO-HDLC of the header and the payload, little-endian (the same CRC as the wire protocol's frames: [`crate::protocol::crc32`]) |
+//!
+//! At most [`CONFIG_IMAGE_MAX`] bytes. [`decode`] checks, in this order, and names the first
+//! thing wrong ([`ConfigError`]): blank header (erased flash: never written), magic, version,
+//! length, enough bytes, CRC, payload decodes with nothing left over, values valid. A CRC-32
+//! catches every error of up to 3 flipped bits and every burst of up to 32 bits in an image
+//! this size, and a truncated image is caught by its length field before the CRC is looked
+//! at; `shared/tests/pen_io.rs` flips every bit and cuts every length of a real image.
+//!
+//! An interrupted write leaves the end of the image blank (erased flash reads `0xFF`; the
+//! QEMU board's RAM-backed store reads `0x00` where no file was loaded): an image whose
+//! length field is blank, or whose CRC does not match and whose last byte is blank, is
+//! reported as [`ConfigError::Truncated`] rather than as a CRC mismatch. (This only names the
+//! error: such an image is rejected either way. A damaged image whose real CRC happens to end
+//! in `0x00` or `0xFF` is reported as truncated too.) An image cut inside its header may
+//! also read as a bad magic or a bad length.
+//!
+//! # Why postcard and a version number
+//!
+//! postcard is already the wire protocol's encoding (the same serde derives serve
+//! [`crate::protocol::HostMsg::SetConfig`]); it is compact and bounded. It has no schema
+//! evolution, so any change to [`DeviceConfig`]'s layout increments [`CONFIG_FORMAT_VERSION`]
+//! and an older image is reported as [`ConfigError::UnsupportedVersion`]: the pen starts safe
+//! (no force) and the builder writes the configuration again.
+
+use core::fmt::{self, Write};
+
+use heapless::String;
+use serde::{Deserialize, Serialize};
+
+use crate::force::{DeviceLimits, LimitError, PHANTOM_OMNI};
+use crate::kinematics::{PenConfig, RawReadings};
+use crate::protocol::crc32;
+
+use super::drive::DriveConfig;
+
+/// First four bytes of every configuration image.
+pub const CONFIG_MAGIC: [u8; 4] = *b"MBCF";
+/// Version of the image's payload layout; any change to [`DeviceConfig`] increments it.
+pub const CONFIG_FORMAT_VERSION: u16 = 1;
+/// Magic, version and length.
+pub const IMAGE_HEADER_LEN: usize = 8;
+const CRC_LEN: usize = 4;
+/// Longest postcard encoding of a [`DeviceConfig`]: 30 `f32` and 9 `i8` in the pen
+/// (120 + 9 bytes) and its three `u32` counts (5 bytes each at most); per drive channel a
+/// `u32` (5), two `f32` (8) and the policy (1); 7 `f32` limits (28); the calibration's
+/// option tag (1), three `i64` (10 each) and three `i32` (5 each). Test
+/// `longest_payload_is_the_bound` encodes a config with every varint at its longest.
+pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 14 + 28 + 1 + 30 + 15;
+/// Longest image: header, payload and CRC. A flash page for the image needs this much.
+pub const CONFIG_IMAGE_MAX: usize = IMAGE_HEADER_LEN + CONFIG_PAYLOAD_MAX + CRC_LEN;
+/// Capacity of a field's name in [`InvalidField`] (`"drive[2].max_duty"`).
+pub const FIELD_LEN: usize = 32;
+
+/// Everything a physical pen keeps across power cycles.
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceConfig {
+    /// Link lengths, encoder counts, ratios, torque constants, signs, joint limits, the
+    /// inkwell pose.
+    pub pen: PenConfig,
+    /// One H-bridge channel per motor.
+    pub drive: [DriveConfig; 3],
+    /// The force limits of this pen's motors.
+    pub limits: DeviceLimits,
+    /// The raw readings with the pen resting in its inkwell ([`crate::kinematics::Pen::calibrate`]);
+    /// `None` until [`crate::protocol::Command::Calibrate`] has recorded them.
+    pub calibration: Option<RawReadings>,
+}
+
+impl DeviceConfig {
+    /// The reference pen ([`PenConfig::OMNI_LIKE`]), [`DriveConfig::DEFAULT`] on every
+    /// channel, the Phantom Omni's force limits, not calibrated.
+    pub const DEFAULT: DeviceConfig = DeviceConfig {
+        pen: PenConfig::OMNI_LIKE,
+        drive: [DriveConfig::DEFAULT; 3],
+        limits: PHANTOM_OMNI,
+        calibration: None,
+    };
+
+    /// Every value within its range; the first one that is not, by name
+    /// (`"pen.ratio"`, `"drive[1].deadband"`, `"limits.peak_n"`).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        self.pen
+            .validate()
+            .map_err(|e| InvalidField::new("pen.", None, e))?;
+        for (j, d) in self.drive.iter().enumerate() {
+            d.validate()
+                .map_err(|e| InvalidField::new("drive", Some(j), e))?;
+        }
+        self.limits
+            .validate()
+            .map_err(|e| InvalidField::new("limits.", None, e))
+    }
+
+    /// Whether forces may be rendered with this configuration: valid and calibrated.
+    pub fn ready_for_forces(&self) -> bool {
+        self.validate().is_ok() && self.calibration.is_some()
+    }
+}
+
+impl Default for DeviceConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// A configuration value out of its range: the field's path, the value and the valid range
+/// (a non-finite value is reported as itself).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InvalidField {
+    /// `"pen.upper_arm_mm"`, `"drive[0].pwm_hz"`, `"limits.continuous_n"`.
+    pub field: String<FIELD_LEN>,
+    pub value: f32,
+    pub min: f32,
+    pub max: f32,
+}
+
+impl InvalidField {
+    fn new(prefix: &str, channel: Option<usize>, e: LimitError) -> Self {
+        let mut field = String::new();
+        // A name longer than FIELD_LEN is cut (none is: the longest is 27 bytes).
+        let _ = match channel {
+            Some(j) => write!(field, "{prefix}[{j}].{}", e.name),
+            None => write!(field, "{prefix}{}", e.name),
+        };
+        InvalidField {
+            field,
+            value: e.value,
+            min: e.min,
+            max: e.max,
+        }
+    }
+}
+
+impl fmt::Display for InvalidField {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.value.is_finite() {
+            write!(
+                f,
+                "{}: {} is outside the valid range {} ..= {}",
+                self.field, self.value, self.min, self.max
+            )
+        } else {
+            write!(f, "{}: value is not a finite number", self.field)
+        }
+    }
+}
+
+/// Why an image is not a usable configuration (or could not be written).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ConfigError {
+    /// The header is erased flash (all `0xFF`): nothing was ever written.
+    Erased,
+    /// The first four bytes are not [`CONFIG_MAGIC`]: not a configuration image.
+    BadMagic,
+    /// A configuration image of another format version (a firmware update changed the
+    /// layout): write the configuration again.
+    UnsupportedVersion { found: u16 },
+    /// The length field exceeds [`CONFIG_PAYLOAD_MAX`].
+    BadLength { len: u16 },
+    /// The image ends before its length says (or its end is blank: the write was
+    /// interrupted).
+    Truncated,
+    /// The CRC does not match: the image was damaged.
+    CrcMismatch { stored: u32, computed: u32 },
+    /// Intact image whose payload does not decode as a [`DeviceConfig`] (or has bytes left
+    /// over).
+    Undecodable,
+    /// Intact image with a value out of range.
+    Invalid(InvalidField),
+    /// Encoding: the buffer cannot hold the image.
+    BufferTooSmall,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ConfigError::Erased => f.write_str("no configuration stored (erased flash)"),
+            ConfigError::BadMagic => f.write_str("not a configuration image (bad magic)"),
+            ConfigError::UnsupportedVersion { found } => write!(
+                f,
+                "configuration format version {found}, this firmware reads {CONFIG_FORMAT_VERSION}"
+            ),
+            ConfigError::BadLength { len } => write!(
+                f,
+                "configuration length {len} exceeds the maximum {CONFIG_PAYLOAD_MAX}"
+            ),
+            ConfigError::Truncated => f.write_str("configuration image truncated"),
+            ConfigError::CrcMismatch { stored, computed } => write!(
+                f,
+                "configuration CRC mismatch (stored {stored:#010x}, computed {computed:#010x})"
+            ),
+            ConfigError::Undecodable => f.write_str("configuration payload does not decode"),
+            ConfigError::Invalid(field) => write!(f, "configuration value invalid: {field}"),
+            ConfigError::BufferTooSmall => f.write_str("buffer too small for the image"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for ConfigError {}
+
+/// What the pen says about its stored configuration in the handshake
+/// ([`crate::protocol::DeviceInfo::config`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ConfigState {
+    /// A valid configuration is in force.
+    Valid,
+    /// None stored (erased flash): forces are refused until one is written.
+    Missing,
+    /// The stored image is unusable, and why: forces are refused until a valid one is written.
+    Corrupt(ConfigError),
+    /// The device has no stored configuration and needs none: a virtual pen (the QEMU board
+    /// without a configuration image, a bridge to a commercial device).
+    NotApplicable,
+}
+
+impl ConfigState {
+    /// The state after loading an image: [`decode`]'s result.
+    pub fn of(loaded: &Result<DeviceConfig, ConfigError>) -> Self {
+        match loaded {
+            Ok(_) => ConfigState::Valid,
+            Err(ConfigError::Erased) => ConfigState::Missing,
+            Err(e) => ConfigState::Corrupt(e.clone()),
+        }
+    }
+
+    /// Whether forces may be enabled in this state (valid, or no configuration needed).
+    pub fn allows_forces(&self) -> bool {
+        matches!(self, ConfigState::Valid | ConfigState::NotApplicable)
+    }
+}
+
+impl fmt::Display for ConfigState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ConfigState::Valid => f.write_str("valid"),
+            ConfigState::Missing => f.write_str("missing (never written)"),
+            ConfigState::Corrupt(e) => write!(f, "corrupt: {e}"),
+            ConfigState::NotApplicable => f.write_str("not applicable (no stored configuration)"),
+        }
+    }
+}
+
+/// Writes `cfg`'s image into `out`; returns its length. Refuses an invalid configuration
+/// ([`ConfigError::Invalid`]): an image this function wrote always decodes.
+pub fn encode(cfg: &DeviceConfig, out: &mut [u8]) -> Result<usize, ConfigError> {
+    cfg.validate().map_err(ConfigError::Invalid)?;
+    let (header, rest) = out
+        .split_at_mut_checked(IMAGE_HEADER_LEN)
+        .ok_or(ConfigError::BufferTooSmall)?;
+    let payload_room = rest.len().saturating_sub(CRC_LEN);
+    let payload_len = {
+        let room = rest
+            .get_mut(..payload_room)
+            .ok_or(ConfigError::BufferTooSmall)?;
+        postcard::to_slice(cfg, room)
+            .map_err(|_| ConfigError::BufferTooSmall)?
+            .len()
+    };
+    if rest.len() < payload_len + CRC_LEN {
+        return Err(ConfigError::BufferTooSmall);
+    }
+    let len16 = u16::try_from(payload_len).map_err(|_| ConfigError::BufferTooSmall)?;
+    let [m0, m1, m2, m3] = CONFIG_MAGIC;
+    let [v0, v1] = CONFIG_FORMAT_VERSION.to_le_bytes();
+    let [l0, l1] = len16.to_le_bytes();
+    header.copy_from_slice(&[m0, m1, m2, m3, v0, v1, l0, l1]);
+    let body_len = IMAGE_HEADER_LEN + payload_len;
+    let crc = crc32(out.get(..body_len).ok_or(ConfigError::BufferTooSmall)?);
+    out.get_mut(body_len..body_len + CRC_LEN)
+        .ok_or(ConfigError::BufferTooSmall)?
+        .copy_from_slice(&crc.to_le_bytes());
+    Ok(body_len + CRC_LEN)
+}
+
+/// Reads an image from the start of `image` (bytes after its end are ignored: a flash page
+/// is larger than the image). Never panics, whatever the bytes.
+pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
+    let header_part = image.get(..IMAGE_HEADER_LEN).unwrap_or(image);
+    if !header_part.is_empty() && header_part.iter().all(|&b| b == 0xFF) {
+        return Err(ConfigError::Erased);
+    }
+    let header: &[u8; IMAGE_HEADER_LEN] =
+        header_part.try_into().map_err(|_| ConfigError::Truncated)?;
+    let [m0, m1, m2, m3, v0, v1, l0, l1] = *header;
+    if [m0, m1, m2, m3] != CONFIG_MAGIC {
+        return Err(ConfigError::BadMagic);
+    }
+    if is_blank(&[l0, l1]) {
+        // The write stopped before the length (a real payload is never empty nor 64 KiB).
+        return Err(ConfigError::Truncated);
+    }
+    let version = u16::from_le_bytes([v0, v1]);
+    if version != CONFIG_FORMAT_VERSION {
+        return Err(ConfigError::UnsupportedVersion { found: version });
+    }
+    let len = u16::from_le_bytes([l0, l1]);
+    if usize::from(len) > CONFIG_PAYLOAD_MAX {
+        return Err(ConfigError::BadLength { len });
+    }
+    let body_len = IMAGE_HEADER_LEN + usize::from(len);
+    let body = image.get(..body_len).ok_or(ConfigError::Truncated)?;
+    let stored: [u8; CRC_LEN] = image
+        .get(body_len..body_len + CRC_LEN)
+        .and_then(|s| s.try_into().ok())
+        .ok_or(ConfigError::Truncated)?;
+    let computed = crc32(body);
+    if u32::from_le_bytes(stored) != computed {
+        let [.., last] = stored;
+        if is_blank(&[last]) {
+            // The image's last byte was never written.
+            return Err(ConfigError::Truncated);
+        }
+        return Err(ConfigError::CrcMismatch {
+            stored: u32::from_le_bytes(stored),
+            computed,
+        });
+    }
+    let payload = body.get(IMAGE_HEADER_LEN..).ok_or(ConfigError::Truncated)?;
+    let cfg = match postcard::take_from_bytes::<DeviceConfig>(payload) {
+        Ok((cfg, [])) => cfg,
+        _ => return Err(ConfigError::Undecodable),
+    };
+    cfg.validate().map_err(ConfigError::Invalid)?;
+    Ok(cfg)
+}
+
+/// All erased flash (`0xFF`) or all zero (RAM where nothing was loaded).
+fn is_blank(bytes: &[u8]) -> bool {
+    bytes.iter().all(|&b| b == 0xFF) || bytes.iter().all(|&b| b == 0)
+}

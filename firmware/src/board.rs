@@ -14,6 +14,7 @@
 //! encoder unwrapping, filtering, calibration, kinematics), the supervisor, and the link
 //! protocol. What the board provides: its boot, its interrupts, and these traits.
 
+use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::{Fx, Pose};
 
 /// The three motor channels of the pen.
@@ -27,6 +28,14 @@ pub trait Motors {
     fn disable(&mut self);
     /// The last command actually applied (zero while disabled): reported in state frames.
     fn applied(&self) -> [Fx; 3];
+    /// Drives one channel at `command` (fraction of full current, within the nudge caps)
+    /// and the others not at all: the bring-up's motor check. False if the board has no
+    /// motors to nudge.
+    fn nudge(&mut self, _channel: usize, _command: Fx) -> bool {
+        false
+    }
+    /// A new stored configuration is in force (torque constants, ratios, drive settings).
+    fn configure(&mut self, _cfg: &DeviceConfig) {}
 }
 
 /// One raw reading of the pen's joints: encoder counts of the three motor joints and the
@@ -68,9 +77,24 @@ pub trait PoseSource {
     fn forces_allowed(&self) -> bool {
         true
     }
-    /// The pen rests in its inkwell: take the current readings as the zeros. False when the
-    /// source has nothing to calibrate (a virtual pen) or no valid configuration.
-    fn calibrate(&mut self) -> bool {
+    /// A new stored configuration is in force (geometry, sensors, and the calibration: the
+    /// link task stores the readings at the inkwell in it).
+    fn configure(&mut self, _cfg: &DeviceConfig) {}
+}
+
+/// A physical pen's configuration store (flash): the link writes a validated
+/// configuration through it, only while the forces are off.
+pub trait ConfigStore {
+    /// Writes `cfg` and reads it back; false if either failed.
+    fn store(&mut self, cfg: &DeviceConfig) -> bool;
+}
+
+/// The store of a board that keeps no configuration (a virtual pen): writes nothing.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
+pub struct NoConfigStore;
+
+impl ConfigStore for NoConfigStore {
+    fn store(&mut self, _cfg: &DeviceConfig) -> bool {
         false
     }
 }
@@ -100,5 +124,6 @@ pub trait CycleCounter {
     fn now(&self) -> u32;
     /// What one count is: on QEMU `"timer25mhz"` (40 / 2^shift instructions under
     /// `-icount shift=N`, converted by the host), on hardware `"cycles"` (DWT).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // read by QEMU's bench
     const UNIT: &'static str;
 }

@@ -27,15 +27,17 @@ use core::sync::atomic::Ordering;
 use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
+use maobi_shared::kinematics::RawReadings;
+use maobi_shared::pen_io::{ConfigState, DeviceConfig};
 use maobi_shared::protocol::{
-    param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message,
-    ParamRejected, ParamReply, Telemetry, Version,
+    param_id, BrushState, Buttons, Capabilities, Command as Wire, CommandError, ConfigRejected,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, Nudge,
+    ParamRejected, ParamReply, SensorReport, Telemetry, Version, SENSOR_RATE_MAX_HZ,
 };
-use maobi_shared::{BrushParams, Fx, Pose, Vec3};
+use maobi_shared::{BrushParams, Fx, Pose, Scalar, Vec3};
 
 use crate::app::{self, Command, FAULTS, FORCES_ENABLED, SNAPSHOT, TICKS};
-use crate::board::LinkTransport;
+use crate::board::{ConfigStore, LinkTransport};
 
 /// What the link says about the board and lets the host do with it.
 pub struct BoardInfo {
@@ -45,17 +47,23 @@ pub struct BoardInfo {
     /// Force limits in the handshake (N).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
-    /// `Calibrate` is queued for the force loop (else answered `Unsupported`).
+    /// `Calibrate` stores the readings at the inkwell in the configuration (else answered
+    /// `Unsupported`).
     pub can_calibrate: bool,
 }
 
 /// What the link task drives.
-pub struct LinkParts<T> {
+pub struct LinkParts<T, S> {
     pub transport: T,
     /// The virtual pen's pose queue (`None` on a board with its own sensors: pose samples
     /// from the host are then ignored).
     pub poses: Option<app::PoseProducer>,
     pub cmds: app::CmdProducer,
+    /// The configuration store (a board with `Capabilities::STORED_CONFIG`).
+    pub store: S,
+    /// The stored configuration's state at boot, and the configuration if it is valid.
+    pub config_state: ConfigState,
+    pub config: Option<DeviceConfig>,
 }
 
 /// Link settings from the boot command line.
@@ -73,8 +81,11 @@ struct TxBuf(core::cell::UnsafeCell<[u8; DeviceMsg::MAX_FRAME]>);
 unsafe impl Sync for TxBuf {}
 static TX_BUF: TxBuf = TxBuf(core::cell::UnsafeCell::new([0; DeviceMsg::MAX_FRAME]));
 
-struct Link<T> {
-    parts: LinkParts<T>,
+struct Link<T, S> {
+    parts: LinkParts<T, S>,
+    /// Sensor reports per second (0: none) and the tick the next one is due.
+    sensor_rate_hz: u16,
+    next_sensor_tick: u32,
     board: &'static BoardInfo,
     cfg: LinkConfig,
     rx: DeviceRx,
@@ -99,14 +110,16 @@ struct Link<T> {
 
 /// The link task's body (each board wraps it in its own `#[embassy_executor::task]`, since
 /// tasks cannot be generic over the transport).
-pub async fn run<T: LinkTransport>(
-    parts: LinkParts<T>,
+pub async fn run<T: LinkTransport, S: ConfigStore>(
+    parts: LinkParts<T, S>,
     board: &'static BoardInfo,
     params: BrushParams,
     cfg: LinkConfig,
 ) -> ! {
     let mut link = Link {
         parts,
+        sensor_rate_hz: 0,
+        next_sensor_tick: 0,
         board,
         cfg,
         rx: DeviceRx::new(),
@@ -132,11 +145,12 @@ pub async fn run<T: LinkTransport>(
         link.send_state();
         link.events().await;
         link.telemetry().await;
+        link.sensors().await;
         link.wait().await;
     }
 }
 
-impl<T: LinkTransport> Link<T> {
+impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     /// Waits for received bytes, a filled snapshot or half a tick, whichever comes first.
     async fn wait(&mut self) {
         let period = Duration::from_micros(u64::from(self.cfg.tick_us / 2).max(100));
@@ -214,13 +228,16 @@ impl<T: LinkTransport> Link<T> {
     async fn handle(&mut self, m: HostMsg) {
         match m {
             HostMsg::Hello(_) => {
-                let info = DeviceInfo::new(
+                let mut info = DeviceInfo::new(
                     self.board.name,
                     firmware_version(),
                     self.board.capabilities,
                     self.board.force_peak_n,
                     self.board.force_continuous_n,
                 );
+                if self.stores_config() {
+                    info = info.with_config(self.parts.config_state.clone());
+                }
                 self.send(&DeviceMsg::Hello(info)).await;
                 self.command(Command::Reanchor).await;
                 app::LINK_ARMED.store(true, Ordering::SeqCst);
@@ -262,15 +279,24 @@ impl<T: LinkTransport> Link<T> {
                 };
                 self.send(&DeviceMsg::Param(reply)).await;
             }
+            HostMsg::GetConfig => {
+                let reply = match self.parts.config {
+                    Some(c) if self.stores_config() => Ok(c),
+                    _ if self.stores_config() => Err(ConfigRejected::NotStored(
+                        self.parts.config_state.clone(),
+                    )),
+                    _ => Err(ConfigRejected::NotStored(ConfigState::NotApplicable)),
+                };
+                self.send(&DeviceMsg::Config(reply)).await;
+            }
+            HostMsg::SetConfig(cfg) => {
+                let reply = self.set_config(cfg).await;
+                self.send(&DeviceMsg::Config(reply)).await;
+            }
             HostMsg::Command(c) => {
                 let result = self.wire_command(&c).await;
                 self.send(&DeviceMsg::CommandDone { command: c, result })
                     .await;
-            }
-            // No configuration store on this board yet.
-            HostMsg::GetConfig | HostMsg::SetConfig(_) => {
-                let reply = Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
-                self.send(&DeviceMsg::Config(reply)).await;
             }
         }
     }
@@ -279,16 +305,18 @@ impl<T: LinkTransport> Link<T> {
         // Decide on the state after every earlier command (a ClearFaults just before an
         // EnableForces, say).
         self.settle().await;
-        // A pen that is not calibrated (or has no valid configuration) reports it as a fault
-        // here, though nothing is latched: forces stay off until it is.
-        let faults = FAULTS.load(Ordering::SeqCst) | app::PEN_NOT_READY.load(Ordering::SeqCst);
+        let faults = FAULTS.load(Ordering::SeqCst);
         let cmd = match c {
             Wire::EnableForces if faults != 0 => {
                 return Err(CommandError::FaultsLatched(faults_of(faults)))
             }
+            // A pen with no valid configuration, or not calibrated: forces stay off.
+            Wire::EnableForces if app::PEN_NOT_READY.load(Ordering::SeqCst) != 0 => {
+                return Err(CommandError::ConfigNotValid)
+            }
             Wire::EnableForces => Command::EnableForces,
             Wire::DisableForces => Command::DisableForces,
-            Wire::Calibrate if self.board.can_calibrate => Command::Calibrate,
+            Wire::Calibrate if self.board.can_calibrate => return self.calibrate().await,
             // The virtual pen has no sensors to zero.
             Wire::Calibrate => return Err(CommandError::Unsupported),
             Wire::DipInk { wetness } => Command::Dip(Fx::from_bits(*wetness)),
@@ -300,13 +328,132 @@ impl<T: LinkTransport> Link<T> {
             Wire::ClearFaults => Command::ClearFaults,
             Wire::ResetBrush => Command::ResetBrush,
             Wire::InjectOverrun => Command::InjectOverrun,
-            // No sensors and no motors to nudge on the virtual pen yet.
-            Wire::StreamSensors { .. } | Wire::NudgeMotor(_) => {
-                return Err(CommandError::Unsupported)
+            Wire::StreamSensors { rate_hz } if *rate_hz > SENSOR_RATE_MAX_HZ => {
+                return Err(CommandError::OutOfRange)
             }
+            Wire::StreamSensors { rate_hz } if self.has_sensors() => {
+                self.sensor_rate_hz = *rate_hz;
+                self.next_sensor_tick = TICKS.load(Ordering::Relaxed);
+                return Ok(());
+            }
+            // No sensors on the virtual pen.
+            Wire::StreamSensors { .. } => return Err(CommandError::Unsupported),
+            Wire::NudgeMotor(n) => self.nudge(n)?,
         };
         self.command(cmd).await;
         Ok(())
+    }
+
+    fn stores_config(&self) -> bool {
+        self.board
+            .capabilities
+            .contains(Capabilities::STORED_CONFIG)
+    }
+
+    fn has_sensors(&self) -> bool {
+        self.board.capabilities.contains(Capabilities::REAL_SENSORS)
+    }
+
+    /// `SetConfig`: validated whole, written only with the forces off, read back by the
+    /// store, then put in force (the force loop takes it up at its next tick).
+    async fn set_config(&mut self, cfg: DeviceConfig) -> Result<DeviceConfig, ConfigRejected> {
+        if !self.stores_config() {
+            return Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
+        }
+        self.settle().await;
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(ConfigRejected::ForcesEnabled);
+        }
+        cfg.validate().map_err(ConfigRejected::Invalid)?;
+        if !self.parts.store.store(&cfg) {
+            return Err(ConfigRejected::StoreFailed);
+        }
+        self.put_in_force(cfg).await;
+        Ok(cfg)
+    }
+
+    /// A stored configuration replaces the one in force.
+    async fn put_in_force(&mut self, cfg: DeviceConfig) {
+        self.parts.config = Some(cfg);
+        self.parts.config_state = ConfigState::Valid;
+        app::CONFIG_VALID.store(true, Ordering::SeqCst);
+        critical_section::with(|cs| app::NEW_CONFIG.borrow(cs).set(Some(cfg)));
+        self.command(Command::Reconfigure).await;
+        self.settle().await;
+    }
+
+    /// `Calibrate` on a pen with sensors: the readings now (the pen resting in its inkwell)
+    /// become the stored calibration, in force at once.
+    async fn calibrate(&mut self) -> Result<(), CommandError> {
+        self.settle().await;
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(CommandError::ForcesEnabled);
+        }
+        let Some(mut cfg) = self.parts.config else {
+            return Err(CommandError::ConfigNotValid);
+        };
+        // A fresh reading: wait for the force loop's next tick.
+        let seen = critical_section::with(|cs| app::SENSORS.borrow(cs).get()).tick;
+        while critical_section::with(|cs| app::SENSORS.borrow(cs).get()).tick == seen {
+            Timer::after_micros(u64::from(self.cfg.tick_us / 2).max(100)).await;
+        }
+        let s = critical_section::with(|cs| app::SENSORS.borrow(cs).get());
+        cfg.calibration = Some(RawReadings {
+            encoders: s.encoders,
+            gimbal: s.gimbal.map(i32::from),
+        });
+        if cfg.validate().is_err() || !self.parts.store.store(&cfg) {
+            return Err(CommandError::StoreFailed);
+        }
+        self.put_in_force(cfg).await;
+        Ok(())
+    }
+
+    /// `NudgeMotor`: within the caps, forces off, a valid configuration.
+    fn nudge(&mut self, n: &Nudge) -> Result<Command, CommandError> {
+        if !self.has_sensors() {
+            return Err(CommandError::Unsupported);
+        }
+        if !n.is_within_caps() {
+            return Err(CommandError::OutOfRange);
+        }
+        if FORCES_ENABLED.load(Ordering::SeqCst) {
+            return Err(CommandError::ForcesEnabled);
+        }
+        if self.parts.config.is_none() {
+            return Err(CommandError::ConfigNotValid);
+        }
+        let ticks = (u32::from(n.duration_ms) * 1000 / self.cfg.tick_us.max(1)).max(1);
+        Ok(Command::Nudge {
+            channel: n.channel,
+            command: Fx::from_f64(f64::from(n.command_permille) / 1000.0),
+            ticks: u16::try_from(ticks).unwrap_or(u16::MAX),
+        })
+    }
+
+    /// The bring-up's sensor stream, at the rate the host asked for.
+    async fn sensors(&mut self) {
+        if self.sensor_rate_hz == 0 {
+            return;
+        }
+        let now = TICKS.load(Ordering::Relaxed);
+        if (now.wrapping_sub(self.next_sensor_tick) as i32) < 0 {
+            return;
+        }
+        let ticks_per_report = (1000 / u32::from(self.sensor_rate_hz)).max(1);
+        self.next_sensor_tick = now.wrapping_add(ticks_per_report);
+        let s = critical_section::with(|cs| app::SENSORS.borrow(cs).get());
+        let report = SensorReport {
+            tick: s.tick,
+            encoders: s.encoders,
+            gimbal: s.gimbal,
+            buttons: Buttons::from_bits_retain(s.buttons),
+            synthetic: false,
+        };
+        // Like a state frame: dropped (and counted) when the transmit queue is full.
+        if !self.try_send(&DeviceMsg::Sensors(report)) {
+            self.frames_dropped = self.frames_dropped.saturating_add(1);
+        }
     }
 
     /// Queues a command for the force loop, waiting for room.

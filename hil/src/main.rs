@@ -41,7 +41,12 @@ enum Cmd {
         shift: u32,
     },
     /// Flash and static RAM of the firmware image against the budget.
-    Size,
+    Size {
+        /// Which board's image (`blackpill`: built with `--profile pen`; its line adds the
+        /// stack reserve to the RAM).
+        #[arg(long, value_enum, default_value_t = firmware::Board::Qemu)]
+        board: firmware::Board,
+    },
     /// Boots the firmware and runs the bench stroke through the real force loop.
     Selftest {
         #[arg(long, default_value_t = 600)]
@@ -90,6 +95,26 @@ fn main() -> Result<()> {
         }
         return Ok(());
     }
+    if let Cmd::Size {
+        board: board @ firmware::Board::Blackpill,
+    } = cli.cmd
+    {
+        let elf = firmware::board_image(board, cli.elf.as_deref(), cli.no_build)?;
+        let s = firmware::size(&elf, board.ram_start())?;
+        let ram = s.static_ram + firmware::Board::STACK_RESERVE;
+        println!("image: {}", elf.display());
+        println!(
+            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB) ram_with_stack={} bytes ({:.1} KiB, budget 32 KiB, stack reserve {} bytes)",
+            s.flash,
+            s.flash as f64 / 1024.0,
+            s.static_ram,
+            s.static_ram as f64 / 1024.0,
+            ram,
+            ram as f64 / 1024.0,
+            firmware::Board::STACK_RESERVE,
+        );
+        return Ok(());
+    }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
     match cli.cmd {
         Cmd::Run {
@@ -105,7 +130,7 @@ fn main() -> Result<()> {
             let r = bench::run(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));
         }
-        Cmd::Size => {
+        Cmd::Size { .. } => {
             let s = firmware::size(&elf, 0x2000_0000)?;
             println!("image: {}", elf.display());
             println!(

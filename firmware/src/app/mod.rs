@@ -30,6 +30,7 @@ pub mod slot;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
+use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
@@ -87,6 +88,10 @@ pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
 /// ([`PoseSource::forces_allowed`]; never for the virtual pen), kept by the force loop:
 /// reported with the faults in state frames and refusing `EnableForces`.
 pub static PEN_NOT_READY: AtomicU32 = AtomicU32::new(0);
+/// A pen with a configuration store has a valid one in force (the board's fault LED says
+/// so; set at boot and by the link task when it stores one).
+pub static CONFIG_VALID: AtomicBool = AtomicBool::new(false);
+
 /// The board is stalling the force loop on purpose, with the motors off (writing its
 /// configuration to flash, which the core cannot read meanwhile): the supervisor and the
 /// overrun check do not count the pause, and the motors stay off until it ends.
@@ -191,6 +196,7 @@ pub enum Command {
     /// Test hook: burn more than one tick's time in the next tick.
     InjectOverrun,
     /// Test hook: the force loop never returns from its next tick (for the watchdog).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's crash test
     Stall,
     /// Set a brush parameter (validated by the link task; a rejection here latches
     /// PARAM_REJECTED).
@@ -199,13 +205,41 @@ pub enum Command {
     SetParams(BrushParams),
     /// Wet every layer (`Brush::dip`).
     Dip(Fx),
-    /// The pen rests in its inkwell: its current readings are the calibration zeros
-    /// ([`PoseSource::calibrate`]; the link task answers `Unsupported` on boards without
-    /// sensors and never sends it there).
-    Calibrate,
+    /// Drive motor `channel` at `command` (fraction of full current) for `ticks` ticks while
+    /// the forces are off (the bring-up's check; the link has checked the caps).
+    Nudge { channel: u8, command: Fx, ticks: u16 },
+    /// The configuration in [`NEW_CONFIG`] is in force from this tick.
+    Reconfigure,
 }
 
+/// A configuration the link task has stored, for the force loop to take up
+/// ([`Command::Reconfigure`]); too large to travel in the command queue.
+pub static NEW_CONFIG: critical_section::Mutex<core::cell::Cell<Option<DeviceConfig>>> =
+    critical_section::Mutex::new(core::cell::Cell::new(None));
+
+/// The pen's latest sensor reading (a pen with its own sensors), kept by the force loop
+/// each tick for the link task (the bring-up's sensor stream, the calibration it stores).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct SensorSample {
+    pub tick: u32,
+    /// Encoder counts, unwrapped.
+    pub encoders: [i64; 3],
+    /// Gimbal ADC codes after the filter.
+    pub gimbal: [u16; 3],
+    /// Debounced buttons (bit 0 primary, bit 1 secondary).
+    pub buttons: u8,
+}
+
+pub static SENSORS: critical_section::Mutex<core::cell::Cell<SensorSample>> =
+    critical_section::Mutex::new(core::cell::Cell::new(SensorSample {
+        tick: 0,
+        encoders: [0; 3],
+        gimbal: [0; 3],
+        buttons: 0,
+    }));
+
 /// Capacity of the virtual pen's pose queue and of the command queue.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
 pub const POSE_QUEUE: usize = 64;
 pub const CMD_QUEUE: usize = 8;
 
@@ -214,8 +248,10 @@ pub type CmdConsumer = heapless::spsc::Consumer<'static, Command>;
 pub type CmdProducer = heapless::spsc::Producer<'static, Command>;
 
 /// A pose the host sent for a virtual pen, with its sequence number.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
 pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
 pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
 pub type PoseConsumer = heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>;
 
 /// Cycles [`Command::InjectOverrun`] burns in one tick unless the board says otherwise:
@@ -287,6 +323,8 @@ pub struct ForceLoop<P, M, W> {
     force: [Fx; 3],
     enabled: bool,
     jump2: Fx,
+    /// A bring-up nudge in progress: channel, command, ticks left.
+    nudge: Option<(usize, Fx, u16)>,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
@@ -315,6 +353,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             force: [Fx::ZERO; 3],
             enabled: false,
             jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
+            nudge: None,
         })
     }
 
@@ -405,13 +444,24 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
     }
 
-    /// Motors on only while the host has enabled them and no fault is latched.
+    /// Motors on only while the host has enabled them and no fault is latched; with the
+    /// forces off, a bring-up nudge (no fault latched, not paused) drives one channel.
     fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
         if allowed {
+            self.nudge = None;
             let t = self.pen.torques_for(cmd);
             self.motors.command(t);
-        } else {
-            self.motors.disable();
+            return;
+        }
+        let quiet = FAULTS.load(Ordering::SeqCst) == 0 && !MAINTENANCE.load(Ordering::SeqCst);
+        match self.nudge {
+            Some((ch, c, left)) if left > 0 && quiet && self.motors.nudge(ch, c) => {
+                self.nudge = Some((ch, c, left - 1));
+            }
+            _ => {
+                self.nudge = None;
+                self.motors.disable();
+            }
         }
     }
 
@@ -460,20 +510,21 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 }
             }
             Command::Dip(w) => self.brush.dip(w),
-            Command::Calibrate => {
-                if self.pen.calibrate() {
-                    // The pose jumps to the inkwell's: start the brush at rest there.
+            Command::Nudge {
+                channel,
+                command,
+                ticks,
+            } => self.nudge = Some((usize::from(channel), command, ticks)),
+            Command::Reconfigure => {
+                if let Some(cfg) = critical_section::with(|cs| NEW_CONFIG.borrow(cs).take()) {
+                    self.motors.disable();
+                    self.pen.configure(&cfg);
+                    self.motors.configure(&cfg);
                     self.reanchor = true;
                     self.last_pose = None;
                 }
             }
         }
-    }
-
-    /// The pose source (the board reads its sensor state through it outside the tick).
-    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
-    pub fn pen(&self) -> &P {
-        &self.pen
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {

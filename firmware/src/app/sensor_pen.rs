@@ -2,22 +2,57 @@
 //! every physical board, so that a board only reads registers.
 //!
 //! Each tick [`SensorPen::next_pose`] reads the board's [`JointSensors`] once, extends the
-//! encoders' 16-bit counts ([`EncoderUnwrap`]), and, once the pen has a valid configuration
-//! and a calibration, turns the readings into joint angles and the ferrule's pose
+//! encoders' 16-bit counts ([`EncoderUnwrap`]), filters the gimbal's ADC codes
+//! ([`AdcFilter`]: median of three, then a 21 Hz low-pass), debounces the buttons, publishes
+//! the reading ([`super::SENSORS`]), and, once the pen has a valid configuration and a
+//! calibration, turns the readings into joint angles and the ferrule's pose
 //! ([`Pen::forward`]). The joint angles of that reading map the force on the hand to joint
 //! torques ([`Pen::torques`], `tau = J^T F`) for the same tick.
 
+use core::sync::atomic::Ordering;
+
 use maobi_shared::kinematics::{EncoderUnwrap, Pen, RawReadings};
+use maobi_shared::pen_io::{AdcFilter, DeviceConfig};
 use maobi_shared::{Fx, Pose, Scalar, Vec3};
 
+use super::{SensorSample, SENSORS, TICKS};
 use crate::board::{JointReading, JointSensors, PoseSource};
+
+/// A button's new state is taken after this many consecutive equal readings (ticks: 5 ms,
+/// longer than a switch's bounce, shorter than a deliberate click).
+pub const DEBOUNCE_TICKS: u8 = 5;
+
+/// One debounced button.
+#[derive(Copy, Clone, Debug, Default)]
+struct Debounce {
+    state: bool,
+    /// Consecutive readings that differ from `state`.
+    run: u8,
+}
+
+impl Debounce {
+    fn update(&mut self, reading: bool) -> bool {
+        if reading == self.state {
+            self.run = 0;
+        } else {
+            self.run += 1;
+            if self.run >= DEBOUNCE_TICKS {
+                self.state = reading;
+                self.run = 0;
+            }
+        }
+        self.state
+    }
+}
 
 pub struct SensorPen<J> {
     sensors: J,
     /// `None`: no valid configuration (missing or corrupt): no pose, no forces.
     pen: Option<Pen<Fx>>,
     unwrap: [EncoderUnwrap; 3],
-    /// The last reading, encoders unwrapped.
+    filters: [AdcFilter; 3],
+    buttons: [Debounce; 2],
+    /// The last reading, encoders unwrapped, gimbal filtered.
     raw: RawReadings,
     /// The last reading as the board gave it.
     last: JointReading,
@@ -31,16 +66,18 @@ impl<J: JointSensors> SensorPen<J> {
             sensors,
             pen,
             unwrap: [EncoderUnwrap::default(); 3],
+            filters: [AdcFilter::new(); 3],
+            buttons: [Debounce::default(); 2],
             raw: RawReadings::default(),
             last: JointReading::default(),
             arm: None,
         }
     }
 
-    /// The last reading as the board gave it, and with the encoders unwrapped.
-    #[allow(dead_code)] // the sensor stream (bring-up) reads it
-    pub fn readings(&self) -> (JointReading, RawReadings) {
-        (self.last, self.raw)
+    /// The last reading as the board gave it.
+    #[allow(dead_code)] // for a debugger's eyes; the link reads `SENSORS`
+    pub fn last_reading(&self) -> JointReading {
+        self.last
     }
 }
 
@@ -52,7 +89,21 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
             // The counters are 16 bits wide; the board hands them over as read.
             self.raw.encoders[j] = u.update(r.encoders[j] as u16);
         }
-        self.raw.gimbal = r.gimbal;
+        let mut gimbal = [0u16; 3];
+        for (j, f) in self.filters.iter_mut().enumerate() {
+            // 12-bit codes; anything else is clamped into range rather than wrapped.
+            gimbal[j] = f.update(r.gimbal[j].clamp(0, 4095) as u16);
+            self.raw.gimbal[j] = i32::from(gimbal[j]);
+        }
+        let buttons = u8::from(self.buttons[0].update(r.buttons & 1 != 0))
+            | u8::from(self.buttons[1].update(r.buttons & 2 != 0)) << 1;
+        let sample = SensorSample {
+            tick: TICKS.load(Ordering::Relaxed),
+            encoders: self.raw.encoders,
+            gimbal,
+            buttons,
+        };
+        critical_section::with(|cs| SENSORS.borrow(cs).set(sample));
         let pen = self.pen.as_ref()?;
         match maobi_fast::pen_pose(pen, &self.raw) {
             Ok((pose, arm)) => {
@@ -77,13 +128,13 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
         self.pen.as_ref().is_some_and(Pen::is_calibrated)
     }
 
-    fn calibrate(&mut self) -> bool {
-        match &mut self.pen {
-            Some(pen) => {
-                pen.calibrate(self.raw);
-                true
+    fn configure(&mut self, cfg: &DeviceConfig) {
+        self.pen = Pen::new(cfg.pen).ok().map(|mut pen| {
+            if let Some(zero) = cfg.calibration {
+                pen.calibrate(zero);
             }
-            None => false,
-        }
+            pen
+        });
+        self.arm = None;
     }
 }

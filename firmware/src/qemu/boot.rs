@@ -130,6 +130,10 @@ async fn link_task(parts: qemu::Parts, cfg: link::LinkConfig) {
         transport: parts.uart,
         poses: Some(parts.poses),
         cmds: parts.cmds,
+        // A virtual pen keeps no configuration.
+        store: crate::board::NoConfigStore,
+        config_state: maobi_shared::pen_io::ConfigState::NotApplicable,
+        config: None,
     };
     link::run(parts, &BOARD, presets::LARGE, cfg).await
 }

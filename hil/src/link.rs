@@ -206,6 +206,8 @@ impl<T: Transport> Session<T> {
 }
 
 /// Something to do while streaming, when the next pose to send has this index.
+// `HostMsg::SetConfig` makes the message ~330 bytes; a schedule holds a handful of actions.
+#[allow(clippy::large_enum_variant)]
 pub enum Action {
     Send(HostMsg),
     /// Raw bytes (injected garbage).

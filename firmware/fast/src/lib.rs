@@ -1,12 +1,12 @@
 //! The force loop's hot path, instantiated for the firmware's scalar ([`Fx`]) here.
 //!
 //! The brush, the force model and the pen's kinematics are generic over the scalar, and a
-//! generic function is compiled in the crate that instantiates it. The firmware crate is
-//! built for size (`opt-level = "z"`, see `firmware/Cargo.toml`: the image must fit the
-//! pen's 128 KiB budget), which would also make the 1 kHz tick slow. These non-generic
-//! entry points instantiate the hot code in this crate instead, built at `opt-level = 3`;
-//! `#[inline(never)]` keeps link-time optimisation from pulling them back into the
-//! size-optimised callers.
+//! generic function is compiled in the crate that instantiates it. These non-generic entry
+//! points instantiate the hot code in this crate, so that a profile can build it for speed
+//! while the rest of the image is built for size (`pen-fast` in `firmware/Cargo.toml`: the
+//! pen's image at `opt-level = "z"`, this crate at 3); `#[inline(never)]` keeps link-time
+//! optimisation from pulling them back into the size-optimised callers. Under `release`
+//! (QEMU) and `pen` everything is built alike and this crate changes nothing.
 #![no_std]
 
 use maobi_shared::force::{ForceModel, Forces, OutputStage};

@@ -14,7 +14,9 @@
 //! encoder unwrapping, filtering, calibration, kinematics), the supervisor, and the link
 //! protocol. What the board provides: its boot, its interrupts, and these traits.
 
+use maobi_shared::guide::GuideInput;
 use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Fx, Pose};
 
 /// The three motor channels of the pen.
@@ -28,14 +30,10 @@ pub trait Motors {
     fn disable(&mut self);
     /// The last command actually applied (zero while disabled): reported in state frames.
     fn applied(&self) -> [Fx; 3];
-    /// Drives one channel at `command` (fraction of full current, within the nudge caps)
-    /// and the others not at all: the bring-up's motor check. False if the board has no
-    /// motors to nudge.
-    fn nudge(&mut self, _channel: usize, _command: Fx) -> bool {
-        false
-    }
-    /// A new stored configuration is in force (torque constants, ratios, drive settings).
-    fn configure(&mut self, _cfg: &DeviceConfig) {}
+    /// A new stored configuration is in force (at boot and after `SetConfig` / `Calibrate`,
+    /// always with the motors disabled): a physical board takes its drive settings
+    /// (`DeviceConfig::drive`) and the torque-to-command scale (`DeviceConfig::pen`) from it.
+    fn configure(&mut self, cfg: &DeviceConfig);
 }
 
 /// One raw reading of the pen's joints: encoder counts of the three motor joints and the
@@ -70,32 +68,55 @@ pub trait PoseSource {
     fn pose_seq(&self) -> u32 {
         0
     }
+    /// The guide sample that came with the pose `next_pose` just returned, once (guided
+    /// writing; the virtual pen gets it from the host with the pose of the same `seq`).
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        None
+    }
     /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
     fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];
-    /// Whether the motors may be driven at all (a physical pen: a valid configuration and
-    /// a calibration). The host's enable and the latched faults gate them as well.
-    fn forces_allowed(&self) -> bool {
-        true
-    }
-    /// A new stored configuration is in force (geometry, sensors, and the calibration: the
-    /// link task stores the readings at the inkwell in it).
-    fn configure(&mut self, _cfg: &DeviceConfig) {}
+    /// Whether a new configuration moves the poses `next_pose` reports (a pen with its own
+    /// sensors: new geometry or calibration zeros). The force loop then puts the brush at
+    /// rest at the next pose instead of reading the step as a sensor jump. The virtual
+    /// pen's poses come from the host, whatever the configuration.
+    const POSES_FOLLOW_CONFIG: bool = false;
+    /// A new stored configuration is in force (geometry, calibration): a physical pen
+    /// rebuilds its kinematics from it. Called by the force loop between ticks.
+    fn configure(&mut self, cfg: &DeviceConfig);
+    /// The raw readings behind the latest pose, for bring-up ([`SensorReport`]: unwrapped
+    /// encoder counts, filtered gimbal codes, buttons), at force-loop tick `tick`. Called by
+    /// the force loop only when the link task asked for one; `None` when the board cannot
+    /// tell.
+    fn raw_sensors(&mut self, tick: u32) -> Option<SensorReport>;
 }
 
-/// A physical pen's configuration store (flash): the link writes a validated
-/// configuration through it, only while the forces are off.
+/// Why the configuration could not be stored.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum StoreError {
+    /// The image does not fit the store.
+    TooLarge,
+    /// Erasing or programming failed (flash; the QEMU board's RAM cannot fail to write).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // constructed by flash-backed boards
+    Write,
+    /// What reads back differs from what was written.
+    Verify,
+}
+
+/// Where the pen keeps its configuration image (`maobi_shared::pen_io::encode` /
+/// `decode`): a flash page on a physical board, a RAM region the host preloads under QEMU.
+/// Used by the link task only (thread mode), never by the force loop.
 pub trait ConfigStore {
-    /// Writes `cfg` and reads it back; false if either failed.
-    fn store(&mut self, cfg: &DeviceConfig) -> bool;
-}
-
-/// The store of a board that keeps no configuration (a virtual pen): writes nothing.
-#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
-pub struct NoConfigStore;
-
-impl ConfigStore for NoConfigStore {
-    fn store(&mut self, _cfg: &DeviceConfig) -> bool {
-        false
+    /// Copies the stored bytes (at most `buf.len()`) into `buf`; returns how many. Erased
+    /// flash is copied as it is (`0xFF`): `decode` tells.
+    fn load(&mut self, buf: &mut [u8]) -> usize;
+    /// Replaces the stored image with `image` (erase, program, verify).
+    fn store(&mut self, image: &[u8]) -> Result<(), StoreError>;
+    /// Whether this pen needs a valid configuration to render forces. A physical pen always
+    /// does; the QEMU board's virtual pen only once an image was loaded into (or written to)
+    /// its store, so that a run without one behaves as before
+    /// (`ConfigState::NotApplicable`).
+    fn needs_config(&self) -> bool {
+        true
     }
 }
 

@@ -1,6 +1,7 @@
 //! The link task: the wire protocol (`maobi_shared::protocol`) over the board's byte link
 //! (QEMU's UART, the Black Pill's USB CDC-ACM), the same on every board: a board calls
-//! [`run`] from its own task with its [`LinkTransport`] and its [`BoardInfo`].
+//! [`run`] from its own task with its [`LinkTransport`], its [`ConfigStore`] and its
+//! [`BoardInfo`].
 //!
 //! * On start it writes one `0x00` so the host's decoder drops any partial frame.
 //! * `Hello` is answered with the device's [`DeviceInfo`] and arms the link supervision
@@ -10,13 +11,27 @@
 //!   does.
 //! * `Pose` samples go into the virtual pen's queue (the force loop takes one per tick and
 //!   never waits for the link). When the queue is full the task stops reading until it has
-//!   room, so the host's window, not a dropped sample, absorbs the difference.
+//!   room, so the host's window, not a dropped sample, absorbs the difference. A pen with
+//!   its own sensors has no queue: poses (and guide samples) from the host are ignored.
 //! * `State` frames: the force loop copies the brush into the snapshot slot when one is due
 //!   ([`app::STATE_HZ`] per 1000 ticks, 120 by default); this task builds
 //!   [`BrushState::from_brush`] from it and encodes it here, in thread mode. A state that
 //!   finds the transmit ring full is dropped and counted (`Telemetry::frames_dropped`).
 //! * Commands and parameters are validated here and handed to the force loop as
 //!   [`app::Command`]s; every one is answered.
+//! * The stored configuration ([`ConfigStore`]): loaded and decoded when the task starts;
+//!   the handshake reports its [`ConfigState`]. Until it allows forces (valid and
+//!   calibrated, or none needed: QEMU without an image) [`app::CONFIG_OK`] stays off, so
+//!   the force loop never drives the motors, and `EnableForces` / `NudgeMotor` are refused
+//!   with `ConfigNotValid`. `SetConfig` is refused while forces are enabled, validated
+//!   whole before anything is written, written, read back and decoded, and only then put in
+//!   force (`app::Command::Configure`). `Calibrate` records one raw reading (the pen resting
+//!   in its inkwell) into the configuration and stores it the same way.
+//! * Bring-up: `StreamSensors` asks the force loop for raw readings
+//!   ([`app::SENSORS`]) every `1000 / rate_hz` ticks and sends them as `Sensors` (dropped and
+//!   counted when the link is busy); `NudgeMotor` hands the force loop a capped torque for a
+//!   number of ticks ([`app::Command::Nudge`]), shown in the state frames' applied motor
+//!   commands, motors off afterwards.
 //! * Events: faults raised and cleared, forces enabled and disabled, link connected and
 //!   reconnected (with the silence and the faults latched meanwhile, re-sent because the
 //!   originals went nowhere). Telemetry every `telemetry_ticks` ticks.
@@ -27,29 +42,28 @@ use core::sync::atomic::Ordering;
 use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
+use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
-use maobi_shared::pen_io::{ConfigState, DeviceConfig};
+use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
-    param_id, BrushState, Buttons, Capabilities, Command as Wire, CommandError, ConfigRejected,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message, Nudge,
-    ParamRejected, ParamReply, SensorReport, Telemetry, Version, SENSOR_RATE_MAX_HZ,
+    param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg,
+    Message, Nudge, ParamRejected, ParamReply, SensorReport, Telemetry, Version,
+    SENSOR_RATE_MAX_HZ,
 };
-use maobi_shared::{BrushParams, Fx, Pose, Scalar, Vec3};
+use maobi_shared::{BrushParams, Fx, Vec3};
 
-use crate::app::{self, Command, FAULTS, FORCES_ENABLED, SNAPSHOT, TICKS};
+use crate::app::{self, Command, CONFIG_OK, FAULTS, FORCES_ENABLED, SENSORS, SNAPSHOT, TICKS};
 use crate::board::{ConfigStore, LinkTransport};
 
-/// What the link says about the board and lets the host do with it.
+/// What the link says about the board in the handshake.
 pub struct BoardInfo {
-    /// The board's name in the handshake.
+    /// The board's name.
     pub name: &'static str,
     pub capabilities: Capabilities,
-    /// Force limits in the handshake (N).
+    /// Force limits (N).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
-    /// `Calibrate` stores the readings at the inkwell in the configuration (else answered
-    /// `Unsupported`).
-    pub can_calibrate: bool,
 }
 
 /// What the link task drives.
@@ -59,11 +73,8 @@ pub struct LinkParts<T, S> {
     /// from the host are then ignored).
     pub poses: Option<app::PoseProducer>,
     pub cmds: app::CmdProducer,
-    /// The configuration store (a board with `Capabilities::STORED_CONFIG`).
+    /// Where the configuration is kept (loaded when the task starts).
     pub store: S,
-    /// The stored configuration's state at boot, and the configuration if it is valid.
-    pub config_state: ConfigState,
-    pub config: Option<DeviceConfig>,
 }
 
 /// Link settings from the boot command line.
@@ -83,17 +94,16 @@ static TX_BUF: TxBuf = TxBuf(core::cell::UnsafeCell::new([0; DeviceMsg::MAX_FRAM
 
 struct Link<T, S> {
     parts: LinkParts<T, S>,
-    /// Sensor reports per second (0: none) and the tick the next one is due.
-    sensor_rate_hz: u16,
-    next_sensor_tick: u32,
     board: &'static BoardInfo,
     cfg: LinkConfig,
     rx: DeviceRx,
-    /// Bytes read from the UART but not yet fed to the decoder (a pose is waiting for room).
+    /// Bytes read from the transport but not yet fed to the decoder (a pose is waiting for room).
     inbuf: [u8; 64],
     in_start: usize,
     in_end: usize,
-    pending_pose: Option<(u32, Pose<Fx>)>,
+    pending_pose: Option<app::PoseIn>,
+    /// The last guide sample, waiting for the pose of its `seq`.
+    guide: Option<GuideSample>,
     /// The parameters in force (mirror of the force loop's brush), for validation.
     params: BrushParams,
     frames_dropped: u32,
@@ -106,10 +116,17 @@ struct Link<T, S> {
     next_telemetry: u32,
     /// Commands queued for the force loop so far.
     cmds_sent: u32,
+    /// What the store held at start, or the last write.
+    config_state: ConfigState,
+    /// The configuration in force (`Valid` only).
+    config: Option<DeviceConfig>,
+    /// Sensor reports every this many ticks (0: not streaming), next at `next_sensors`.
+    sensors_every: u32,
+    next_sensors: u32,
 }
 
 /// The link task's body (each board wraps it in its own `#[embassy_executor::task]`, since
-/// tasks cannot be generic over the transport).
+/// a task cannot be generic over the transport).
 pub async fn run<T: LinkTransport, S: ConfigStore>(
     parts: LinkParts<T, S>,
     board: &'static BoardInfo,
@@ -118,8 +135,6 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
 ) -> ! {
     let mut link = Link {
         parts,
-        sensor_rate_hz: 0,
-        next_sensor_tick: 0,
         board,
         cfg,
         rx: DeviceRx::new(),
@@ -127,6 +142,7 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
         in_start: 0,
         in_end: 0,
         pending_pose: None,
+        guide: None,
         params,
         frames_dropped: 0,
         pose_gaps: 0,
@@ -136,16 +152,21 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
         silence_reported: false,
         next_telemetry: cfg.telemetry_ticks,
         cmds_sent: 0,
+        config_state: ConfigState::NotApplicable,
+        config: None,
+        sensors_every: 0,
+        next_sensors: 0,
     };
+    link.load_config().await;
     link.parts
         .transport
         .write(&[maobi_shared::protocol::DELIMITER]);
     loop {
         link.receive().await;
         link.send_state();
+        link.sensors();
         link.events().await;
         link.telemetry().await;
-        link.sensors().await;
         link.wait().await;
     }
 }
@@ -159,7 +180,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         let mut readable = pin!(self.parts.transport.readable());
         poll_fn(|cx| {
             app::SNAPSHOT_WAKER.register(cx.waker());
-            if SNAPSHOT.is_full() {
+            if SNAPSHOT.is_full() || SENSORS.is_full() {
                 return Poll::Ready(());
             }
             if !blocked && readable.as_mut().poll(cx).is_ready() {
@@ -170,7 +191,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         .await
     }
 
-    /// Reads and handles what the host sent, until the UART is empty or the pose queue full.
+    /// Reads and handles what the host sent, until the transport is empty or the pose queue full.
     async fn receive(&mut self) {
         loop {
             if let (Some(p), Some(poses)) = (self.pending_pose, self.parts.poses.as_mut()) {
@@ -228,16 +249,14 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn handle(&mut self, m: HostMsg) {
         match m {
             HostMsg::Hello(_) => {
-                let mut info = DeviceInfo::new(
+                let info = DeviceInfo::new(
                     self.board.name,
                     firmware_version(),
                     self.board.capabilities,
                     self.board.force_peak_n,
                     self.board.force_continuous_n,
-                );
-                if self.stores_config() {
-                    info = info.with_config(self.parts.config_state.clone());
-                }
+                )
+                .with_config(self.config_state.clone());
                 self.send(&DeviceMsg::Hello(info)).await;
                 self.command(Command::Reanchor).await;
                 app::LINK_ARMED.store(true, Ordering::SeqCst);
@@ -249,14 +268,31 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             }
             HostMsg::Ping { seq } => self.send(&DeviceMsg::Pong { seq }).await,
             HostMsg::Pose(s) => {
+                // The guide sample sent for this tick rides with its pose, so the force loop
+                // applies it at the tick that consumes the pose (as the host's mirror does).
+                let guide = match self.guide {
+                    Some(g) if g.seq == s.seq => {
+                        self.guide = None;
+                        Some(GuideInput {
+                            anchor: g.anchor(),
+                            on: g.on,
+                        })
+                    }
+                    _ => None,
+                };
+                let p = app::PoseIn {
+                    seq: s.seq,
+                    pose: s.pose(),
+                    guide,
+                };
                 // A pen with its own sensors has no use for the host's poses: ignored.
                 if let Some(poses) = self.parts.poses.as_mut() {
-                    let p = (s.seq, s.pose());
                     if poses.enqueue(p).is_err() {
                         self.pending_pose = Some(p);
                     }
                 }
             }
+            HostMsg::Guide(g) => self.guide = Some(g),
             HostMsg::GetParam { id } => {
                 let r = ParamReply::read(&self.params, id);
                 self.send(&DeviceMsg::Param(r)).await;
@@ -279,24 +315,20 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                 };
                 self.send(&DeviceMsg::Param(reply)).await;
             }
+            HostMsg::Command(c) => {
+                let result = self.wire_command(&c).await;
+                self.send(&DeviceMsg::CommandDone { command: c, result })
+                    .await;
+            }
             HostMsg::GetConfig => {
-                let reply = match self.parts.config {
-                    Some(c) if self.stores_config() => Ok(c),
-                    _ if self.stores_config() => Err(ConfigRejected::NotStored(
-                        self.parts.config_state.clone(),
-                    )),
-                    _ => Err(ConfigRejected::NotStored(ConfigState::NotApplicable)),
-                };
+                let reply = self
+                    .config
+                    .ok_or_else(|| ConfigRejected::NotStored(self.config_state.clone()));
                 self.send(&DeviceMsg::Config(reply)).await;
             }
             HostMsg::SetConfig(cfg) => {
                 let reply = self.set_config(cfg).await;
                 self.send(&DeviceMsg::Config(reply)).await;
-            }
-            HostMsg::Command(c) => {
-                let result = self.wire_command(&c).await;
-                self.send(&DeviceMsg::CommandDone { command: c, result })
-                    .await;
             }
         }
     }
@@ -310,15 +342,12 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             Wire::EnableForces if faults != 0 => {
                 return Err(CommandError::FaultsLatched(faults_of(faults)))
             }
-            // A pen with no valid configuration, or not calibrated: forces stay off.
-            Wire::EnableForces if app::PEN_NOT_READY.load(Ordering::SeqCst) != 0 => {
+            Wire::EnableForces if !self.config_allows_forces() => {
                 return Err(CommandError::ConfigNotValid)
             }
             Wire::EnableForces => Command::EnableForces,
             Wire::DisableForces => Command::DisableForces,
-            Wire::Calibrate if self.board.can_calibrate => return self.calibrate().await,
-            // The virtual pen has no sensors to zero.
-            Wire::Calibrate => return Err(CommandError::Unsupported),
+            Wire::Calibrate => return self.calibrate().await,
             Wire::DipInk { wetness } => Command::Dip(Fx::from_bits(*wetness)),
             Wire::ChoosePreset(p) => {
                 let params = p.resolve().ok_or(CommandError::UnknownPreset)?;
@@ -328,131 +357,187 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             Wire::ClearFaults => Command::ClearFaults,
             Wire::ResetBrush => Command::ResetBrush,
             Wire::InjectOverrun => Command::InjectOverrun,
-            Wire::StreamSensors { rate_hz } if *rate_hz > SENSOR_RATE_MAX_HZ => {
-                return Err(CommandError::OutOfRange)
-            }
-            Wire::StreamSensors { rate_hz } if self.has_sensors() => {
-                self.sensor_rate_hz = *rate_hz;
-                self.next_sensor_tick = TICKS.load(Ordering::Relaxed);
+            Wire::StreamSensors { rate_hz } => {
+                if *rate_hz > SENSOR_RATE_MAX_HZ {
+                    return Err(CommandError::OutOfRange);
+                }
+                self.sensors_every = match *rate_hz {
+                    0 => 0,
+                    hz => (1000 / u32::from(hz)).max(1),
+                };
+                self.next_sensors = TICKS.load(Ordering::Relaxed);
                 return Ok(());
             }
-            // No sensors on the virtual pen.
-            Wire::StreamSensors { .. } => return Err(CommandError::Unsupported),
-            Wire::NudgeMotor(n) => self.nudge(n)?,
+            Wire::NudgeMotor(n) => self.nudge(n, faults)?,
         };
         self.command(cmd).await;
         Ok(())
     }
 
-    fn stores_config(&self) -> bool {
-        self.board
-            .capabilities
-            .contains(Capabilities::STORED_CONFIG)
-    }
-
-    fn has_sensors(&self) -> bool {
-        self.board.capabilities.contains(Capabilities::REAL_SENSORS)
-    }
-
-    /// `SetConfig`: validated whole, written only with the forces off, read back by the
-    /// store, then put in force (the force loop takes it up at its next tick).
-    async fn set_config(&mut self, cfg: DeviceConfig) -> Result<DeviceConfig, ConfigRejected> {
-        if !self.stores_config() {
-            return Err(ConfigRejected::NotStored(ConfigState::NotApplicable));
+    /// Reads the store and puts what it holds in force (at start).
+    async fn load_config(&mut self) {
+        if !self.parts.store.needs_config() {
+            self.config_state = ConfigState::NotApplicable;
+            self.config = None;
+        } else {
+            let loaded = self.read_store();
+            self.config_state = ConfigState::of(&loaded);
+            self.config = loaded.ok();
+            match &self.config_state {
+                ConfigState::Valid => defmt::info!("configuration valid"),
+                _ => defmt::warn!("no valid configuration: forces refused"),
+            }
         }
+        if let Some(c) = self.config {
+            critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
+            self.command(Command::Configure).await;
+        }
+        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+    }
+
+    /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
+    /// not in the task's future for its lifetime.
+    fn read_store(&mut self) -> Result<DeviceConfig, pen_io::ConfigError> {
+        let mut buf = [0u8; CONFIG_IMAGE_MAX];
+        let n = self.parts.store.load(&mut buf);
+        pen_io::decode(buf.get(..n).unwrap_or(&[]))
+    }
+
+    /// Encodes `cfg` and writes it to the store (as `read_store`, not async).
+    fn write_store(
+        &mut self,
+        cfg: &DeviceConfig,
+    ) -> Result<Result<(), crate::board::StoreError>, ConfigRejected> {
+        let mut buf = [0u8; CONFIG_IMAGE_MAX];
+        let n = pen_io::encode(cfg, &mut buf).map_err(|e| match e {
+            pen_io::ConfigError::Invalid(field) => ConfigRejected::Invalid(field),
+            _ => ConfigRejected::StoreFailed,
+        })?;
+        Ok(self.parts.store.store(buf.get(..n).unwrap_or(&[])))
+    }
+
+    /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
+    fn config_allows_forces(&self) -> bool {
+        match self.config_state {
+            ConfigState::NotApplicable => true,
+            ConfigState::Valid => self.config.is_some_and(|c| c.calibration.is_some()),
+            ConfigState::Missing | ConfigState::Corrupt(_) => false,
+        }
+    }
+
+    /// `SetConfig`: refuse while forces are on, validate all of it, then write.
+    async fn set_config(&mut self, cfg: DeviceConfig) -> Result<DeviceConfig, ConfigRejected> {
         self.settle().await;
         if FORCES_ENABLED.load(Ordering::SeqCst) {
             return Err(ConfigRejected::ForcesEnabled);
         }
         cfg.validate().map_err(ConfigRejected::Invalid)?;
-        if !self.parts.store.store(&cfg) {
-            return Err(ConfigRejected::StoreFailed);
-        }
-        self.put_in_force(cfg).await;
+        self.write_config(cfg).await?;
         Ok(cfg)
     }
 
-    /// A stored configuration replaces the one in force.
-    async fn put_in_force(&mut self, cfg: DeviceConfig) {
-        self.parts.config = Some(cfg);
-        self.parts.config_state = ConfigState::Valid;
-        app::CONFIG_VALID.store(true, Ordering::SeqCst);
-        critical_section::with(|cs| app::NEW_CONFIG.borrow(cs).set(Some(cfg)));
-        self.command(Command::Reconfigure).await;
-        self.settle().await;
+    /// Encodes, stores, reads back and decodes `cfg`, then puts it in force. On a failure
+    /// the state says what the store now holds.
+    async fn write_config(&mut self, cfg: DeviceConfig) -> Result<(), ConfigRejected> {
+        let stored = self.write_store(&cfg)?;
+        let loaded = self.read_store();
+        let ok = stored.is_ok() && loaded.as_ref() == Ok(&cfg);
+        self.config_state = ConfigState::of(&loaded);
+        self.config = loaded.ok();
+        if let Some(c) = self.config {
+            critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
+            self.command(Command::Configure).await;
+        }
+        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        if ok {
+            Ok(())
+        } else {
+            defmt::error!("configuration store failed");
+            Err(ConfigRejected::StoreFailed)
+        }
     }
 
-    /// `Calibrate` on a pen with sensors: the readings now (the pen resting in its inkwell)
-    /// become the stored calibration, in force at once.
+    /// `Calibrate`: the pen rests in its inkwell; its raw readings become the stored zeros.
     async fn calibrate(&mut self) -> Result<(), CommandError> {
-        self.settle().await;
+        if !self.parts.store.needs_config() {
+            // A virtual pen without a stored configuration has nothing to calibrate.
+            return Err(CommandError::Unsupported);
+        }
         if FORCES_ENABLED.load(Ordering::SeqCst) {
             return Err(CommandError::ForcesEnabled);
         }
-        let Some(mut cfg) = self.parts.config else {
+        let Some(mut cfg) = self.config else {
             return Err(CommandError::ConfigNotValid);
         };
-        // A fresh reading: wait for the force loop's next tick.
-        let seen = critical_section::with(|cs| app::SENSORS.borrow(cs).get()).tick;
-        while critical_section::with(|cs| app::SENSORS.borrow(cs).get()).tick == seen {
-            Timer::after_micros(u64::from(self.cfg.tick_us / 2).max(100)).await;
-        }
-        let s = critical_section::with(|cs| app::SENSORS.borrow(cs).get());
+        // No reading: the virtual pen's pose is outside the configured pen's workspace.
+        let r = self
+            .sample_sensors()
+            .await
+            .ok_or(CommandError::OutOfRange)?;
         cfg.calibration = Some(RawReadings {
-            encoders: s.encoders,
-            gimbal: s.gimbal.map(i32::from),
+            encoders: r.encoders,
+            gimbal: r.gimbal.map(i32::from),
         });
-        if cfg.validate().is_err() || !self.parts.store.store(&cfg) {
-            return Err(CommandError::StoreFailed);
-        }
-        self.put_in_force(cfg).await;
-        Ok(())
+        self.write_config(cfg)
+            .await
+            .map_err(|_| CommandError::StoreFailed)
     }
 
-    /// `NudgeMotor`: within the caps, forces off, a valid configuration.
-    fn nudge(&mut self, n: &Nudge) -> Result<Command, CommandError> {
-        if !self.has_sensors() {
-            return Err(CommandError::Unsupported);
+    /// One raw reading from the force loop (within 100 ticks), if the board can tell.
+    async fn sample_sensors(&mut self) -> Option<SensorReport> {
+        let _ = SENSORS.take(|_| ()); // a stale stream report
+        SENSORS.request();
+        for _ in 0..200 {
+            if let Some(r) = SENSORS.take(|s| s.clone()) {
+                return r;
+            }
+            Timer::after_micros(u64::from(self.cfg.tick_us / 2).max(100)).await;
         }
+        None
+    }
+
+    /// `NudgeMotor`: checked against the caps and the pen's state, as a torque for the
+    /// force loop (the fraction of the channel's full torque, ratio x k_t x I_max).
+    fn nudge(&self, n: &Nudge, faults: u32) -> Result<Command, CommandError> {
         if !n.is_within_caps() {
             return Err(CommandError::OutOfRange);
         }
         if FORCES_ENABLED.load(Ordering::SeqCst) {
             return Err(CommandError::ForcesEnabled);
         }
-        if self.parts.config.is_none() {
+        if faults != 0 {
+            return Err(CommandError::FaultsLatched(faults_of(faults)));
+        }
+        if !self.config_allows_forces() {
             return Err(CommandError::ConfigNotValid);
         }
-        let ticks = (u32::from(n.duration_ms) * 1000 / self.cfg.tick_us.max(1)).max(1);
+        let pen = self.config.unwrap_or(DeviceConfig::DEFAULT).pen;
+        let channel = usize::from(n.channel);
+        let full = [0, 1, 2].map(|j| pen.ratio[j] * pen.torque_constant[j] * pen.max_current[j]);
+        let full = full.get(channel).copied().unwrap_or(0.0);
+        let torque = f32::from(n.command_permille) / 1000.0 * full;
         Ok(Command::Nudge {
-            channel: n.channel,
-            command: Fx::from_f64(f64::from(n.command_permille) / 1000.0),
-            ticks: u16::try_from(ticks).unwrap_or(u16::MAX),
+            channel,
+            torque_nm: <Fx as maobi_shared::Scalar>::from_f32(torque),
+            ticks: u32::from(n.duration_ms),
         })
     }
 
-    /// The bring-up's sensor stream, at the rate the host asked for.
-    async fn sensors(&mut self) {
-        if self.sensor_rate_hz == 0 {
+    /// A sensor report from the force loop, if one is waiting; asks for the next when due.
+    fn sensors(&mut self) {
+        if let Some(Some(report)) = SENSORS.take(|s| s.clone()) {
+            if !self.try_send(&DeviceMsg::Sensors(report)) {
+                self.frames_dropped = self.frames_dropped.saturating_add(1);
+            }
+        }
+        if self.sensors_every == 0 {
             return;
         }
         let now = TICKS.load(Ordering::Relaxed);
-        if (now.wrapping_sub(self.next_sensor_tick) as i32) < 0 {
-            return;
-        }
-        let ticks_per_report = (1000 / u32::from(self.sensor_rate_hz)).max(1);
-        self.next_sensor_tick = now.wrapping_add(ticks_per_report);
-        let s = critical_section::with(|cs| app::SENSORS.borrow(cs).get());
-        let report = SensorReport {
-            tick: s.tick,
-            encoders: s.encoders,
-            gimbal: s.gimbal,
-            buttons: Buttons::from_bits_retain(s.buttons),
-            synthetic: false,
-        };
-        // Like a state frame: dropped (and counted) when the transmit queue is full.
-        if !self.try_send(&DeviceMsg::Sensors(report)) {
-            self.frames_dropped = self.frames_dropped.saturating_add(1);
+        if (now.wrapping_sub(self.next_sensors) as i32) >= 0 && SENSORS.request() {
+            self.next_sensors = now.wrapping_add(self.sensors_every);
         }
     }
 

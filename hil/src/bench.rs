@@ -32,6 +32,12 @@ pub struct Report {
     pub ticks: Vec<TickCost>,
     pub substep: u64,
     pub end_tick: u64,
+    /// The preset's substeps with guided writing on every tick (a guide sample per tick).
+    pub guided: Option<TickCost>,
+    /// `GuideStream::tick` alone, mean and max (instructions).
+    pub guide_alone: (u64, u64),
+    /// The same stroke from the same start without guide samples, mean and max.
+    pub unguided: (u64, u64),
     /// Per call of each scalar operation.
     pub ops: BTreeMap<String, f64>,
     pub raw: String,
@@ -72,6 +78,9 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         ticks: vec![],
         substep: 0,
         end_tick: 0,
+        guided: None,
+        guide_alone: (0, 0),
+        unguided: (0, 0),
         ops: BTreeMap::new(),
         raw: out.to_string(),
     };
@@ -89,6 +98,21 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
                 mean: to_instr(num(&m, "mean_counts")?),
                 max: to_instr(num(&m, "max_counts")?),
             });
+        } else if rest.starts_with("guided ") {
+            r.guided = Some(TickCost {
+                substeps: num(&m, "substeps")?,
+                min: to_instr(num(&m, "min_counts")?),
+                mean: to_instr(num(&m, "mean_counts")?),
+                max: to_instr(num(&m, "max_counts")?),
+            });
+            r.guide_alone = (
+                to_instr(num(&m, "guide_alone_mean_counts")?),
+                to_instr(num(&m, "guide_alone_max_counts")?),
+            );
+            r.unguided = (
+                to_instr(num(&m, "unguided_mean_counts")?),
+                to_instr(num(&m, "unguided_max_counts")?),
+            );
         } else if rest.starts_with("parts ") {
             r.substep = to_instr(num(&m, "substep_mean_counts")?);
             r.end_tick = to_instr(num(&m, "end_tick_mean_counts")?);
@@ -152,6 +176,24 @@ pub fn render(r: &Report) -> String {
             t.mean,
             t.max,
             if t.max <= BUDGET { "yes" } else { "no" }
+        );
+    }
+    if let Some(g) = &r.guided {
+        let _ = writeln!(
+            s,
+            "guided writing ({} substeps, a guide sample every tick): min {} mean {} max {}; \
+             the same stroke unguided from the same start: mean {} max {}; extra per tick: \
+             mean {:+}, max {:+}; GuideStream::tick alone: mean {} max {}",
+            g.substeps,
+            g.min,
+            g.mean,
+            g.max,
+            r.unguided.0,
+            r.unguided.1,
+            g.mean as i64 - r.unguided.0 as i64,
+            g.max as i64 - r.unguided.1 as i64,
+            r.guide_alone.0,
+            r.guide_alone.1
         );
     }
     let _ = writeln!(

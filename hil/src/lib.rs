@@ -8,11 +8,14 @@
 //!   device's states, bit-exact comparison with the host simulation.
 //! * [`run`]: `hil run`: a pose file through the device (QEMU or a serial port), with checks.
 //! * [`serial`]: backend `serial`, the same link over a serial port.
+//! * [`probe_rs`]: backend `probe-rs`, the firmware flashed onto a board with the `probe-rs`
+//!   tool, the link over the pen's USB serial port, the defmt log checked.
 //! * [`selftest`]: the boot self-test and the fault-path hooks (panic, HardFault, watchdog).
 
 pub mod bench;
 pub mod firmware;
 pub mod link;
+pub mod probe_rs;
 pub mod qemu;
 pub mod run;
 pub mod selftest;

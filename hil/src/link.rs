@@ -10,11 +10,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use maobi::poses::PoseTrack;
+use maobi_shared::force::{ForceModel, DEFAULT_FORCES};
+use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
-    BrushState, Buttons, Command, DeviceInfo, DeviceMsg, Event, EventKind, HostHello, HostMsg,
-    HostRx, Message, PoseSample, ProtocolError, Telemetry, Version, DELIMITER,
+    vec3_bits, BrushState, Buttons, Command, DeviceInfo, DeviceMsg, Event, EventKind, GuideSample,
+    HostHello, HostMsg, HostRx, Message, PoseSample, ProtocolError, Telemetry, Vec3Bits, Version,
+    DELIMITER,
 };
-use maobi_shared::{Brush, BrushParams, Fx};
+use maobi_shared::{Brush, BrushParams, Fx, Scalar, Vec3};
 
 /// A byte stream to the device with a read timeout.
 pub trait Transport: Read + Write {
@@ -227,6 +230,8 @@ pub struct StreamOptions {
     pub stall_timeout: Duration,
     /// Actions at pose indices (before that pose is sent).
     pub actions: BTreeMap<usize, Vec<Action>>,
+    /// Guided writing: the guide sample for pose `k` (sent just before it, same `seq`).
+    pub guide: Vec<Option<GuideInput<Fx>>>,
 }
 
 impl Default for StreamOptions {
@@ -236,6 +241,7 @@ impl Default for StreamOptions {
             window: 32,
             stall_timeout: Duration::from_secs(20),
             actions: BTreeMap::new(),
+            guide: Vec::new(),
         }
     }
 }
@@ -321,6 +327,9 @@ pub fn stream<T: Transport>(
                 }
             }
             let seq = opts.base + next as u32;
+            if let Some(Some(g)) = opts.guide.get(next) {
+                s.send(&HostMsg::Guide(GuideSample::new(seq, g.anchor, g.on)))?;
+            }
             s.send(&HostMsg::Pose(PoseSample::new(
                 seq,
                 poses[next],
@@ -369,6 +378,272 @@ pub fn simulate(params: BrushParams, poses: &[maobi_shared::Pose<Fx>]) -> Result
         out.push(state(&brush));
     }
     Ok(out)
+}
+
+/// A guide for `poses`: the moving point runs `lead` ticks ahead of the pose and `offset`
+/// (mm) beside it, on from the first tick until `on_ticks`, then held at the last point
+/// with `on = false` (fading out) for the rest of the poses.
+pub fn guide_along(
+    poses: &[maobi_shared::Pose<Fx>],
+    lead: usize,
+    offset: [f64; 3],
+    on_ticks: usize,
+) -> Vec<Option<GuideInput<Fx>>> {
+    let off = Vec3::<Fx>::from_f64(offset);
+    let mut last = None;
+    (0..poses.len())
+        .map(|k| {
+            if k < on_ticks {
+                let p = poses[(k + lead).min(poses.len() - 1)].pos + off;
+                last = Some(p);
+                Some(GuideInput {
+                    anchor: p,
+                    on: true,
+                })
+            } else {
+                last.map(|anchor| GuideInput { anchor, on: false })
+            }
+        })
+        .collect()
+}
+
+/// The device's force loop ticks from a stream's first pose on, as its states report them:
+/// each tick and the index of the pose it consumed (`None`: a tick without a new pose, the
+/// virtual pen's queue was empty). Rebuilt from states with `state_hz=1000`; where states
+/// are missing and the ticks between cannot be told apart (some consumed a pose, some not),
+/// the timeline ends there.
+pub fn device_timeline(log: &StreamLog, base: u32, n: usize) -> Vec<(u32, Option<usize>)> {
+    let mut states: Vec<(u32, usize)> = log
+        .states()
+        .filter_map(|(_, st)| {
+            let k = st.pose_seq.checked_sub(base)? as usize;
+            (k < n).then_some((st.tick, k))
+        })
+        .collect();
+    states.sort();
+    states.dedup_by_key(|(t, _)| *t);
+    let mut out = Vec::new();
+    let Some(&(t0, 0)) = states.first() else {
+        return out;
+    };
+    out.push((t0, Some(0)));
+    let (mut pt, mut pk) = (t0, 0usize);
+    for &(t, k) in &states[1..] {
+        let dt = t.wrapping_sub(pt) as usize;
+        let dk = k.wrapping_sub(pk);
+        if dk == dt {
+            out.extend((1..=dt).map(|i| (pt + i as u32, Some(pk + i))));
+        } else if dk == 0 {
+            out.extend((1..=dt).map(|i| (pt + i as u32, None)));
+        } else {
+            break;
+        }
+        (pt, pk) = (t, k);
+    }
+    out
+}
+
+/// The device's force on the hand before the output stage (the state's `haptics.force_n`:
+/// the force model's plus the guide's) at each tick of `timeline` ([`device_timeline`]), with
+/// the guide samples `guide` (by pose index; empty: unguided), as the firmware's force loop
+/// computes it: the first tick places the brush at rest at the first pose and restarts the
+/// forces and the guide; a tick with a pose ticks the brush there and hands the guide that
+/// pose's sample; a tick without one holds the brush, the hand and the guide's force (the
+/// model's filters still tick).
+pub fn simulate_forces(
+    params: BrushParams,
+    poses: &[maobi_shared::Pose<Fx>],
+    guide: &[Option<GuideInput<Fx>>],
+    timeline: &[(u32, Option<usize>)],
+) -> Result<BTreeMap<u32, Vec3Bits>> {
+    Ok(mirror_force_loop(params, poses, guide, timeline)?
+        .into_iter()
+        .map(|(t, m)| (t, m.force_n))
+        .collect())
+}
+
+/// One tick of [`mirror_force_loop`].
+#[derive(Clone, Debug)]
+pub struct MirrorTick {
+    /// The pose consumed at this tick, if one was.
+    pub pose: Option<usize>,
+    /// The force before the output stage, as the state's `haptics.force_n`.
+    pub force_n: Vec3Bits,
+    /// Energy the virtual environment stores after this tick (J): the force model's dragged
+    /// mass and spring, the paper's penalty spring, the normal force's filter, the brush's
+    /// weight, and the guide's spring (as `maobi-shared`'s tests/guide.rs audits them; the
+    /// stylus's own kinetic energy is the hand simulation's).
+    pub stored_j: f64,
+    /// Energy the guide's moving point supplied at this tick (J).
+    pub sourced_j: f64,
+    /// The guide's distance from the stylus and its fade gain (0 on a tick without a pose).
+    pub guide_distance_mm: f64,
+    pub guide_gain: f64,
+}
+
+/// [`simulate_forces`] with the energies of the passivity audit at each tick.
+pub fn mirror_force_loop(
+    params: BrushParams,
+    poses: &[maobi_shared::Pose<Fx>],
+    guide: &[Option<GuideInput<Fx>>],
+    timeline: &[(u32, Option<usize>)],
+) -> Result<BTreeMap<u32, MirrorTick>> {
+    let first = *poses.first().context("no poses")?;
+    let mut brush = Brush::<Fx>::new(params, first)?;
+    let mut model = ForceModel::<Fx>::new(DEFAULT_FORCES).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut g = GuideStream::<Fx>::new(DEFAULT_GUIDE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let k_c = DEFAULT_FORCES.constraint_stiffness as f64;
+    let w_n = DEFAULT_FORCES.normal_weight as f64;
+    let weight =
+        DEFAULT_FORCES.gravity_weight as f64 * DEFAULT_FORCES.brush_mass_g as f64 * 1e-3 * 9.806_65;
+    let mut out = BTreeMap::new();
+    let mut last: Option<Vec3<Fx>> = None;
+    for (i, &(tick, k)) in timeline.iter().enumerate() {
+        let (hand, sample) = match k {
+            Some(k) => {
+                let p = poses.get(k).context("a pose index past the stroke")?;
+                if i > 0 {
+                    brush.tick(*p);
+                }
+                (p.pos, guide.get(k).copied().flatten())
+            }
+            None => (last.unwrap_or(first.pos), None),
+        };
+        let step = last.map_or(Vec3::ZERO, |l| hand - l);
+        last = Some(hand);
+        let total = model.tick(&brush, hand).total;
+        let f = match k {
+            Some(_) => g.tick(sample, hand, step),
+            None => g.hold(),
+        };
+        let x = hand.to_f64();
+        let pen = (-x[2]).max(0.0) * 1e-3;
+        let skel = brush.skeleton();
+        let lowest = skel.iter().map(|v| v.z.to_f64()).fold(f64::MAX, f64::min);
+        let extent = ((skel[0].z.to_f64() - lowest) * 1e-3).max(1e-6);
+        let f_n = model.normal_state().to_f64();
+        let guide_stored = g.anchor().map_or(0.0, |a| g.guide().stored_energy(a, hand));
+        let stored_j = model.inertia_energy(hand)
+            + 0.5 * k_c * pen * pen
+            + f_n * f_n * extent / (2.0 * w_n)
+            + weight * x[2] * 1e-3
+            + guide_stored;
+        out.insert(
+            tick,
+            MirrorTick {
+                pose: k,
+                force_n: vec3_bits(total + f.force),
+                stored_j,
+                sourced_j: f.source_j,
+                guide_distance_mm: f.distance_mm.to_f64(),
+                guide_gain: g.guide().gain().to_f64(),
+            },
+        );
+    }
+    Ok(out)
+}
+
+/// Guided writing with a simulated hand in the loop ([`guide_hand`]): what was sent and what
+/// the hand felt, pose by pose.
+#[derive(Default)]
+pub struct HandRun {
+    /// The stylus's pose sent at each step (the virtual pen).
+    pub poses: Vec<maobi_shared::Pose<Fx>>,
+    /// The guide sample sent with it.
+    pub guide: Vec<Option<GuideInput<Fx>>>,
+    /// The device's command (N) the hand felt over the next millisecond: the motors of the
+    /// first state that reports the pose consumed (the virtual pen's motors are the force's
+    /// components).
+    pub felt: Vec<[f64; 3]>,
+    /// The energy the hand had put in through the grip, and the stylus's kinetic energy,
+    /// when the pose was taken (J).
+    pub energy_in: Vec<f64>,
+    pub stylus_ke: Vec<f64>,
+    pub log: StreamLog,
+}
+
+/// Closes the loop through the device, one pose at a time: each step the simulated `hand`
+/// moves for 1 ms under the device's last command (and its own `hand_target(step, hand)`:
+/// target and push), the stylus's position goes to the device as the pose sample `base +
+/// step` with the guide sample `anchors[step]` (the moving point, `on`) just before it, and
+/// the device's state for that pose gives the next command. The device ticks on its own
+/// clock meanwhile: its ticks without a new pose hold the brush and the guide (pose time).
+#[allow(clippy::too_many_arguments)]
+pub fn guide_hand<T: Transport>(
+    s: &mut Session<T>,
+    base: u32,
+    anchors: &[(Vec3<Fx>, bool)],
+    rot: maobi_shared::Quat<Fx>,
+    hand: &mut maobi_shared::hand::SimHand,
+    mut hand_target: impl FnMut(usize, &maobi_shared::hand::SimHand) -> ([f64; 3], [f64; 3]),
+    step_timeout: Duration,
+) -> Result<HandRun> {
+    let mut run = HandRun::default();
+    let mut cmd = [0.0; 3];
+    run.log.started = Some(Instant::now());
+    for (k, &(anchor, on)) in anchors.iter().enumerate() {
+        let (target, push) = hand_target(k, hand);
+        hand.tick_with_push(target, cmd, push);
+        let pose = maobi_shared::Pose::new(Vec3::<Fx>::from_f64(hand.stylus()), rot);
+        let seq = base.wrapping_add(k as u32);
+        s.send(&HostMsg::Guide(GuideSample::new(seq, anchor, on)))?;
+        s.send(&HostMsg::Pose(PoseSample::new(seq, pose, Buttons::empty())))?;
+        run.poses.push(pose);
+        run.guide.push(Some(GuideInput { anchor, on }));
+        run.energy_in.push(hand.energy_in());
+        run.stylus_ke.push(hand.stylus_kinetic_energy());
+        let got = s.wait_for(step_timeout, &mut run.log.received, |m| match m {
+            DeviceMsg::State(st) if st.pose_seq.wrapping_sub(base) >= k as u32 => {
+                Some(st.haptics.motors.map(|b| Fx::from_bits(b).to_f64()))
+            }
+            _ => None,
+        })?;
+        let Some((felt, r)) = got else {
+            bail!("no state for pose {k} (seq {seq}) within {step_timeout:?}");
+        };
+        run.log.received.push(r);
+        cmd = felt;
+        run.felt.push(felt);
+    }
+    run.log.sent = anchors.len();
+    // The states of the ticks after the last pose, to close the timeline.
+    let end = Instant::now() + Duration::from_millis(50);
+    while Instant::now() < end {
+        run.log.received.extend(s.poll()?);
+    }
+    run.log.finished = Some(Instant::now());
+    Ok(run)
+}
+
+/// The comparison of the states' forces with [`simulate_forces`].
+#[derive(Debug, Default)]
+pub struct ForceComparison {
+    /// Device ticks compared (each state of a tick on the timeline).
+    pub compared: usize,
+    /// Ticks on the timeline without a new pose (simulated as the device ran them).
+    pub gaps: usize,
+    /// Ticks whose force differed.
+    pub mismatches: Vec<u32>,
+}
+
+/// Compares the `haptics.force_n` of every received state on the timeline with `forces`,
+/// bit for bit.
+pub fn compare_forces(log: &StreamLog, forces: &BTreeMap<u32, Vec3Bits>) -> ForceComparison {
+    let mut c = ForceComparison::default();
+    let mut seen = std::collections::BTreeSet::new();
+    for (_, st) in log.states() {
+        let Some(want) = forces.get(&st.tick) else {
+            continue;
+        };
+        if !seen.insert(st.tick) {
+            continue;
+        }
+        c.compared += 1;
+        if st.haptics.force_n != *want {
+            c.mismatches.push(st.tick);
+        }
+    }
+    c
 }
 
 /// The comparison of received states with the host simulation.

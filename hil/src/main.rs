@@ -1,7 +1,9 @@
 //! `hil`: runs the Maobi pen firmware in the loop: `bench`, `size`, `selftest`, and `run`, a
 //! pose file streamed over the wire protocol to the firmware in QEMU (`--backend qemu`) or to
 //! a device on a serial port (`--backend serial --port PATH`; built and tested over a
-//! pseudo-terminal, not yet run against a real pen), every state checked bit for bit.
+//! pseudo-terminal, not yet run against a real pen), or a board flashed and run with the
+//! probe-rs tool (`--backend probe-rs`: the Black Pill's `maobi-pen` image, built here unless
+//! `--elf IMAGE` names one; tested against a fake probe-rs, not yet run on a board), every state checked bit for bit.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -56,12 +58,32 @@ enum Cmd {
     /// frame against the host simulation, bit for bit.
     Run {
         /// `qemu`: the firmware in QEMU, UART0 on a loopback socket; `serial`: a device on
-        /// a serial port (`--port`).
+        /// a serial port (`--port`); `probe-rs`: the Black Pill's image (built unless `--elf`
+        /// names one) flashed onto the board through a debug probe with the probe-rs tool, the checks over the pen's USB serial port,
+        /// the defmt log checked (boot line, no panic or fault).
         #[arg(long, value_enum, default_value_t = Backend::Qemu)]
         backend: Backend,
-        /// Serial port path (backend `serial`).
+        /// Serial port path (backend `serial`; backend `probe-rs`: default, the first port
+        /// with Maobi's USB IDs 1209:0001).
         #[arg(long)]
         port: Option<PathBuf>,
+        /// Backend `probe-rs`: the chip, as probe-rs names it.
+        #[arg(long, default_value = hil::probe_rs::DEFAULT_CHIP)]
+        chip: String,
+        /// Backend `probe-rs`: which debug probe (VID:PID[:SERIAL]), passed to probe-rs.
+        #[arg(long, value_name = "VID:PID[:SERIAL]")]
+        probe: Option<String>,
+        /// Backend `probe-rs`: the probe-rs executable (default: $MAOBI_PROBE_RS, else
+        /// `probe-rs` on the PATH).
+        #[arg(long = "probe-rs", value_name = "PATH")]
+        probe_rs: Option<PathBuf>,
+        /// Backend `probe-rs`: seconds for the pen's serial port to appear after probe-rs
+        /// starts (flashing included).
+        #[arg(long, default_value_t = 30)]
+        port_timeout: u64,
+        /// Backend `probe-rs`: the defmt record that says the firmware booted.
+        #[arg(long, default_value = hil::probe_rs::BOOT_LINE)]
+        boot_line: String,
         /// State frames per 1000 device ticks (QEMU boot argument; 1000: every tick).
         #[arg(long, default_value_t = 120)]
         state_hz: u32,
@@ -73,6 +95,7 @@ enum Cmd {
 enum Backend {
     Qemu,
     Serial,
+    ProbeRs,
 }
 
 fn main() -> Result<()> {
@@ -89,6 +112,35 @@ fn main() -> Result<()> {
             anyhow::bail!("backend serial needs --port PATH");
         };
         let r = run::run_serial(port, poses)?;
+        println!("{}", r.render());
+        if !r.passed() {
+            anyhow::bail!("some checks failed");
+        }
+        return Ok(());
+    }
+    if let Cmd::Run {
+        backend: Backend::ProbeRs,
+        port,
+        chip,
+        probe,
+        probe_rs,
+        port_timeout,
+        boot_line,
+        poses,
+        ..
+    } = &cli.cmd
+    {
+        // Not the default image (that one is built for the QEMU board): the Black Pill's,
+        // built here unless --elf names one (or --no-build uses the last build).
+        let elf =
+            firmware::board_image(firmware::Board::Blackpill, cli.elf.as_deref(), cli.no_build)?;
+        let mut opts = hil::probe_rs::ProbeRsOptions::new(probe_rs.clone());
+        opts.chip = chip.clone();
+        opts.probe = probe.clone();
+        opts.port = port.clone();
+        opts.port_timeout = Duration::from_secs(*port_timeout);
+        opts.boot_line = boot_line.clone();
+        let r = hil::probe_rs::run_probe_rs(&elf, poses, &opts)?;
         println!("{}", r.render());
         if !r.passed() {
             anyhow::bail!("some checks failed");

@@ -48,6 +48,21 @@ pub struct Run {
     pub uart_port: Option<u16>,
     /// Hard limit on the emulator's wall-clock time.
     pub timeout: Duration,
+    /// Further QEMU arguments (e.g. [`config_loader_args`] to preload a configuration).
+    pub qemu_args: Vec<String>,
+}
+
+/// Where the QEMU board keeps its configuration image: the firmware's
+/// `qemu::config_store::CONFIG_REGION`, the start of the mps2-an386's PSRAM.
+pub const CONFIG_REGION: u32 = 0x2100_0000;
+
+/// QEMU arguments that preload the file `image` as the board's stored configuration (QEMU's
+/// generic loader writes it to [`CONFIG_REGION`] before the CPU starts).
+pub fn config_loader_args(image: &Path) -> Vec<String> {
+    vec![
+        "-device".into(),
+        format!("loader,file={},addr={CONFIG_REGION:#x}", image.display()),
+    ]
 }
 
 impl Run {
@@ -58,6 +73,7 @@ impl Run {
             clock,
             uart_port: None,
             timeout,
+            qemu_args: Vec::new(),
         }
     }
 
@@ -91,6 +107,7 @@ impl Run {
                 c.args(["-serial", "null"]);
             }
         }
+        c.args(&self.qemu_args);
         c.arg("-kernel").arg(&self.elf);
         c
     }

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use maobi::poses::PoseTrack;
 use maobi_shared::presets;
+use maobi_shared::protocol::Capabilities;
 
 use crate::link::{self, Session, StreamLog, StreamOptions, Transport};
 use crate::qemu::{free_port, Clock, Guest, Run};
@@ -23,12 +24,24 @@ impl QemuDevice {
     /// Starts QEMU (`-icount shift=0,sleep=off`, the force loop paced at
     /// [`EMULATED_TICK_US`]) with `extra` boot arguments, and connects to its UART0.
     pub fn start(elf: &Path, extra: &[&str], timeout: Duration) -> Result<(Self, TcpStream)> {
+        Self::start_with(elf, extra, &[], timeout)
+    }
+
+    /// As [`Self::start`], with further QEMU arguments (`qemu_args`, e.g.
+    /// [`crate::qemu::config_loader_args`]).
+    pub fn start_with(
+        elf: &Path,
+        extra: &[&str],
+        qemu_args: &[String],
+        timeout: Duration,
+    ) -> Result<(Self, TcpStream)> {
         let port = free_port()?;
         let tick = format!("tick_us={EMULATED_TICK_US}");
         let mut args = vec!["run", tick.as_str()];
         args.extend_from_slice(extra);
         let mut run = Run::new(elf, &args, Clock::Deterministic { shift: 0 }, timeout);
         run.uart_port = Some(port);
+        run.qemu_args = qemu_args.to_vec();
         let guest = run.spawn()?;
         let mut dev = QemuDevice { guest, port };
         let stream = dev.connect(Duration::from_secs(20))?;
@@ -137,6 +150,11 @@ pub fn run_session<T: Transport>(
             info.force_continuous_n
         ),
     }];
+    if !info.capabilities.contains(Capabilities::VIRTUAL_PEN) {
+        // A pen that reads its own sensors ignores host poses: the pose file cannot be
+        // compared with the simulation; its link and loop are checked instead.
+        return sensor_pen_checks(s, checks, log, SENSOR_PEN_LISTEN);
+    }
     let mut round_trip = vec![];
     for seq in 0..5 {
         round_trip.push(s.ping(seq, Duration::from_secs(5), &mut log.received)?);
@@ -172,6 +190,88 @@ pub fn run_session<T: Transport>(
         name: "host decoder clean".into(),
         pass: s.errors.is_empty(),
         detail: format!("{} frames dropped by the host decoder", s.errors.len()),
+    });
+    Ok(RunReport {
+        figures: link::figures(&log),
+        checks,
+        round_trip,
+        log,
+    })
+}
+
+/// How long a pen with its own sensors is listened to.
+pub const SENSOR_PEN_LISTEN: Duration = Duration::from_secs(3);
+
+/// The checks of a pen that reads its own sensors (it takes no poses from the host): pings,
+/// then `listen` of its stream: brush states keep coming, a telemetry report says the force
+/// loop holds its 1 ms tick (mean within 1%, no tick longer than 1.5 ms), and both ends'
+/// decoders are clean.
+pub fn sensor_pen_checks<T: Transport>(
+    s: &mut Session<T>,
+    mut checks: Vec<Check>,
+    mut log: StreamLog,
+    listen: Duration,
+) -> Result<RunReport> {
+    checks.push(Check {
+        name: "pose file".into(),
+        pass: true,
+        detail: "not streamed: this pen reads its own sensors (no VIRTUAL_PEN); its link and \
+                 force loop are checked instead"
+            .into(),
+    });
+    let mut round_trip = vec![];
+    for seq in 0..5 {
+        round_trip.push(s.ping(seq, Duration::from_secs(5), &mut log.received)?);
+    }
+    log.started = Some(Instant::now());
+    let end = Instant::now() + listen;
+    while Instant::now() < end {
+        if let Some(r) = s.recv(Duration::from_millis(20))? {
+            log.received.push(r);
+        }
+    }
+    log.finished = Some(Instant::now());
+    let states = log.states().count();
+    checks.push(Check {
+        name: "brush states stream".into(),
+        pass: states > 0,
+        detail: format!("{states} states in {:.1} s", listen.as_secs_f64()),
+    });
+    let t = log.telemetry().last().cloned();
+    checks.push(Check {
+        name: "force loop holds 1 ms".into(),
+        pass: t.as_ref().is_some_and(|t| {
+            (990..=1010).contains(&t.tick_period_mean_us) && t.tick_period_max_us <= 1500
+        }),
+        detail: match &t {
+            None => "no telemetry report".into(),
+            Some(t) => format!(
+                "tick period min/mean/max {}/{}/{} us, load {}%, {} frames dropped",
+                t.tick_period_min_us,
+                t.tick_period_mean_us,
+                t.tick_period_max_us,
+                t.load_percent,
+                t.frames_dropped
+            ),
+        },
+    });
+    let device_rx_clean = t.as_ref().is_some_and(|t| {
+        t.rx.crc_errors == 0
+            && t.rx.framing_errors == 0
+            && t.rx.decode_errors == 0
+            && t.rx.version_errors == 0
+            && t.rx.oversized_frames == 0
+    });
+    checks.push(Check {
+        name: "decoders clean".into(),
+        pass: s.errors.is_empty() && device_rx_clean,
+        detail: format!(
+            "{} frames dropped by the host decoder; device receiver {}",
+            s.errors.len(),
+            t.as_ref()
+                .map(|t| format!("{:?}", t.rx))
+                .unwrap_or_else(|| "not reported".into())
+        ),
     });
     Ok(RunReport {
         figures: link::figures(&log),

@@ -139,3 +139,100 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
     );
     assert_eq!(differ, 0, "the canvases are the same, pixel for pixel");
 }
+
+/// The app's link device guiding the firmware's pen in QEMU ("Guide me" on a QEMU pen): the
+/// writer streams the stroke's moving point with the poses, the frames carry the point and
+/// how far the pen is from it, the firmware's force carries the pull, and the guide fades out
+/// and stops after the stroke.
+#[test]
+fn guided_writing_over_tcp_to_the_qemu_firmware() {
+    use maobi::gui::device::{DeviceCommand, HandInput};
+    use std::sync::Arc;
+    let Some(elf) = image() else { return };
+    let length = f64::from(presets::LARGE.length_mm);
+    let port = free_port().unwrap();
+    let tick = format!("tick_us={EMULATED_TICK_US}");
+    let mut run = Run::new(
+        &elf,
+        &["run", &tick, "state_hz=1000"],
+        Clock::Deterministic { shift: 0 },
+        Duration::from_secs(600),
+    );
+    run.uart_port = Some(port);
+    let _guest = run.spawn().expect("QEMU starts");
+    // The pen hangs 10 mm above the paper (the pointer does not move); the moving point runs
+    // a 30 mm line in 0.5 s from 5 mm beside it.
+    let z = length + 10.0;
+    let mut dev = LinkDevice::new(LinkOptions::new(
+        Endpoint::Tcp(format!("127.0.0.1:{port}")),
+        HandInput {
+            x: 0.0,
+            y: 0.0,
+            z,
+            tilt_x_deg: 0.0,
+            tilt_y_deg: 0.0,
+        },
+    ))
+    .unwrap();
+    // QEMU opens its socket when it is ready: the device keeps trying in the background.
+    let _ = dev.connect();
+    let mut frames = Vec::new();
+    let end = Instant::now() + Duration::from_secs(30);
+    while !dev.status().connected {
+        assert!(Instant::now() < end, "connects to QEMU's UART0 socket");
+        dev.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    dev.send(DeviceCommand::EnableForces(true)).unwrap();
+    let end = Instant::now() + Duration::from_secs(20);
+    while frames.len() < 300 && Instant::now() < end {
+        dev.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,0,5,{z},1,0,0,0\n0.5,30,5,{z},1,0,0,0\n");
+    let track = maobi::poses::PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
+    dev.send(DeviceCommand::Guide(Some(Arc::new(track))))
+        .unwrap();
+    let mut all = Vec::new();
+    let end = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < end {
+        frames.clear();
+        dev.poll(&mut frames);
+        all.extend(frames.iter().cloned());
+        let last = all.iter().rposition(|f| f.guide.is_some());
+        if last.is_some_and(|i| all.len() > i + 200) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    dev.disconnect();
+    let guided: Vec<_> = all.iter().filter_map(|f| f.guide.map(|g| (f, g))).collect();
+    let peak_gain = guided.iter().map(|(_, g)| g.gain).fold(0.0, f64::max);
+    let pull = guided
+        .iter()
+        .map(|(f, _)| f.force_total[1])
+        .fold(0.0, f64::max);
+    eprintln!(
+        "guided over QEMU: {} frames, {} guided, peak gain {peak_gain:.3}, device force toward \
+         the line up to {pull:.3} N",
+        all.len(),
+        guided.len()
+    );
+    // 500 ticks of stroke and about 300 of fade-out, a state every tick.
+    assert!(guided.len() > 500, "{}", guided.len());
+    assert!(peak_gain > 0.9, "{peak_gain}");
+    let last = all.iter().rposition(|f| f.guide.is_some()).unwrap();
+    assert!(all[last + 1..].iter().all(|f| f.guide.is_none()));
+    for (f, g) in &guided {
+        let p = f.pose.pos.to_f64();
+        let d = ((0..3).map(|i| (p[i] - g.anchor[i]).powi(2)).sum::<f64>()).sqrt();
+        assert!(
+            (d - g.distance_mm).abs() < 1e-9 && d >= 5.0 - 1e-6,
+            "{d} {g:?}"
+        );
+        assert!(g.force.iter().map(|c| c * c).sum::<f64>().sqrt() <= 0.8 + 1e-6);
+    }
+    // The firmware's own force (the state's) pulls toward the line, y > 0: only the guide
+    // acts sideways on a brush hanging in the air.
+    assert!(pull > 0.1, "{pull}");
+}

@@ -13,10 +13,10 @@ use hil::link::{self, Action, Session, StreamLog, StreamOptions};
 use hil::run::{self, QemuDevice};
 use hil::{firmware, qemu};
 use maobi::poses::PoseTrack;
-use maobi_shared::presets;
 use maobi_shared::protocol::{
     crc32, Command, DeviceMsg, EventKind, Faults, HostMsg, HOST_TO_DEVICE, PROTOCOL_VERSION,
 };
+use maobi_shared::{presets, Fx, Scalar};
 
 const TIMEOUT: Duration = Duration::from_secs(600);
 /// The firmware's link timeout (ticks): `app::LINK_TIMEOUT_TICKS`.
@@ -528,4 +528,500 @@ fn parameters_and_commands_are_validated_and_answered() {
         Ok(())
     );
     drop(dev);
+}
+
+/// Guided writing under QEMU: the hook streamed with a guide sample every tick (the moving
+/// point 40 ticks ahead of the pen and 3 mm beside it, on for all but the last 200 ticks,
+/// then held and fading out). Every state's brush is bit-identical to the host simulation
+/// and every state's force (the model's plus the guide's) to the host's mirror of the force
+/// loop; the same stroke unguided, on the same device, matches the unguided mirror, and the
+/// guided forces differ from it.
+#[test]
+fn guided_stroke_forces_are_bit_identical_to_the_host_mirror() {
+    let Some(elf) = image() else { return };
+    let t = track("hook.csv");
+    let poses = link::track_poses(&t);
+    let n = poses.len();
+    let guide = link::guide_along(&poses, 40, [0.0, 3.0, 0.0], n.saturating_sub(200));
+    let sim = link::simulate(presets::LARGE, &poses).unwrap();
+    let (dev, stream) =
+        QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=1000"], TIMEOUT).unwrap();
+    let mut s = Session::new(stream).unwrap();
+
+    let mut log = StreamLog::default();
+    s.handshake(Duration::from_secs(10), &mut log.received)
+        .unwrap();
+    let opts = StreamOptions {
+        guide: guide.clone(),
+        ..Default::default()
+    };
+    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+
+    // Again unguided: a new handshake restarts the brush and the forces at the first pose.
+    let base2 = 1 + n as u32;
+    let mut log2 = StreamLog::default();
+    s.handshake(Duration::from_secs(10), &mut log2.received)
+        .unwrap();
+    let opts = StreamOptions {
+        base: base2,
+        ..Default::default()
+    };
+    link::stream(&mut s, &poses, opts, &mut log2).unwrap();
+    drop(dev);
+
+    // The host's mirror of the force loop, tick by tick as the device ran them.
+    let timeline = link::device_timeline(&log, 1, n);
+    let guided = link::simulate_forces(presets::LARGE, &poses, &guide, &timeline).unwrap();
+    let unguided_here = link::simulate_forces(presets::LARGE, &poses, &[], &timeline).unwrap();
+    let timeline2 = link::device_timeline(&log2, base2, n);
+    let unguided = link::simulate_forces(presets::LARGE, &poses, &[], &timeline2).unwrap();
+    let brush = link::compare(&log, 1, &sim);
+    let forces = link::compare_forces(&log, &guided);
+    let brush2 = link::compare(&log2, base2, &sim);
+    let forces2 = link::compare_forces(&log2, &unguided);
+    let gaps = |t: &[(u32, Option<usize>)]| t.iter().filter(|(_, k)| k.is_none()).count();
+    println!(
+        "guided: brush {} states over {} of {n} ticks, {} mismatches; force at {} device \
+         ticks of {} on the timeline ({} without a new pose), {} mismatches",
+        brush.compared,
+        brush.ticks,
+        brush.mismatches.len(),
+        forces.compared,
+        timeline.len(),
+        gaps(&timeline),
+        forces.mismatches.len()
+    );
+    println!(
+        "unguided: brush over {} of {n} ticks, {} mismatches; force at {} device ticks of {} \
+         ({} without a new pose), {} mismatches",
+        brush2.ticks,
+        brush2.mismatches.len(),
+        forces2.compared,
+        timeline2.len(),
+        gaps(&timeline2),
+        forces2.mismatches.len()
+    );
+    assert!(brush.mismatches.is_empty(), "{:?}", brush.mismatches);
+    assert!(brush2.mismatches.is_empty(), "{:?}", brush2.mismatches);
+    assert!(
+        forces.mismatches.is_empty(),
+        "guided force differs at ticks {:?}",
+        &forces.mismatches[..forces.mismatches.len().min(10)]
+    );
+    assert!(forces2.mismatches.is_empty(), "{:?}", forces2.mismatches);
+    // The timeline reaches the last pose (no ambiguous stretch cut it short).
+    assert_eq!(brush.ticks, n);
+    assert_eq!(timeline.iter().rev().find_map(|(_, k)| *k), Some(n - 1));
+    assert_eq!(timeline2.iter().rev().find_map(|(_, k)| *k), Some(n - 1));
+    assert!(forces.compared >= timeline.len() * 9 / 10, "{forces:?}");
+
+    // The guide really acts: the device's guided force minus the unguided run's.
+    let f = |b: &[i64; 3]| b.map(|x| Fx::from_bits(x).to_f64());
+    let mut differ = 0;
+    let mut max_diff = 0.0f64;
+    let mut max_y = 0.0f64;
+    for (_, st) in log.states() {
+        // The same ticks without the guide.
+        let Some(u) = unguided_here.get(&st.tick) else {
+            continue;
+        };
+        let (a, b) = (f(&st.haptics.force_n), f(u));
+        let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+        if d > 0.0 {
+            differ += 1;
+        }
+        max_diff = max_diff.max(d);
+        max_y = max_y.max(a[1] - b[1]);
+    }
+    println!(
+        "guided - unguided force: differs at {differ} states, largest {max_diff:.3} N \
+         (toward the point, +y: {max_y:.3} N)"
+    );
+    assert!(differ > n / 2, "{differ} of {n}");
+    // 3 mm beside and 40 ticks ahead at 100 N/m: a few tenths of a newton, under 0.8 N.
+    assert!(max_diff > 0.2 && max_diff <= 0.8 + 1e-6, "{max_diff}");
+}
+
+/// The link cut while guiding: the host stops sending (poses and guide samples) mid-stroke
+/// with the forces on and the guide leading; the firmware latches LINK_SILENT within the
+/// link timeout and its motor command is zero from that tick on (the guide cut, the motors
+/// off at once rather than ramped); a new hello reports the silence.
+#[test]
+fn link_cut_while_guiding_zeroes_the_motors_within_the_timeout() {
+    let Some(elf) = image() else { return };
+    let t = track("press_lift.csv");
+    let poses = link::track_poses(&t);
+    let n = poses.len();
+    assert!(n > 800, "{n}");
+    // 5 mm beside the pen: 0.5 N at full gain.
+    let guide = link::guide_along(&poses, 0, [0.0, 5.0, 0.0], n);
+    let (dev, stream) =
+        QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=1000"], TIMEOUT).unwrap();
+    let mut s = Session::new(stream).unwrap();
+    let mut log = StreamLog::default();
+    s.handshake(Duration::from_secs(10), &mut log.received)
+        .unwrap();
+    s.send(&HostMsg::Command(Command::EnableForces)).unwrap();
+    let mut actions = std::collections::BTreeMap::new();
+    actions.insert(700, vec![Action::Stop]);
+    let opts = StreamOptions {
+        actions,
+        guide,
+        ..Default::default()
+    };
+    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    // Silence: read what the device sends until 150 states after the fault latched (the
+    // device's pace under QEMU depends on the machine's load; the deadline is generous).
+    let end = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < end {
+        log.received.extend(s.poll().unwrap());
+        let silent = log
+            .states()
+            .filter(|(_, st)| st.faults.contains(Faults::LINK_SILENT))
+            .count();
+        if silent >= 150 {
+            break;
+        }
+    }
+    // Back: the device reports how long it heard nothing.
+    let mut after = StreamLog::default();
+    s.handshake(Duration::from_secs(10), &mut after.received)
+        .unwrap();
+    // (The event comes before the device's hello.)
+    let reconnected = |m: &DeviceMsg| match m {
+        DeviceMsg::Event(e) => match e.kind {
+            EventKind::LinkReconnected { silent_ms } => Some((silent_ms, e.tick)),
+            _ => None,
+        },
+        _ => None,
+    };
+    let early = after.received.iter().find_map(|r| reconnected(&r.msg));
+    let (silent_ms, t_r) = match early {
+        Some(x) => x,
+        None => {
+            s.wait_for(Duration::from_secs(10), &mut after.received, reconnected)
+                .unwrap()
+                .expect("a LinkReconnected event")
+                .0
+        }
+    };
+    drop(dev);
+    let last_heard = t_r - silent_ms;
+    let states: Vec<_> = log.states().map(|(_, st)| st.clone()).collect();
+    let guided_y = states
+        .iter()
+        .filter(|st| st.tick <= last_heard && st.haptics.enabled)
+        .map(|st| Fx::from_bits(st.haptics.motors[1]).to_f64())
+        .fold(0.0f64, f64::max);
+    let t_f = states
+        .iter()
+        .find(|st| st.faults.contains(Faults::LINK_SILENT))
+        .map(|st| st.tick)
+        .expect("LINK_SILENT in a state during the silence");
+    let last_driven = states
+        .iter()
+        .filter(|st| st.haptics.motors != [0; 3])
+        .map(|st| st.tick)
+        .max()
+        .unwrap_or(0);
+    println!(
+        "guide pull on the motors before the cut up to {guided_y:.3} N; last frame heard at \
+         tick {last_heard}, LINK_SILENT in the state of tick {t_f} (+{}), last nonzero motor \
+         command at tick {last_driven} (+{}); {} states after it, all zero",
+        t_f - last_heard,
+        last_driven - last_heard,
+        states.iter().filter(|st| st.tick > last_driven).count()
+    );
+    assert!(guided_y > 0.3, "the guide pulled toward +y: {guided_y}");
+    assert!(
+        t_f > last_heard && t_f - last_heard <= LINK_TIMEOUT_TICKS + 1,
+        "{} ticks",
+        t_f - last_heard
+    );
+    assert!(
+        last_driven < t_f,
+        "motors off from tick {t_f}: {last_driven}"
+    );
+    let silent: Vec<_> = states.iter().filter(|st| st.tick >= t_f).collect();
+    assert!(silent.len() > 100, "{}", silent.len());
+    for st in silent {
+        assert!(!st.haptics.enabled && st.haptics.motors == [0; 3], "{st:?}");
+    }
+}
+
+/// The pressed horizontal stroke of `maobi-shared`'s tests/guide.rs (large brush, z = 40
+/// touches the paper): in at 3 mm above, pressed 5 mm along 60 mm, out.
+fn guide_stroke() -> maobi_shared::stroke::Stroke {
+    use maobi_shared::stroke::{orient::from_tilt_azimuth, Keyframe, Stroke};
+    let q = from_tilt_azimuth(0.0, 0.0, 0.0);
+    let key = |x: f64, y: f64, z: f64, t: f64| Keyframe {
+        pos: [x, y, z],
+        rot: q,
+        t: Some(t),
+    };
+    let keys = [
+        key(-32.0, 0.0, 43.0, 0.0),
+        key(-30.0, 0.0, 36.0, 0.3),
+        key(0.0, 1.0, 35.0, 0.8),
+        key(28.0, 2.0, 36.0, 1.3),
+        key(30.0, 2.0, 43.0, 1.6),
+    ];
+    Stroke::new(&keys, &[], &[], 60.0).unwrap()
+}
+
+/// The guide's moving point as tests/guide.rs plays it, `cycles` times: the stroke's start
+/// held while the guide fades in, the stroke in real time, its end held while it fades out
+/// (`on = false`). Also: which steps play the stroke (at full gain), the start and the pen's
+/// orientation.
+struct GuidePlan {
+    anchors: Vec<(maobi_shared::Vec3<Fx>, bool)>,
+    playing: Vec<bool>,
+    start: [f64; 3],
+    rot: maobi_shared::Quat<Fx>,
+}
+
+fn guide_plan(cycles: usize) -> GuidePlan {
+    use maobi_shared::guide::DEFAULT_GUIDE;
+    let s = guide_stroke();
+    let (t0, t1) = s.domain();
+    let fade = (DEFAULT_GUIDE.fade_s as f64 * 1e3) as usize + 50;
+    let play = ((t1 - t0) * 1e3).round() as usize;
+    let cycle = fade + play + fade;
+    let (start, q0) = s.pose_at(t0);
+    let mut plan = GuidePlan {
+        anchors: vec![],
+        playing: vec![],
+        start,
+        rot: maobi_shared::Quat::from_f64(q0),
+    };
+    for k in 0..cycles * cycle {
+        let phase = k % cycle;
+        let t = t0 + (phase.saturating_sub(fade)).min(play) as f64 * 1e-3;
+        let a = maobi_shared::Vec3::<Fx>::from_f64(s.pose_at(t).0);
+        plan.anchors.push((a, phase < fade + play));
+        plan.playing.push(phase >= fade && phase < fade + play);
+    }
+    plan
+}
+
+/// What a closed-loop guided run measured.
+struct HandFigures {
+    rms_xy_mm: f64,
+    max_xy_mm: f64,
+    rms_mm: f64,
+    max_mm: f64,
+    /// Largest command the hand felt, and in any state (N).
+    peak_felt: f64,
+    peak_state: f64,
+    /// Largest energy created over any window (J), from step 600 on (the ramp-in).
+    worst_violation: f64,
+    sourced_j: f64,
+    /// Steps whose command was below the force the loop wanted (the output stage limited it).
+    limited: usize,
+    device_ticks: usize,
+}
+
+/// Runs the hand through the device and checks the run against the host mirror bit for bit
+/// (brush and force of every state), then measures it as tests/guide.rs does.
+fn guided_hand_run(
+    hand_params: maobi_shared::hand::HandParams,
+    cycles: usize,
+    mut target: impl FnMut(usize, &maobi_shared::hand::SimHand) -> ([f64; 3], [f64; 3]),
+) -> HandFigures {
+    use maobi_shared::hand::SimHand;
+    let elf = image().expect("checked by the caller");
+    let plan = guide_plan(cycles);
+    let (dev, stream) =
+        QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=1000"], TIMEOUT).unwrap();
+    let mut s = Session::new(stream).unwrap();
+    let mut skipped = Vec::new();
+    let info = s.handshake(Duration::from_secs(10), &mut skipped).unwrap();
+    s.send(&HostMsg::Command(Command::EnableForces)).unwrap();
+    let mut hand = SimHand::new(hand_params, plan.start);
+    let run = link::guide_hand(
+        &mut s,
+        1,
+        &plan.anchors,
+        plan.rot,
+        &mut hand,
+        &mut target,
+        Duration::from_secs(20),
+    )
+    .unwrap();
+    drop(dev);
+    let n = run.poses.len();
+
+    // Bit for bit: every state's brush and force against the host's mirror, tick by tick as
+    // the device ran them (it ticked on its own clock while the hand waited).
+    let timeline = link::device_timeline(&run.log, 1, n);
+    let mirror =
+        link::mirror_force_loop(presets::LARGE, &run.poses, &run.guide, &timeline).unwrap();
+    let forces = mirror.iter().map(|(t, m)| (*t, m.force_n)).collect();
+    let brush = link::compare(
+        &run.log,
+        1,
+        &link::simulate(presets::LARGE, &run.poses).unwrap(),
+    );
+    let fc = link::compare_forces(&run.log, &forces);
+    println!(
+        "{n} poses over {} device ticks; brush {} mismatches over {} poses, force {} \
+         mismatches over {} states",
+        timeline.len(),
+        brush.mismatches.len(),
+        brush.ticks,
+        fc.mismatches.len(),
+        fc.compared
+    );
+    assert_eq!(timeline.iter().rev().find_map(|(_, k)| *k), Some(n - 1));
+    assert!(brush.mismatches.is_empty(), "{:?}", brush.mismatches);
+    assert!(fc.mismatches.is_empty(), "{:?}", fc.mismatches);
+    assert!(fc.compared >= timeline.len() * 9 / 10, "{fc:?}");
+
+    let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let f = |b: &[i64; 3]| b.map(|x| Fx::from_bits(x).to_f64());
+    let mut fig = HandFigures {
+        rms_xy_mm: 0.0,
+        max_xy_mm: 0.0,
+        rms_mm: 0.0,
+        max_mm: 0.0,
+        peak_felt: run.felt.iter().map(|c| norm(*c)).fold(0.0, f64::max),
+        peak_state: run
+            .log
+            .states()
+            .map(|(_, st)| norm(f(&st.haptics.motors)))
+            .fold(0.0, f64::max),
+        worst_violation: 0.0,
+        sourced_j: 0.0,
+        limited: 0,
+        device_ticks: timeline.len(),
+    };
+    // The stated limit: the device's own, from its hello.
+    assert!(
+        fig.peak_state <= info.force_peak_n as f64 + 1e-6,
+        "{} N > {} N",
+        fig.peak_state,
+        info.force_peak_n
+    );
+    let (mut sum2, mut sum2_xy, mut m) = (0.0, 0.0, 0usize);
+    let mut best = f64::MIN;
+    let mut sourced = 0.0;
+    let mut by_pose = vec![None; n];
+    for (&t, mt) in &mirror {
+        sourced += mt.sourced_j;
+        if let Some(k) = mt.pose {
+            by_pose[k] = Some((t, mt.clone(), sourced));
+        }
+    }
+    fig.sourced_j = sourced;
+    let wanted: std::collections::BTreeMap<u32, [f64; 3]> = run
+        .log
+        .states()
+        .map(|(_, st)| (st.tick, f(&st.haptics.force_n)))
+        .collect();
+    for (k, at) in by_pose.iter().enumerate() {
+        let Some((t, mt, sourced)) = at else {
+            panic!("pose {k} not on the timeline");
+        };
+        let (a, _) = plan.anchors[k];
+        let (a, x) = (a.to_f64(), run.poses[k].pos.to_f64());
+        if plan.playing[k] {
+            let d2_xy = (a[0] - x[0]).powi(2) + (a[1] - x[1]).powi(2);
+            let d2 = d2_xy + (a[2] - x[2]).powi(2);
+            sum2 += d2;
+            sum2_xy += d2_xy;
+            m += 1;
+            fig.max_mm = fig.max_mm.max(d2.sqrt());
+            fig.max_xy_mm = fig.max_xy_mm.max(d2_xy.sqrt());
+        }
+        if let Some(w) = wanted.get(t) {
+            if norm(run.felt[k]) + 1e-9 < norm(*w) {
+                fig.limited += 1;
+            }
+        }
+        if k < 600 {
+            continue; // the output stage's ramp-in, as in tests/guide.rs
+        }
+        let stored = run.stylus_ke[k] + mt.stored_j;
+        let phi = run.energy_in[k] + sourced - stored;
+        best = best.max(phi);
+        fig.worst_violation = fig.worst_violation.max(best - phi);
+    }
+    fig.rms_mm = (sum2 / m.max(1) as f64).sqrt();
+    fig.rms_xy_mm = (sum2_xy / m.max(1) as f64).sqrt();
+    fig
+}
+
+/// Same tolerance as the passivity audit of `maobi-shared`'s tests/guide.rs.
+const AUDIT_TOLERANCE_J: f64 = 2e-3;
+
+/// Guided writing through the firmware in QEMU with a simulated relaxed hand in the loop: the
+/// device leads it along the stroke of `maobi-shared`'s tests/guide.rs within the error
+/// stated there (2.5 mm RMS, 5 mm at most in the paper plane; 1.93 / 3.6 mm on the host), its
+/// command stays within its limits, the passivity audit holds, and every state is the host
+/// mirror's bit for bit.
+#[test]
+fn guided_writing_leads_a_relaxed_hand_through_the_device() {
+    if image().is_none() {
+        return;
+    }
+    let r = guided_hand_run(maobi_shared::hand::HandParams::RELAXED, 1, |_, h| {
+        (h.hand(), [0.0; 3])
+    });
+    println!(
+        "relaxed, over the wire: in the paper plane {:.2} mm RMS, {:.2} mm at most from the \
+         moving point; in 3D {:.2} mm RMS, {:.2} mm at most; peak command {:.3} N (felt \
+         {:.3} N), limited at {} steps; audit {:.2e} J (tolerance {AUDIT_TOLERANCE_J:e}); the \
+         stroke supplied {:.4} J; {} device ticks",
+        r.rms_xy_mm,
+        r.max_xy_mm,
+        r.rms_mm,
+        r.max_mm,
+        r.peak_state,
+        r.peak_felt,
+        r.limited,
+        r.worst_violation,
+        r.sourced_j,
+        r.device_ticks
+    );
+    assert!(r.rms_xy_mm < 2.5, "{:.2} mm RMS", r.rms_xy_mm);
+    assert!(r.max_xy_mm < 5.0, "{:.2} mm", r.max_xy_mm);
+    assert!(
+        r.rms_mm < 5.0 && r.max_mm < 8.0,
+        "{r:?}",
+        r = (r.rms_mm, r.max_mm)
+    );
+    assert!(r.peak_felt > 0.1, "the device did push: {}", r.peak_felt);
+    assert!(
+        r.worst_violation <= AUDIT_TOLERANCE_J,
+        "{:e} J",
+        r.worst_violation
+    );
+}
+
+/// Guided writing through the firmware with a hand that resists (the random presses, drags
+/// and bumps of the passivity audit around the stroke): the device's command never exceeds
+/// its limits, the passivity audit holds, and every state is the host mirror's.
+#[test]
+fn guided_writing_against_a_resisting_hand_stays_in_the_limits() {
+    if image().is_none() {
+        return;
+    }
+    let start = guide_stroke().pose_at(0.0).0;
+    let mut script = maobi_shared::hand::Script::new(23, start, (34.0, 48.0));
+    script.xy_range = 30.0;
+    let r = guided_hand_run(maobi_shared::hand::HandParams::WRITER, 2, |_, _| {
+        script.tick()
+    });
+    println!(
+        "resisting, over the wire: {:.1} mm RMS from the moving point; peak command {:.3} N \
+         (felt {:.3} N), limited at {} steps; audit {:.2e} J (tolerance \
+         {AUDIT_TOLERANCE_J:e}); {} device ticks",
+        r.rms_mm, r.peak_state, r.peak_felt, r.limited, r.worst_violation, r.device_ticks
+    );
+    assert!(r.rms_mm > 3.0, "the hand did resist: {:.1} mm", r.rms_mm);
+    assert!(
+        r.worst_violation <= AUDIT_TOLERANCE_J,
+        "{:e} J",
+        r.worst_violation
+    );
 }

@@ -50,6 +50,20 @@ fn bench_reports_instructions_per_tick() {
             r.ticks
         );
     }
+    // Guided writing's cost on the force path: the guide leads on every tick of its run and
+    // costs more than nothing (it ran) and less than 1% of the tick (its budget).
+    let g = r.guided.as_ref().expect("a guided line");
+    let extra = g.mean as i64 - r.unguided.0 as i64;
+    println!(
+        "guide: {extra:+} instructions per tick (alone {:?})",
+        r.guide_alone
+    );
+    assert!(extra > 500 && extra < (g.mean / 100) as i64, "{extra}");
+    assert!(
+        r.guide_alone.0 > 500 && r.guide_alone.1 < 10_000,
+        "{:?}",
+        r.guide_alone
+    );
 }
 
 #[test]

@@ -47,6 +47,42 @@ pub enum Command {
     /// Run a Phantom Omni / Geomagic Touch (OpenHaptics' libHD, loaded at run time) behind
     /// the wire protocol on a TCP port: `maobi gui --device tcp:HOST:PORT` connects to it.
     Bridge(BridgeArgs),
+    /// The pen itself: `maobi device check` walks through its first power-on.
+    #[command(subcommand)]
+    Device(DeviceCmd),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum DeviceCmd {
+    /// Bring-up: the handshake and the stored configuration, live sensor readings while you
+    /// move each joint, each motor nudged gently (after a confirmation) with its direction
+    /// checked, calibration in the inkwell, then a summary. Exits non-zero if a step failed.
+    Check(DeviceCheckArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct DeviceCheckArgs {
+    /// The pen's serial port (default: the first port with Maobi's USB IDs 1209:0001).
+    #[arg(long, value_name = "PATH", conflicts_with = "connect")]
+    pub port: Option<String>,
+    /// A device on TCP instead (the QEMU board's UART, `maobi sim-device`).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub connect: Option<String>,
+    /// Answer yes to every question and wait for no key (scripts, tests).
+    #[arg(long)]
+    pub yes: bool,
+    /// How long the live sensor readings run (Enter ends them sooner).
+    #[arg(long, value_name = "S", default_value = "10", value_parser = parse_px_per_mm)]
+    pub sensor_seconds: f64,
+    /// How long the pen may take to answer (s).
+    #[arg(long, value_name = "S", default_value = "3", value_parser = parse_px_per_mm)]
+    pub timeout: f64,
+    /// Nudge strength in thousandths of full current (at most 150).
+    #[arg(long, value_name = "N", default_value = "80", value_parser = clap::value_parser!(i16).range(1..=150))]
+    pub nudge_permille: i16,
+    /// Nudge duration (ms, at most 300).
+    #[arg(long, value_name = "MS", default_value = "150", value_parser = clap::value_parser!(u16).range(1..=300))]
+    pub nudge_ms: u16,
 }
 
 #[derive(Debug, Args)]
@@ -300,6 +336,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Some(Command::Bridge(a)) => run_bridge(&a),
+        Some(Command::Device(DeviceCmd::Check(a))) => run_device_check(&a),
         Some(Command::Gui(a)) => crate::gui::run(gui_options(a)),
         None => crate::gui::run(gui_options(cli.gui)),
     }
@@ -411,6 +448,60 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         }
         Some(s) => anyhow::bail!("{s}"),
         None => Ok(()),
+    }
+}
+
+/// `maobi device check`: the bring-up wizard on the terminal (or scripted with `--yes`).
+fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
+    use crate::device::bringup::{run_check, CheckOptions, Operator, Scripted, Terminal};
+    use crate::device::Endpoint;
+    let endpoint =
+        match (&a.connect, &a.port) {
+            (Some(addr), _) => format!("tcp:{addr}")
+                .parse::<Endpoint>()
+                .map_err(|e| anyhow::anyhow!(e))?,
+            (None, Some(p)) => Endpoint::Serial(p.clone()),
+            (None, None) => {
+                let ports = crate::device::serial_ports();
+                match ports.iter().find(|p| p.is_maobi()) {
+                    Some(p) => Endpoint::Serial(p.name.clone()),
+                    None => anyhow::bail!(
+                    "no serial port with Maobi's USB IDs (1209:0001); ports here: {}. Give one \
+                     with --port PATH",
+                    if ports.is_empty() {
+                        "none".to_string()
+                    } else {
+                        ports.iter().map(|p| p.label()).collect::<Vec<_>>().join(", ")
+                    }
+                ),
+                }
+            }
+        };
+    let mut opts = CheckOptions::new(endpoint.clone());
+    opts.sensor_time = std::time::Duration::from_secs_f64(a.sensor_seconds);
+    opts.reply_timeout = std::time::Duration::from_secs_f64(a.timeout);
+    opts.nudge_permille = a.nudge_permille;
+    opts.nudge_ms = a.nudge_ms;
+    let mut scripted = Scripted {
+        echo: true,
+        ..Default::default()
+    };
+    let mut terminal;
+    let op: &mut dyn Operator = if a.yes {
+        &mut scripted
+    } else {
+        terminal = Terminal::new();
+        &mut terminal
+    };
+    op.say(&format!("maobi device check: {endpoint}"));
+    let report = run_check(&opts, op);
+    op.say("");
+    op.say(&report.table());
+    if report.passed() {
+        op.say("All steps passed: the pen is ready for forces (`maobi gui --device ...`).");
+        Ok(())
+    } else {
+        anyhow::bail!("some bring-up steps failed (see the table above)")
     }
 }
 

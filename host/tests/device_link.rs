@@ -17,7 +17,9 @@ use maobi::raster::{Canvas, Frame};
 use maobi::render::Inker;
 use maobi_shared::params::MAX_LAYERS;
 use maobi_shared::presets;
-use maobi_shared::protocol::{encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST};
+use maobi_shared::protocol::{
+    encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST, PROTOCOL_VERSION,
+};
 
 fn length() -> f64 {
     presets::by_name("large").unwrap().length_mm as f64
@@ -125,7 +127,7 @@ fn handshake_then_poses_in_states_out_and_ink() {
     dev.connect().expect("connects");
     let s = dev.status();
     assert!(s.connected);
-    assert_eq!(s.protocol_version, Some(1));
+    assert_eq!(s.protocol_version, Some(u32::from(PROTOCOL_VERSION)));
     assert!(
         s.firmware_version
             .as_deref()
@@ -306,8 +308,8 @@ fn version_mismatch_is_a_clear_error() {
             let Ok(mut s) = stream else { break };
             let mut buf = [0u8; 512];
             let _ = s.read(&mut buf);
-            // A frame of protocol version 2: version byte, direction, some message.
-            let content = [2u8, DEVICE_TO_HOST, 0, 2, 0, 0];
+            // A frame of the next protocol version: version byte, direction, some message.
+            let content = [PROTOCOL_VERSION + 1, DEVICE_TO_HOST, 0, 2, 0, 0];
             let mut out = [0u8; 64];
             let n = encode_raw(&content, content.len() + CRC_LEN, &mut out).unwrap();
             let _ = s.write_all(&out[..n]);
@@ -315,10 +317,13 @@ fn version_mismatch_is_a_clear_error() {
         }
     });
     let mut dev = link(Endpoint::Tcp(addr));
-    let err = dev.connect().expect_err("a version-2 device is refused");
+    let err = dev
+        .connect()
+        .expect_err("a device of another version is refused");
     let msg = err.to_string();
     assert!(msg.contains("protocol version mismatch"), "{msg}");
-    assert!(msg.contains("peer speaks 2"), "{msg}");
+    let theirs = format!("peer speaks {}", PROTOCOL_VERSION + 1);
+    assert!(msg.contains(&theirs), "{msg}");
     let s = dev.status();
     assert!(!s.connected);
     let l = s.link.unwrap();
@@ -599,4 +604,102 @@ fn identify_recognises_the_device_by_its_handshake() {
     let err = maobi::device::identify(&Endpoint::Tcp(addr), Duration::from_millis(300))
         .expect_err("an echo is not a device");
     assert!(err.contains("is this a Maobi device?"), "{err}");
+}
+
+/// Guided writing over the link: the writer streams the stroke's moving point (one guide
+/// sample per pose), the frames show the point sent for their tick and how far the pen is
+/// from it, the guide fades in and, after the stroke, fades out and stops; the sim-device's
+/// force (the model's plus the guide's, through the output stage) carries the pull.
+#[test]
+fn guided_writing_streams_the_moving_point_and_frames_show_the_stray() {
+    let srv = server("127.0.0.1:0", 1000);
+    let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
+    dev.connect().expect("connects");
+    dev.send(DeviceCommand::EnableForces(true)).unwrap();
+    // The pen hangs where it is (the GUI's pointer does not move); the moving point runs a
+    // 30 mm line in 0.5 s from 5 mm beside it, in the air (no brush forces but gravity).
+    let z = length() + 10.0;
+    let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,0,5,{z},1,0,0,0\n0.5,30,5,{z},1,0,0,0\n");
+    let track = maobi::poses::PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
+    dev.send(DeviceCommand::Hand(HandInput {
+        z,
+        ..hand(0.0, 0.0)
+    }))
+    .unwrap();
+    let mut paper = Paper::new();
+    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    dev.send(DeviceCommand::Guide(Some(Arc::new(track))))
+        .unwrap();
+    let end = Instant::now() + Duration::from_millis(2000);
+    let mut frames = Vec::new();
+    let mut all = Vec::new();
+    while Instant::now() < end {
+        frames.clear();
+        dev.poll(&mut frames);
+        all.extend(frames.iter().cloned());
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    dev.disconnect();
+    let guided: Vec<_> = all.iter().filter_map(|f| f.guide.map(|g| (f, g))).collect();
+    let first = all
+        .iter()
+        .position(|f| f.guide.is_some())
+        .expect("guided frames");
+    let last = all.iter().rposition(|f| f.guide.is_some()).unwrap();
+    println!(
+        "{} frames, {} guided (frames {first}..={last}); largest stray {:.2} mm, largest \
+         guide force {:.3} N, peak gain {:.3}",
+        all.len(),
+        guided.len(),
+        guided
+            .iter()
+            .map(|(_, g)| g.distance_mm)
+            .fold(0.0, f64::max),
+        guided
+            .iter()
+            .map(|(_, g)| g.force.iter().map(|c| c * c).sum::<f64>().sqrt())
+            .fold(0.0, f64::max),
+        guided.iter().map(|(_, g)| g.gain).fold(0.0, f64::max),
+    );
+    // 500 ticks of stroke and about 300 of fade-out, at 1000 states per second (some
+    // skipped by the GUI's frame queue or the sim-device's pacing).
+    assert!(guided.len() > 300, "{}", guided.len());
+    assert!(
+        all[last + 1..].iter().all(|f| f.guide.is_none()),
+        "the guide stops after fading out"
+    );
+    let mut last_gain: f64 = 0.0;
+    let mut peak_gain: f64 = 0.0;
+    for (f, g) in &guided {
+        // The distance is from the frame's pen to the point sent for its tick.
+        let p = f.pose.pos.to_f64();
+        let d = (0..3)
+            .map(|i| (p[i] - g.anchor[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!((d - g.distance_mm).abs() < 1e-9, "{d} vs {}", g.distance_mm);
+        assert!(
+            g.distance_mm >= 5.0 - 1e-6,
+            "the pen stays put, 5 mm beside the line"
+        );
+        assert!((g.anchor[1] - 5.0).abs() < 1e-6 && g.anchor[0] >= -1e-9);
+        assert!(g.anchor[0] <= 30.0 + 1e-6);
+        let gf = g.force.iter().map(|c| c * c).sum::<f64>().sqrt();
+        assert!(gf <= 0.8 + 1e-6, "{gf}");
+        if g.gain > 0.01 {
+            assert!(g.force[1] > 0.0, "pulls toward the line: {:?}", g.force);
+        }
+        // The device's force includes the pull (through the output stage, ramped in).
+        if g.gain > 0.5 && f.output == maobi_shared::force::OutputState::Active {
+            let along = (0..3).map(|i| f.force_total[i] * g.force[i]).sum::<f64>() / gf;
+            assert!(along > 0.5 * gf, "{:?} vs {:?}", f.force_total, g.force);
+        }
+        peak_gain = peak_gain.max(g.gain);
+        last_gain = g.gain;
+    }
+    assert!(peak_gain > 0.9, "faded in: {peak_gain}");
+    assert!(last_gain < 0.05, "faded out: {last_gain}");
+    // The point walked the whole line and was held at its end.
+    let far = guided.iter().map(|(_, g)| g.anchor[0]).fold(0.0, f64::max);
+    assert!((far - 30.0).abs() < 1e-6, "{far}");
 }

@@ -802,3 +802,196 @@ fn the_gui_device_runs_the_servo_loop() {
     let got = read_record(&record);
     assert_eq!(*got.last().unwrap(), [0.0; 3]);
 }
+
+/// Guided writing in the servo loop, with the simulated relaxed hand of `maobi-shared`
+/// holding the stylus (no libHD: `ServoCore::step` is the callback's model): the core leads
+/// the hand along the pressed stroke of `maobi-shared`'s tests/guide.rs within the error
+/// stated there (2.5 mm RMS, 5 mm at most in the paper plane), its force stays within the
+/// Omni's peak, and after the stroke the guide fades out and stops.
+#[test]
+fn the_servo_loop_leads_a_relaxed_hand_along_a_stroke() {
+    use maobi::phantom::servo::ServoCommand;
+    use maobi_shared::guide::DEFAULT_GUIDE;
+    use maobi_shared::hand::{HandParams, SimHand};
+    use maobi_shared::stroke::{orient::from_tilt_azimuth, Keyframe, Stroke};
+    let q = from_tilt_azimuth(0.0, 0.0, 0.0);
+    let key = |x: f64, y: f64, z: f64, t: f64| Keyframe {
+        pos: [x, y, z],
+        rot: q,
+        t: Some(t),
+    };
+    let keys = [
+        key(-32.0, 0.0, 43.0, 0.0),
+        key(-30.0, 0.0, 36.0, 0.3),
+        key(0.0, 1.0, 35.0, 0.8),
+        key(28.0, 2.0, 36.0, 1.3),
+        key(30.0, 2.0, 43.0, 1.6),
+    ];
+    let stroke = Stroke::new(&keys, &[], &[], 60.0).unwrap();
+    let (t0, t1) = stroke.domain();
+    // As tests/guide.rs: the start held while the guide fades in, then the stroke in real
+    // time; the core holds the end while it fades out.
+    let fade = (DEFAULT_GUIDE.fade_s as f64 * 1e3) as usize + 50;
+    let play = ((t1 - t0) * 1e3).round() as usize;
+    let points: Vec<maobi_shared::Vec3<Fx>> = (0..fade + play)
+        .map(|k| {
+            let t = t0 + k.saturating_sub(fade).min(play) as f64 * 1e-3;
+            maobi_shared::Vec3::from_f64(stroke.pose_at(t).0)
+        })
+        .collect();
+    let (start, rot) = stroke.pose_at(t0);
+    let rot = Quat::from_f64(rot);
+    let map = Mapping::default();
+    let params = presets::by_name("large").unwrap();
+    let mut core = ServoCore::new(params, PHANTOM_OMNI, map, true).unwrap();
+    let mut hand = SimHand::new(HandParams::RELAXED, start);
+    let transform = |x: [f64; 3]| {
+        let (p, q) = map.to_device(Pose::new(maobi_shared::Vec3::from_f64(x), rot));
+        transform_of_pose(p, q)
+    };
+    // The brush settles at the start before the guide begins.
+    let mut cmd = [0.0; 3];
+    for _ in 0..100 {
+        hand.tick(hand.hand(), cmd);
+        let d = core.step(&transform(hand.stylus()), 0);
+        cmd = [d[0], -d[2], d[1]];
+    }
+    core.apply(ServoCommand::Guide(Some(points.clone().into())));
+    let (mut sum2, mut n, mut max_xy, mut peak) = (0.0, 0usize, 0.0f64, 0.0f64);
+    let mut guided = 0;
+    let mut ticks = 0;
+    while core.guiding() && ticks < points.len() + 2000 {
+        hand.tick(hand.hand(), cmd);
+        let x = hand.stylus();
+        let d = core.step(&transform(x), 0);
+        cmd = [d[0], -d[2], d[1]];
+        peak = peak.max(norm(d));
+        if let Some(g) = core.guide_frame() {
+            guided += 1;
+            // The frame's distance is the stylus's (in fixed point) from the point.
+            let p = maobi_shared::Vec3::<Fx>::from_f64(x);
+            let dist = ((0..3)
+                .map(|i| (p.to_f64()[i] - g.anchor[i]).powi(2))
+                .sum::<f64>())
+            .sqrt();
+            assert!((dist - g.distance_mm).abs() < 1e-6, "{dist} {g:?}");
+            if (fade..fade + play).contains(&ticks) {
+                let a = points[ticks].to_f64();
+                assert_eq!(g.anchor, a, "the point of tick {ticks}");
+                let d2 = (a[0] - x[0]).powi(2) + (a[1] - x[1]).powi(2);
+                sum2 += d2;
+                n += 1;
+                max_xy = max_xy.max(d2.sqrt());
+            }
+        }
+        ticks += 1;
+    }
+    let rms = (sum2 / n.max(1) as f64).sqrt();
+    eprintln!(
+        "Phantom servo loop, relaxed hand: {rms:.2} mm RMS, {max_xy:.2} mm at most in the \
+         paper plane over {n} ticks of the stroke; {guided} guided ticks of {ticks}; peak \
+         force {peak:.3} N"
+    );
+    assert!(
+        !core.guiding(),
+        "the guide fades out and stops after the stroke"
+    );
+    assert!(guided >= fade + play, "{guided}");
+    assert_eq!(n, play);
+    assert!(rms < 2.5, "{rms}");
+    assert!(max_xy < 5.0, "{max_xy}");
+    assert!(peak <= PHANTOM_OMNI.peak_n as f64 + 1e-9, "{peak}");
+    assert!(core.guide_frame().is_none());
+}
+
+/// `maobi --device phantom`: the GUI's guided writing reaches the servo loop; with the
+/// stand-in's stylus held still 5 mm beside a line, the frames carry the moving point and
+/// the stray, and the forces the stand-in recorded pull toward the line within the guide's
+/// and the device's limits.
+#[test]
+fn the_gui_device_guides_the_stylus() {
+    use maobi::gui::device::DeviceCommand;
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    // The stylus 50 mm above the paper at paper (0, 0), upright (see the test above).
+    let poses = scratch("guide_hold.csv");
+    std::fs::write(
+        &poses,
+        format!("t,x,y,z,qw,qx,qy,qz\n0,0,-10,0,{h},{},0,0\n", -h),
+    )
+    .unwrap();
+    let record = scratch("guide_record.csv");
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    configure(
+        &lib,
+        &format!("poses={};record={}", poses.display(), record.display()),
+    );
+    let mut d = maobi::phantom::device::gui_device(
+        Some(standin()),
+        "large",
+        maobi::gui::start_hand(46.0),
+        None,
+    )
+    .unwrap();
+    assert!(d.status().connected);
+    let mut frames = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while frames.len() < 30 && Instant::now() < deadline {
+        d.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // A 30 mm line 5 mm beside the stylus (paper +y), in the air, in 0.5 s.
+    let csv = "t,x,y,z,qw,qx,qy,qz\n0,0,5,50,1,0,0,0\n0.5,30,5,50,1,0,0,0\n";
+    let track = PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
+    let empty = PoseTrack::from_reader("empty.csv", "t,x,y,z,qw,qx,qy,qz\n".as_bytes());
+    if let Ok(empty) = empty {
+        assert!(d.send(DeviceCommand::Guide(Some(Arc::new(empty)))).is_err());
+    }
+    d.send(DeviceCommand::Guide(Some(Arc::new(track)))).unwrap();
+    let mut all = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    // The stroke (500 ticks), the fade-out (300), and some frames after.
+    while Instant::now() < deadline {
+        frames.clear();
+        d.poll(&mut frames);
+        all.extend(frames.iter().cloned());
+        let done = all.iter().rposition(|f| f.guide.is_some());
+        if done.is_some_and(|i| all.len() > i + 100) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    d.disconnect();
+    drop(lib);
+    let guided: Vec<_> = all.iter().filter_map(|f| f.guide).collect();
+    let peak_gain = guided.iter().map(|g| g.gain).fold(0.0, f64::max);
+    let peak_pull = guided.iter().map(|g| g.force[1]).fold(0.0, f64::max);
+    eprintln!(
+        "Phantom guided: {} frames, {} guided; peak gain {peak_gain:.3}, peak pull toward the \
+         line {peak_pull:.3} N",
+        all.len(),
+        guided.len()
+    );
+    // 800 ticks of guidance at the GUI's 120 states per second.
+    assert!(guided.len() > 60, "{}", guided.len());
+    assert!(peak_gain > 0.9, "{peak_gain}");
+    for g in &guided {
+        assert!(g.distance_mm >= 5.0 - 1e-6, "{g:?}");
+        assert!(
+            (g.anchor[1] - 5.0).abs() < 1e-6 && g.anchor[0] <= 30.0 + 1e-6,
+            "{g:?}"
+        );
+        assert!(norm(g.force) <= 0.8 + 1e-6, "{g:?}");
+    }
+    let last = all.iter().rposition(|f| f.guide.is_some()).unwrap();
+    assert!(all[last + 1..].iter().all(|f| f.guide.is_none()));
+    // The device felt the pull: paper +y is device -z; never above the Omni's peak.
+    let got = read_record(&record);
+    let pull = got.iter().map(|f| -f[2]).fold(0.0, f64::max);
+    let peak = got.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    eprintln!("recorded: largest pull {pull:.3} N, largest force {peak:.3} N");
+    // (The point runs ahead along x while the guide fades in: the y pull is a fraction.)
+    assert!(pull > 0.1, "{pull}");
+    assert!(peak <= PHANTOM_OMNI.peak_n as f64 + 1e-9, "{peak}");
+    assert_eq!(read_summary(&record)["violations"], "0");
+}

@@ -228,6 +228,127 @@ impl<S: Scalar> Guide<S> {
     }
 }
 
+/// A guide sample as the device's force loop takes it: the moving point (mm) and whether
+/// to lead.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct GuideInput<S> {
+    pub anchor: Vec3<S>,
+    pub on: bool,
+}
+
+/// Ticks with a new pose but no guide sample after which a stream fades out on its own,
+/// holding the last point (50 ms of the pen's time: a host that stopped guiding without
+/// saying so; a host that stopped sending altogether is the link watchdog's, which cuts it).
+pub const GUIDE_TIMEOUT_TICKS: u32 = 50;
+
+/// [`Guide`] fed by a stream of samples, one per tick, as the device receives them: the
+/// firmware's force loop and the host's mirror of it (`maobi sim-device`, the HIL check)
+/// run this same code, so the guide force is bit-identical on both.
+///
+/// Each tick: a sample sets the moving point (its step is the difference to the previous
+/// point) and starts (`on`) or stops the guide; with no sample the point is held (step zero)
+/// and after [`GUIDE_TIMEOUT_TICKS`] silent ticks the guide stops (fades out). [`Self::cut`]
+/// drops it at once (faults, link loss).
+///
+/// The stream runs in pose time: a virtual pen's tick that got no new pose (the host fell
+/// behind) calls [`Self::hold`] instead, which keeps the last force and neither fades nor
+/// counts toward the timeout, so the device's guide is the host mirror's however the poses
+/// were paced. (With no poses at all the link watchdog cuts the guide.)
+#[derive(Clone, Debug)]
+pub struct GuideStream<S> {
+    guide: Guide<S>,
+    anchor: Option<Vec3<S>>,
+    silent: u32,
+    last: Vec3<S>,
+}
+
+impl<S: Scalar> GuideStream<S> {
+    pub fn new(params: GuideParams) -> Result<Self, LimitError> {
+        Ok(GuideStream {
+            guide: Guide::new(params)?,
+            anchor: None,
+            silent: 0,
+            last: Vec3::ZERO,
+        })
+    }
+
+    pub fn guide(&self) -> &Guide<S> {
+        &self.guide
+    }
+
+    /// The moving point in force (the last sample's).
+    pub fn anchor(&self) -> Option<Vec3<S>> {
+        self.anchor
+    }
+
+    /// Leading or fading out.
+    pub fn active(&self) -> bool {
+        self.guide.active()
+    }
+
+    /// Drops the guidance at once: zero force from this tick; a later sample with `on`
+    /// fades in again from zero.
+    pub fn cut(&mut self) {
+        self.guide.cut();
+        self.anchor = None;
+        self.silent = 0;
+        self.last = Vec3::ZERO;
+    }
+
+    /// A tick without a new pose: the hand and the point have not moved, the last force
+    /// holds (no work done, no energy supplied).
+    pub fn hold(&self) -> GuideForce<S> {
+        GuideForce {
+            force: self.last,
+            distance_mm: S::ZERO,
+            source_j: 0.0,
+        }
+    }
+
+    /// One tick: this tick's sample, if one came, and the stylus `hand` with its step since
+    /// the last tick (mm). Zero force (and no work) while the guide is idle.
+    pub fn tick(
+        &mut self,
+        sample: Option<GuideInput<S>>,
+        hand: Vec3<S>,
+        hand_step: Vec3<S>,
+    ) -> GuideForce<S> {
+        let step = match sample {
+            Some(s) => {
+                self.silent = 0;
+                if s.on {
+                    self.guide.start();
+                } else {
+                    self.guide.stop();
+                }
+                let step = match self.anchor {
+                    Some(a) => s.anchor - a,
+                    None => Vec3::ZERO,
+                };
+                self.anchor = Some(s.anchor);
+                step
+            }
+            None => {
+                self.silent = self.silent.saturating_add(1);
+                if self.silent > GUIDE_TIMEOUT_TICKS {
+                    self.guide.stop();
+                }
+                Vec3::ZERO
+            }
+        };
+        let f = match self.anchor {
+            Some(a) if self.guide.active() => self.guide.tick(a, step, hand, hand_step),
+            _ => GuideForce {
+                force: Vec3::ZERO,
+                distance_mm: S::ZERO,
+                source_j: 0.0,
+            },
+        };
+        self.last = f.force;
+        f
+    }
+}
+
 /// `v` scaled down to length `max` if it is longer.
 fn clamp_norm<S: Scalar>(v: Vec3<S>, max: S) -> Vec3<S> {
     let n2 = v.norm2();
@@ -296,6 +417,77 @@ mod tests {
         // Moving the anchor 1 mm further along the pull does 0.5 N x 1 mm of work.
         let f2 = g.tick(Vec3::new(0.0, 6.0, 0.0), Vec3::new(0.0, 1.0, 0.0), z, z);
         assert!((f2.source_j - 0.5e-3).abs() < 1e-12, "{}", f2.source_j);
+    }
+
+    #[test]
+    fn a_stream_follows_its_samples_and_fades_out_when_they_stop() {
+        let mut g = GuideStream::<Fx>::new(DEFAULT_GUIDE).unwrap();
+        let z = Vec3::<Fx>::ZERO;
+        let at = |x: f64| {
+            Some(GuideInput {
+                anchor: Vec3::<Fx>::from_f64([x, 0.0, 0.0]),
+                on: true,
+            })
+        };
+        assert_eq!(g.tick(None, z, z).force, Vec3::ZERO, "idle without samples");
+        assert!(!g.active());
+        // Led toward a point moving 0.01 mm per tick: the force grows with the fade.
+        let mut last = 0.0;
+        for k in 0..300 {
+            let f = g.tick(at(5.0 + 0.01 * k as f64), z, z);
+            assert!(f.force.to_f64()[0] > last);
+            last = f.force.to_f64()[0];
+        }
+        assert_eq!(g.anchor(), Some(Vec3::from_f64([7.99, 0.0, 0.0])));
+        // Samples stop: the point is held, and after the timeout the guide fades out.
+        for _ in 0..GUIDE_TIMEOUT_TICKS {
+            let f = g.tick(None, z, z).force.to_f64()[0];
+            // (Less only the damper's share of the point's former motion, 0.1 N s/m x 10 mm/s.)
+            assert!(
+                f >= last - 1.1e-3,
+                "held at full gain until the timeout: {f} {last}"
+            );
+        }
+        for _ in 0..400 {
+            g.tick(None, z, z);
+        }
+        assert!(!g.active());
+        assert_eq!(g.tick(None, z, z).force, Vec3::ZERO);
+        // A cut drops the force at once.
+        for k in 0..100 {
+            g.tick(at(5.0 + 0.01 * k as f64), z, z);
+        }
+        assert!(g.active());
+        g.cut();
+        assert!(!g.active());
+        assert_eq!(g.hold().force, Vec3::ZERO);
+        assert_eq!(g.tick(None, z, z).force, Vec3::ZERO);
+    }
+
+    #[test]
+    fn a_hold_keeps_the_force_and_the_fade_where_they_are() {
+        let mut g = GuideStream::<Fx>::new(DEFAULT_GUIDE).unwrap();
+        let mut h = g.clone();
+        let z = Vec3::<Fx>::ZERO;
+        let s = |x: f64| {
+            Some(GuideInput {
+                anchor: Vec3::<Fx>::from_f64([x, 0.0, 0.0]),
+                on: true,
+            })
+        };
+        // Same samples; `h` gets many pose-less ticks between them (longer than the timeout).
+        for k in 0..100 {
+            let a = g.tick(s(5.0 + 0.01 * k as f64), z, z);
+            let b = h.tick(s(5.0 + 0.01 * k as f64), z, z);
+            assert_eq!(a, b);
+            for _ in 0..2 * GUIDE_TIMEOUT_TICKS {
+                let held = h.hold();
+                assert_eq!(held.force, b.force);
+                assert_eq!(held.source_j, 0.0);
+            }
+        }
+        assert_eq!(g.guide().gain(), h.guide().gain());
+        assert!(h.active());
     }
 
     #[test]

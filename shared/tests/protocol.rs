@@ -93,6 +93,12 @@ fn host_samples() -> Vec<HostMsg> {
             id: ParamId::Wetness as u8,
             value: 0.25,
         },
+        HostMsg::Guide(GuideSample::new(
+            123_456,
+            Vec3::from_f64([12.0, -3.5, 0.25]),
+            true,
+        )),
+        HostMsg::Guide(GuideSample::new(u32::MAX, Vec3::ZERO, false)),
         HostMsg::GetConfig,
         HostMsg::SetConfig(calibrated_config()),
     ];
@@ -291,6 +297,7 @@ fn host_kind(m: &HostMsg) -> &'static str {
             Command::StreamSensors { .. } => "stream sensors",
             Command::NudgeMotor(_) => "nudge",
         },
+        HostMsg::Guide(_) => "guide",
         HostMsg::GetConfig => "get config",
         HostMsg::SetConfig(_) => "set config",
     }
@@ -346,7 +353,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
 fn every_message_round_trips() {
     let hosts = host_samples();
     let kinds: std::collections::BTreeSet<_> = hosts.iter().map(host_kind).collect();
-    assert_eq!(kinds.len(), 18, "host samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 19, "host samples cover {kinds:?}");
     let mut rx = DeviceRx::new();
     let mut stream = Vec::new();
     for m in &hosts {
@@ -511,6 +518,17 @@ fn state_frame_size_and_link_share() {
         n as f64 * 1e3 / LINK_BYTES_PER_S * 100.0
     );
     assert!(n < 64);
+    let g = HostMsg::Guide(GuideSample::new(
+        1_000_000,
+        Vec3::from_f64([150.0, 120.0, 30.0]),
+        true,
+    ));
+    let n = frame(&g).len();
+    println!(
+        "guide sample: {n} bytes, {:.1}% of the link at 1 kHz",
+        n as f64 * 1e3 / LINK_BYTES_PER_S * 100.0
+    );
+    assert!(n < 32);
 }
 
 /// The largest message of each direction, with every value at its longest varint, fits the
@@ -556,6 +574,11 @@ fn largest_messages_fit_their_bounds() {
 
     let long_name = "x".repeat(NAME_LEN);
     let worst_host = [
+        HostMsg::Guide(GuideSample {
+            seq: u32::MAX,
+            anchor: [i64::MIN; 3],
+            on: true,
+        }),
         HostMsg::Pose(PoseSample {
             seq: u32::MAX,
             pose: worst_pose,
@@ -641,12 +664,12 @@ fn encoding_never_overruns_its_buffer() {
 fn version_mismatch_is_a_typed_error_on_both_ends() {
     // A frame of another version: the decoder says so, whichever end reads it.
     let mut dev = DeviceRx::new();
-    let ping_v2 = raw_frame(&[PROTOCOL_VERSION + 1, HOST_TO_DEVICE, 1, 5]);
+    let ping_next = raw_frame(&[PROTOCOL_VERSION + 1, HOST_TO_DEVICE, 1, 5]);
     let mismatch = ProtocolError::VersionMismatch {
         ours: PROTOCOL_VERSION,
         theirs: PROTOCOL_VERSION + 1,
     };
-    assert_eq!(decode(&mut dev, &ping_v2), vec![Err(mismatch)]);
+    assert_eq!(decode(&mut dev, &ping_next), vec![Err(mismatch)]);
     assert_eq!(dev.stats().version_errors, 1);
     let mut host = HostRx::new();
     let pong_v0 = raw_frame(&[0, DEVICE_TO_HOST, 1, 5]);
@@ -672,7 +695,8 @@ fn version_mismatch_is_a_typed_error_on_both_ends() {
     info.protocol_version = PROTOCOL_VERSION + 1;
     assert_eq!(info.check(), Err(mismatch));
     let text = mismatch.to_string();
-    assert!(text.contains("version") && text.contains('2'), "{text}");
+    let theirs = (PROTOCOL_VERSION + 1).to_string();
+    assert!(text.contains("version") && text.contains(&theirs), "{text}");
 }
 
 #[test]
@@ -724,6 +748,8 @@ fn valid_host_msg() -> impl Strategy<Value = HostMsg> {
                 buttons: Buttons::from_bits_retain(b),
             })),
         (any::<u8>(), -1e6f32..1e6).prop_map(|(id, value)| HostMsg::SetParam { id, value }),
+        (any::<u32>(), any::<[i64; 3]>(), any::<bool>())
+            .prop_map(|(seq, anchor, on)| { HostMsg::Guide(GuideSample { seq, anchor, on }) }),
         Just(HostMsg::Command(Command::EnableForces)),
     ]
 }
@@ -952,10 +978,48 @@ fn inject_overrun_is_appended_after_the_existing_commands() {
     assert_eq!(got, [Ok(HostMsg::Command(Command::InjectOverrun))]);
 }
 
-/// Protocol 2 appended its variants: every earlier message keeps its encoding, the new ones
-/// take the next tags.
+/// Guide samples were appended in protocol version 2: every earlier host message keeps its
+/// wire tag, the guide's follows them, and its point crosses the link bit for bit.
 #[test]
-fn protocol_2_variants_are_appended() {
+fn guide_samples_are_appended_and_exact() {
+    const { assert!(PROTOCOL_VERSION >= 2) };
+    let tag = |m: &HostMsg| {
+        let mut b = [0u8; 64];
+        postcard::to_slice(m, &mut b).unwrap()[0]
+    };
+    assert_eq!(tag(&HostMsg::Ping { seq: 1 }), 1);
+    assert_eq!(tag(&HostMsg::Pose(PoseSample::default())), 2);
+    assert_eq!(tag(&HostMsg::Command(Command::EnableForces)), 5);
+    let a = Vec3::<Fx>::from_f64([123.456, -7.5, 0.001]);
+    let m = HostMsg::Guide(GuideSample::new(77, a, true));
+    assert_eq!(tag(&m), 6);
+    let mut rx = DeviceRx::new();
+    match decode(&mut rx, &frame(&m)).pop() {
+        Some(Ok(HostMsg::Guide(g))) => {
+            assert_eq!(g.anchor(), a);
+            assert_eq!(g.seq, 77);
+            assert!(g.on);
+        }
+        other => panic!("expected a guide sample, got {other:?}"),
+    }
+    // The longest guide sample is well inside the host bound.
+    let worst = HostMsg::Guide(GuideSample {
+        seq: u32::MAX,
+        anchor: [i64::MIN; 3],
+        on: true,
+    });
+    let n = frame(&worst).len();
+    println!(
+        "worst-case guide frame: {n} bytes of {}",
+        HostMsg::MAX_FRAME
+    );
+    assert!(n < 64, "{n} bytes of {}", HostMsg::MAX_FRAME);
+}
+
+/// Protocol 3 appended its variants after protocol 2's guide sample: every earlier message
+/// keeps its encoding, the new ones take the next tags.
+#[test]
+fn protocol_3_variants_are_appended() {
     let bytes = |m: &dyn Fn(&mut [u8]) -> usize| {
         let mut buf = [0u8; 600];
         let n = m(&mut buf);
@@ -963,13 +1027,13 @@ fn protocol_2_variants_are_appended() {
     };
     let host = |m: HostMsg| bytes(&|b| postcard::to_slice(&m, b).unwrap().len());
     let dev = |m: DeviceMsg| bytes(&|b| postcard::to_slice(&m, b).unwrap().len());
-    // Earlier encodings, as protocol 1 wrote them.
+    // Earlier encodings, as protocols 1 and 2 wrote them.
     assert_eq!(host(HostMsg::Ping { seq: 5 }), [1, 5]);
     assert_eq!(host(HostMsg::Command(Command::InjectOverrun)), [5, 7]);
     assert_eq!(dev(DeviceMsg::Pong { seq: 5 }), [1, 5]);
     // The new tags follow.
-    assert_eq!(host(HostMsg::GetConfig), [6]);
-    assert_eq!(host(HostMsg::SetConfig(DeviceConfig::DEFAULT))[0], 7);
+    assert_eq!(host(HostMsg::GetConfig), [7]);
+    assert_eq!(host(HostMsg::SetConfig(DeviceConfig::DEFAULT))[0], 8);
     assert_eq!(
         host(HostMsg::Command(Command::StreamSensors { rate_hz: 3 })),
         [5, 8, 3]

@@ -35,14 +35,17 @@ pub fn force_model_tick(
     model.tick(brush, hand)
 }
 
-/// `OutputStage::apply`: passivity, ramps and limits on the wanted force.
+/// `OutputStage::apply_with_source`: passivity, ramps and limits on the wanted force, with
+/// the energy a guide's moving point supplied this tick credited to the passivity observer
+/// (0 when no guide leads).
 #[inline(never)]
 pub fn output_stage_apply(
     out: &mut OutputStage<Fx>,
     wanted: Vec3<Fx>,
     hand_step: Vec3<Fx>,
+    source_j: f64,
 ) -> Vec3<Fx> {
-    out.apply(wanted, hand_step)
+    out.apply_with_source(wanted, hand_step, source_j)
 }
 
 /// `Pen::joints` and `Pen::forward`: the ferrule's pose from raw readings, with the arm's

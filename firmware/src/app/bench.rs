@@ -11,6 +11,7 @@
 
 use core::fmt::Write;
 
+use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use super::{CmdQueue, ForceLoop};
@@ -43,14 +44,23 @@ pub fn stroke_pose(k: u32) -> Pose<Fx> {
 
 struct ScriptPen {
     next: Option<Pose<Fx>>,
+    guide: Option<GuideInput<Fx>>,
 }
 
 impl PoseSource for ScriptPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
         self.next.take()
     }
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        self.guide.take()
+    }
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
         f
+    }
+    // The bench measures the force loop, not bring-up: no configuration, no sensors.
+    fn configure(&mut self, _cfg: &maobi_shared::pen_io::DeviceConfig) {}
+    fn raw_sensors(&mut self, _tick: u32) -> Option<maobi_shared::protocol::SensorReport> {
+        None
     }
 }
 
@@ -65,6 +75,7 @@ impl Motors for NullMotors {
     fn applied(&self) -> [Fx; 3] {
         self.0
     }
+    fn configure(&mut self, _cfg: &maobi_shared::pen_io::DeviceConfig) {}
 }
 
 struct NullWatchdog;
@@ -98,6 +109,19 @@ impl Stats {
     }
 }
 
+/// Back to the stroke's start as a new stroke: the brush at rest there, the forces (and the
+/// guide) from zero, and no previous pose, so the jump back from the stroke's end is not a
+/// sensor fault that would switch the forces (and the guide) off for the next run.
+fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
+    fl: &mut ForceLoop<ScriptPen, M, W>,
+) {
+    fl.brush.reset(stroke_pose(0));
+    fl.forces.reset();
+    fl.last_pose = None;
+    super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
+    super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
+}
+
 /// Runs the bench and writes `BENCH ...` lines to `out`. Call with interrupts masked.
 pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     static mut CMDS: CmdQueue = CmdQueue::new();
@@ -120,7 +144,10 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     };
     let Some(mut fl) = ForceLoop::new(
         brush,
-        ScriptPen { next: None },
+        ScriptPen {
+            next: None,
+            guide: None,
+        },
         NullMotors([Fx::ZERO; 3]),
         NullWatchdog,
         rx,
@@ -138,7 +165,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         {
             continue;
         }
-        fl.brush.reset(stroke_pose(0));
+        restart(&mut fl);
         let mut st = Stats::default();
         let mut contact_max = 0;
         for k in 1..=STROKE_TICKS {
@@ -162,10 +189,70 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         );
     }
 
-    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
+    // Guided writing: the same stroke at the preset's substeps twice from the same start
+    // (brush and forces reset, the output stage ramped in by the runs above): without guide
+    // samples, then with one every tick (the moving point 3 mm to the side of the hand and 2
+    // ticks ahead, so the guide leads from the first tick on). The difference is the guide's
+    // cost on the force path.
     let _ = fl
         .brush
         .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
+    let side = Vec3::from_f64([0.0, 3.0, 0.0]);
+    let mut base = Stats::default();
+    let mut st = Stats::default();
+    let mut guiding = 0;
+    for guided in [false, true] {
+        restart(&mut fl);
+        for k in 1..=STROKE_TICKS {
+            fl.pen.next = Some(stroke_pose(k));
+            fl.pen.guide = guided.then(|| GuideInput {
+                anchor: stroke_pose(k + 2).pos + side,
+                on: true,
+            });
+            let a = clk.now();
+            fl.tick();
+            let b = clk.now();
+            let stats = if guided { &mut st } else { &mut base };
+            stats.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            guiding += fl.forces.guiding() as u32;
+        }
+    }
+    // The guide alone (GuideStream::tick with a sample, at full gain after the run above's
+    // fade-in), 100 calls.
+    let mut g = Stats::default();
+    if let Ok(mut gs) = GuideStream::<Fx>::new(DEFAULT_GUIDE) {
+        for k in 1..=400 {
+            let hand = stroke_pose(k).pos;
+            let sample = Some(GuideInput {
+                anchor: stroke_pose(k + 2).pos + side,
+                on: true,
+            });
+            let step = hand - stroke_pose(k - 1).pos;
+            let a = clk.now();
+            let f = gs.tick(core::hint::black_box(sample), hand, step);
+            let b = clk.now();
+            core::hint::black_box(f);
+            if k > 300 {
+                g.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            }
+        }
+    }
+    let _ = writeln!(
+        out,
+        "BENCH guided substeps={} ticks={} guiding_ticks={guiding} min_counts={} mean_counts={} max_counts={} guide_alone_mean_counts={} guide_alone_max_counts={} unguided_mean_counts={} unguided_max_counts={}",
+        params.substeps_per_tick,
+        st.n,
+        st.min,
+        st.mean(),
+        st.max,
+        g.mean(),
+        g.max,
+        base.mean(),
+        base.max,
+    );
+    fl.forces.reset();
+
+    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
     fl.brush.reset(stroke_pose(0));
     for k in 1..=300 {
         fl.brush.tick(stroke_pose(k));

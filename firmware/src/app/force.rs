@@ -4,15 +4,24 @@
 //! The supervisor's gate (calibrated, no latched fault) decides whether the motors are
 //! driven at all; when it closes, the motors are disabled at once by the force loop and the
 //! output stage is told, so that forces ramp in again from zero after the fault is cleared.
+//!
+//! Guided writing: a [`GuideStream`] adds its pull toward the stroke's moving point to the
+//! model's force before the output stage, which is credited with the energy the moving
+//! point supplies (`apply_with_source`). A latched fault cuts the guide at once (it fades in
+//! again from zero when guide samples come after the fault is cleared); a new stroke
+//! ([`HandForces::reset`]) cuts it too, so every stream of guide samples starts from zero
+//! gain, as the host's mirror does.
 
 use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{Brush, Fx, Scalar, Vec3};
 
 pub struct HandForces {
     model: ForceModel<Fx>,
     out: OutputStage<Fx>,
+    guide: GuideStream<Fx>,
     last_hand: Option<Vec3<Fx>>,
-    /// The model's force before the output stage (N).
+    /// The model's force plus the guide's, before the output stage (N).
     pub wanted: Vec3<Fx>,
 }
 
@@ -22,20 +31,45 @@ impl HandForces {
         Some(HandForces {
             model: ForceModel::new(DEFAULT_FORCES).ok()?,
             out: OutputStage::new(PHANTOM_OMNI).ok()?,
+            guide: GuideStream::new(DEFAULT_GUIDE).ok()?,
             last_hand: None,
             wanted: Vec3::ZERO,
         })
     }
 
     /// The command for this tick (N, world frame), for the brush after its tick and the
-    /// hand's ferrule at `hand` (mm). `allowed`: the supervisor's gate.
-    pub fn tick(&mut self, brush: &Brush<Fx>, hand: Vec3<Fx>, allowed: bool) -> [Fx; 3] {
+    /// hand's ferrule at `hand` (mm), and this tick's guide sample, if one came. `fresh`: a
+    /// new pose came this tick (a virtual pen's tick without one holds the guide: it runs in
+    /// pose time, as the host's mirror does). `allowed`: the supervisor's gate; `faulted`: a
+    /// fault is latched (cuts the guide).
+    pub fn tick(
+        &mut self,
+        brush: &Brush<Fx>,
+        hand: Vec3<Fx>,
+        guide: Option<GuideInput<Fx>>,
+        fresh: bool,
+        allowed: bool,
+        faulted: bool,
+    ) -> [Fx; 3] {
         let step = match self.last_hand {
             Some(last) => hand - last,
             None => Vec3::ZERO,
         };
         self.last_hand = Some(hand);
-        self.wanted = maobi_fast::force_model_tick(&mut self.model, brush, hand).total;
+        let model = maobi_fast::force_model_tick(&mut self.model, brush, hand).total;
+        let source_j = if faulted {
+            self.guide.cut();
+            self.wanted = model;
+            0.0
+        } else {
+            let g = if fresh {
+                self.guide.tick(guide, hand, step)
+            } else {
+                self.guide.hold()
+            };
+            self.wanted = model + g.force;
+            g.source_j
+        };
         if allowed {
             if self.out.faulted() {
                 self.out.clear_fault();
@@ -44,7 +78,7 @@ impl HandForces {
         } else {
             self.out.fault();
         }
-        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step);
+        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step, source_j);
         if allowed {
             [c.x, c.y, c.z]
         } else {
@@ -52,9 +86,17 @@ impl HandForces {
         }
     }
 
-    /// A new stroke: the model's filters and the dragged mass start afresh.
+    /// A new stroke: the model's filters and the dragged mass start afresh, the guide
+    /// from zero.
     pub fn reset(&mut self) {
         self.model.reset();
+        self.guide.cut();
         self.last_hand = None;
+    }
+
+    /// The guide is leading (or fading out).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // read by QEMU's bench
+    pub fn guiding(&self) -> bool {
+        self.guide.active()
     }
 }

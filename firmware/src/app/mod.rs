@@ -30,7 +30,9 @@ pub mod slot;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
+use maobi_shared::guide::GuideInput;
 use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
@@ -53,9 +55,6 @@ pub mod fault {
     pub const LOOP_STALLED: u32 = 1 << 4;
     /// Number of latched fault bits.
     pub const COUNT: usize = 5;
-    /// Not latched but reported alongside ([`super::PEN_NOT_READY`]): a pen with sensors
-    /// is not calibrated or has no valid configuration.
-    pub const NOT_CALIBRATED: u32 = 1 << 5;
 }
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
@@ -84,12 +83,10 @@ pub static CMDS_APPLIED: AtomicU32 = AtomicU32::new(0);
 pub static STATES_MISSED: AtomicU32 = AtomicU32::new(0);
 /// State frames are due at this rate of force-loop ticks (1000: every tick).
 pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
-/// [`fault::NOT_CALIBRATED`] while the pen may not drive its motors
-/// ([`PoseSource::forces_allowed`]; never for the virtual pen), kept by the force loop:
-/// reported with the faults in state frames and refusing `EnableForces`.
-pub static PEN_NOT_READY: AtomicU32 = AtomicU32::new(0);
-/// A pen with a configuration store has a valid one in force (the board's fault LED says
-/// so; set at boot and by the link task when it stores one).
+/// A valid configuration is in force, calibrated or not (set by the link task with
+/// [`CONFIG_OK`]; the Black Pill's fault LED tells "no configuration" from "not calibrated"
+/// by it).
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // read by the Black Pill's LED
 pub static CONFIG_VALID: AtomicBool = AtomicBool::new(false);
 
 /// The board is stalling the force loop on purpose, with the motors off (writing its
@@ -121,6 +118,17 @@ impl Drop for Maintenance {
 
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
+/// The stored configuration lets the motors be driven (set by the link task: a valid,
+/// calibrated configuration, or none needed). Off at boot until the link task has loaded the
+/// store: the pen starts safe. The force loop drives the motors only while it is set.
+pub static CONFIG_OK: AtomicBool = AtomicBool::new(false);
+/// The configuration in force, for [`Command::Configure`]: written by the link task before
+/// it sends the command, read by the force loop when it applies it.
+pub static CONFIG: critical_section::Mutex<core::cell::Cell<DeviceConfig>> =
+    critical_section::Mutex::new(core::cell::Cell::new(DeviceConfig::DEFAULT));
+/// Raw sensor readings for bring-up: the link task requests, the force loop fills it at the
+/// next tick from [`PoseSource::raw_sensors`] (`None`: the board cannot tell).
+pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
 
 /// Latches fault bits (any context) and notes the tick of the newly raised ones.
 pub fn latch(bits: u32) {
@@ -205,38 +213,30 @@ pub enum Command {
     SetParams(BrushParams),
     /// Wet every layer (`Brush::dip`).
     Dip(Fx),
-    /// Drive motor `channel` at `command` (fraction of full current) for `ticks` ticks while
-    /// the forces are off (the bring-up's check; the link has checked the caps).
-    Nudge { channel: u8, command: Fx, ticks: u16 },
-    /// The configuration in [`NEW_CONFIG`] is in force from this tick.
-    Reconfigure,
+    /// A new stored configuration is in force: the pen and the motors take it from
+    /// [`CONFIG`] (sent by the link task at boot and after a write, with forces off). The
+    /// configuration travels through that slot, not in the command, so that every queued
+    /// command does not grow to its ~270 bytes.
+    Configure,
+    /// Drive one motor with `torque_nm` for `ticks` ticks while forces are off (bring-up);
+    /// the motors are off again afterwards. Checked by the link task (caps, forces off,
+    /// configuration); cancelled by `EnableForces` and by any fault.
+    Nudge {
+        channel: usize,
+        torque_nm: Fx,
+        ticks: u32,
+    },
 }
 
-/// A configuration the link task has stored, for the force loop to take up
-/// ([`Command::Reconfigure`]); too large to travel in the command queue.
-pub static NEW_CONFIG: critical_section::Mutex<core::cell::Cell<Option<DeviceConfig>>> =
-    critical_section::Mutex::new(core::cell::Cell::new(None));
-
-/// The pen's latest sensor reading (a pen with its own sensors), kept by the force loop
-/// each tick for the link task (the bring-up's sensor stream, the calibration it stores).
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
-pub struct SensorSample {
-    pub tick: u32,
-    /// Encoder counts, unwrapped.
-    pub encoders: [i64; 3],
-    /// Gimbal ADC codes after the filter.
-    pub gimbal: [u16; 3],
-    /// Debounced buttons (bit 0 primary, bit 1 secondary).
-    pub buttons: u8,
+/// A pose sample as the link task queues it for the virtual pen, with the guide sample the
+/// host sent for the same tick (guided writing), if any.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
+#[derive(Copy, Clone, Debug)]
+pub struct PoseIn {
+    pub seq: u32,
+    pub pose: Pose<Fx>,
+    pub guide: Option<GuideInput<Fx>>,
 }
-
-pub static SENSORS: critical_section::Mutex<core::cell::Cell<SensorSample>> =
-    critical_section::Mutex::new(core::cell::Cell::new(SensorSample {
-        tick: 0,
-        encoders: [0; 3],
-        gimbal: [0; 3],
-        buttons: 0,
-    }));
 
 /// Capacity of the virtual pen's pose queue and of the command queue.
 #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
@@ -247,12 +247,12 @@ pub type CmdQueue = heapless::spsc::Queue<Command, CMD_QUEUE>;
 pub type CmdConsumer = heapless::spsc::Consumer<'static, Command>;
 pub type CmdProducer = heapless::spsc::Producer<'static, Command>;
 
-/// A pose the host sent for a virtual pen, with its sequence number.
+/// The poses (and guide samples) the host sent for a virtual pen.
 #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
-pub type PoseQueue = heapless::spsc::Queue<(u32, Pose<Fx>), POSE_QUEUE>;
-pub type PoseProducer = heapless::spsc::Producer<'static, (u32, Pose<Fx>)>;
+pub type PoseQueue = heapless::spsc::Queue<PoseIn, POSE_QUEUE>;
+pub type PoseProducer = heapless::spsc::Producer<'static, PoseIn>;
 #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
-pub type PoseConsumer = heapless::spsc::Consumer<'static, (u32, Pose<Fx>)>;
+pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
 
 /// Cycles [`Command::InjectOverrun`] burns in one tick unless the board says otherwise:
 /// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
@@ -323,8 +323,8 @@ pub struct ForceLoop<P, M, W> {
     force: [Fx; 3],
     enabled: bool,
     jump2: Fx,
-    /// A bring-up nudge in progress: channel, command, ticks left.
-    nudge: Option<(usize, Fx, u16)>,
+    /// A bring-up nudge in progress: the torques and the ticks left.
+    nudge: Option<([Fx; 3], u32)>,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
@@ -389,13 +389,14 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             cortex_m::asm::delay(self.overrun_burn_cycles);
         }
 
-        match self.pen.next_pose() {
+        let fresh = match self.pen.next_pose() {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
                 maobi_fast::brush_reset(&mut self.brush, pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.last_pose = Some(pose);
+                true
             }
             Some(pose) => {
                 if let Some(prev) = self.last_pose {
@@ -406,9 +407,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 maobi_fast::brush_tick(&mut self.brush, pose);
                 self.brush_tick = self.brush_tick.wrapping_add(1);
                 self.last_pose = Some(pose);
+                true
             }
-            None => self.pose_gaps = self.pose_gaps.wrapping_add(1),
-        }
+            None => {
+                self.pose_gaps = self.pose_gaps.wrapping_add(1);
+                false
+            }
+        };
 
         if LINK_ARMED.load(Ordering::Relaxed)
             && now.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed)) > LINK_TIMEOUT_TICKS
@@ -416,25 +421,32 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             latch(fault::LINK_SILENT);
         }
 
-        // Any latched fault switches the forces off: the host must clear it and enable again.
-        if FAULTS.load(Ordering::SeqCst) != 0 {
+        // Any latched fault switches the forces off (and cuts the guide, and ends a nudge):
+        // the host must clear it and enable again. So does a configuration that does not
+        // allow forces.
+        let faulted = FAULTS.load(Ordering::SeqCst) != 0;
+        if faulted || !CONFIG_OK.load(Ordering::SeqCst) {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
+            if faulted {
+                self.nudge = None;
+            }
         }
-        // A pen with sensors also needs a valid configuration and its calibration.
-        let pen_ready = self.pen.forces_allowed();
-        PEN_NOT_READY.store(
-            if pen_ready { 0 } else { fault::NOT_CALIBRATED },
-            Ordering::Relaxed,
-        );
-        let allowed = FORCES_ENABLED.load(Ordering::SeqCst)
-            && pen_ready
-            && !MAINTENANCE.load(Ordering::SeqCst);
+        // A deliberate pause (a flash write) keeps the motors off as well.
+        let allowed = FORCES_ENABLED.load(Ordering::SeqCst) && !MAINTENANCE.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
-        let cmd = self.forces.tick(&self.brush, hand, allowed);
+        // The guide sample that came with this tick's pose (none on a gap tick).
+        let guide = self.pen.take_guide();
+        let cmd = self
+            .forces
+            .tick(&self.brush, hand, guide, fresh, allowed, faulted);
         let w = self.forces.wanted;
         self.force = [w.x, w.y, w.z];
         self.apply_outputs(allowed, cmd);
         self.enabled = allowed;
+
+        if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
+            SNAPSHOT_WAKER.wake();
+        }
 
         let due = state_due(now, STATE_HZ.load(Ordering::Relaxed));
         if SNAPSHOT.offer(due, |s| self.snapshot(now, s)) {
@@ -444,29 +456,28 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
     }
 
-    /// Motors on only while the host has enabled them and no fault is latched; with the
-    /// forces off, a bring-up nudge (no fault latched, not paused) drives one channel.
+    /// Motors on only while the host has enabled them and no fault is latched, or for a
+    /// bring-up nudge (forces off) until it runs out; a deliberate pause
+    /// ([`MAINTENANCE`]) ends a nudge too.
     fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
+        if MAINTENANCE.load(Ordering::SeqCst) {
+            self.nudge = None;
+        }
         if allowed {
             self.nudge = None;
             let t = self.pen.torques_for(cmd);
             self.motors.command(t);
-            return;
-        }
-        let quiet = FAULTS.load(Ordering::SeqCst) == 0 && !MAINTENANCE.load(Ordering::SeqCst);
-        match self.nudge {
-            Some((ch, c, left)) if left > 0 && quiet && self.motors.nudge(ch, c) => {
-                self.nudge = Some((ch, c, left - 1));
-            }
-            _ => {
-                self.nudge = None;
-                self.motors.disable();
-            }
+        } else if let Some((torque, left)) = self.nudge {
+            self.motors.command(torque);
+            self.nudge = left.checked_sub(1).filter(|&l| l > 0).map(|l| (torque, l));
+        } else {
+            self.motors.disable();
         }
     }
 
     /// Turns the motors off now (called by the board when it detects an overrun).
     pub fn motors_off(&mut self) {
+        self.nudge = None;
         self.motors.disable();
         FORCES_ENABLED.store(false, Ordering::SeqCst);
     }
@@ -482,7 +493,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             }
             Command::Reanchor => self.reanchor = true,
             Command::EnableForces => {
-                if FAULTS.load(Ordering::SeqCst) == 0 {
+                if FAULTS.load(Ordering::SeqCst) == 0 && CONFIG_OK.load(Ordering::SeqCst) {
                     FORCES_ENABLED.store(true, Ordering::SeqCst);
                 }
             }
@@ -510,18 +521,29 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 }
             }
             Command::Dip(w) => self.brush.dip(w),
-            Command::Nudge {
-                channel,
-                command,
-                ticks,
-            } => self.nudge = Some((usize::from(channel), command, ticks)),
-            Command::Reconfigure => {
-                if let Some(cfg) = critical_section::with(|cs| NEW_CONFIG.borrow(cs).take()) {
-                    self.motors.disable();
-                    self.pen.configure(&cfg);
-                    self.motors.configure(&cfg);
+            Command::Configure => {
+                let cfg = critical_section::with(|cs| CONFIG.borrow(cs).get());
+                self.motors.disable();
+                self.pen.configure(&cfg);
+                self.motors.configure(&cfg);
+                if P::POSES_FOLLOW_CONFIG {
+                    // New geometry or zeros move the pose at once: not a sensor jump, and
+                    // the brush starts at rest where the pen now says it is.
                     self.reanchor = true;
                     self.last_pose = None;
+                }
+            }
+            Command::Nudge {
+                channel,
+                torque_nm,
+                ticks,
+            } => {
+                let mut torque = [Fx::ZERO; 3];
+                if let Some(t) = torque.get_mut(channel) {
+                    *t = torque_nm;
+                }
+                if !FORCES_ENABLED.load(Ordering::SeqCst) && ticks > 0 {
+                    self.nudge = Some((torque, ticks));
                 }
             }
         }
@@ -532,7 +554,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         s.brush_tick = self.brush_tick;
         s.pose_seq = self.pen.pose_seq();
         s.pose_gaps = self.pose_gaps;
-        s.faults = FAULTS.load(Ordering::Relaxed) | PEN_NOT_READY.load(Ordering::Relaxed);
+        s.faults = FAULTS.load(Ordering::Relaxed);
         s.enabled = self.enabled;
         s.force = self.force;
         s.motors = self.motors.applied();

@@ -3,19 +3,17 @@
 //!
 //! Each tick [`SensorPen::next_pose`] reads the board's [`JointSensors`] once, extends the
 //! encoders' 16-bit counts ([`EncoderUnwrap`]), filters the gimbal's ADC codes
-//! ([`AdcFilter`]: median of three, then a 21 Hz low-pass), debounces the buttons, publishes
-//! the reading ([`super::SENSORS`]), and, once the pen has a valid configuration and a
-//! calibration, turns the readings into joint angles and the ferrule's pose
-//! ([`Pen::forward`]). The joint angles of that reading map the force on the hand to joint
+//! ([`AdcFilter`]: median of three, then a 21 Hz low-pass), debounces the buttons, keeps the
+//! reading for bring-up ([`SensorPen::raw_sensors`], which the force loop hands the link
+//! through [`super::SENSORS`] when asked), and, once the pen has a valid configuration,
+//! turns the readings into joint angles and the ferrule's pose ([`Pen::forward`]). The joint angles of that reading map the force on the hand to joint
 //! torques ([`Pen::torques`], `tau = J^T F`) for the same tick.
-
-use core::sync::atomic::Ordering;
 
 use maobi_shared::kinematics::{EncoderUnwrap, Pen, RawReadings};
 use maobi_shared::pen_io::{AdcFilter, DeviceConfig};
+use maobi_shared::protocol::{Buttons, SensorReport};
 use maobi_shared::{Fx, Pose, Scalar, Vec3};
 
-use super::{SensorSample, SENSORS, TICKS};
 use crate::board::{JointReading, JointSensors, PoseSource};
 
 /// A button's new state is taken after this many consecutive equal readings (ticks: 5 ms,
@@ -54,6 +52,8 @@ pub struct SensorPen<J> {
     buttons: [Debounce; 2],
     /// The last reading, encoders unwrapped, gimbal filtered.
     raw: RawReadings,
+    /// The last debounced buttons (bit 0 primary, bit 1 secondary).
+    buttons_now: u8,
     /// The last reading as the board gave it.
     last: JointReading,
     /// Arm joint angles of the last pose (rad), for the torques.
@@ -69,13 +69,14 @@ impl<J: JointSensors> SensorPen<J> {
             filters: [AdcFilter::new(); 3],
             buttons: [Debounce::default(); 2],
             raw: RawReadings::default(),
+            buttons_now: 0,
             last: JointReading::default(),
             arm: None,
         }
     }
 
     /// The last reading as the board gave it.
-    #[allow(dead_code)] // for a debugger's eyes; the link reads `SENSORS`
+    #[allow(dead_code)] // for a debugger's eyes; the link gets `raw_sensors`
     pub fn last_reading(&self) -> JointReading {
         self.last
     }
@@ -89,21 +90,12 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
             // The counters are 16 bits wide; the board hands them over as read.
             self.raw.encoders[j] = u.update(r.encoders[j] as u16);
         }
-        let mut gimbal = [0u16; 3];
         for (j, f) in self.filters.iter_mut().enumerate() {
             // 12-bit codes; anything else is clamped into range rather than wrapped.
-            gimbal[j] = f.update(r.gimbal[j].clamp(0, 4095) as u16);
-            self.raw.gimbal[j] = i32::from(gimbal[j]);
+            self.raw.gimbal[j] = i32::from(f.update(r.gimbal[j].clamp(0, 4095) as u16));
         }
-        let buttons = u8::from(self.buttons[0].update(r.buttons & 1 != 0))
+        self.buttons_now = u8::from(self.buttons[0].update(r.buttons & 1 != 0))
             | u8::from(self.buttons[1].update(r.buttons & 2 != 0)) << 1;
-        let sample = SensorSample {
-            tick: TICKS.load(Ordering::Relaxed),
-            encoders: self.raw.encoders,
-            gimbal,
-            buttons,
-        };
-        critical_section::with(|cs| SENSORS.borrow(cs).set(sample));
         let pen = self.pen.as_ref()?;
         match maobi_fast::pen_pose(pen, &self.raw) {
             Ok((pose, arm)) => {
@@ -124,9 +116,7 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
         }
     }
 
-    fn forces_allowed(&self) -> bool {
-        self.pen.as_ref().is_some_and(Pen::is_calibrated)
-    }
+    const POSES_FOLLOW_CONFIG: bool = true;
 
     fn configure(&mut self, cfg: &DeviceConfig) {
         self.pen = Pen::new(cfg.pen).ok().map(|mut pen| {
@@ -136,5 +126,18 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
             pen
         });
         self.arm = None;
+    }
+
+    /// This tick's reading (read by `next_pose` just before): real sensors, never
+    /// synthesised.
+    fn raw_sensors(&mut self, tick: u32) -> Option<SensorReport> {
+        Some(SensorReport {
+            tick,
+            encoders: self.raw.encoders,
+            // Filtered codes are 12-bit (clamped before the filter).
+            gimbal: self.raw.gimbal.map(|g| g.clamp(0, 4095) as u16),
+            buttons: Buttons::from_bits_retain(self.buttons_now),
+            synthetic: false,
+        })
     }
 }

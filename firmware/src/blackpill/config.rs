@@ -5,23 +5,22 @@
 //! codec (magic, format version, length, postcard payload, CRC-32). A write goes into the
 //! first erased slot after the newest; only when the sector is full is it erased (every
 //! [`SLOTS`] writes), which saves both the flash's endurance and the 1-2 s stall of a
-//! 128 KiB erase. At boot the newest slot (the last one not erased) is decoded: missing,
-//! damaged, truncated (a write cut short by a reset) or invalid all leave the pen without a
-//! configuration and so without forces, and the handshake says which
-//! (`ConfigState`). An older image is never used in place of a bad newer one: it would
-//! bring back a calibration the builder replaced.
+//! 128 KiB erase. [`ConfigStore::load`] copies the newest slot (the last one not erased),
+//! which the link task decodes: missing, damaged, truncated (a write cut short by a reset)
+//! or invalid all leave the pen without a configuration and so without forces, and the
+//! handshake says which (`ConfigState`). An older image is never used in place of a bad
+//! newer one: it would bring back a calibration the builder replaced.
 //!
 //! While flash is being written or erased, the core cannot fetch from it: the force loop's
-//! interrupt waits. Writes happen only with the forces off; [`FlashConfig::store`] turns
+//! interrupt waits. Writes happen only with the forces off; [`ConfigStore::store`] turns
 //! the motors off, marks the pause ([`crate::app::MAINTENANCE`]) so that the supervisor
 //! does not take it for a stall, and stretches the hardware watchdog over an erase.
 
 use embassy_stm32::flash::{Blocking, Flash};
-use maobi_shared::pen_io::config::{decode, encode, CONFIG_IMAGE_MAX};
-use maobi_shared::pen_io::{ConfigError, DeviceConfig};
+use maobi_shared::pen_io::config::CONFIG_IMAGE_MAX;
 
 use super::watchdog;
-use crate::board::ConfigStore;
+use crate::board::{ConfigStore, StoreError};
 
 /// Offset of the configuration sector from the start of flash (0x0800_0000); see
 /// `memory.x` at the workspace root, which ends FLASH here.
@@ -35,18 +34,10 @@ const _: () = assert!(CONFIG_IMAGE_MAX as u32 <= SLOT);
 // The F4 programs 4-byte words; slots start on word boundaries.
 const _: () = assert!(SLOT.is_multiple_of(embassy_stm32::flash::WRITE_SIZE as u32));
 
-/// Why a configuration was not stored.
-pub enum StoreError {
-    /// The codec refused it (invalid: nothing was written).
-    Encode(ConfigError),
-    /// The flash reported an error erasing or programming.
-    Flash,
-    /// The image read back differs from the one written.
-    ReadBack,
-}
-
 pub struct FlashConfig {
     flash: Flash<'static, Blocking>,
+    /// The newest slot written (`None`: the sector is erased, no image).
+    newest: Option<u32>,
     /// Index of the first erased slot (`SLOTS`: the sector is full).
     next_free: u32,
 }
@@ -57,8 +48,8 @@ fn erased(bytes: &[u8]) -> bool {
 }
 
 impl FlashConfig {
-    /// Finds the newest image and decodes it.
-    pub fn open(mut flash: Flash<'static, Blocking>) -> (Self, Result<DeviceConfig, ConfigError>) {
+    /// Finds the newest image (the last slot before the first erased one).
+    pub fn open(mut flash: Flash<'static, Blocking>) -> Self {
         let mut slot = [0u8; SLOT as usize];
         let mut newest = None;
         let mut next_free = SLOTS;
@@ -72,64 +63,79 @@ impl FlashConfig {
             }
             newest = Some(i);
         }
-        let loaded = match newest {
-            None => Err(ConfigError::Erased),
-            Some(i) => match flash.blocking_read(CONFIG_OFFSET + i * SLOT, &mut slot) {
-                Ok(()) => decode(&slot),
-                Err(_) => Err(ConfigError::Truncated),
-            },
-        };
-        (FlashConfig { flash, next_free }, loaded)
-    }
-
-    /// Writes `cfg` as the newest image and reads it back. The caller has turned the forces
-    /// off (the link refuses a write while they are enabled); the motors are turned off here
-    /// as well.
-    pub fn store(&mut self, cfg: &DeviceConfig) -> Result<(), StoreError> {
-        let mut image = [0xFFu8; SLOT as usize];
-        let n = encode(cfg, &mut image).map_err(StoreError::Encode)?;
-        // Whole words: the bytes after the image stay 0xFF (erased), as decode expects.
-        let len = n.next_multiple_of(embassy_stm32::flash::WRITE_SIZE);
-        let _pause = crate::app::Maintenance::begin(super::motors::motors_off);
-        if self.next_free >= SLOTS {
-            // Full: erase the sector (1-2 s with the core stalled; the watchdog is stretched
-            // over it and put back after).
-            let _long = watchdog::Stretch::begin();
-            self.flash
-                .blocking_erase(CONFIG_OFFSET, CONFIG_OFFSET + CONFIG_SECTOR)
-                .map_err(|_| StoreError::Flash)?;
-            self.next_free = 0;
-        }
-        let at = CONFIG_OFFSET + self.next_free * SLOT;
-        // The slot is used from here on, whatever happens (a half-written slot is not
-        // erased: never write into it again).
-        self.next_free += 1;
-        let written = self.flash.blocking_write(at, &image[..len]);
-        let mut back = [0u8; SLOT as usize];
-        let read = self.flash.blocking_read(at, &mut back[..len]);
-        match (written, read) {
-            (Ok(()), Ok(())) if back[..len] == image[..len] => Ok(()),
-            (Ok(()), Ok(())) => Err(StoreError::ReadBack),
-            _ => Err(StoreError::Flash),
+        FlashConfig {
+            flash,
+            newest,
+            next_free,
         }
     }
 }
 
 impl ConfigStore for FlashConfig {
-    fn store(&mut self, cfg: &DeviceConfig) -> bool {
-        match FlashConfig::store(self, cfg) {
-            Ok(()) => true,
-            Err(StoreError::Encode(e)) => {
-                defmt::error!("configuration not stored: {}", defmt::Display2Format(&e));
-                false
+    /// Copies the newest slot; with none written, an erased slot's `0xFF`s (`decode`:
+    /// erased, so `Missing`). A slot that cannot be read comes back as zeros, which
+    /// `decode` rejects.
+    fn load(&mut self, buf: &mut [u8]) -> usize {
+        let n = buf.len().min(SLOT as usize);
+        let Some(out) = buf.get_mut(..n) else {
+            return 0;
+        };
+        match self.newest {
+            None => out.fill(0xFF),
+            Some(i) => {
+                if self
+                    .flash
+                    .blocking_read(CONFIG_OFFSET + i * SLOT, out)
+                    .is_err()
+                {
+                    out.fill(0);
+                }
             }
-            Err(StoreError::Flash) => {
-                defmt::error!("configuration not stored: the flash reported an error");
-                false
-            }
-            Err(StoreError::ReadBack) => {
+        }
+        n
+    }
+
+    /// Appends `image` as the newest slot and reads it back. The link task calls this only
+    /// with the forces off; the motors are turned off here as well, for the pause.
+    fn store(&mut self, image: &[u8]) -> Result<(), StoreError> {
+        let mut slot = [0xFFu8; SLOT as usize];
+        slot.get_mut(..image.len())
+            .ok_or(StoreError::TooLarge)?
+            .copy_from_slice(image);
+        // Whole words: the bytes after the image stay 0xFF (erased), as decode expects.
+        let len = image
+            .len()
+            .next_multiple_of(embassy_stm32::flash::WRITE_SIZE)
+            .min(SLOT as usize);
+        let _pause = crate::app::Maintenance::begin(super::motors::motors_off);
+        if self.next_free >= SLOTS {
+            // Full: erase the sector (1-2 s with the core stalled; the watchdog is stretched
+            // over it and put back after).
+            let _long = watchdog::Stretch::begin();
+            self.newest = None;
+            self.flash
+                .blocking_erase(CONFIG_OFFSET, CONFIG_OFFSET + CONFIG_SECTOR)
+                .map_err(|_| StoreError::Write)?;
+            self.next_free = 0;
+        }
+        let at = CONFIG_OFFSET + self.next_free * SLOT;
+        // The slot is the newest from here on, whatever happens: a half-written slot is not
+        // erased, never written into again, and loads as what it is (corrupt), not as the
+        // older image before it.
+        self.newest = Some(self.next_free);
+        self.next_free += 1;
+        let written = self.flash.blocking_write(at, &slot[..len]);
+        let mut back = [0u8; SLOT as usize];
+        let read = self.flash.blocking_read(at, &mut back[..len]);
+        match (written, read) {
+            (Ok(()), Ok(())) if back[..len] == slot[..len] => Ok(()),
+            (Ok(()), Ok(())) => {
                 defmt::error!("configuration not stored: it reads back differently");
-                false
+                Err(StoreError::Verify)
+            }
+            _ => {
+                defmt::error!("configuration not stored: the flash reported an error");
+                Err(StoreError::Write)
             }
         }
     }

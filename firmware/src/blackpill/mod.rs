@@ -37,8 +37,7 @@ use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, pac, peripherals};
 use embassy_time::{Duration, Ticker};
-use maobi_shared::kinematics::Pen;
-use maobi_shared::pen_io::{ConfigState, DriveConfig};
+use maobi_shared::pen_io::DriveConfig;
 use maobi_shared::protocol::Capabilities;
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 
@@ -78,7 +77,8 @@ bind_interrupts!(struct Irqs {
     OTG_FS => embassy_stm32::usb::InterruptHandler<peripherals::USB_OTG_FS>;
 });
 
-/// What the link says about this board; `config` is set at boot from the flash.
+/// What the link says about this board (the handshake adds the stored configuration's
+/// state).
 static BOARD: BoardInfo = BoardInfo {
     name: "maobi-pen-blackpill",
     capabilities: Capabilities::FORCE_OUTPUT
@@ -88,7 +88,6 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    can_calibrate: true,
 };
 
 type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;
@@ -176,20 +175,12 @@ fn main() -> ! {
     ];
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
-    // The configuration sector.
-    let (store, loaded) = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
-    let state = ConfigState::of(&loaded);
-    let cfg = loaded.ok();
-    app::CONFIG_VALID.store(cfg.is_some(), Ordering::SeqCst);
-    match &cfg {
-        Some(c) => defmt::info!(
-            "configuration loaded (calibrated: {})",
-            c.calibration.is_some()
-        ),
-        None => defmt::warn!("no valid configuration: forces refused until one is written"),
-    }
+    // The configuration sector. The link task loads and decodes the newest image when it
+    // starts and puts it in force (`app::Command::Configure`); until then the pen has no
+    // kinematics, `app::CONFIG_OK` is off and the motors stay off.
+    let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
 
-    let drive = cfg.map(|c| c.drive).unwrap_or([DriveConfig::DEFAULT; 3]);
+    let drive = [DriveConfig::DEFAULT; 3];
     let mut pwm = SimplePwm::new(
         p.TIM1,
         Some(PwmPin::new(p.PA8, embassy_stm32::gpio::OutputType::PushPull)),
@@ -209,18 +200,11 @@ fn main() -> ! {
         c.set_duty_cycle(0);
         c.enable();
     }
-    let pen_cfg = cfg.and_then(|c| {
-        let mut pen = Pen::<Fx>::new(c.pen).ok()?;
-        if let Some(zero) = c.calibration {
-            pen.calibrate(zero);
-        }
-        Some(pen)
-    });
     let motors = motors::PenMotors {
         pwm,
         dir,
         stby,
-        pen: pen_cfg.clone(),
+        pen: None,
         drive,
         period,
         applied: [Fx::ZERO; 3],
@@ -260,7 +244,7 @@ fn main() -> ! {
     iwdg.unleash();
     let Some(fl) = app::ForceLoop::new(
         brush,
-        SensorPen::new(sensors, pen_cfg),
+        SensorPen::new(sensors, None),
         motors,
         watchdog::Iwdg(iwdg),
         cmd_rx,
@@ -313,15 +297,14 @@ fn main() -> ! {
     irq::TIM1_BRK_TIM9.unpend();
     // SAFETY: the handler's state (LOOP) is initialised.
     unsafe { irq::TIM1_BRK_TIM9.enable() };
-    defmt::info!("maobi-pen up, config {}", defmt::Debug2Format(&state));
+    // The boot record the HIL runner waits for (`hil::probe_rs::BOOT_LINE`).
+    defmt::info!("maobi-pen up");
 
     let link_parts = LinkParts {
         transport: usb::UsbSerial::new(),
         poses: None,
         cmds: cmd_tx,
         store,
-        config_state: state,
-        config: cfg,
     };
     crate::executor::run(move |spawner: Spawner| {
         spawner.spawn(app::supervisor(TICK_US, motors::motors_off).expect("one supervisor"));
@@ -360,7 +343,7 @@ async fn led_task(mut led: Output<'static>) {
             true
         } else if !app::CONFIG_VALID.load(Ordering::Relaxed) {
             phase.is_multiple_of(2)
-        } else if app::PEN_NOT_READY.load(Ordering::Relaxed) != 0 {
+        } else if !app::CONFIG_OK.load(Ordering::Relaxed) {
             phase % 10 < 5
         } else {
             phase.is_multiple_of(20)

@@ -98,23 +98,6 @@ impl Motors for PenMotors {
         self.applied = torque_nm;
     }
 
-    fn nudge(&mut self, channel: usize, command: Fx) -> bool {
-        if self.pen.is_none() || channel >= 3 {
-            return false;
-        }
-        for ch in 0..3 {
-            let out = if ch == channel {
-                self.drive[ch].output(command, self.period)
-            } else {
-                self.drive[ch].zero_output()
-            };
-            self.set_channel(ch, out);
-        }
-        self.wake();
-        self.applied = [Fx::ZERO; 3];
-        true
-    }
-
     fn configure(&mut self, cfg: &DeviceConfig) {
         motors_off();
         self.pen = Pen::new(cfg.pen).ok();

@@ -33,11 +33,12 @@ use crate::qemu::{self, semihosting, semihosting::Stdout};
 static BOARD: BoardInfo = BoardInfo {
     name: "qemu-mps2-an386",
     // Forces are computed and reported in state frames; the QEMU board drives no motor.
-    capabilities: Capabilities::VIRTUAL_PEN.union(Capabilities::FORCE_OUTPUT),
+    // Its configuration store is RAM the host can preload (`qemu::config_store`).
+    capabilities: Capabilities::VIRTUAL_PEN
+        .union(Capabilities::FORCE_OUTPUT)
+        .union(Capabilities::STORED_CONFIG),
     force_peak_n: PHANTOM_OMNI.peak_n,
     force_continuous_n: PHANTOM_OMNI.continuous_n,
-    // The virtual pen has no sensors to zero.
-    can_calibrate: false,
 };
 
 enum Mode {
@@ -130,10 +131,7 @@ async fn link_task(parts: qemu::Parts, cfg: link::LinkConfig) {
         transport: parts.uart,
         poses: Some(parts.poses),
         cmds: parts.cmds,
-        // A virtual pen keeps no configuration.
-        store: crate::board::NoConfigStore,
-        config_state: maobi_shared::pen_io::ConfigState::NotApplicable,
-        config: None,
+        store: parts.config,
     };
     link::run(parts, &BOARD, presets::LARGE, cfg).await
 }
@@ -172,7 +170,11 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
     let start = embassy_time::Instant::now();
     while done < ticks {
         while k <= ticks && parts.poses.ready() {
-            let _ = parts.poses.enqueue((k, bench::stroke_pose(k)));
+            let _ = parts.poses.enqueue(app::PoseIn {
+                seq: k,
+                pose: bench::stroke_pose(k),
+                guide: None,
+            });
             k += 1;
         }
         SNAPSHOT.request();

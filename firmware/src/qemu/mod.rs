@@ -7,14 +7,22 @@
 //! | link: UART0 RX / TX | 0x4000_4000, IRQ 0 / 1 | 2 |
 //! | embassy time driver: dual timer | 0x4000_2000, IRQ 10 | 3 |
 //! | thread-mode executor (WFI when idle) | | thread |
+//! | configuration store: RAM the host preloads ([`config_store`]) | 0x2100_0000, 4 KiB of PSRAM | (used by the link task) |
 //!
 //! The pen is virtual: its poses come from the host's PoseSamples through a queue
 //! ([`VirtualPen`]); the motor commands are not sent anywhere but reported back in the
-//! state frames ([`ReportedMotors`]). Output and exit go through semihosting (enable it
+//! state frames ([`ReportedMotors`]). Its raw sensor readings (bring-up's
+//! `StreamSensors`) are synthesised from the latest pose through the reference pen's
+//! inverse kinematics ([`VirtualPen`]). The configuration store is a RAM region the host
+//! can preload with QEMU's generic loader at [`config_store::CONFIG_REGION`]
+//! (`-device loader,file=cfg.bin,addr=0x21000000`; see [`config_store`]).
+//!
+//! Output and exit go through semihosting (enable it
 //! with `-semihosting-config enable=on,target=native`): text on the host's stdout, defmt
 //! frames on stderr (see [`logger`]), and the exit code becomes QEMU's.
 
 pub mod boot;
+pub mod config_store;
 pub mod logger;
 pub mod regs;
 pub mod semihosting;
@@ -27,6 +35,10 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use critical_section::Mutex;
 
 use cortex_m::peripheral::NVIC;
+use maobi_shared::guide::GuideInput;
+use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
+use maobi_shared::pen_io::DeviceConfig;
+use maobi_shared::protocol::{Buttons, SensorReport};
 use maobi_shared::{Fx, Pose};
 
 use crate::app::{self, PoseConsumer, PoseProducer, PoseQueue};
@@ -64,24 +76,71 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
 // The virtual pen
 
 /// The pen of the QEMU board: poses the host sent, one per force tick.
+///
+/// Its sensor readings are synthesised for bring-up: the latest pose through the stored
+/// configuration's kinematics (the reference pen, [`PenConfig::OMNI_LIKE`], until one is
+/// configured) back to encoder counts and 12-bit gimbal codes, with the inkwell at the
+/// calibration's readings (counts 0, codes 2048 while uncalibrated). A pose outside that
+/// pen's workspace has no readings (`None`: no report). Buttons are not passed from the
+/// pose samples to the force loop: reported empty.
 pub struct VirtualPen {
     rx: PoseConsumer,
     seq: u32,
+    guide: Option<GuideInput<Fx>>,
+    last: Option<Pose<Fx>>,
+    /// The pen whose sensors are synthesised (None only if its config would not validate,
+    /// which `configure` never passes).
+    synth: Option<Pen<Fx>>,
+}
+
+/// The virtual pen's readings at the inkwell while no calibration is stored.
+const UNCALIBRATED_ZERO: RawReadings = RawReadings {
+    encoders: [0; 3],
+    gimbal: [2048; 3],
+};
+
+fn synth_pen(cfg: &PenConfig, zero: Option<RawReadings>) -> Option<Pen<Fx>> {
+    let mut pen = Pen::new(*cfg).ok()?;
+    pen.calibrate(zero.unwrap_or(UNCALIBRATED_ZERO));
+    Some(pen)
 }
 
 impl PoseSource for VirtualPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
-        let (seq, pose) = self.rx.dequeue()?;
-        self.seq = seq;
-        Some(pose)
+        let p = self.rx.dequeue()?;
+        self.seq = p.seq;
+        self.guide = p.guide;
+        self.last = Some(p.pose);
+        Some(p.pose)
     }
     fn pose_seq(&self) -> u32 {
         self.seq
+    }
+    fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
+        self.guide.take()
     }
     /// The virtual pen has no linkage: its "motors" are the three Cartesian axes with a unit
     /// lever arm, so the reported torques (N·m) equal the force's components (N).
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
         f
+    }
+    /// Only the synthesised sensors follow the configuration: the virtual pen's forces are
+    /// Cartesian whatever the linkage.
+    fn configure(&mut self, cfg: &DeviceConfig) {
+        self.synth = synth_pen(&cfg.pen, cfg.calibration);
+    }
+    fn raw_sensors(&mut self, tick: u32) -> Option<SensorReport> {
+        let pen = self.synth.as_ref()?;
+        let joints = pen.inverse(&self.last?).ok()?;
+        let raw = pen.raw_readings(&joints).ok()?;
+        Some(SensorReport {
+            tick,
+            encoders: raw.encoders,
+            // A 12-bit converter reads no further than its rails.
+            gimbal: raw.gimbal.map(|g| g.clamp(0, 4095) as u16),
+            buttons: Buttons::empty(),
+            synthetic: true,
+        })
     }
 }
 
@@ -111,6 +170,8 @@ impl Motors for ReportedMotors {
             [Fx::from_bits(0); 3]
         }
     }
+    /// Reported torques need no drive settings.
+    fn configure(&mut self, _cfg: &DeviceConfig) {}
 }
 
 /// All motors off; callable from any context (fault handlers included).
@@ -159,6 +220,7 @@ static LOOP: app::ForceLoopSlot<Loop> = app::ForceLoopSlot::new();
 /// Everything `main` gets from the board.
 pub struct Parts {
     pub uart: uart::Uart0,
+    pub config: config_store::RamConfigStore,
     pub poses: PoseProducer,
     pub cmds: app::CmdProducer,
 }
@@ -181,6 +243,9 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
         VirtualPen {
             rx: pose_rx,
             seq: 0,
+            guide: None,
+            last: None,
+            synth: synth_pen(&PenConfig::OMNI_LIKE, None),
         },
         ReportedMotors { _private: () },
         TimerWatchdog { _private: () },
@@ -227,6 +292,7 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
 
     Parts {
         uart,
+        config: config_store::RamConfigStore::new(),
         poses: pose_tx,
         cmds: cmd_tx,
     }

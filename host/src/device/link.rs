@@ -15,6 +15,14 @@
 //!   hand, like the built-in simulator) and sends one [`PoseSample`] per millisecond, or a
 //!   replay's poses; for a device with its own sensors it pings. It also turns the GUI's
 //!   commands into [`HostMsg`]s.
+//! * **Guided writing** ([`DeviceCommand::Guide`]): the writer plays the stroke's moving
+//!   point one resampled pose per tick, as a [`GuideSample`] sent just before the pose of the
+//!   same `seq` (the device applies it at the tick that consumes that pose); after the
+//!   stroke's end, or when the GUI stops it, it holds the last point with `on = false` until
+//!   the guide has faded out. It mirrors the device's guide ([`GuideStream`] fed exactly what
+//!   the device gets), so each received state's frame carries the anchor sent for its tick,
+//!   the stylus's distance from it (how far the writer strayed), the fade gain and the
+//!   guide's force ([`BrushFrame::guide`]).
 
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Write};
@@ -25,15 +33,17 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::OutputState;
+use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
     bounded_str, param_id, BrushState, Buttons, Capabilities, Command, DeviceInfo, DeviceMsg,
-    HostHello, HostMsg, HostRx, Message, PoseSample, PresetRef, ProtocolError, Version, DELIMITER,
+    GuideSample, HostHello, HostMsg, HostRx, Message, PoseSample, PresetRef, ProtocolError,
+    Version, DELIMITER,
 };
-use maobi_shared::{presets, BrushParams, Fx, ParamId, Pose, Quat, Scalar};
+use maobi_shared::{presets, BrushParams, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use super::endpoint::{Conn, Endpoint};
 use crate::gui::device::{
-    BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput, LinkReport,
+    BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
 };
 use crate::gui::sim::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
 
@@ -117,7 +127,13 @@ struct Shared {
     device_handle: Option<Pose<f64>>,
     /// The `pose_seq` of this session's latest state: the last pose the device consumed.
     device_pose_seq: Option<u32>,
+    /// Guided writing: what the writer sent (and its mirror computed) for recent pose
+    /// sequence numbers, for the frames of the states that report them.
+    guide_sent: VecDeque<(u32, GuideFrame)>,
 }
+
+/// Guide entries kept for states to come (more than the poses in flight).
+const GUIDE_SENT_KEPT: usize = 1024;
 
 type Wake = Arc<dyn Fn() + Send + Sync>;
 
@@ -229,6 +245,7 @@ impl LinkDevice {
                     refetch_params: false,
                     device_handle: None,
                     device_pose_seq: None,
+                    guide_sent: VecDeque::new(),
                 }),
                 out: Mutex::new(None),
                 stop: AtomicBool::new(false),
@@ -412,10 +429,21 @@ impl Device for LinkDevice {
                 s.replay = Some(ReplaySpan::default());
                 s.status.replaying = true;
             }
-            DeviceCommand::Guide(_) => {
+            DeviceCommand::Guide(Some(track)) if track.rows().is_empty() => {
+                return Err(DeviceError::Rejected("the stroke is empty".into()));
+            }
+            DeviceCommand::Guide(Some(_))
+                if !self
+                    .inner
+                    .shared()
+                    .capabilities
+                    .contains(Capabilities::VIRTUAL_PEN) =>
+            {
+                // The moving point rides with the virtual pen's pose samples.
                 return Err(DeviceError::Rejected(
-                    "guided writing runs on the built-in simulator for now; the wire protocol \
-                     does not carry the moving point yet"
+                    "guided writing over the link needs a virtual-pen device (the QEMU \
+                     board, the sim-device); a pen with its own sensors does not take the \
+                     moving point yet"
                         .into(),
                 ));
             }
@@ -514,7 +542,7 @@ fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usiz
 /// Sends our `Hello` on `conn` and waits up to `timeout` for the device's; `None` when
 /// `stop` said to give up. A version mismatch (in a frame's version byte or in the device's
 /// hello) is an error that says so.
-fn handshake(
+pub(crate) fn handshake(
     conn: &mut dyn Conn,
     dec: &mut HostRx,
     host_name: &str,
@@ -714,7 +742,8 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
                 None => u64::from(state.tick),
             };
             s.last_tick = Some(tick);
-            let frame = frame_from_state(&state, tick, replaying);
+            let mut frame = frame_from_state(&state, tick, replaying);
+            frame.guide = guide_frame(s, &state, frame.pose);
             s.device_handle = Some(frame.pose);
             s.device_pose_seq = Some(state.pose_seq);
             s.status.forces_enabled = state.haptics.enabled;
@@ -791,6 +820,32 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
         DeviceMsg::Config(Ok(_)) | DeviceMsg::Sensors(_) => false,
         DeviceMsg::Pong { .. } => false,
     }
+}
+
+/// The guide at a received state's tick: the anchor the writer sent with the pose the state
+/// reports consumed, the stylus's distance from it, and the mirror's gain and force (none
+/// while a fault is latched: the device cuts the guide then).
+fn guide_frame(s: &mut Shared, state: &BrushState, handle: Pose<f64>) -> Option<GuideFrame> {
+    while s
+        .guide_sent
+        .front()
+        .is_some_and(|(q, _)| *q != state.pose_seq && seq_at_or_after(state.pose_seq, *q))
+    {
+        s.guide_sent.pop_front();
+    }
+    let (q, g) = s.guide_sent.front()?;
+    if *q != state.pose_seq || !state.faults.is_empty() {
+        return None;
+    }
+    let d = handle.pos.to_f64();
+    let dist = (0..3)
+        .map(|i| (d[i] - g.anchor[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    Some(GuideFrame {
+        distance_mm: dist,
+        ..*g
+    })
 }
 
 /// The GUI's frame for a received state: geometry bit for bit as the device computed it.
@@ -878,6 +933,9 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     let mut frame = [0u8; HostMsg::MAX_FRAME];
     let mut was_up = false;
     let mut syncing: Option<Instant> = None;
+    // Guided writing: the stroke being played and the device's guide as mirrored here.
+    let mut guide: Option<GuidePlay> = None;
+    let mut mirror = GuideMirror::new();
     loop {
         if inner.stop.load(Ordering::SeqCst) {
             return;
@@ -913,8 +971,21 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                     pen = Pen::Approach(track.resample().collect());
                     None
                 }
-                // Refused in `send`.
-                DeviceCommand::Guide(_) => None,
+                DeviceCommand::Guide(Some(track)) => {
+                    let points: Vec<Vec3<Fx>> =
+                        track.resample().map(|p| p.pos.cast::<Fx>()).collect();
+                    if !points.is_empty() {
+                        guide = Some(GuidePlay { points, next: 0 });
+                    }
+                    None
+                }
+                DeviceCommand::Guide(None) => {
+                    // Hold the point reached and fade out.
+                    if let Some(g) = &mut guide {
+                        g.next = g.points.len();
+                    }
+                    None
+                }
                 DeviceCommand::StopReplay => {
                     let mut s = inner.shared();
                     match (&pen, &mut s.replay) {
@@ -958,6 +1029,9 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
             done = due - 1;
             session_first = seq;
             syncing = Some(Instant::now());
+            // The device restarts its forces (and its guide) at a new session's first pose.
+            mirror.restart();
+            inner.shared().guide_sent.clear();
         }
         if let Some(since) = syncing {
             // Start the virtual pen where the device's pen is (its first state says), so
@@ -1027,6 +1101,8 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                         // simulator's replay does; the replay's poses follow.
                         let n = encode(&HostMsg::Command(Command::ResetBrush), &mut frame);
                         batch.extend_from_slice(&frame[..n]);
+                        // The device's reset restarts its forces and cuts its guide.
+                        mirror.restart();
                         let mut s = inner.shared();
                         if let Some(span) = &mut s.replay {
                             span.first = Some(seq);
@@ -1053,6 +1129,26 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                 }
             };
             hand = pose;
+            let pos: Vec3<Fx> = pose.pos.cast();
+            // The moving point for this tick goes just before its pose.
+            let g = guide.as_mut().and_then(|g| g.next_point(&mirror));
+            if let Some((anchor, on)) = g {
+                let n = encode(
+                    &HostMsg::Guide(GuideSample::new(seq, anchor, on)),
+                    &mut frame,
+                );
+                batch.extend_from_slice(&frame[..n]);
+            }
+            if let Some(f) = mirror.tick(g, pos) {
+                let mut s = inner.shared();
+                if s.guide_sent.len() >= GUIDE_SENT_KEPT {
+                    s.guide_sent.pop_front();
+                }
+                s.guide_sent.push_back((seq, f));
+            }
+            if g.is_none() && !mirror.stream.active() {
+                guide = None;
+            }
             let sample = PoseSample::new(seq, pose.cast(), Buttons::empty());
             seq = seq.wrapping_add(1);
             let n = encode(&HostMsg::Pose(sample), &mut frame);
@@ -1061,6 +1157,73 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
         if !batch.is_empty() {
             inner.write(&batch);
         }
+    }
+}
+
+/// A stroke being played as the guide's moving point.
+struct GuidePlay {
+    /// The ferrule's position at each tick (the track resampled per 1 ms).
+    points: Vec<Vec3<Fx>>,
+    /// The next point's index; at or past the end the last point is held, fading out.
+    next: usize,
+}
+
+impl GuidePlay {
+    /// This tick's point and whether to lead; `None` once the device's guide has faded out
+    /// after the end (nothing more to send).
+    fn next_point(&mut self, mirror: &GuideMirror) -> Option<(Vec3<Fx>, bool)> {
+        let k = self.next;
+        if k < self.points.len() {
+            self.next += 1;
+            // As the built-in simulator: the last point lets go.
+            Some((self.points[k], k + 1 < self.points.len()))
+        } else if mirror.stream.active() {
+            let held = mirror.stream.anchor().or(self.points.last().copied())?;
+            Some((held, false))
+        } else {
+            None
+        }
+    }
+}
+
+/// The device's guide, fed what the device gets: the samples sent and the poses they ride
+/// with (the virtual pen's hand is the pose sent), so its gain and force are the device's.
+struct GuideMirror {
+    stream: GuideStream<Fx>,
+    last_hand: Option<Vec3<Fx>>,
+}
+
+impl GuideMirror {
+    fn new() -> GuideMirror {
+        GuideMirror {
+            // The shared defaults are valid (tested in maobi-shared).
+            stream: GuideStream::new(DEFAULT_GUIDE).expect("the default guide is valid"),
+            last_hand: None,
+        }
+    }
+
+    /// The device restarted its forces: the guide from zero, the hand's step too.
+    fn restart(&mut self) {
+        self.stream.cut();
+        self.last_hand = None;
+    }
+
+    /// One tick; the frame to show while the guide is active.
+    fn tick(&mut self, sample: Option<(Vec3<Fx>, bool)>, hand: Vec3<Fx>) -> Option<GuideFrame> {
+        let step = self.last_hand.map_or(Vec3::ZERO, |l| hand - l);
+        self.last_hand = Some(hand);
+        let g = self.stream.tick(
+            sample.map(|(anchor, on)| GuideInput { anchor, on }),
+            hand,
+            step,
+        );
+        let anchor = self.stream.anchor()?;
+        (self.stream.active() || g.force != Vec3::ZERO).then(|| GuideFrame {
+            anchor: anchor.to_f64(),
+            distance_mm: g.distance_mm.to_f64(),
+            gain: self.stream.guide().gain().to_f64(),
+            force: g.force.to_f64(),
+        })
     }
 }
 

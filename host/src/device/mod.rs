@@ -7,11 +7,13 @@
 //!   [`Device`](crate::gui::device::Device) trait: a link thread that connects, shakes hands,
 //!   decodes frames and reconnects; a writer thread that streams the virtual pen's poses at
 //!   1 kHz and the commands.
+//! * [`bringup`]: `maobi device check`, the first power-on of a pen step by step.
 //! * [`sim_device`]: the shared simulator behind the wire protocol over TCP (`maobi
 //!   sim-device`): a stand-in for the pen in tests and demos. Its connection loop serves any
 //!   [`ProtocolModel`]; `maobi bridge` serves the Phantom through it
 //!   ([`crate::phantom::device::BridgeModel`]).
 
+pub mod bringup;
 pub mod endpoint;
 pub mod link;
 pub mod sim_device;

@@ -5,8 +5,10 @@
 //! ([`Capabilities::VIRTUAL_PEN`]) that answers `Hello`, `Ping`, parameter reads and writes
 //! and commands, runs one `Brush<Fx>` tick (with the force model and the output stage) per
 //! [`HostMsg::Pose`] sample, in arrival order, and sends the brush's [`BrushState`] at
-//! `state_hz` (120 by default; 1000 sends every tick), plus [`Telemetry`] once a second. With
-//! no pose samples arriving it keeps sending its state at `state_hz`, so the host can tell
+//! `state_hz` (120 by default; 1000 sends every tick), plus [`Telemetry`] once a second.
+//! Guided writing: a [`HostMsg::Guide`] sample rides with the pose of its `seq` and the
+//! shared [`GuideStream`] adds its pull to the force, as the firmware does (`GuideMirror`).
+//! With no pose samples arriving it keeps sending its state at `state_hz`, so the host can tell
 //! the link is up. One host at a time; the brush lives on between connections, as a
 //! device's would.
 
@@ -18,10 +20,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::{ForceModel, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::guide::{GuideForce, GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, Haptics, HostMsg, Message,
-    ParamReply, PoseSample, Telemetry,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg,
+    Message, ParamReply, PoseSample, Telemetry,
 };
 use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
@@ -60,6 +63,58 @@ struct Model {
     last_pos: Vec3<Fx>,
     force: Vec3<Fx>,
     faults: Faults,
+    guide: GuideMirror,
+}
+
+/// Guided writing as the firmware does it: the link task keeps the last [`GuideSample`] and
+/// hands it to the force loop with the pose of the same `seq` ([`GuideMirror::take`]); the
+/// force loop's [`GuideStream`] ticks with it (or without a sample), is cut while a fault is
+/// latched and when the brush restarts, and its force joins the model's before the output
+/// stage, which is credited with its source energy.
+struct GuideMirror {
+    stream: GuideStream<Fx>,
+    pending: Option<GuideSample>,
+}
+
+impl GuideMirror {
+    fn new() -> anyhow::Result<GuideMirror> {
+        Ok(GuideMirror {
+            stream: GuideStream::new(DEFAULT_GUIDE).map_err(|e| anyhow::anyhow!("{e}"))?,
+            pending: None,
+        })
+    }
+
+    /// The sample that rides with the pose `seq`, if the host sent one for it.
+    fn take(&mut self, seq: u32) -> Option<GuideInput<Fx>> {
+        match self.pending {
+            Some(g) if g.seq == seq => {
+                self.pending = None;
+                Some(GuideInput {
+                    anchor: g.anchor(),
+                    on: g.on,
+                })
+            }
+            _ => None,
+        }
+    }
+
+    fn tick(
+        &mut self,
+        sample: Option<GuideInput<Fx>>,
+        hand: Vec3<Fx>,
+        hand_step: Vec3<Fx>,
+        faulted: bool,
+    ) -> GuideForce<Fx> {
+        if faulted {
+            self.stream.cut();
+            return GuideForce {
+                force: Vec3::ZERO,
+                distance_mm: Fx::ZERO,
+                source_j: 0.0,
+            };
+        }
+        self.stream.tick(sample, hand, hand_step)
+    }
 }
 
 impl Model {
@@ -83,6 +138,7 @@ impl Model {
             last_pos: start.pos,
             force: Vec3::ZERO,
             faults: Faults::empty(),
+            guide: GuideMirror::new()?,
         })
     }
 
@@ -96,7 +152,14 @@ impl Model {
         }
         self.brush.tick(pose);
         let f = self.forces.tick(&self.brush, pose.pos);
-        self.force = self.stage.apply(f.total, pose.pos - self.last_pos);
+        let step = pose.pos - self.last_pos;
+        let sample = self.guide.take(seq);
+        let g = self
+            .guide
+            .tick(sample, pose.pos, step, !self.faults.is_empty());
+        self.force = self
+            .stage
+            .apply_with_source(f.total + g.force, step, g.source_j);
         self.last_pos = pose.pos;
         self.tick = self.tick.wrapping_add(1);
         self.pose_seq = seq;
@@ -135,6 +198,7 @@ impl Model {
                     .map_err(|_| CommandError::UnknownPreset)?;
                 self.brush.reset(self.brush.handle());
                 self.forces.reset();
+                self.guide.stream.cut();
             }
             Command::ClearFaults => {
                 self.faults = Faults::empty();
@@ -143,6 +207,7 @@ impl Model {
             Command::ResetBrush => {
                 self.brush.reset(self.brush.handle());
                 self.forces.reset();
+                self.guide.stream.cut();
             }
             // Test hooks of the firmware (and commands newer than this device).
             #[allow(unreachable_patterns)]
@@ -169,6 +234,10 @@ pub trait ProtocolModel: Send {
     fn tick(&self) -> u32;
     /// A virtual-pen pose sample from the host; true if it ran a model tick.
     fn pose(&mut self, sample: &PoseSample) -> bool;
+    /// Guided writing: the moving point for the pose sample of the same `seq` (sent just
+    /// before it). A device without a virtual pen has no such pose to pair it with and
+    /// drops it (the host sends guide samples only to virtual-pen devices).
+    fn guide(&mut self, _sample: &GuideSample) {}
     /// The state to send now, if any. `due`: the state period has elapsed (or enough pose
     /// samples were consumed); a device with its own clock hands over what it produced.
     fn poll_state(&mut self, due: bool) -> Option<BrushState>;
@@ -195,6 +264,9 @@ impl ProtocolModel for Model {
     fn pose(&mut self, sample: &PoseSample) -> bool {
         self.step(sample.pose(), sample.seq);
         true
+    }
+    fn guide(&mut self, sample: &GuideSample) {
+        self.guide.pending = Some(*sample);
     }
     fn poll_state(&mut self, due: bool) -> Option<BrushState> {
         due.then(|| self.state())
@@ -422,6 +494,7 @@ fn connection(
                     }
                 }
                 HostMsg::Ping { seq } => tx.send(&DeviceMsg::Pong { seq }),
+                HostMsg::Guide(g) => model.guide(&g),
                 HostMsg::Pose(sample) => {
                     last_pose = now;
                     if model.pose(&sample) {

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, PoseSample};
-use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
+use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar, Vec3};
 
 use super::loader::HdLib;
 use super::servo::{Bridge, BridgeOptions, ServoCommand, ServoShared};
@@ -242,8 +242,10 @@ impl Device for PhantomDevice {
     fn poll(&mut self, out: &mut Vec<BrushFrame>) {
         if let Some(b) = &self.bridge {
             let shared = b.shared();
-            while let Some(s) = shared.take_state() {
-                out.push(frame_from_state(&s, u64::from(s.tick), false));
+            while let Some((s, guide)) = shared.take_state_with_guide() {
+                let mut frame = frame_from_state(&s, u64::from(s.tick), false);
+                frame.guide = guide;
+                out.push(frame);
             }
         }
     }
@@ -280,11 +282,16 @@ impl Device for PhantomDevice {
                 "the Phantom is driven by its stylus; replay pose files on the built-in simulator"
                     .into(),
             )),
-            DeviceCommand::Guide(_) => Err(DeviceError::Rejected(
-                "guided writing on the Phantom is not in the servo loop yet; it runs on the \
-                 built-in simulator"
-                    .into(),
-            )),
+            DeviceCommand::Guide(Some(track)) => {
+                // The moving point in the paper frame, one per servo tick (1 kHz).
+                let points: Arc<[Vec3<Fx>]> =
+                    track.resample().map(|p| p.pos.cast::<Fx>()).collect();
+                if points.is_empty() {
+                    return Err(DeviceError::Rejected("the stroke is empty".into()));
+                }
+                self.servo(ServoCommand::Guide(Some(points)))
+            }
+            DeviceCommand::Guide(None) => self.servo(ServoCommand::Guide(None)),
         }
     }
 }

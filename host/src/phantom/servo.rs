@@ -36,11 +36,13 @@ use std::time::{Duration, Instant};
 
 use maobi_shared::force::DEFAULT_FORCES;
 use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, OutputState, PHANTOM_OMNI};
+use maobi_shared::guide::{GuideForce, GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::protocol::{BrushState, Faults, Haptics};
 use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
+use crate::gui::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
 pub const STATE_QUEUE: usize = 64;
@@ -281,6 +283,11 @@ pub enum ServoCommand {
     /// Replace the brush parameters (already validated); the brush is reset.
     SetParams(BrushParams),
     ResetBrush,
+    /// Guided writing: the stroke's moving point, one position per servo tick (paper frame,
+    /// mm, the pose track resampled at 1 kHz), played from the next tick; the shared
+    /// [`GuideStream`] pulls the stylus toward it inside the output stage. `None` stops it:
+    /// the point reached is held while the guide fades out.
+    Guide(Option<Arc<[Vec3<Fx>]>>),
 }
 
 /// The servo loop's model, with no HD calls.
@@ -297,6 +304,11 @@ pub struct ServoCore {
     faults: Faults,
     tick: u32,
     command: Vec3<Fx>,
+    /// Guided writing: the coupling, the stroke being played (points, next index; at or past
+    /// the end the last point is held, fading out) and this tick's figures for the state.
+    guide: GuideStream<Fx>,
+    guide_play: Option<(Arc<[Vec3<Fx>]>, usize)>,
+    guide_frame: Option<GuideFrame>,
 }
 
 impl ServoCore {
@@ -326,6 +338,9 @@ impl ServoCore {
             faults: Faults::empty(),
             tick: 0,
             command: Vec3::ZERO,
+            guide: GuideStream::new(DEFAULT_GUIDE).map_err(|e| e.to_string())?,
+            guide_play: None,
+            guide_frame: None,
         })
     }
 
@@ -377,19 +392,98 @@ impl ServoCore {
                 // The paper moved under the hand: start the brush afresh where it now is.
                 self.brush = None;
                 self.forces.reset();
+                self.cut_guide();
             }
             ServoCommand::SetParams(p) => {
                 if p.validate().is_ok() {
                     self.params = p;
                     self.brush = None;
                     self.forces.reset();
+                    self.cut_guide();
                 }
             }
             ServoCommand::ResetBrush => {
                 self.brush = None;
                 self.forces.reset();
+                self.cut_guide();
+            }
+            ServoCommand::Guide(Some(points)) => {
+                if !points.is_empty() {
+                    self.guide_play = Some((points, 0));
+                }
+            }
+            ServoCommand::Guide(None) => {
+                if let Some((points, next)) = &mut self.guide_play {
+                    *next = points.len();
+                }
             }
         }
+    }
+
+    /// Drops the guidance at once (faults, a new brush): no guide force from this tick.
+    fn cut_guide(&mut self) {
+        self.guide.cut();
+        self.guide_play = None;
+        self.guide_frame = None;
+    }
+
+    /// Guided writing is on (or fading out).
+    pub fn guiding(&self) -> bool {
+        self.guide_play.is_some()
+    }
+
+    /// This tick's guide sample: the stroke's next point (the last one lets go), then the
+    /// point reached, held with `on = false` until the guide has faded out.
+    fn next_guide_sample(&mut self) -> Option<GuideInput<Fx>> {
+        let (points, next) = self.guide_play.as_mut()?;
+        let k = *next;
+        if let Some(&anchor) = points.get(k) {
+            *next += 1;
+            return Some(GuideInput {
+                anchor,
+                on: k + 1 < points.len(),
+            });
+        }
+        match self.guide.anchor() {
+            Some(anchor) if self.guide.active() => Some(GuideInput { anchor, on: false }),
+            _ => {
+                self.guide_play = None;
+                None
+            }
+        }
+    }
+
+    /// The guide's pull at this tick for the stylus at `hand` (moved `step` since the last
+    /// tick); none while a fault is latched (the guide is cut, as the firmware does).
+    fn guide_tick(&mut self, hand: Vec3<Fx>, step: Vec3<Fx>) -> GuideForce<Fx> {
+        if !self.faults.is_empty() {
+            self.cut_guide();
+        }
+        let sample = self.next_guide_sample();
+        let g = if self.guide_play.is_some() {
+            self.guide.tick(sample, hand, step)
+        } else {
+            GuideForce {
+                force: Vec3::ZERO,
+                distance_mm: Fx::ZERO,
+                source_j: 0.0,
+            }
+        };
+        self.guide_frame = match self.guide.anchor() {
+            Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
+                anchor: anchor.to_f64(),
+                distance_mm: g.distance_mm.to_f64(),
+                gain: self.guide.guide().gain().to_f64(),
+                force: g.force.to_f64(),
+            }),
+            _ => None,
+        };
+        g
+    }
+
+    /// Guided writing at the last tick, while it is on.
+    pub fn guide_frame(&self) -> Option<GuideFrame> {
+        self.guide_frame
     }
 
     /// One 1 ms tick: the device transform and buttons in, the force to command (N, device
@@ -437,7 +531,11 @@ impl ServoCore {
         }
         brush.tick(pose);
         let f = self.forces.tick(brush, pose.pos);
-        self.command = self.stage.apply(f.total, pose.pos - self.last_pos);
+        let step = pose.pos - self.last_pos;
+        let g = self.guide_tick(pose.pos, step);
+        self.command = self
+            .stage
+            .apply_with_source(f.total + g.force, step, g.source_j);
         self.last_pos = pose.pos;
         self.device_force()
     }
@@ -445,6 +543,7 @@ impl ServoCore {
     fn fault(&mut self) -> [f64; 3] {
         self.faults |= Faults::SENSOR_JUMP;
         self.stage.fault();
+        self.cut_guide();
         self.command = self.stage.apply(Vec3::ZERO, Vec3::ZERO);
         self.device_force()
     }
@@ -544,7 +643,8 @@ impl std::fmt::Display for Stopped {
 /// What the callback shares with the rest of the program. Everything the callback touches
 /// is an atomic or a `try_lock`.
 pub struct ServoShared {
-    states_q: Mutex<VecDeque<BrushState>>,
+    /// States with the guide's figures at their tick.
+    states_q: Mutex<VecDeque<(BrushState, Option<GuideFrame>)>>,
     commands: Mutex<VecDeque<ServoCommand>>,
     stop: AtomicBool,
     /// The callback has returned HD_CALLBACK_DONE (and will not run again).
@@ -600,6 +700,11 @@ impl ServoShared {
 
     /// The oldest state the callback handed over that was not taken yet.
     pub fn take_state(&self) -> Option<BrushState> {
+        self.take_state_with_guide().map(|(s, _)| s)
+    }
+
+    /// As [`Self::take_state`], with guided writing's figures at the state's tick.
+    pub fn take_state_with_guide(&self) -> Option<(BrushState, Option<GuideFrame>)> {
         self.states_q.lock().ok()?.pop_front()
     }
 
@@ -732,7 +837,7 @@ impl ServoCtx {
                             self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
                         }
                         // Within the reserved capacity: no allocation.
-                        q.push_back(state);
+                        q.push_back((state, self.core.guide_frame()));
                         self.shared.states.fetch_add(1, Ordering::Relaxed);
                     }
                     Err(_) => {

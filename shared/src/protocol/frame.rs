@@ -12,13 +12,14 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 /// Version of the wire format. Byte 0 of every decoded frame, in every version, forever; any
-/// change to a message's layout (a new field, a reordered variant) increments it.
+/// change to a message's layout (a new field, a new or reordered variant) increments it.
 ///
-/// * 1: the first.
-/// * 2: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
+/// * 1: the first link (hello, ping, poses, parameters, commands, states, events, telemetry).
+/// * 2: [`HostMsg::Guide`](super::HostMsg::Guide) (guided writing), appended.
+/// * 3: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
 ///   `SetConfig`, `DeviceMsg::Config` / `Sensors`, `Command::StreamSensors` / `NudgeMotor`,
 ///   four `CommandError`s, `Capabilities::STORED_CONFIG`; host frames up to 512 bytes.
-pub const PROTOCOL_VERSION: u8 = 2;
+pub const PROTOCOL_VERSION: u8 = 3;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::frame::{
     check_version, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE, PROTOCOL_VERSION,
 };
-use super::state::{BrushState, PoseSample};
+use super::state::{BrushState, GuideSample, PoseSample};
 use crate::params::{BrushParams, ParamError, ParamId};
 use crate::pen_io::{ConfigState, DeviceConfig, InvalidField};
 use crate::presets;
@@ -52,7 +52,11 @@ pub enum HostMsg {
     SetParam { id: u8, value: f32 },
     /// A command; answered by [`DeviceMsg::CommandDone`].
     Command(Command),
-    // Protocol 2: the stored configuration (appended: earlier variants keep their tags).
+    /// Guided writing: the stroke's moving point for the next [`HostMsg::Pose`] with the
+    /// same `seq` (sent just before it, one per tick while guiding). Appended in protocol
+    /// version 2: every earlier variant keeps its wire tag.
+    Guide(GuideSample),
+    // Protocol 3: the stored configuration (appended: earlier variants keep their tags).
     /// Reads the configuration in force; answered by [`DeviceMsg::Config`] (an error when
     /// none is: [`ConfigRejected::NotStored`] with the [`ConfigState`]).
     GetConfig,
@@ -88,7 +92,7 @@ pub enum DeviceMsg {
     Event(Event),
     /// Loop timing and link health (sent periodically, about once a second).
     Telemetry(Telemetry),
-    // Protocol 2 (appended: earlier variants keep their tags).
+    // Protocol 3 (appended: earlier variants keep their tags).
     /// Answer to [`HostMsg::GetConfig`] and [`HostMsg::SetConfig`].
     Config(Result<DeviceConfig, ConfigRejected>),
     /// Raw sensor readings for bring-up, streamed at the rate [`Command::StreamSensors`]
@@ -246,7 +250,7 @@ pub struct DeviceInfo {
     pub force_peak_n: f32,
     /// Largest force the motors may exert indefinitely (N).
     pub force_continuous_n: f32,
-    /// The stored configuration (protocol 2). Forces are refused
+    /// The stored configuration (protocol 3). Forces are refused
     /// ([`CommandError::ConfigNotValid`]) unless it [allows them](ConfigState::allows_forces):
     /// a physical pen needs a valid one; a virtual pen says
     /// [`ConfigState::NotApplicable`].
@@ -436,7 +440,7 @@ pub enum Command {
     /// at the end: every earlier variant keeps its wire tag. Boards that do not offer the
     /// hook answer [`CommandError::Unsupported`].
     InjectOverrun,
-    // Protocol 2: bring-up (appended: earlier variants keep their tags).
+    // Protocol 3: bring-up (appended: earlier variants keep their tags).
     /// Stream [`DeviceMsg::Sensors`] at `rate_hz` (1 ..= [`SENSOR_RATE_MAX_HZ`]); 0 stops.
     /// Refused with [`CommandError::OutOfRange`] above the maximum.
     StreamSensors {
@@ -550,7 +554,7 @@ pub enum CommandError {
     UnknownPreset,
     /// Forces stay off while these faults are latched.
     FaultsLatched(Faults),
-    // Protocol 2 (appended).
+    // Protocol 3 (appended).
     /// The pen's stored configuration is missing or corrupt (see [`DeviceInfo::config`]),
     /// or not calibrated: forces (and nudges) stay off until a valid one is written.
     ConfigNotValid,

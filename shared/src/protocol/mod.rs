@@ -41,14 +41,15 @@
 //! | `Hello(`[`HostHello`]`)`: protocol version, host program and version | `Hello(`[`DeviceInfo`]`)`: protocol version, firmware version, board name, [`Capabilities`], force limits (peak, continuous, N) |
 //! | `Ping { seq }` | `Pong { seq }` |
 //! | `Pose(`[`PoseSample`]`)`: the virtual pen, each 1 ms tick | `State(`[`BrushState`]`)`: the brush, about 120 Hz |
+//! | `Guide(`[`GuideSample`]`)`: guided writing's moving point for the pose of the same `seq` (version 2) | |
 //! | `GetParam { id }`, `SetParam { id, value }` | `Param(`[`ParamReply`]`)`: the value in force, or [`ParamRejected`] |
 //! | `Command(`[`Command`]`)`: enable / disable forces, calibrate, dip ink, choose preset, clear faults, reset brush, stream sensors, nudge a motor | `CommandDone { command, result }` |
 //! | | `Event(`[`Event`]`)`: fault raised / cleared, forces enabled / disabled, link (re)connected, with the latched [`Faults`] |
 //! | | `Telemetry(`[`Telemetry`]`)`: tick period min / mean / max (us), load (%), frames dropped, virtual-pen pose gaps, the device receiver's [`LinkStats`] |
-//! | `GetConfig`, `SetConfig(`[`DeviceConfig`]`)` (protocol 2) | `Config(Result<`[`DeviceConfig`]`, `[`ConfigRejected`]`>)`: the configuration in force, or why not (the invalid field by name, forces enabled, store failed, none stored) |
-//! | `Command(StreamSensors { rate_hz })`, `Command(NudgeMotor(`[`Nudge`]`))` (protocol 2) | `Sensors(`[`SensorReport`]`)`: unwrapped encoder counts, filtered gimbal codes, buttons, at the rate asked |
+//! | `GetConfig`, `SetConfig(`[`DeviceConfig`]`)` (protocol 3) | `Config(Result<`[`DeviceConfig`]`, `[`ConfigRejected`]`>)`: the configuration in force, or why not (the invalid field by name, forces enabled, store failed, none stored) |
+//! | `Command(StreamSensors { rate_hz })`, `Command(NudgeMotor(`[`Nudge`]`))` (protocol 3) | `Sensors(`[`SensorReport`]`)`: unwrapped encoder counts, filtered gimbal codes, buttons, at the rate asked |
 //!
-//! ## The stored configuration and bring-up (protocol 2)
+//! ## The stored configuration and bring-up (protocol 3)
 //!
 //! [`DeviceInfo::config`] says what the pen knows about its stored configuration
 //! ([`ConfigState`]): `Valid`, `Missing` (erased flash), `Corrupt(`[`ConfigError`]`)` (bad
@@ -119,6 +120,7 @@
 //! | state, small preset (12 layers), at rest / pressed and dragged | 642 / 702 | 7.7% / 8.4% at 120 Hz |
 //! | state, 24 layers, every value at its longest varint | 3786 | (the bound: [`DEVICE_MSG_MAX`]) |
 //! | pose sample | 43 | 4.3% at 1 kHz |
+//! | guide sample (worst case 45) | 31 | 3.1% at 1 kHz (while guiding) |
 //! | longest host message: `SetConfig`, every varint at its longest | 267 decoded | (the bound: [`HOST_MSG_MAX`]) |
 //!
 //! A 512-byte frame limit would not hold one exact state of the large brush (every
@@ -150,8 +152,8 @@ pub use messages::{
     HOST_MSG_MAX, NAME_LEN, REASON_LEN, SENSOR_RATE_MAX_HZ,
 };
 pub use state::{
-    vec3_bits, vec3_from_bits, BrushShape, BrushState, Haptics, LayerState, PoseBits, PoseSample,
-    Vec3Bits,
+    vec3_bits, vec3_from_bits, BrushShape, BrushState, GuideSample, Haptics, LayerState, PoseBits,
+    PoseSample, Vec3Bits,
 };
 
 /// The device's receiver: decodes host messages.

@@ -91,6 +91,33 @@ impl PoseSample {
     }
 }
 
+/// One tick of guided writing, host to device: the stroke's moving point for the pose sample
+/// with the same `seq` (sent just before it). The device applies it at the tick that
+/// consumes that pose, so the device and the host simulation lead the same hand to the same
+/// point at the same tick, bit for bit (`maobi_shared::guide::GuideStream`).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GuideSample {
+    /// The [`PoseSample::seq`] of the tick this point belongs to.
+    pub seq: u32,
+    /// Where the ferrule should be at that tick (mm, paper frame), as [`Fx`] bits.
+    pub anchor: Vec3Bits,
+    /// Lead the hand (fade in, or stay on); false: fade out, holding this point.
+    pub on: bool,
+}
+
+impl GuideSample {
+    pub fn new(seq: u32, anchor: Vec3<Fx>, on: bool) -> Self {
+        GuideSample {
+            seq,
+            anchor: vec3_bits(anchor),
+            on,
+        }
+    }
+    pub fn anchor(&self) -> Vec3<Fx> {
+        vec3_from_bits(self.anchor)
+    }
+}
+
 /// What the force loop did at the state's tick.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct Haptics {

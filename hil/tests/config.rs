@@ -1,0 +1,375 @@
+//! The stored configuration under QEMU: images preloaded into the board's store with QEMU's
+//! generic loader (`hil::qemu::config_loader_args`, address `hil::qemu::CONFIG_REGION`).
+//!
+//! * a good image: the handshake says valid, forces enable; `SetConfig` validates (an invalid
+//!   field is named, nothing written), refuses while forces are on, and round-trips through
+//!   `GetConfig`; sensors stream, a nudge shows in the applied motor commands and ends,
+//!   `Calibrate` stores the readings;
+//! * a corrupt byte, a truncated image, erased flash, another format version: the handshake
+//!   says which, `EnableForces` and nudges are refused, the motors stay at zero; a valid
+//!   `SetConfig` recovers;
+//! * no image: the virtual pen needs none (`NotApplicable`), as before.
+//!
+//! Needs `qemu-system-arm` (skipped with a message without it, unless `MAOBI_REQUIRE_QEMU`
+//! is set, as in CI).
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use hil::link::Session;
+use hil::run::QemuDevice;
+use hil::{firmware, qemu};
+use maobi_shared::kinematics::{Joints, Pen, PenConfig, RawReadings};
+use maobi_shared::pen_io::{self, ConfigError, ConfigState, DeviceConfig, CONFIG_IMAGE_MAX};
+use maobi_shared::protocol::{
+    crc32, Buttons, Capabilities, Command, CommandError, ConfigRejected, DeviceInfo, DeviceMsg,
+    HostMsg, Nudge, PoseSample, SensorReport,
+};
+use maobi_shared::{Fx, Scalar};
+
+const TIMEOUT: Duration = Duration::from_secs(300);
+const ANSWER: Duration = Duration::from_secs(20);
+
+type Link = Session<std::net::TcpStream>;
+
+fn image() -> Option<PathBuf> {
+    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
+    ELF.get_or_init(|| {
+        if !qemu::available() {
+            assert!(
+                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
+                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
+            );
+            eprintln!("SKIPPED: qemu-system-arm is not installed");
+            return None;
+        }
+        Some(firmware::build().expect("firmware builds"))
+    })
+    .clone()
+}
+
+fn calibrated() -> DeviceConfig {
+    let mut c = DeviceConfig::DEFAULT;
+    c.calibration = Some(RawReadings {
+        encoders: [0; 3],
+        gimbal: [2048; 3],
+    });
+    c
+}
+
+fn encoded(cfg: &DeviceConfig) -> Vec<u8> {
+    let mut buf = vec![0u8; CONFIG_IMAGE_MAX];
+    let n = pen_io::encode(cfg, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+/// Boots the firmware with `image` (if any) in its store, and shakes hands.
+fn boot(elf: &std::path::Path, image: Option<&[u8]>) -> (QemuDevice, Link, DeviceInfo, PathBuf) {
+    static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    let path = std::env::temp_dir().join(format!("maobi-cfg-{}-{n}.bin", std::process::id()));
+    let args = match image {
+        Some(bytes) => {
+            std::fs::write(&path, bytes).unwrap();
+            qemu::config_loader_args(&path)
+        }
+        None => Vec::new(),
+    };
+    let (dev, stream) = QemuDevice::start_with(elf, &[], &args, TIMEOUT).unwrap();
+    let mut s = Session::new(stream).unwrap();
+    let info = s.handshake(ANSWER, &mut vec![]).unwrap();
+    (dev, s, info, path)
+}
+
+/// Sends `m`, returns the answer (`CommandDone` or `Config`).
+fn ask(s: &mut Link, m: HostMsg) -> DeviceMsg {
+    s.send(&m).unwrap();
+    s.wait_for(ANSWER, &mut vec![], |r| match r {
+        DeviceMsg::CommandDone { .. } | DeviceMsg::Config(_) => Some(r.clone()),
+        _ => None,
+    })
+    .unwrap()
+    .expect("an answer")
+    .0
+}
+
+fn command(s: &mut Link, c: Command) -> Result<(), CommandError> {
+    match ask(s, HostMsg::Command(c)) {
+        DeviceMsg::CommandDone { result, .. } => result,
+        other => panic!("{other:?}"),
+    }
+}
+
+fn config(s: &mut Link, m: HostMsg) -> Result<DeviceConfig, ConfigRejected> {
+    match ask(s, m) {
+        DeviceMsg::Config(r) => r,
+        other => panic!("{other:?}"),
+    }
+}
+
+/// The applied motor commands (Fx bits) and the enable flag of the next `n` state frames.
+/// Pings as it goes: the device latches LINK_SILENT after 100 ticks without a frame.
+fn motor_states(s: &mut Link, n: usize) -> Vec<([i64; 3], bool, u32)> {
+    let mut out = Vec::new();
+    while out.len() < n {
+        s.send(&HostMsg::Ping {
+            seq: out.len() as u32,
+        })
+        .unwrap();
+        let (st, _) = s
+            .wait_for(ANSWER, &mut vec![], |r| match r {
+                DeviceMsg::State(st) => Some(st.clone()),
+                _ => None,
+            })
+            .unwrap()
+            .expect("state frames");
+        out.push((st.haptics.motors, st.haptics.enabled, st.tick));
+    }
+    out
+}
+
+/// The pose of the reference pen resting in its inkwell (inside its workspace).
+fn inkwell_pose() -> maobi_shared::Pose<Fx> {
+    let pen = Pen::<Fx>::new(PenConfig::OMNI_LIKE).unwrap();
+    let c = PenConfig::OMNI_LIKE;
+    pen.forward(&Joints {
+        arm: c.inkwell_joints.map(Fx::from_f32),
+        gimbal: c.inkwell_gimbal.map(Fx::from_f32),
+    })
+}
+
+fn next_sensors(s: &mut Link) -> SensorReport {
+    s.wait_for(ANSWER, &mut vec![], |r| match r {
+        DeviceMsg::Sensors(x) => Some(x.clone()),
+        _ => None,
+    })
+    .unwrap()
+    .expect("a sensor report")
+    .0
+}
+
+#[test]
+fn a_good_image_is_valid_and_configurable() {
+    let Some(elf) = image() else { return };
+    let cfg = calibrated();
+    let (dev, mut s, info, path) = boot(&elf, Some(&encoded(&cfg)));
+    assert_eq!(info.config, ConfigState::Valid);
+    assert!(info.capabilities.contains(Capabilities::STORED_CONFIG));
+    assert_eq!(config(&mut s, HostMsg::GetConfig), Ok(cfg));
+
+    // Forces enable with a valid, calibrated configuration; writing it is refused then.
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    let mut changed = cfg;
+    changed.drive[0].deadband = 0.08;
+    changed.limits.max_step_n = 0.15;
+    assert_eq!(
+        config(&mut s, HostMsg::SetConfig(changed)),
+        Err(ConfigRejected::ForcesEnabled)
+    );
+    let nudge = Nudge {
+        channel: 1,
+        command_permille: 100,
+        duration_ms: 200,
+    };
+    assert_eq!(
+        command(&mut s, Command::NudgeMotor(nudge.clone())),
+        Err(CommandError::ForcesEnabled)
+    );
+    assert_eq!(command(&mut s, Command::DisableForces), Ok(()));
+
+    // An invalid configuration is refused by name, and nothing is written.
+    let mut bad = changed;
+    bad.drive[1].deadband = 0.9;
+    match config(&mut s, HostMsg::SetConfig(bad)) {
+        Err(ConfigRejected::Invalid(f)) => assert_eq!(f.field.as_str(), "drive[1].deadband"),
+        other => panic!("{other:?}"),
+    }
+    let mut bad = changed;
+    bad.limits.peak_n = f32::NAN;
+    match config(&mut s, HostMsg::SetConfig(bad)) {
+        Err(ConfigRejected::Invalid(f)) => assert_eq!(f.field.as_str(), "limits.peak_n"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(config(&mut s, HostMsg::GetConfig), Ok(cfg));
+    // A valid one is written and read back.
+    assert_eq!(config(&mut s, HostMsg::SetConfig(changed)), Ok(changed));
+    assert_eq!(config(&mut s, HostMsg::GetConfig), Ok(changed));
+
+    // A nudge beyond the caps is refused; a gentle one shows in the applied commands, on
+    // its channel only, and ends.
+    for over in [
+        Nudge {
+            command_permille: 151,
+            ..nudge.clone()
+        },
+        Nudge {
+            duration_ms: 301,
+            ..nudge.clone()
+        },
+        Nudge {
+            channel: 3,
+            ..nudge.clone()
+        },
+    ] {
+        assert_eq!(
+            command(&mut s, Command::NudgeMotor(over)),
+            Err(CommandError::OutOfRange)
+        );
+    }
+    assert_eq!(command(&mut s, Command::NudgeMotor(nudge)), Ok(()));
+    let states = motor_states(&mut s, 60);
+    let on: Vec<_> = states.iter().filter(|(m, _, _)| m[1] != 0).collect();
+    // 0.1 x ratio 13.2 x 0.025 N m/A x 2 A = 0.066 N m.
+    let expected = Fx::from_f32(0.1 * 13.2 * 0.025 * 2.0).to_bits();
+    assert!(!on.is_empty(), "the nudge shows: {states:?}");
+    for (m, enabled, _) in &on {
+        assert_eq!(m[0], 0);
+        assert_eq!(m[2], 0);
+        assert!((m[1] - expected).abs() < 1 << 12, "{m:?} vs {expected}");
+        assert!(!enabled, "forces stay off during a nudge");
+    }
+    let first = on.first().unwrap().2;
+    let last = on.last().unwrap().2;
+    assert!(last - first <= 200, "at most 200 ticks: {first}..{last}");
+    let after = states.iter().filter(|(_, _, t)| *t > first + 200);
+    assert!(after.clone().count() > 5, "states after the nudge");
+    assert!(
+        after.clone().all(|(m, _, _)| *m == [0; 3]),
+        "motors off after"
+    );
+
+    // Sensors: the virtual pen at the inkwell reads the calibration's zeros.
+    s.send(&HostMsg::Pose(PoseSample::new(
+        1,
+        inkwell_pose(),
+        Buttons::empty(),
+    )))
+    .unwrap();
+    assert_eq!(
+        command(&mut s, Command::StreamSensors { rate_hz: 1001 }),
+        Err(CommandError::OutOfRange)
+    );
+    assert_eq!(
+        command(&mut s, Command::StreamSensors { rate_hz: 100 }),
+        Ok(())
+    );
+    let r = next_sensors(&mut s);
+    let r2 = next_sensors(&mut s);
+    println!("sensors at the inkwell: {r:?}, then {r2:?}");
+    assert!(r.synthetic);
+    assert!(r2.tick > r.tick);
+    for k in 0..3 {
+        assert!(r.encoders[k].abs() <= 1, "{r:?}");
+        assert!((i32::from(r.gimbal[k]) - 2048).abs() <= 1, "{r:?}");
+    }
+    assert_eq!(
+        command(&mut s, Command::StreamSensors { rate_hz: 0 }),
+        Ok(())
+    );
+    // Calibrate stores those readings.
+    assert_eq!(command(&mut s, Command::Calibrate), Ok(()));
+    let stored = config(&mut s, HostMsg::GetConfig).unwrap();
+    let cal = stored.calibration.expect("calibrated");
+    assert_eq!(cal.encoders, r.encoders);
+    assert_eq!(cal.gimbal, r.gimbal.map(i32::from));
+    drop(dev);
+    let _ = std::fs::remove_file(path);
+}
+
+#[test]
+fn damaged_images_start_safe_and_say_why() {
+    let Some(elf) = image() else { return };
+    let good = encoded(&calibrated());
+    let mut corrupt = good.clone();
+    corrupt[good.len() / 2] ^= 0x40;
+    let truncated = good[..good.len() - 10].to_vec();
+    let erased = vec![0xFFu8; 512];
+    let mut other_version = good.clone();
+    other_version[4..6].copy_from_slice(&2u16.to_le_bytes());
+    let n = other_version.len() - 4;
+    let crc = crc32(&other_version[..n]);
+    other_version[n..].copy_from_slice(&crc.to_le_bytes());
+
+    type Expect = fn(&ConfigState) -> bool;
+    let cases: [(&str, Vec<u8>, Expect); 4] = [
+        ("corrupt byte", corrupt, |c| {
+            matches!(c, ConfigState::Corrupt(ConfigError::CrcMismatch { .. }))
+        }),
+        ("truncated", truncated, |c| {
+            matches!(c, ConfigState::Corrupt(ConfigError::Truncated))
+        }),
+        ("erased", erased, |c| matches!(c, ConfigState::Missing)),
+        ("wrong version", other_version, |c| {
+            matches!(
+                c,
+                ConfigState::Corrupt(ConfigError::UnsupportedVersion { found: 2 })
+            )
+        }),
+    ];
+    for (i, (name, bytes, expect)) in cases.into_iter().enumerate() {
+        let (dev, mut s, info, path) = boot(&elf, Some(&bytes));
+        println!("{name}: handshake says {}", info.config);
+        assert!(expect(&info.config), "{name}: {:?}", info.config);
+        assert_eq!(
+            command(&mut s, Command::EnableForces),
+            Err(CommandError::ConfigNotValid),
+            "{name}"
+        );
+        assert_eq!(
+            command(
+                &mut s,
+                Command::NudgeMotor(Nudge {
+                    channel: 0,
+                    command_permille: 50,
+                    duration_ms: 100,
+                })
+            ),
+            Err(CommandError::ConfigNotValid),
+            "{name}"
+        );
+        assert_eq!(
+            config(&mut s, HostMsg::GetConfig),
+            Err(ConfigRejected::NotStored(info.config.clone()))
+        );
+        let states = motor_states(&mut s, 20);
+        assert!(
+            states
+                .iter()
+                .all(|(m, enabled, _)| *m == [0; 3] && !enabled),
+            "{name}: motors stay off: {states:?}"
+        );
+        if i == 0 {
+            // A valid configuration written over it recovers the pen.
+            assert_eq!(
+                config(&mut s, HostMsg::SetConfig(calibrated())),
+                Ok(calibrated())
+            );
+            assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+            let mut skipped = vec![];
+            let again = s.handshake(ANSWER, &mut skipped).unwrap();
+            assert_eq!(again.config, ConfigState::Valid);
+        }
+        drop(dev);
+        let _ = std::fs::remove_file(path);
+    }
+}
+
+#[test]
+fn without_an_image_the_virtual_pen_needs_none() {
+    let Some(elf) = image() else { return };
+    let (dev, mut s, info, _) = boot(&elf, None);
+    assert_eq!(info.config, ConfigState::NotApplicable);
+    assert_eq!(
+        config(&mut s, HostMsg::GetConfig),
+        Err(ConfigRejected::NotStored(ConfigState::NotApplicable))
+    );
+    // Nothing to calibrate, and forces behave as they always have.
+    assert_eq!(
+        command(&mut s, Command::Calibrate),
+        Err(CommandError::Unsupported)
+    );
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    drop(dev);
+}

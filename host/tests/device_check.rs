@@ -1,0 +1,401 @@
+//! `maobi device check` against fake pens on TCP that speak the bring-up messages (protocol
+//! 2): a physical pen (its encoders moved by a scripted "hand" while the sensors stream, by
+//! its motors when nudged, with wiring that can be reversed or dead) and a virtual pen (its
+//! readings computed from the poses the wizard streams, as the QEMU board does). The whole
+//! wizard runs, non-interactively (`--yes`). Not run against a real pen.
+
+use std::io::{ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Outcome, Scripted};
+use maobi::device::Endpoint;
+use maobi_shared::kinematics::RawReadings;
+use maobi_shared::protocol::{
+    BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
+    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, HostMsg, Message, SensorReport, Version,
+};
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Vec3};
+
+/// What the fake pen is and what happened to it.
+#[derive(Clone, Debug)]
+struct Pen {
+    virtual_pen: bool,
+    config: Option<DeviceConfig>,
+    /// How each motor is really wired: +1, -1 (reversed), 0 (dead).
+    wiring: [i64; 3],
+    /// Sensor channels the scripted hand moves (encoders 0..3, gimbal 3..6).
+    hand_moves: [bool; 6],
+    encoders: [i64; 3],
+    gimbal: [u16; 3],
+    poses_received: usize,
+    nudges: usize,
+}
+
+impl Pen {
+    fn physical(config: Option<DeviceConfig>, wiring: [i64; 3]) -> Self {
+        Pen {
+            virtual_pen: false,
+            config,
+            wiring,
+            hand_moves: [true; 6],
+            encoders: [1000, -500, 20],
+            gimbal: [2048; 3],
+            poses_received: 0,
+            nudges: 0,
+        }
+    }
+    fn info(&self) -> DeviceInfo {
+        if self.virtual_pen {
+            return DeviceInfo::new(
+                "fake-virtual",
+                Version::default(),
+                Capabilities::VIRTUAL_PEN,
+                3.3,
+                0.88,
+            );
+        }
+        let state = match self.config {
+            Some(_) => ConfigState::Valid,
+            None => ConfigState::Missing,
+        };
+        DeviceInfo::new(
+            "fake-pen",
+            Version::default(),
+            Capabilities::REAL_SENSORS
+                | Capabilities::FORCE_OUTPUT
+                | Capabilities::NEEDS_CALIBRATION
+                | Capabilities::STORED_CONFIG
+                | Capabilities::BUTTONS,
+            3.3,
+            0.88,
+        )
+        .with_config(state)
+    }
+    /// The scripted hand, after report `k` of the stream: channel `k / 6` goes out (three
+    /// reports) and back (three); channel 1 goes the negative way.
+    fn hand(&mut self, k: usize) {
+        let ch = k / 6;
+        if ch >= 6 || !self.hand_moves[ch] {
+            return;
+        }
+        let out = k % 6 < 3;
+        let dir = if ch == 1 { -1 } else { 1 } * if out { 1 } else { -1 };
+        if ch < 3 {
+            self.encoders[ch] += 20 * dir;
+        } else {
+            self.gimbal[ch - 3] = (i64::from(self.gimbal[ch - 3]) + 10 * dir) as u16;
+        }
+    }
+    fn command(&mut self, c: &Command) -> Result<(), CommandError> {
+        match c {
+            Command::StreamSensors { .. } => Ok(()),
+            Command::NudgeMotor(n) => {
+                if !n.is_within_caps() {
+                    return Err(CommandError::OutOfRange);
+                }
+                let cfg = self.config.as_ref().ok_or(CommandError::ConfigNotValid)?;
+                let ch = usize::from(n.channel);
+                self.nudges += 1;
+                if !self.virtual_pen {
+                    let sign = i64::from(n.command_permille.signum())
+                        * i64::from(cfg.pen.motor_sign[ch])
+                        * self.wiring[ch];
+                    self.encoders[ch] += 30 * sign;
+                }
+                Ok(())
+            }
+            Command::Calibrate if self.virtual_pen => Err(CommandError::Unsupported),
+            Command::Calibrate => {
+                let raw = RawReadings {
+                    encoders: self.encoders,
+                    gimbal: self.gimbal.map(i32::from),
+                };
+                let cfg = self.config.as_mut().ok_or(CommandError::ConfigNotValid)?;
+                cfg.calibration = Some(raw);
+                Ok(())
+            }
+            _ => Err(CommandError::Unsupported),
+        }
+    }
+}
+
+fn send(s: &mut TcpStream, m: &DeviceMsg) {
+    let mut buf = vec![0u8; DeviceMsg::MAX_FRAME];
+    let n = m.encode(&mut buf).unwrap();
+    s.write_all(&buf[..n]).unwrap();
+}
+
+/// Serves one connection on a loopback port; returns the address and the pen's state.
+fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
+    let l = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = l.local_addr().unwrap().to_string();
+    let shared = Arc::new(Mutex::new(pen));
+    let pen = shared.clone();
+    std::thread::spawn(move || {
+        let (mut s, _) = l.accept().unwrap();
+        s.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+        let mut rx = DeviceRx::new();
+        let mut buf = [0u8; 1024];
+        let mut streaming = false;
+        let mut last_report = Instant::now();
+        let mut tick = 0u32;
+        let mut last_tick = 0u32;
+        let mut reports = 0usize;
+        let mut last_seq = 0u32;
+        let mut queued = std::collections::VecDeque::new();
+        let clock = Instant::now();
+        let mut ms = 0u32;
+        // A virtual pen's states say which pose it consumed last (the wizard paces its poses
+        // by them); the brush itself stays at rest at the start pose.
+        let start = Pose::new(Vec3::new(0.0, 0.0, 30.0), Quat::IDENTITY).cast::<Fx>();
+        let brush = Brush::<Fx>::new(presets::LARGE, start).unwrap();
+        loop {
+            let n = match s.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => n,
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => 0,
+                Err(_) => return,
+            };
+            let msgs: Vec<HostMsg> = rx.feed(&buf[..n]).filter_map(Result::ok).collect();
+            let mut p = pen.lock().unwrap();
+            for m in msgs {
+                let reply = match m {
+                    HostMsg::Hello(_) => DeviceMsg::Hello(p.info()),
+                    HostMsg::Ping { seq } => DeviceMsg::Pong { seq },
+                    HostMsg::Pose(sample) => {
+                        p.poses_received += 1;
+                        queued.push_back(sample);
+                        continue;
+                    }
+                    HostMsg::Command(c) => {
+                        if let Command::StreamSensors { rate_hz } = c {
+                            streaming = rate_hz > 0;
+                        }
+                        let result = p.command(&c);
+                        DeviceMsg::CommandDone { command: c, result }
+                    }
+                    HostMsg::GetConfig => DeviceMsg::Config(match &p.config {
+                        Some(c) => Ok(*c),
+                        None => Err(ConfigRejected::NotStored(ConfigState::Missing)),
+                    }),
+                    HostMsg::SetConfig(c) => DeviceMsg::Config(match c.validate() {
+                        Ok(()) => {
+                            p.config = Some(c);
+                            Ok(c)
+                        }
+                        Err(f) => Err(ConfigRejected::Invalid(f)),
+                    }),
+                    _ => continue,
+                };
+                send(&mut s, &reply);
+            }
+            // One pose per millisecond, as a 1 kHz pen consumes them.
+            let mut consumed = false;
+            while clock.elapsed() > Duration::from_millis(u64::from(ms)) {
+                ms += 1;
+                let Some(sample) = queued.pop_front() else {
+                    continue;
+                };
+                consumed = true;
+                last_seq = sample.seq;
+                // Synthetic readings, linear in the pose (the QEMU board uses the pen's
+                // inverse kinematics).
+                let pose = sample.pose().cast::<f64>();
+                let pos = pose.pos;
+                p.encoders = [pos.x, pos.y, pos.z].map(|v| (v * 10.0).round() as i64);
+                let q = pose.rot;
+                p.gimbal = [q.x, q.y, q.z].map(|v| (2048.0 + v * 2000.0) as u16);
+            }
+            if p.virtual_pen && (consumed || last_report.elapsed() >= Duration::from_millis(20)) {
+                let st = BrushState::from_brush(
+                    &brush,
+                    tick,
+                    last_seq,
+                    Default::default(),
+                    Default::default(),
+                );
+                send(&mut s, &DeviceMsg::State(st));
+            }
+            if last_report.elapsed() >= Duration::from_millis(20) {
+                last_report = Instant::now();
+                tick += 20;
+            }
+            if streaming && tick > last_tick {
+                last_tick = tick;
+                reports += 1;
+                let r = SensorReport {
+                    tick,
+                    encoders: p.encoders,
+                    gimbal: p.gimbal,
+                    buttons: if reports == 3 {
+                        Buttons::PRIMARY
+                    } else {
+                        Buttons::empty()
+                    },
+                    synthetic: p.virtual_pen,
+                };
+                send(&mut s, &DeviceMsg::Sensors(r));
+                if !p.virtual_pen {
+                    p.hand(reports - 1);
+                }
+            }
+        }
+    });
+    (addr, shared)
+}
+
+/// A step's detail, by its name (an uncalibrated pen is calibrated before the nudges).
+fn detail<'a>(r: &'a CheckReport, step: &str) -> &'a str {
+    &r.steps
+        .iter()
+        .find(|s| s.step == step)
+        .unwrap_or_else(|| panic!("no step {step}:\n{}", r.table()))
+        .detail
+}
+
+fn opts(addr: &str) -> CheckOptions {
+    let mut o = CheckOptions::new(Endpoint::Tcp(addr.to_string()));
+    // The scripted hand is done after 36 reports (0.72 s at 50 Hz); room for a slow machine.
+    o.sensor_time = Duration::from_secs(3);
+    o
+}
+
+fn run(pen: Pen) -> (CheckReport, Pen, Vec<String>) {
+    let (addr, state) = serve(pen);
+    let mut op = Scripted::default();
+    let r = run_check(&opts(&addr), &mut op);
+    println!("{}\n{}", op.transcript.join("\n"), r.table());
+    let p = state.lock().unwrap().clone();
+    (r, p, op.transcript)
+}
+
+#[test]
+fn a_reversed_motor_is_flipped_and_every_step_passes() {
+    let (r, pen, _) = run(Pen::physical(Some(DeviceConfig::DEFAULT), [1, 1, -1]));
+    assert!(r.passed(), "{}", r.table());
+    for s in [
+        "1 handshake",
+        "2 sensors",
+        "3 motor 0 (base (yaw))",
+        "3 motor 1 (shoulder)",
+        "3 motor 2 (elbow)",
+        "4 calibration",
+    ] {
+        assert_eq!(r.outcome(s), Some(Outcome::Pass), "{s}\n{}", r.table());
+    }
+    let sensors = &r.steps[1].detail;
+    assert!(sensors.contains("shoulder: PASS -60 counts"), "{sensors}");
+    assert!(sensors.contains("base (yaw): PASS +60 counts"), "{sensors}");
+    assert!(sensors.contains("gimbal 3: PASS +30 codes"), "{sensors}");
+    let elbow = detail(&r, "3 motor 2 (elbow)");
+    assert!(elbow.contains("was reversed (-30 counts)"), "{elbow}");
+    assert!(elbow.contains("again: +30 counts"), "{elbow}");
+    // The reference configuration is not calibrated: calibration ran before the nudges.
+    let order: Vec<&str> = r.steps.iter().map(|s| s.step.as_str()).collect();
+    assert_eq!(order[2], "4 calibration", "{order:?}");
+    let cfg = pen.config.unwrap();
+    assert_eq!(cfg.pen.motor_sign, [1, 1, -1]);
+    assert!(cfg.calibration.is_some());
+    // Four nudges: one per motor and the elbow's again.
+    assert_eq!(pen.nudges, 4);
+}
+
+#[test]
+fn a_missing_configuration_is_written_before_anything_moves() {
+    let (r, pen, said) = run(Pen::physical(None, [1, 1, 1]));
+    assert!(r.passed(), "{}", r.table());
+    assert!(
+        r.steps[0]
+            .detail
+            .contains("the reference configuration was written"),
+        "{}",
+        r.table()
+    );
+    assert!(said.iter().any(|l| l.contains("missing (never written)")));
+    let cfg = pen.config.unwrap();
+    assert!(cfg.calibration.is_some());
+}
+
+#[test]
+fn a_dead_motor_and_a_joint_that_never_moves_fail() {
+    let mut pen = Pen::physical(Some(DeviceConfig::DEFAULT), [1, 0, 1]);
+    pen.hand_moves[5] = false; // gimbal 3 stuck
+    let (r, _, _) = run(pen);
+    assert!(!r.passed(), "{}", r.table());
+    assert_eq!(r.outcome("2 sensors"), Some(Outcome::Fail));
+    assert!(r.steps[1].detail.contains("gimbal 3: FAIL +0 codes"));
+    assert_eq!(r.outcome("3 motor 1 (shoulder)"), Some(Outcome::Fail));
+    assert!(
+        detail(&r, "3 motor 1 (shoulder)").contains("did not move"),
+        "{}",
+        r.table()
+    );
+    assert_eq!(r.outcome("3 motor 0 (base (yaw))"), Some(Outcome::Pass));
+    assert_eq!(r.outcome("4 calibration"), Some(Outcome::Pass));
+}
+
+#[test]
+fn a_virtual_pen_is_moved_by_the_wizard_and_says_what_it_cannot_show() {
+    let mut pen = Pen::physical(None, [1, 1, 1]);
+    pen.virtual_pen = true;
+    // The readings of the pose the wizard starts from (no state from this fake: its
+    // default, 30 mm above the paper's origin, upright).
+    pen.encoders = [0, 0, 300];
+    // A virtual pen refuses nudges without a configuration in the real boards; this fake
+    // accepts them when it has one.
+    pen.config = Some(DeviceConfig::DEFAULT);
+    let (r, pen, said) = run(pen);
+    assert!(r.passed(), "{}", r.table());
+    assert_eq!(r.outcome("2 sensors"), Some(Outcome::Pass));
+    let sensors = &r.steps[1].detail;
+    // The fake samples the poses at 50 Hz, the wizard streams them at 200 Hz: the peak
+    // (150 counts, 261 codes) may fall between two samples.
+    for ch in [
+        "base (yaw)",
+        "shoulder",
+        "elbow",
+        "gimbal 1",
+        "gimbal 2",
+        "gimbal 3",
+    ] {
+        assert!(sensors.contains(&format!("{ch}: PASS +")), "{sensors}");
+    }
+    for ch in [
+        "3 motor 0 (base (yaw))",
+        "3 motor 1 (shoulder)",
+        "3 motor 2 (elbow)",
+    ] {
+        assert_eq!(r.outcome(ch), Some(Outcome::Skip), "{}", r.table());
+    }
+    assert_eq!(r.outcome("4 calibration"), Some(Outcome::Skip));
+    assert!(said.iter().any(|l| l.contains("virtual pen")));
+    // The whole motion, then the last pose held while the nudges ran.
+    let motion = maobi::device::bringup::virtual_motion(Pose::new(
+        Vec3::new(0.0, 0.0, 30.0),
+        Quat::IDENTITY,
+    ));
+    assert!(pen.poses_received > motion.len(), "{}", pen.poses_received);
+}
+
+#[test]
+fn the_command_line_exits_non_zero_when_a_step_fails() {
+    let ok = serve(Pen::physical(Some(DeviceConfig::DEFAULT), [1, 1, 1])).0;
+    let bad = serve(Pen::physical(Some(DeviceConfig::DEFAULT), [0, 1, 1])).0;
+    let run = |addr: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+            .args(["device", "check", "--yes", "--sensor-seconds", "3"])
+            .args(["--connect", addr])
+            .output()
+            .unwrap()
+    };
+    let out = run(&ok);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("4 calibration") && text.contains("All steps passed"));
+    let out = run(&bad);
+    assert!(!out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("FAIL"), "{text}");
+}

@@ -1,21 +1,29 @@
 //! Selects the linker memory layout of the board being built.
 //!
 //! cortex-m-rt's `link.x` does `INCLUDE memory.x`; the linker finds it in the link search
-//! path. Each board keeps its layout under `boards/<board>/memory.x`; this script copies the
-//! selected one to `OUT_DIR` and puts `OUT_DIR` first on the search path. The workspace root
-//! `memory.x` is the real STM32F411's (a later board) and is never used for QEMU.
+//! path. This script copies the selected board's layout to `OUT_DIR` and puts `OUT_DIR`
+//! first on the search path:
+//!
+//! * `board-qemu`: `boards/qemu-mps2-an386/memory.x` (the emulator's memory map);
+//! * `board-blackpill`: the workspace root `memory.x` (the STM32F411CE, minus the
+//!   configuration sector).
 
 use std::{env, fs, path::PathBuf};
 
 fn main() {
-    let board = if env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some() {
-        "qemu-mps2-an386"
-    } else {
-        panic!("select a board feature (board-qemu)");
+    let qemu = env::var_os("CARGO_FEATURE_BOARD_QEMU").is_some();
+    let blackpill = env::var_os("CARGO_FEATURE_BOARD_BLACKPILL").is_some();
+    let src = match (qemu, blackpill) {
+        (true, false) => PathBuf::from("boards/qemu-mps2-an386/memory.x"),
+        (false, true) => PathBuf::from("../memory.x"),
+        // main.rs says why with a compile_error!; the build script only must not hide it.
+        _ => {
+            println!("cargo:rerun-if-changed=build.rs");
+            return;
+        }
     };
-    let src = PathBuf::from("boards").join(board).join("memory.x");
-    let out = PathBuf::from(env::var_os("OUT_DIR").unwrap());
-    fs::copy(&src, out.join("memory.x")).expect("copy memory.x");
+    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    fs::copy(&src, out.join("memory.x")).unwrap_or_else(|e| panic!("copy {}: {e}", src.display()));
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", src.display());
     println!("cargo:rerun-if-changed=build.rs");

@@ -1,9 +1,18 @@
 //! What the application needs from a board, as small traits.
 //!
-//! The application ([`crate::app`]) is written against these traits only; a board module
-//! ([`crate::qemu`] today, an STM32F411 board later) implements them and owns every register
-//! address, interrupt number and linker-script detail. A second board plugs in by
-//! implementing the same traits and adding a `board-*` feature (see `build.rs`).
+//! The application ([`crate::app`], [`crate::link`]) is written against these traits only;
+//! a board module implements them and owns every register address, pin, interrupt number
+//! and linker-script detail:
+//!
+//! * `qemu` (feature `board-qemu`): QEMU's mps2-an386, a virtual pen fed by the host;
+//! * `blackpill` (feature `board-blackpill`): the STM32F411CE Black Pill driving the real
+//!   pen's motors from its encoders and gimbal sensors.
+//!
+//! What stays on the application's side of the line: the force loop and the order of its
+//! tick ([`crate::app::ForceLoop::tick`], run by [`crate::app::run_tick`] from the board's
+//! 1 kHz timer interrupt), the pose from raw sensor readings ([`crate::app::SensorPen`]:
+//! encoder unwrapping, filtering, calibration, kinematics), the supervisor, and the link
+//! protocol. What the board provides: its boot, its interrupts, and these traits.
 
 use maobi_shared::guide::GuideInput;
 use maobi_shared::pen_io::DeviceConfig;
@@ -28,16 +37,20 @@ pub trait Motors {
 }
 
 /// One raw reading of the pen's joints: encoder counts of the three motor joints and the
-/// three gimbal angles, as integers straight from the hardware.
-#[allow(dead_code)] // used by physical boards (the STM32F411, a later issue); QEMU's pen is virtual
+/// three gimbal angles, as integers straight from the hardware (the encoders' free-running
+/// 16-bit counters, the ADC's 12-bit codes).
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // QEMU's pen is virtual
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
 pub struct JointReading {
     pub encoders: [i32; 3],
     pub gimbal: [i32; 3],
+    /// The stylus buttons as read now (bit 0 primary, bit 1 secondary; set = pressed),
+    /// not debounced.
+    pub buttons: u8,
 }
 
 /// Joint sensors of a physical pen (read by the force loop once per tick).
-#[allow(dead_code)] // as JointReading
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // as JointReading
 pub trait JointSensors {
     fn read(&mut self) -> JointReading;
 }
@@ -62,6 +75,11 @@ pub trait PoseSource {
     }
     /// Maps a force on the handle (newtons, world frame) to the three motor torques (N·m).
     fn torques_for(&self, force_n: [Fx; 3]) -> [Fx; 3];
+    /// Whether a new configuration moves the poses `next_pose` reports (a pen with its own
+    /// sensors: new geometry or calibration zeros). The force loop then puts the brush at
+    /// rest at the next pose instead of reading the step as a sensor jump. The virtual
+    /// pen's poses come from the host, whatever the configuration.
+    const POSES_FOLLOW_CONFIG: bool = false;
     /// A new stored configuration is in force (geometry, calibration): a physical pen
     /// rebuilds its kinematics from it. Called by the force loop between ticks.
     fn configure(&mut self, cfg: &DeviceConfig);
@@ -78,7 +96,7 @@ pub enum StoreError {
     /// The image does not fit the store.
     TooLarge,
     /// Erasing or programming failed (flash; the QEMU board's RAM cannot fail to write).
-    #[allow(dead_code)] // constructed by flash-backed boards
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // constructed by flash-backed boards
     Write,
     /// What reads back differs from what was written.
     Verify,
@@ -127,5 +145,6 @@ pub trait CycleCounter {
     fn now(&self) -> u32;
     /// What one count is: on QEMU `"timer25mhz"` (40 / 2^shift instructions under
     /// `-icount shift=N`, converted by the host), on hardware `"cycles"` (DWT).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // read by QEMU's bench
     const UNIT: &'static str;
 }

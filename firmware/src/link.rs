@@ -1,4 +1,7 @@
-//! The link task: the wire protocol (`maobi_shared::protocol`) over the board's UART.
+//! The link task: the wire protocol (`maobi_shared::protocol`) over the board's byte link
+//! (QEMU's UART, the Black Pill's USB CDC-ACM), the same on every board: a board calls
+//! [`run`] from its own task with its [`LinkTransport`], its [`ConfigStore`] and its
+//! [`BoardInfo`].
 //!
 //! * On start it writes one `0x00` so the host's decoder drops any partial frame.
 //! * `Hello` is answered with the device's [`DeviceInfo`] and arms the link supervision
@@ -8,7 +11,8 @@
 //!   does.
 //! * `Pose` samples go into the virtual pen's queue (the force loop takes one per tick and
 //!   never waits for the link). When the queue is full the task stops reading until it has
-//!   room, so the host's window, not a dropped sample, absorbs the difference.
+//!   room, so the host's window, not a dropped sample, absorbs the difference. A pen with
+//!   its own sensors has no queue: poses (and guide samples) from the host are ignored.
 //! * `State` frames: the force loop copies the brush into the snapshot slot when one is due
 //!   ([`app::STATE_HZ`] per 1000 ticks, 120 by default); this task builds
 //!   [`BrushState::from_brush`] from it and encodes it here, in thread mode. A state that
@@ -38,7 +42,6 @@ use core::sync::atomic::Ordering;
 use core::task::Poll;
 
 use embassy_time::{Duration, Timer};
-use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
@@ -52,10 +55,27 @@ use maobi_shared::{BrushParams, Fx, Vec3};
 
 use crate::app::{self, Command, CONFIG_OK, FAULTS, FORCES_ENABLED, SENSORS, SNAPSHOT, TICKS};
 use crate::board::{ConfigStore, LinkTransport};
-use crate::qemu::Parts;
 
-/// The board's name in the handshake.
-pub const BOARD: &str = "qemu-mps2-an386";
+/// What the link says about the board in the handshake.
+pub struct BoardInfo {
+    /// The board's name.
+    pub name: &'static str,
+    pub capabilities: Capabilities,
+    /// Force limits (N).
+    pub force_peak_n: f32,
+    pub force_continuous_n: f32,
+}
+
+/// What the link task drives.
+pub struct LinkParts<T, S> {
+    pub transport: T,
+    /// The virtual pen's pose queue (`None` on a board with its own sensors: pose samples
+    /// from the host are then ignored).
+    pub poses: Option<app::PoseProducer>,
+    pub cmds: app::CmdProducer,
+    /// Where the configuration is kept (loaded when the task starts).
+    pub store: S,
+}
 
 /// Link settings from the boot command line.
 #[derive(Copy, Clone, Debug)]
@@ -72,11 +92,12 @@ struct TxBuf(core::cell::UnsafeCell<[u8; DeviceMsg::MAX_FRAME]>);
 unsafe impl Sync for TxBuf {}
 static TX_BUF: TxBuf = TxBuf(core::cell::UnsafeCell::new([0; DeviceMsg::MAX_FRAME]));
 
-struct Link {
-    parts: Parts,
+struct Link<T, S> {
+    parts: LinkParts<T, S>,
+    board: &'static BoardInfo,
     cfg: LinkConfig,
     rx: DeviceRx,
-    /// Bytes read from the UART but not yet fed to the decoder (a pose is waiting for room).
+    /// Bytes read from the transport but not yet fed to the decoder (a pose is waiting for room).
     inbuf: [u8; 64],
     in_start: usize,
     in_end: usize,
@@ -104,10 +125,17 @@ struct Link {
     next_sensors: u32,
 }
 
-#[embassy_executor::task]
-pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
+/// The link task's body (each board wraps it in its own `#[embassy_executor::task]`, since
+/// a task cannot be generic over the transport).
+pub async fn run<T: LinkTransport, S: ConfigStore>(
+    parts: LinkParts<T, S>,
+    board: &'static BoardInfo,
+    params: BrushParams,
+    cfg: LinkConfig,
+) -> ! {
     let mut link = Link {
         parts,
+        board,
         cfg,
         rx: DeviceRx::new(),
         inbuf: [0; 64],
@@ -130,7 +158,9 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
         next_sensors: 0,
     };
     link.load_config().await;
-    link.parts.uart.write(&[maobi_shared::protocol::DELIMITER]);
+    link.parts
+        .transport
+        .write(&[maobi_shared::protocol::DELIMITER]);
     loop {
         link.receive().await;
         link.send_state();
@@ -141,13 +171,13 @@ pub async fn link_task(parts: Parts, params: BrushParams, cfg: LinkConfig) {
     }
 }
 
-impl Link {
+impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     /// Waits for received bytes, a filled snapshot or half a tick, whichever comes first.
     async fn wait(&mut self) {
         let period = Duration::from_micros(u64::from(self.cfg.tick_us / 2).max(100));
         let mut timer = pin!(Timer::after(period));
         let blocked = self.pending_pose.is_some() || self.in_start < self.in_end;
-        let mut readable = pin!(self.parts.uart.readable());
+        let mut readable = pin!(self.parts.transport.readable());
         poll_fn(|cx| {
             app::SNAPSHOT_WAKER.register(cx.waker());
             if SNAPSHOT.is_full() || SENSORS.is_full() {
@@ -161,18 +191,18 @@ impl Link {
         .await
     }
 
-    /// Reads and handles what the host sent, until the UART is empty or the pose queue full.
+    /// Reads and handles what the host sent, until the transport is empty or the pose queue full.
     async fn receive(&mut self) {
         loop {
-            if let Some(p) = self.pending_pose {
-                if self.parts.poses.enqueue(p).is_err() {
+            if let (Some(p), Some(poses)) = (self.pending_pose, self.parts.poses.as_mut()) {
+                if poses.enqueue(p).is_err() {
                     return;
                 }
                 self.pending_pose = None;
             }
             if self.in_start == self.in_end {
                 self.in_start = 0;
-                self.in_end = self.parts.uart.read(&mut self.inbuf);
+                self.in_end = self.parts.transport.read(&mut self.inbuf);
                 if self.in_end == 0 {
                     return;
                 }
@@ -220,15 +250,11 @@ impl Link {
         match m {
             HostMsg::Hello(_) => {
                 let info = DeviceInfo::new(
-                    BOARD,
+                    self.board.name,
                     firmware_version(),
-                    // Forces are computed and reported in state frames; the QEMU board drives
-                    // no motor.
-                    Capabilities::VIRTUAL_PEN
-                        | Capabilities::FORCE_OUTPUT
-                        | Capabilities::STORED_CONFIG,
-                    PHANTOM_OMNI.peak_n,
-                    PHANTOM_OMNI.continuous_n,
+                    self.board.capabilities,
+                    self.board.force_peak_n,
+                    self.board.force_continuous_n,
                 )
                 .with_config(self.config_state.clone());
                 self.send(&DeviceMsg::Hello(info)).await;
@@ -259,8 +285,11 @@ impl Link {
                     pose: s.pose(),
                     guide,
                 };
-                if self.parts.poses.enqueue(p).is_err() {
-                    self.pending_pose = Some(p);
+                // A pen with its own sensors has no use for the host's poses: ignored.
+                if let Some(poses) = self.parts.poses.as_mut() {
+                    if poses.enqueue(p).is_err() {
+                        self.pending_pose = Some(p);
+                    }
                 }
             }
             HostMsg::Guide(g) => self.guide = Some(g),
@@ -347,7 +376,7 @@ impl Link {
 
     /// Reads the store and puts what it holds in force (at start).
     async fn load_config(&mut self) {
-        if !self.parts.config.needs_config() {
+        if !self.parts.store.needs_config() {
             self.config_state = ConfigState::NotApplicable;
             self.config = None;
         } else {
@@ -364,13 +393,14 @@ impl Link {
             self.command(Command::Configure).await;
         }
         CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
     }
 
     /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
     /// not in the task's future for its lifetime.
     fn read_store(&mut self) -> Result<DeviceConfig, pen_io::ConfigError> {
         let mut buf = [0u8; CONFIG_IMAGE_MAX];
-        let n = self.parts.config.load(&mut buf);
+        let n = self.parts.store.load(&mut buf);
         pen_io::decode(buf.get(..n).unwrap_or(&[]))
     }
 
@@ -384,7 +414,7 @@ impl Link {
             pen_io::ConfigError::Invalid(field) => ConfigRejected::Invalid(field),
             _ => ConfigRejected::StoreFailed,
         })?;
-        Ok(self.parts.config.store(buf.get(..n).unwrap_or(&[])))
+        Ok(self.parts.store.store(buf.get(..n).unwrap_or(&[])))
     }
 
     /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
@@ -420,6 +450,7 @@ impl Link {
             self.command(Command::Configure).await;
         }
         CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
         if ok {
             Ok(())
         } else {
@@ -430,7 +461,7 @@ impl Link {
 
     /// `Calibrate`: the pen rests in its inkwell; its raw readings become the stored zeros.
     async fn calibrate(&mut self) -> Result<(), CommandError> {
-        if !self.parts.config.needs_config() {
+        if !self.parts.store.needs_config() {
             // A virtual pen without a stored configuration has nothing to calibrate.
             return Err(CommandError::Unsupported);
         }
@@ -593,10 +624,10 @@ impl Link {
         }
         self.next_telemetry = now.wrapping_add(self.cfg.telemetry_ticks);
         let (min, mean, max, load) = app::timing::take();
-        let overflows = self.parts.uart.rx_overflows();
+        let overflows = self.parts.transport.rx_overflows();
         if overflows != 0 {
             // Bytes lost to a full receive ring show up as framing / CRC errors too.
-            defmt::warn!("uart rx ring overflowed: {} bytes dropped", overflows);
+            defmt::warn!("link rx ring overflowed: {} bytes dropped", overflows);
         }
         let t = Telemetry {
             tick: now,
@@ -634,10 +665,10 @@ impl Link {
             // Cannot happen for messages within the bound; drop rather than stall.
             return true;
         };
-        if self.parts.uart.tx_space() < n {
+        if self.parts.transport.tx_space() < n {
             return false;
         }
-        self.parts.uart.write(&buf[..n]);
+        self.parts.transport.write(&buf[..n]);
         true
     }
 }

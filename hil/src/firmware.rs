@@ -8,6 +8,56 @@ use anyhow::{bail, Context, Result};
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const BIN: &str = "maobi-fw";
 
+/// The boards the firmware builds for (`firmware/Cargo.toml`'s `board-*` features).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Board {
+    /// QEMU's mps2-an386: `maobi-fw`, profile `release`, default features.
+    Qemu,
+    /// The STM32F411CE Black Pill: `maobi-pen`, profile `pen` (built for size), feature
+    /// `board-blackpill`.
+    Blackpill,
+}
+
+impl Board {
+    /// The image's name.
+    pub fn bin(self) -> &'static str {
+        match self {
+            Board::Qemu => BIN,
+            Board::Blackpill => "maobi-pen",
+        }
+    }
+    /// The cargo profile, which is also its directory under `target/<triple>/`.
+    pub fn profile(self) -> &'static str {
+        match self {
+            Board::Qemu => "release",
+            Board::Blackpill => "pen",
+        }
+    }
+    /// `cargo build` arguments in `firmware/`.
+    pub fn build_args(self) -> &'static [&'static str] {
+        match self {
+            Board::Qemu => &["build", "--release"],
+            Board::Blackpill => &[
+                "build",
+                "--profile",
+                "pen",
+                "--no-default-features",
+                "--features",
+                "board-blackpill",
+            ],
+        }
+    }
+    /// Where its RAM starts (both: the Cortex-M SRAM region).
+    pub fn ram_start(self) -> u64 {
+        0x2000_0000
+    }
+    /// The stack set aside beyond the static RAM when the image is held to the 32 KiB RAM
+    /// budget. cortex-m-rt gives the stack all the RAM left (about 97 KiB on the STM32F411),
+    /// so nothing overflows at this size; the figure is a budget, not a measurement of the
+    /// deepest path (not measured on the board yet).
+    pub const STACK_RESERVE: u64 = 8 * 1024;
+}
+
 /// `firmware/` beside this crate.
 pub fn firmware_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -17,21 +67,31 @@ pub fn firmware_dir() -> PathBuf {
 
 /// Where `cargo build --release` in `firmware/` puts the image.
 pub fn default_elf() -> PathBuf {
+    board_elf(Board::Qemu)
+}
+
+/// Where the board's build puts its image.
+pub fn board_elf(board: Board) -> PathBuf {
     firmware_dir()
         .join("target")
         .join(TARGET)
-        .join("release")
-        .join(BIN)
+        .join(board.profile())
+        .join(board.bin())
 }
 
 /// Builds the release image (the firmware is its own workspace with its own target dir).
 pub fn build() -> Result<PathBuf> {
+    build_board(Board::Qemu)
+}
+
+/// Builds `board`'s image.
+pub fn build_board(board: Board) -> Result<PathBuf> {
     let dir = firmware_dir();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let status = Command::new(cargo)
         .current_dir(&dir)
         // Not `--locked`: a dependency added to maobi-shared must not break the HIL build.
-        .args(["build", "--release"])
+        .args(board.build_args())
         // The firmware's own target dir, whatever the calling cargo uses.
         .env("CARGO_TARGET_DIR", dir.join("target"))
         .env_remove("RUSTFLAGS")
@@ -42,15 +102,20 @@ pub fn build() -> Result<PathBuf> {
     if !status.success() {
         bail!("building the firmware failed ({status})");
     }
-    Ok(default_elf())
+    Ok(board_elf(board))
 }
 
 /// The image: `elf` if given, else a fresh build unless `no_build`.
 pub fn image(elf: Option<&Path>, no_build: bool) -> Result<PathBuf> {
+    board_image(Board::Qemu, elf, no_build)
+}
+
+/// `board`'s image: `elf` if given, else a fresh build unless `no_build`.
+pub fn board_image(board: Board, elf: Option<&Path>, no_build: bool) -> Result<PathBuf> {
     match elf {
         Some(p) => Ok(p.to_path_buf()),
-        None if no_build => Ok(default_elf()),
-        None => build(),
+        None if no_build => Ok(board_elf(board)),
+        None => build_board(board),
     }
 }
 

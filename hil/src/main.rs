@@ -2,8 +2,8 @@
 //! pose file streamed over the wire protocol to the firmware in QEMU (`--backend qemu`) or to
 //! a device on a serial port (`--backend serial --port PATH`; built and tested over a
 //! pseudo-terminal, not yet run against a real pen), or a board flashed and run with the
-//! probe-rs tool (`--backend probe-rs --elf IMAGE`; tested against a fake probe-rs, not yet
-//! run on a board), every state checked bit for bit.
+//! probe-rs tool (`--backend probe-rs`: the Black Pill's `maobi-pen` image, built here unless
+//! `--elf IMAGE` names one; tested against a fake probe-rs, not yet run on a board), every state checked bit for bit.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -43,7 +43,12 @@ enum Cmd {
         shift: u32,
     },
     /// Flash and static RAM of the firmware image against the budget.
-    Size,
+    Size {
+        /// Which board's image (`blackpill`: built with `--profile pen`; its line adds the
+        /// stack reserve to the RAM).
+        #[arg(long, value_enum, default_value_t = firmware::Board::Qemu)]
+        board: firmware::Board,
+    },
     /// Boots the firmware and runs the bench stroke through the real force loop.
     Selftest {
         #[arg(long, default_value_t = 600)]
@@ -53,8 +58,8 @@ enum Cmd {
     /// frame against the host simulation, bit for bit.
     Run {
         /// `qemu`: the firmware in QEMU, UART0 on a loopback socket; `serial`: a device on
-        /// a serial port (`--port`); `probe-rs`: `--elf` flashed onto the board through a
-        /// debug probe with the probe-rs tool, the checks over the pen's USB serial port,
+        /// a serial port (`--port`); `probe-rs`: the Black Pill's image (built unless `--elf`
+        /// names one) flashed onto the board through a debug probe with the probe-rs tool, the checks over the pen's USB serial port,
         /// the defmt log checked (boot line, no panic or fault).
         #[arg(long, value_enum, default_value_t = Backend::Qemu)]
         backend: Backend,
@@ -125,24 +130,41 @@ fn main() -> Result<()> {
         ..
     } = &cli.cmd
     {
-        // Not the default image: that one is built for the QEMU board.
-        let Some(elf) = &cli.elf else {
-            anyhow::bail!(
-                "backend probe-rs needs --elf PATH: the image built for the pen's board \
-                 (see firmware/README.md)"
-            );
-        };
+        // Not the default image (that one is built for the QEMU board): the Black Pill's,
+        // built here unless --elf names one (or --no-build uses the last build).
+        let elf =
+            firmware::board_image(firmware::Board::Blackpill, cli.elf.as_deref(), cli.no_build)?;
         let mut opts = hil::probe_rs::ProbeRsOptions::new(probe_rs.clone());
         opts.chip = chip.clone();
         opts.probe = probe.clone();
         opts.port = port.clone();
         opts.port_timeout = Duration::from_secs(*port_timeout);
         opts.boot_line = boot_line.clone();
-        let r = hil::probe_rs::run_probe_rs(elf, poses, &opts)?;
+        let r = hil::probe_rs::run_probe_rs(&elf, poses, &opts)?;
         println!("{}", r.render());
         if !r.passed() {
             anyhow::bail!("some checks failed");
         }
+        return Ok(());
+    }
+    if let Cmd::Size {
+        board: board @ firmware::Board::Blackpill,
+    } = cli.cmd
+    {
+        let elf = firmware::board_image(board, cli.elf.as_deref(), cli.no_build)?;
+        let s = firmware::size(&elf, board.ram_start())?;
+        let ram = s.static_ram + firmware::Board::STACK_RESERVE;
+        println!("image: {}", elf.display());
+        println!(
+            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB) ram_with_stack={} bytes ({:.1} KiB, budget 32 KiB, stack reserve {} bytes)",
+            s.flash,
+            s.flash as f64 / 1024.0,
+            s.static_ram,
+            s.static_ram as f64 / 1024.0,
+            ram,
+            ram as f64 / 1024.0,
+            firmware::Board::STACK_RESERVE,
+        );
         return Ok(());
     }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
@@ -160,7 +182,7 @@ fn main() -> Result<()> {
             let r = bench::run(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));
         }
-        Cmd::Size => {
+        Cmd::Size { .. } => {
             let s = firmware::size(&elf, 0x2000_0000)?;
             println!("image: {}", elf.display());
             println!(

@@ -25,8 +25,8 @@ use crate::run::{run_session, Check, RunReport};
 
 /// The pen's microcontroller as probe-rs names it (the STM32F411CE "Black Pill").
 pub const DEFAULT_CHIP: &str = "STM32F411CEUx";
-/// What the pen's firmware logs once it has started (`maobi-pen up, config ...`, the Black
-/// Pill board's boot record; the QEMU image says `maobi-pen up`).
+/// What the pen's firmware logs once it has started: the Black Pill board's boot record
+/// (the QEMU image's is `maobi-fw up`).
 pub const BOOT_LINE: &str = "maobi-pen up";
 /// How long the log may lag the link at the end of a run (probe-rs's idle RTT poll is 100 ms).
 pub const LOG_SETTLE: Duration = Duration::from_millis(300);

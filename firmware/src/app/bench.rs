@@ -115,7 +115,9 @@ impl Stats {
 fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
     fl: &mut ForceLoop<ScriptPen, M, W>,
 ) {
-    fl.brush.reset(stroke_pose(0));
+    // Through `maobi_fast`, as the force loop does: one copy of the brush's code in the
+    // image, and the bench measures that copy.
+    maobi_fast::brush_reset(&mut fl.brush, stroke_pose(0));
     fl.forces.reset();
     fl.last_pose = None;
     super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
@@ -253,9 +255,9 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     fl.forces.reset();
 
     // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
-    fl.brush.reset(stroke_pose(0));
+    maobi_fast::brush_reset(&mut fl.brush, stroke_pose(0));
     for k in 1..=300 {
-        fl.brush.tick(stroke_pose(k));
+        maobi_fast::brush_tick(&mut fl.brush, stroke_pose(k));
     }
     let mut sub = Stats::default();
     let mut end = Stats::default();

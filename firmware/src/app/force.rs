@@ -56,7 +56,7 @@ impl HandForces {
             None => Vec3::ZERO,
         };
         self.last_hand = Some(hand);
-        let model = self.model.tick(brush, hand).total;
+        let model = maobi_fast::force_model_tick(&mut self.model, brush, hand).total;
         let source_j = if faulted {
             self.guide.cut();
             self.wanted = model;
@@ -78,7 +78,7 @@ impl HandForces {
         } else {
             self.out.fault();
         }
-        let c = self.out.apply_with_source(self.wanted, step, source_j);
+        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step, source_j);
         if allowed {
             [c.x, c.y, c.z]
         } else {
@@ -95,6 +95,7 @@ impl HandForces {
     }
 
     /// The guide is leading (or fading out).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // read by QEMU's bench
     pub fn guiding(&self) -> bool {
         self.guide.active()
     }

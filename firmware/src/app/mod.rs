@@ -17,9 +17,15 @@
 //! switches the host's force enable off. Only an explicit [`Command::ClearFaults`] clears
 //! them; the host then enables the forces again.
 
+#[cfg(feature = "board-qemu")]
 pub mod bench;
 pub mod force;
 pub mod mailbox;
+// The pose of a pen with its own sensors: compiled (and checked) for every board, used by
+// the physical ones.
+#[cfg_attr(feature = "board-qemu", allow(dead_code, unused_imports))]
+pub mod sensor_pen;
+pub mod slot;
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -29,8 +35,11 @@ use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
-use crate::board::{Motors, PoseSource, Watchdog};
+use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 pub use mailbox::Mailbox;
+#[cfg_attr(feature = "board-qemu", allow(unused_imports))]
+pub use sensor_pen::SensorPen;
+pub use slot::ForceLoopSlot;
 
 /// Latched fault bits (the same bits as the wire protocol's `Faults`).
 pub mod fault {
@@ -44,7 +53,7 @@ pub mod fault {
     pub const PARAM_REJECTED: u32 = 1 << 3;
     /// The force loop stopped (caught by the watchdog or the supervisor task).
     pub const LOOP_STALLED: u32 = 1 << 4;
-    /// Number of fault bits.
+    /// Number of latched fault bits.
     pub const COUNT: usize = 5;
 }
 
@@ -74,6 +83,39 @@ pub static CMDS_APPLIED: AtomicU32 = AtomicU32::new(0);
 pub static STATES_MISSED: AtomicU32 = AtomicU32::new(0);
 /// State frames are due at this rate of force-loop ticks (1000: every tick).
 pub static STATE_HZ: AtomicU32 = AtomicU32::new(120);
+/// A valid configuration is in force, calibrated or not (set by the link task with
+/// [`CONFIG_OK`]; the Black Pill's fault LED tells "no configuration" from "not calibrated"
+/// by it).
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // read by the Black Pill's LED
+pub static CONFIG_VALID: AtomicBool = AtomicBool::new(false);
+
+/// The board is stalling the force loop on purpose, with the motors off (writing its
+/// configuration to flash, which the core cannot read meanwhile): the supervisor and the
+/// overrun check do not count the pause, and the motors stay off until it ends.
+pub static MAINTENANCE: AtomicBool = AtomicBool::new(false);
+
+/// A deliberate pause of the force loop ([`MAINTENANCE`]) for as long as the value lives.
+#[cfg_attr(feature = "board-qemu", allow(dead_code))] // boards with a flash store
+pub struct Maintenance(());
+
+#[cfg_attr(feature = "board-qemu", allow(dead_code))]
+impl Maintenance {
+    /// Turns the motors off (`motors_off`, the board's any-context switch) and marks the
+    /// pause until the returned value is dropped.
+    pub fn begin(motors_off: fn()) -> Self {
+        MAINTENANCE.store(true, Ordering::SeqCst);
+        motors_off();
+        Maintenance(())
+    }
+}
+
+impl Drop for Maintenance {
+    fn drop(&mut self) {
+        // The ticks that fell due meanwhile ran late once; the supervisor starts afresh.
+        MAINTENANCE.store(false, Ordering::SeqCst);
+    }
+}
+
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
 /// The stored configuration lets the motors be driven (set by the link task: a valid,
@@ -162,6 +204,7 @@ pub enum Command {
     /// Test hook: burn more than one tick's time in the next tick.
     InjectOverrun,
     /// Test hook: the force loop never returns from its next tick (for the watchdog).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's crash test
     Stall,
     /// Set a brush parameter (validated by the link task; a rejection here latches
     /// PARAM_REJECTED).
@@ -187,6 +230,7 @@ pub enum Command {
 
 /// A pose sample as the link task queues it for the virtual pen, with the guide sample the
 /// host sent for the same tick (guided writing), if any.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
 #[derive(Copy, Clone, Debug)]
 pub struct PoseIn {
     pub seq: u32,
@@ -195,12 +239,24 @@ pub struct PoseIn {
 }
 
 /// Capacity of the virtual pen's pose queue and of the command queue.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
 pub const POSE_QUEUE: usize = 64;
 pub const CMD_QUEUE: usize = 8;
 
 pub type CmdQueue = heapless::spsc::Queue<Command, CMD_QUEUE>;
 pub type CmdConsumer = heapless::spsc::Consumer<'static, Command>;
 pub type CmdProducer = heapless::spsc::Producer<'static, Command>;
+
+/// The poses (and guide samples) the host sent for a virtual pen.
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
+pub type PoseQueue = heapless::spsc::Queue<PoseIn, POSE_QUEUE>;
+pub type PoseProducer = heapless::spsc::Producer<'static, PoseIn>;
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
+pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
+
+/// Cycles [`Command::InjectOverrun`] burns in one tick unless the board says otherwise:
+/// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
+pub const OVERRUN_BURN_CYCLES: u32 = 8_000_000;
 
 /// The state the link task reports, copied out of the force loop when a state frame is due
 /// (or when the link task asks).
@@ -262,6 +318,7 @@ pub struct ForceLoop<P, M, W> {
     /// The next pose places the brush at rest rather than dragging it there.
     reanchor: bool,
     inject_overrun: bool,
+    overrun_burn_cycles: u32,
     forces: force::HandForces,
     force: [Fx; 3],
     enabled: bool,
@@ -291,6 +348,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             last_pose: None,
             reanchor: false,
             inject_overrun: false,
+            overrun_burn_cycles: OVERRUN_BURN_CYCLES,
             forces: force::HandForces::new()?,
             force: [Fx::ZERO; 3],
             enabled: false,
@@ -299,7 +357,24 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         })
     }
 
-    /// One 1 ms tick: commands, sensors, brush, forces, motors, snapshot.
+    /// The cycles [`Command::InjectOverrun`] burns: enough to overrun one tick, short of
+    /// the board's hardware watchdog (which would reset the chip instead).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
+    pub fn with_overrun_burn(mut self, cycles: u32) -> Self {
+        self.overrun_burn_cycles = cycles;
+        self
+    }
+
+    /// The next pose places the brush at rest there (a board whose sensors start the pen
+    /// somewhere unknown asks for this at boot).
+    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
+    pub fn reanchor(&mut self) {
+        self.reanchor = true;
+    }
+
+    /// One 1 ms tick, in this order on every board: feed the watchdog, apply the link's
+    /// commands, **read the sensors** (`PoseSource::next_pose`), step the brush, compute the
+    /// force, **write the motors** (`Motors::command` or `disable`), offer the snapshot.
     pub fn tick(&mut self) {
         self.watchdog.feed();
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
@@ -311,15 +386,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         }
         if self.inject_overrun {
             self.inject_overrun = false;
-            // Several million instructions: more than a millisecond at any -icount shift
-            // the runner uses, and on any real clock.
-            cortex_m::asm::delay(8_000_000);
+            cortex_m::asm::delay(self.overrun_burn_cycles);
         }
 
         let fresh = match self.pen.next_pose() {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
-                self.brush.reset(pose);
+                maobi_fast::brush_reset(&mut self.brush, pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.last_pose = Some(pose);
@@ -331,7 +404,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                         latch(fault::SENSOR_JUMP);
                     }
                 }
-                self.brush.tick(pose);
+                maobi_fast::brush_tick(&mut self.brush, pose);
                 self.brush_tick = self.brush_tick.wrapping_add(1);
                 self.last_pose = Some(pose);
                 true
@@ -358,7 +431,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.nudge = None;
             }
         }
-        let allowed = FORCES_ENABLED.load(Ordering::SeqCst);
+        // A deliberate pause (a flash write) keeps the motors off as well.
+        let allowed = FORCES_ENABLED.load(Ordering::SeqCst) && !MAINTENANCE.load(Ordering::SeqCst);
         let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
         // The guide sample that came with this tick's pose (none on a gap tick).
         let guide = self.pen.take_guide();
@@ -383,8 +457,12 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     /// Motors on only while the host has enabled them and no fault is latched, or for a
-    /// bring-up nudge (forces off) until it runs out.
+    /// bring-up nudge (forces off) until it runs out; a deliberate pause
+    /// ([`MAINTENANCE`]) ends a nudge too.
     fn apply_outputs(&mut self, allowed: bool, cmd: [Fx; 3]) {
+        if MAINTENANCE.load(Ordering::SeqCst) {
+            self.nudge = None;
+        }
         if allowed {
             self.nudge = None;
             let t = self.pen.torques_for(cmd);
@@ -408,7 +486,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         match cmd {
             Command::ResetBrush => {
                 let pose = self.last_pose.unwrap_or(self.brush.handle());
-                self.brush.reset(pose);
+                maobi_fast::brush_reset(&mut self.brush, pose);
                 self.forces.reset();
                 self.brush_tick = 0;
                 self.reanchor = true;
@@ -438,7 +516,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                     latch(fault::PARAM_REJECTED);
                 } else {
                     let pose = self.brush.handle();
-                    self.brush.reset(pose);
+                    maobi_fast::brush_reset(&mut self.brush, pose);
                     self.forces.reset();
                 }
             }
@@ -448,6 +526,12 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.motors.disable();
                 self.pen.configure(&cfg);
                 self.motors.configure(&cfg);
+                if P::POSES_FOLLOW_CONFIG {
+                    // New geometry or zeros move the pose at once: not a sensor jump, and
+                    // the brush starts at rest where the pen now says it is.
+                    self.reanchor = true;
+                    self.last_pose = None;
+                }
             }
             Command::Nudge {
                 channel,
@@ -475,8 +559,71 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         s.force = self.force;
         s.motors = self.motors.applied();
         match &mut s.brush {
+            // A copy, not hot enough to be built for speed (state frames are due at 120 Hz).
             Some(b) => b.clone_from(&self.brush),
             None => s.brush = Some(self.brush.clone()),
         }
+    }
+}
+
+/// The board's force-tick interrupt, the same on every board: runs one [`ForceLoop::tick`],
+/// records its period and busy time with the board's counter (`counts_per_us` counts per
+/// microsecond), and if `overran()` says the next tick fell due meanwhile, counts the
+/// overrun, latches [`fault::LOOP_OVERRUN`] and turns the motors off.
+pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
+    fl: &mut ForceLoop<P, M, W>,
+    clock: &C,
+    counts_per_us: u32,
+    overran: impl FnOnce() -> bool,
+) {
+    static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
+    let start = clock.now();
+    fl.tick();
+    let end = clock.now();
+    let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
+    if last != 0 {
+        timing::record(
+            start.wrapping_sub(last) / counts_per_us,
+            end.wrapping_sub(start) / counts_per_us,
+        );
+    }
+    // A pause the board made on purpose (motors off) is not an overrun.
+    if overran() && !MAINTENANCE.load(Ordering::SeqCst) {
+        OVERRUNS.fetch_add(1, Ordering::Relaxed);
+        latch(fault::LOOP_OVERRUN);
+        fl.motors_off();
+    }
+}
+
+/// Force-loop ticks that overran (each also latched [`fault::LOOP_OVERRUN`]).
+pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
+
+/// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
+/// or it never returns while the watchdog is somehow not firing), `motors_off` runs and the
+/// fault latches. Spawned by every board with its own `motors_off`.
+///
+/// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
+/// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
+#[embassy_executor::task]
+pub async fn supervisor(tick_us: u32, motors_off: fn()) {
+    let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
+    let mut last = TICKS.load(Ordering::Relaxed);
+    let mut ticker = embassy_time::Ticker::every(period);
+    let mut last_look = embassy_time::Instant::now();
+    loop {
+        ticker.next().await;
+        // After the executor was held up (a flash write), the ticker fires its missed
+        // periods back to back: judge once per real period, not on each catch-up.
+        let t = embassy_time::Instant::now();
+        if t - last_look < period / 2 {
+            continue;
+        }
+        last_look = t;
+        let now = TICKS.load(Ordering::Relaxed);
+        if now == last && !MAINTENANCE.load(Ordering::SeqCst) {
+            motors_off();
+            latch(fault::LOOP_STALLED);
+        }
+        last = now;
     }
 }

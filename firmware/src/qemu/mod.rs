@@ -21,8 +21,8 @@
 //! with `-semihosting-config enable=on,target=native`): text on the host's stdout, defmt
 //! frames on stderr (see [`logger`]), and the exit code becomes QEMU's.
 
+pub mod boot;
 pub mod config_store;
-pub mod executor;
 pub mod logger;
 pub mod regs;
 pub mod semihosting;
@@ -30,7 +30,7 @@ pub mod time_driver;
 pub mod uart;
 
 use core::cell::Cell;
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use critical_section::Mutex;
 
@@ -41,7 +41,7 @@ use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::{Buttons, SensorReport};
 use maobi_shared::{Fx, Pose};
 
-use crate::app::{self, fault, POSE_QUEUE};
+use crate::app::{self, PoseConsumer, PoseProducer, PoseQueue};
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 use regs::{rd, timer as t, wr, PCLK_HZ};
 
@@ -75,10 +75,6 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
 // ---------------------------------------------------------------------------------------
 // The virtual pen
 
-/// A pose the host sent, with its sequence number and the guide sample of the same tick.
-pub type PoseQueue = heapless::spsc::Queue<app::PoseIn, POSE_QUEUE>;
-pub type PoseProducer = heapless::spsc::Producer<'static, app::PoseIn>;
-
 /// The pen of the QEMU board: poses the host sent, one per force tick.
 ///
 /// Its sensor readings are synthesised for bring-up: the latest pose through the stored
@@ -88,7 +84,7 @@ pub type PoseProducer = heapless::spsc::Producer<'static, app::PoseIn>;
 /// pen's workspace has no readings (`None`: no report). Buttons are not passed from the
 /// pose samples to the force loop: reported empty.
 pub struct VirtualPen {
-    rx: heapless::spsc::Consumer<'static, app::PoseIn>,
+    rx: PoseConsumer,
     seq: u32,
     guide: Option<GuideInput<Fx>>,
     last: Option<Pose<Fx>>,
@@ -217,18 +213,9 @@ impl CycleCounter for IcountCounter {
 
 type Loop = app::ForceLoop<VirtualPen, ReportedMotors, TimerWatchdog>;
 
-/// Uninitialised storage (in .bss, not copied from flash) until `start` writes it.
-struct LoopCell(core::cell::UnsafeCell<core::mem::MaybeUninit<Loop>>);
-// SAFETY: written once by `start` (then LOOP_READY is set) before the TIMER0 interrupt is
-// enabled, then touched only by the TIMER0 handler, which nothing else preempts except the
-// watchdog (which never touches it).
-unsafe impl Sync for LoopCell {}
-static LOOP: LoopCell = LoopCell(core::cell::UnsafeCell::new(core::mem::MaybeUninit::uninit()));
-static LOOP_READY: AtomicBool = AtomicBool::new(false);
-
-static OVERRUNS: AtomicU32 = AtomicU32::new(0);
-/// Time-driver count (25 MHz, low word) at the previous tick's start.
-static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
+/// The force loop: written by `start` before TIMER0's interrupt is enabled, then used only
+/// by that interrupt's handler.
+static LOOP: app::ForceLoopSlot<Loop> = app::ForceLoopSlot::new();
 
 /// Everything `main` gets from the board.
 pub struct Parts {
@@ -266,9 +253,8 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
     ) else {
         semihosting::fatal("the force model's defaults are invalid", 5);
     };
-    // SAFETY: the TIMER0 interrupt is not enabled yet (see `LoopCell`).
-    unsafe { (*LOOP.0.get()).write(fl) };
-    LOOP_READY.store(true, Ordering::SeqCst);
+    // SAFETY: once, and the TIMER0 interrupt is not enabled yet.
+    unsafe { LOOP.init(fl) };
 
     // TIMER1: watchdog; TIMER0: 1 kHz force tick.
     wr(t::TIMER1 + t::CTRL, 0);
@@ -312,40 +298,22 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
     }
 }
 
-/// Number of ticks that overran (latched as LOOP_OVERRUN too).
-pub fn overruns() -> u32 {
-    OVERRUNS.load(Ordering::Relaxed)
-}
-
+/// TIMER0: one force-loop tick (the application's [`app::run_tick`]); the tick overran if
+/// TIMER0's interrupt is pending again when it ends.
 fn on_force_tick() {
     wr(t::TIMER0 + t::INTCLEAR, 1);
-    if !LOOP_READY.load(Ordering::Relaxed) {
+    // SAFETY: only this handler uses the slot after `start`; it does not re-enter.
+    let Some(fl) = (unsafe { LOOP.get() }) else {
         return;
-    }
-    // SAFETY: see `LoopCell`: initialised (LOOP_READY), and only this handler touches it.
-    let fl = unsafe { (*LOOP.0.get()).assume_init_mut() };
-    let start = time_driver::counts_lo();
-    fl.tick();
-    let end = time_driver::counts_lo();
-    let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
-    if last != 0 {
-        let per_us = PCLK_HZ / 1_000_000;
-        app::timing::record(
-            start.wrapping_sub(last) / per_us,
-            end.wrapping_sub(start) / per_us,
-        );
-    }
-    if rd(t::TIMER0 + t::INTCLEAR) & 1 != 0 {
-        // The next tick fell due while this one ran.
-        OVERRUNS.fetch_add(1, Ordering::Relaxed);
-        app::latch(fault::LOOP_OVERRUN);
-        fl.motors_off();
-    }
+    };
+    app::run_tick(fl, &IcountCounter, PCLK_HZ / 1_000_000, || {
+        rd(t::TIMER0 + t::INTCLEAR) & 1 != 0
+    });
 }
 
 fn on_watchdog() -> ! {
     motors_off();
-    app::latch(fault::LOOP_STALLED);
+    app::latch(app::fault::LOOP_STALLED);
     semihosting::fatal("watchdog: the force loop stopped for 20 ms; motors off", 3)
 }
 

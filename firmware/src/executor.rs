@@ -1,9 +1,10 @@
-//! The thread-mode executor: embassy's raw executor with our own `__pender`, sleeping with
-//! WFI while there is nothing to do.
+//! The thread-mode executor of every board: embassy's raw executor with our own `__pender`,
+//! sleeping with WFI while there is nothing to do.
 //!
 //! QEMU treats WFE as a yield, so embassy's stock thread executor (SEV/WFE) busy-spins
 //! while idle; WFI really sleeps until an interrupt, and under `-icount ...,sleep=off` lets
-//! the virtual clock jump straight to the next timer event.
+//! the virtual clock jump straight to the next timer event. On the STM32 WFI sleeps the
+//! core until the next interrupt (USB, timers) just the same.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 

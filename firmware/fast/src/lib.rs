@@ -1,0 +1,63 @@
+//! The force loop's hot path, instantiated for the firmware's scalar ([`Fx`]) here.
+//!
+//! The brush, the force model and the pen's kinematics are generic over the scalar, and a
+//! generic function is compiled in the crate that instantiates it. These non-generic entry
+//! points instantiate the hot code in this crate, so that a profile can build it for speed
+//! while the rest of the image is built for size (`pen-fast` in `firmware/Cargo.toml`: the
+//! pen's image at `opt-level = "z"`, this crate at 3); `#[inline(never)]` keeps link-time
+//! optimisation from pulling them back into the size-optimised callers. Under `release`
+//! (QEMU) and `pen` everything is built alike and this crate changes nothing.
+#![no_std]
+
+use maobi_shared::force::{ForceModel, Forces, OutputStage};
+use maobi_shared::kinematics::{Joints, KinematicsError, Pen, RawReadings};
+use maobi_shared::{Brush, Fx, Pose, Vec3};
+
+/// `Brush::tick`: every substep and the surface update of one 1 ms tick.
+#[inline(never)]
+pub fn brush_tick(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
+    brush.tick(pose);
+}
+
+/// `Brush::reset`: the brush at rest at `pose`.
+#[inline(never)]
+pub fn brush_reset(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
+    brush.reset(pose);
+}
+
+/// `ForceModel::tick`: the force on the hand for the brush after its tick.
+#[inline(never)]
+pub fn force_model_tick(
+    model: &mut ForceModel<Fx>,
+    brush: &Brush<Fx>,
+    hand: Vec3<Fx>,
+) -> Forces<Fx> {
+    model.tick(brush, hand)
+}
+
+/// `OutputStage::apply_with_source`: passivity, ramps and limits on the wanted force, with
+/// the energy a guide's moving point supplied this tick credited to the passivity observer
+/// (0 when no guide leads).
+#[inline(never)]
+pub fn output_stage_apply(
+    out: &mut OutputStage<Fx>,
+    wanted: Vec3<Fx>,
+    hand_step: Vec3<Fx>,
+    source_j: f64,
+) -> Vec3<Fx> {
+    out.apply_with_source(wanted, hand_step, source_j)
+}
+
+/// `Pen::joints` and `Pen::forward`: the ferrule's pose from raw readings, with the arm's
+/// joint angles (for the torques of the same tick).
+#[inline(never)]
+pub fn pen_pose(pen: &Pen<Fx>, raw: &RawReadings) -> Result<(Pose<Fx>, [Fx; 3]), KinematicsError> {
+    let joints: Joints<Fx> = pen.joints(raw)?;
+    Ok((pen.forward(&joints), joints.arm))
+}
+
+/// `Pen::torques`: joint torques (N m) for force `f` (N) at the wrist, `tau = J^T F`.
+#[inline(never)]
+pub fn pen_torques(pen: &Pen<Fx>, arm: &[Fx; 3], f: Vec3<Fx>) -> [Fx; 3] {
+    pen.torques(arm, f)
+}

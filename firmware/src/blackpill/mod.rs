@@ -1,0 +1,393 @@
+//! The STM32F411CE "Black Pill" (WeAct v3.0, 25 MHz crystal) in the real pen.
+//!
+//! | what | where | priority |
+//! |---|---|---|
+//! | force loop: TIM9 update at 1 kHz | `TIM1_BRK_TIM9` | P1 (highest used) |
+//! | link: USB OTG_FS, CDC-ACM (PA11/PA12) | `OTG_FS` | P3 |
+//! | embassy time driver | TIM5 | P4 |
+//! | thread-mode executor: link, USB, supervisor, LED tasks | | thread |
+//! | hardware watchdog (IWDG, fed by the force loop) | resets the chip | |
+//!
+//! The force loop reads the sensors and writes the motors inside `ForceLoop::tick` exactly
+//! as on QEMU (`app::run_tick` from the timer interrupt): the board only provides the trait
+//! implementations ([`sensors`], [`motors`], [`watchdog`], [`usb`]) and its boot ([`main`]).
+//!
+//! Clocks: HSE 25 MHz / 25 x 192 = 192 MHz VCO; SYSCLK 96 MHz (P / 2), USB 48 MHz (Q / 4);
+//! APB1 48 MHz (its timers 96 MHz), APB2 96 MHz (TIM1 and TIM9 at 96 MHz, ADC 24 MHz).
+
+pub mod config;
+pub mod motors;
+pub mod sensors;
+pub mod usb;
+pub mod watchdog;
+
+use core::sync::atomic::Ordering;
+
+use cortex_m::peripheral::DWT;
+use defmt_rtt as _;
+use embassy_executor::Spawner;
+use embassy_stm32::adc::{Adc, AdcChannel};
+use embassy_stm32::flash::Flash;
+use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
+use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::low_level::{CountingMode, RoundTo, Timer as LlTimer};
+use embassy_stm32::timer::qei::{self, Qei};
+use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, pac, peripherals};
+use embassy_time::{Duration, Ticker};
+use maobi_shared::pen_io::DriveConfig;
+use maobi_shared::protocol::Capabilities;
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+
+use crate::app::{self, SensorPen};
+use crate::board::CycleCounter;
+use crate::link::{self, BoardInfo, LinkParts};
+
+/// SYSCLK, the DWT cycle counter's rate.
+pub const SYSCLK_HZ: u32 = 96_000_000;
+/// The force loop's period.
+pub const TICK_US: u32 = 1000;
+
+/// Pins the fault paths drive through raw registers, without driver objects. They must be
+/// the pins [`main`] hands to the drivers (the table in firmware/README.md).
+pub mod pins {
+    use embassy_stm32::pac::gpio::Gpio;
+    use embassy_stm32::pac::{GPIOA, GPIOB};
+
+    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PA4.
+    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOA, 4)];
+    /// IN1, IN2 of motors 1 (PB12, PB13), 2 (PB14, PB15), 3 (PB8, PB9).
+    pub const DIR: [[(Gpio, usize); 2]; 3] = [
+        [(GPIOB, 12), (GPIOB, 13)],
+        [(GPIOB, 14), (GPIOB, 15)],
+        [(GPIOB, 8), (GPIOB, 9)],
+    ];
+    /// The fault LED, PC13, lit when low (the Black Pill's blue LED).
+    pub const LED: usize = 13;
+}
+
+/// Lights the fault LED from any context (PC13 low).
+pub fn led_on() {
+    pac::GPIOC.bsrr().write(|w| w.set_br(pins::LED, true));
+}
+
+bind_interrupts!(struct Irqs {
+    OTG_FS => embassy_stm32::usb::InterruptHandler<peripherals::USB_OTG_FS>;
+});
+
+/// What the link says about this board (the handshake adds the stored configuration's
+/// state).
+static BOARD: BoardInfo = BoardInfo {
+    name: "maobi-pen-blackpill",
+    capabilities: Capabilities::FORCE_OUTPUT
+        .union(Capabilities::REAL_SENSORS)
+        .union(Capabilities::NEEDS_CALIBRATION)
+        .union(Capabilities::BUTTONS)
+        .union(Capabilities::STORED_CONFIG),
+    force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
+    force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
+};
+
+type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;
+
+/// The force loop: written by [`main`] before TIM9's interrupt is enabled, then used only
+/// by that interrupt's handler.
+static LOOP: app::ForceLoopSlot<Loop> = app::ForceLoopSlot::new();
+
+/// The Cortex-M4's cycle counter (DWT CYCCNT, 96 MHz).
+pub struct Cycles;
+
+impl CycleCounter for Cycles {
+    #[inline(always)]
+    fn now(&self) -> u32 {
+        DWT::cycle_count()
+    }
+    const UNIT: &'static str = "cycles";
+}
+
+/// TIM9's update interrupt: one force-loop tick. It overran if the next update is already
+/// pending when it ends.
+#[interrupt]
+fn TIM1_BRK_TIM9() {
+    let tim = pac::TIM9;
+    tim.sr().modify(|w| w.set_uif(false));
+    // SAFETY: only this handler uses the slot after `main` stored it; it does not re-enter.
+    let Some(fl) = (unsafe { LOOP.get() }) else {
+        return;
+    };
+    app::run_tick(fl, &Cycles, SYSCLK_HZ / 1_000_000, || tim.sr().read().uif());
+}
+
+// The interrupt attribute of the device crate (embassy-stm32's PAC, `rt` feature); the
+// interrupt lines' priorities and enables go through embassy's `InterruptExt`.
+use embassy_stm32::interrupt as irq;
+use embassy_stm32::pac::interrupt;
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    // Whatever state the pins come up in, the bridges are off before anything else runs.
+    motors::motors_off();
+    let mut config = embassy_stm32::Config::default();
+    {
+        use embassy_stm32::rcc::*;
+        config.rcc.hse = Some(Hse {
+            freq: Hertz(25_000_000),
+            mode: HseMode::Oscillator,
+        });
+        config.rcc.pll_src = PllSource::HSE;
+        config.rcc.pll = Some(Pll {
+            prediv: PllPreDiv::DIV25,
+            mul: PllMul::MUL192,
+            divp: Some(PllPDiv::DIV2),
+            divq: Some(PllQDiv::DIV4),
+            divr: None,
+        });
+        config.rcc.sys = Sysclk::PLL1_P;
+        config.rcc.ahb_pre = AHBPrescaler::DIV1;
+        config.rcc.apb1_pre = APBPrescaler::DIV2;
+        config.rcc.apb2_pre = APBPrescaler::DIV1;
+    }
+    let p = embassy_stm32::init(config);
+    let reset_by_watchdog = pac::RCC.csr().read().wdgrstf();
+    pac::RCC.csr().modify(|w| w.set_rmvf(true));
+    watchdog::freeze_in_debug();
+
+    // The motor bridges first, off: standby low, inputs low, duty zero.
+    let stby = [
+        Output::new(p.PB10, Level::Low, Speed::Low),
+        Output::new(p.PA4, Level::Low, Speed::Low),
+    ];
+    let dir = [
+        [
+            Output::new(p.PB12, Level::Low, Speed::Low),
+            Output::new(p.PB13, Level::Low, Speed::Low),
+        ],
+        [
+            Output::new(p.PB14, Level::Low, Speed::Low),
+            Output::new(p.PB15, Level::Low, Speed::Low),
+        ],
+        [
+            Output::new(p.PB8, Level::Low, Speed::Low),
+            Output::new(p.PB9, Level::Low, Speed::Low),
+        ],
+    ];
+    let led = Output::new(p.PC13, Level::High, Speed::Low);
+
+    // The configuration sector. The link task loads and decodes the newest image when it
+    // starts and puts it in force (`app::Command::Configure`); until then the pen has no
+    // kinematics, `app::CONFIG_OK` is off and the motors stay off.
+    let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
+
+    let drive = [DriveConfig::DEFAULT; 3];
+    let mut pwm = SimplePwm::new(
+        p.TIM1,
+        Some(PwmPin::new(p.PA8, embassy_stm32::gpio::OutputType::PushPull)),
+        Some(PwmPin::new(p.PA9, embassy_stm32::gpio::OutputType::PushPull)),
+        Some(PwmPin::new(p.PA10, embassy_stm32::gpio::OutputType::PushPull)),
+        None,
+        Hertz(drive[0].pwm_hz),
+        CountingMode::EdgeAlignedUp,
+    );
+    let period = u16::try_from(pwm.max_duty_cycle()).unwrap_or(u16::MAX);
+    for ch in [
+        embassy_stm32::timer::Channel::Ch1,
+        embassy_stm32::timer::Channel::Ch2,
+        embassy_stm32::timer::Channel::Ch3,
+    ] {
+        let mut c = pwm.channel(ch);
+        c.set_duty_cycle(0);
+        c.enable();
+    }
+    let motors = motors::PenMotors {
+        pwm,
+        dir,
+        stby,
+        pen: None,
+        drive,
+        period,
+        applied: [Fx::ZERO; 3],
+    };
+
+    // Sensors: encoders on TIM2 (PA15, PB3), TIM3 (PB4, PB5), TIM4 (PB6, PB7), with the
+    // pull-ups on for open-collector encoder outputs; gimbal on PA1, PA2, PA3 (ADC1 IN1-3);
+    // buttons on PB0, PB1 to ground.
+    let qei_cfg = qei::Config {
+        ch1_pull: Pull::Up,
+        ch2_pull: Pull::Up,
+        ..Default::default()
+    };
+    let sensors = sensors::PenSensors {
+        enc1: Qei::new(p.TIM2, p.PA15, p.PB3, qei_cfg),
+        enc2: Qei::new(p.TIM3, p.PB4, p.PB5, qei_cfg),
+        enc3: Qei::new(p.TIM4, p.PB6, p.PB7, qei_cfg),
+        adc: Adc::new(p.ADC1),
+        gimbal: [
+            p.PA1.degrade_adc(),
+            p.PA2.degrade_adc(),
+            p.PA3.degrade_adc(),
+        ],
+        buttons: [Input::new(p.PB0, Pull::Up), Input::new(p.PB1, Pull::Up)],
+    };
+
+    // The brush starts at rest wherever the first sensor pose puts it.
+    let start = Pose::new(Vec3::from_f64([0.0, 0.0, 44.0]), Quat::IDENTITY);
+    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, start) else {
+        fatal("the large preset is invalid");
+    };
+    static mut CMDS: app::CmdQueue = app::CmdQueue::new();
+    // SAFETY: `main` runs once; the queue is split here and never touched otherwise.
+    let (cmd_tx, cmd_rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
+
+    let mut iwdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
+    iwdg.unleash();
+    let Some(fl) = app::ForceLoop::new(
+        brush,
+        SensorPen::new(sensors, None),
+        motors,
+        watchdog::Iwdg(iwdg),
+        cmd_rx,
+    ) else {
+        fatal("the force model's defaults are invalid");
+    };
+    // 2 ms of cycles: one tick overruns, the watchdog does not fire.
+    let mut fl = fl.with_overrun_burn(2 * SYSCLK_HZ / 1000);
+    fl.reanchor();
+    // SAFETY: once, and TIM9's interrupt is not enabled yet.
+    unsafe { LOOP.init(fl) };
+    if reset_by_watchdog {
+        defmt::error!("reset by the watchdog: the force loop had stopped");
+        app::latch(app::fault::LOOP_STALLED);
+    }
+
+    // The cycle counter for the tick timing.
+    // SAFETY: boot, single context.
+    let mut core = unsafe { cortex_m::Peripherals::steal() };
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+
+    // Priorities: the force loop above USB above the time driver.
+    irq::TIM1_BRK_TIM9.set_priority(Priority::P1);
+    irq::OTG_FS.set_priority(Priority::P3);
+    irq::TIM5.set_priority(Priority::P4);
+
+    // USB.
+    static EP_OUT: static_cell::StaticCell<[u8; 256]> = static_cell::StaticCell::new();
+    let mut usb_cfg = embassy_stm32::usb::Config::default();
+    // Bus-powered: VBUS is always there while the chip runs (and PA9 is a PWM output).
+    usb_cfg.vbus_detection = false;
+    let driver = embassy_stm32::usb::Driver::new_fs(
+        p.USB_OTG_FS,
+        Irqs,
+        p.PA12,
+        p.PA11,
+        EP_OUT.init([0; 256]),
+        usb_cfg,
+    );
+    let usb_parts = usb::build(driver, embassy_stm32::uid::uid_hex());
+
+    // The force tick: TIM9 at 1 kHz.
+    let tick = LlTimer::new(p.TIM9);
+    tick.set_frequency(Hertz(1_000_000 / TICK_US), RoundTo::Slower);
+    tick.enable_update_interrupt(true);
+    tick.start();
+    // The timer lives for the program (dropping the driver would stop its clock).
+    core::mem::forget(tick);
+    irq::TIM1_BRK_TIM9.unpend();
+    // SAFETY: the handler's state (LOOP) is initialised.
+    unsafe { irq::TIM1_BRK_TIM9.enable() };
+    // The boot record the HIL runner waits for (`hil::probe_rs::BOOT_LINE`).
+    defmt::info!("maobi-pen up");
+
+    let link_parts = LinkParts {
+        transport: usb::UsbSerial::new(),
+        poses: None,
+        cmds: cmd_tx,
+        store,
+    };
+    crate::executor::run(move |spawner: Spawner| {
+        spawner.spawn(app::supervisor(TICK_US, motors::motors_off).expect("one supervisor"));
+        spawner.spawn(usb_task(usb_parts).expect("one USB task"));
+        spawner.spawn(link_task(link_parts).expect("one link task"));
+        spawner.spawn(led_task(led).expect("one LED task"));
+    })
+}
+
+#[embassy_executor::task]
+async fn usb_task(parts: usb::UsbParts) {
+    usb::run(parts).await
+}
+
+#[embassy_executor::task]
+async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
+    let cfg = link::LinkConfig {
+        tick_us: TICK_US,
+        telemetry_ticks: 1000,
+    };
+    link::run(parts, &BOARD, presets::LARGE, cfg).await
+}
+
+/// The fault LED: steady while a fault is latched; fast blink (5 Hz) without a valid
+/// configuration; slow blink (1 Hz) while not calibrated; a short flash every 2 s when all
+/// is well (the board is alive).
+#[embassy_executor::task]
+async fn led_task(mut led: Output<'static>) {
+    let mut ticker = Ticker::every(Duration::from_millis(100));
+    let mut phase: u32 = 0;
+    loop {
+        ticker.next().await;
+        phase = phase.wrapping_add(1);
+        let faults = app::FAULTS.load(Ordering::Relaxed);
+        let on = if faults != 0 {
+            true
+        } else if !app::CONFIG_VALID.load(Ordering::Relaxed) {
+            phase.is_multiple_of(2)
+        } else if !app::CONFIG_OK.load(Ordering::Relaxed) {
+            phase % 10 < 5
+        } else {
+            phase.is_multiple_of(20)
+        };
+        // Active low.
+        led.set_level(Level::from(!on));
+    }
+}
+
+/// A boot failure: motors off, LED on, log, halt (the watchdog is not running yet).
+fn fatal(what: &str) -> ! {
+    motors::motors_off();
+    led_on();
+    defmt::error!("FATAL {}", what);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[cortex_m_rt::exception]
+unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
+    motors::motors_off();
+    led_on();
+    defmt::error!("FATAL HardFault at pc={=u32:#010x}; motors off", ef.pc());
+    // Spin: the watchdog resets the chip and the next boot reports it.
+    loop {
+        core::hint::spin_loop();
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    motors::motors_off();
+    led_on();
+    defmt::error!("FATAL panic: {}; motors off", defmt::Display2Format(info));
+    // With a debugger attached (probe-rs run), stop here so it shows where; without one the
+    // watchdog resets the chip and the next boot reports it.
+    // SAFETY: reads the debug halting control register.
+    let debugger = unsafe { (*cortex_m::peripheral::DCB::PTR).dhcsr.read() } & 1 != 0;
+    if debugger {
+        cortex_m::asm::bkpt();
+    }
+    loop {
+        core::hint::spin_loop();
+    }
+}

@@ -1,0 +1,64 @@
+//! The independent watchdog (IWDG, on the 32 kHz LSI): fed by every force tick; if the
+//! force loop stops for [`TIMEOUT_US`] the chip resets, and a reset leaves every motor pin
+//! an input (the carriers' standby inputs are pulled low on the TB6612 boards: off).
+//!
+//! [`Stretch`] lengthens it for the one deliberate stall, a configuration-sector erase
+//! (1-2 s with the core waiting on flash), and puts it back after.
+
+use embassy_stm32::pac;
+use embassy_stm32::pac::iwdg::vals::{Key, Pr};
+use embassy_stm32::wdg::IndependentWatchdog;
+
+use crate::board::Watchdog;
+
+/// Reset after this long without a tick: 50 ticks at 1 kHz (the LSI is 17-47 kHz, so 29 to
+/// 94 ms in fact: still tens of ticks, and far below what a hand notices).
+pub const TIMEOUT_US: u32 = 50_000;
+
+pub struct Iwdg(pub(super) IndependentWatchdog<'static, embassy_stm32::peripherals::IWDG>);
+
+impl Watchdog for Iwdg {
+    #[inline]
+    fn feed(&mut self) {
+        self.0.pet();
+    }
+}
+
+/// Writes the prescaler and reload (waiting until the previous write has reached the
+/// watchdog's clock domain) and reloads the counter.
+fn set(pr: Pr, reload: u16) {
+    let w = pac::IWDG;
+    while w.sr().read().pvu() || w.sr().read().rvu() {}
+    w.kr().write(|k| k.set_key(Key::ENABLE));
+    w.pr().write(|p| p.set_pr(pr));
+    w.rlr().write(|r| r.set_rl(reload));
+    w.kr().write(|k| k.set_key(Key::RESET));
+}
+
+/// The watchdog at about 8 s (LSI / 256, full reload: 8.2 s at 32 kHz, 5.6 s at the
+/// fastest LSI) while this value lives; [`TIMEOUT_US`] again after.
+pub struct Stretch {
+    saved: (Pr, u16),
+}
+
+impl Stretch {
+    pub fn begin() -> Self {
+        let w = pac::IWDG;
+        while w.sr().read().pvu() || w.sr().read().rvu() {}
+        let saved = (w.pr().read().pr(), w.rlr().read().rl());
+        set(Pr::DIVIDE_BY256, 0x0FFF);
+        Stretch { saved }
+    }
+}
+
+impl Drop for Stretch {
+    fn drop(&mut self) {
+        set(self.saved.0, self.saved.1);
+    }
+}
+
+/// Keeps the watchdog from resetting the chip while a debugger halts the core (probe-rs
+/// breakpoints, `probe-rs attach`).
+pub fn freeze_in_debug() {
+    pac::DBGMCU.apb1fzr().modify(|r| r.set_iwdg(true));
+}

@@ -1,0 +1,214 @@
+//! The QEMU board's boot: the mode from the semihosting command line
+//! (`-semihosting-config enable=on,target=native,arg=maobi-fw,arg=MODE,...`):
+//!
+//! * `run` (default): the device. The force loop ticks at 1 kHz; the link task talks to the
+//!   host over UART0.
+//! * `selftest [TICKS]`: no link; the pen follows the built-in bench stroke through the real
+//!   force loop, timer interrupt and executor, then prints a summary and exits 0.
+//! * `tick_us=N` anywhere on the line: a force-loop period other than 1000 us. The brush
+//!   still advances 1 ms of model time per tick; this only paces it, for emulated runs
+//!   where a tick costs more instructions than a virtual millisecond holds (see the README).
+//! * `state_hz=N` (1..=1000): state frames per 1000 force-loop ticks (default 120; 1000 sends
+//!   every tick's state, for the bit-exact HIL checks).
+//! * `telemetry_ticks=N`: telemetry every N force-loop ticks (default 1000).
+//! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
+//!   lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//! * `crash panic|hardfault|stall`: test hooks for the fault paths.
+
+use core::fmt::Write;
+use core::sync::atomic::Ordering;
+
+use embassy_executor::Spawner;
+use embassy_time::Timer;
+use maobi_shared::{presets, Brush, Fx};
+
+use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::protocol::Capabilities;
+
+use crate::app::{self, bench, Command, SNAPSHOT};
+use crate::link::{self, BoardInfo, LinkParts};
+use crate::qemu::{self, semihosting, semihosting::Stdout};
+
+/// What the link says about this board.
+static BOARD: BoardInfo = BoardInfo {
+    name: "qemu-mps2-an386",
+    // Forces are computed and reported in state frames; the QEMU board drives no motor.
+    // Its configuration store is RAM the host can preload (`qemu::config_store`).
+    capabilities: Capabilities::VIRTUAL_PEN
+        .union(Capabilities::FORCE_OUTPUT)
+        .union(Capabilities::STORED_CONFIG),
+    force_peak_n: PHANTOM_OMNI.peak_n,
+    force_continuous_n: PHANTOM_OMNI.continuous_n,
+};
+
+enum Mode {
+    Run,
+    Selftest(u32),
+    Bench(u32),
+    /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
+    Crash(&'static str),
+}
+
+/// Force-loop period: 1000 us (1 kHz) unless the command line says `tick_us=N`.
+fn tick_us() -> u32 {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    line.split_ascii_whitespace()
+        .find_map(|w| w.strip_prefix("tick_us=")?.parse().ok())
+        .filter(|&us| (100..=100_000).contains(&us))
+        .unwrap_or(1000)
+}
+
+/// `KEY=N` from the command line, if present and within `range`.
+fn arg_num(key: &str, range: core::ops::RangeInclusive<u32>) -> Option<u32> {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    line.split_ascii_whitespace()
+        .find_map(|w| w.strip_prefix(key)?.strip_prefix('=')?.parse().ok())
+        .filter(|v| range.contains(v))
+}
+
+fn boot_mode() -> Mode {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    let mut words = line.split_ascii_whitespace().skip(1);
+    let num = |w: Option<&str>, d: u32| w.and_then(|s| s.parse().ok()).unwrap_or(d);
+    match words.next() {
+        Some("bench") => Mode::Bench(num(words.next(), 0)),
+        Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
+        Some("crash") => Mode::Crash(match words.next() {
+            Some("hardfault") => "hardfault",
+            Some("stall") => "stall",
+            _ => "panic",
+        }),
+        _ => Mode::Run,
+    }
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    let mode = boot_mode();
+    if let Mode::Bench(shift) = mode {
+        let clk = qemu::IcountCounter;
+        let _ = writeln!(Stdout, "BENCH icount_shift={shift}");
+        qemu::time_driver::init();
+        cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout));
+        let _ = writeln!(Stdout, "BENCH done");
+        semihosting::exit(0);
+    }
+
+    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, bench::stroke_pose(0)) else {
+        semihosting::fatal("the large preset is invalid", 5);
+    };
+    let tick_us = tick_us();
+    if let Some(hz) = arg_num("state_hz", 1..=1000) {
+        app::STATE_HZ.store(hz, Ordering::Relaxed);
+    }
+    let link_cfg = link::LinkConfig {
+        tick_us,
+        telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
+    };
+    let parts = qemu::start(brush, tick_us);
+    defmt::info!("maobi-fw up");
+
+    crate::executor::run(move |spawner: Spawner| {
+        spawner.spawn(app::supervisor(tick_us, qemu::motors_off).expect("one supervisor"));
+        match mode {
+            Mode::Crash(how) => spawner.spawn(crash(parts, how).expect("one crash task")),
+            Mode::Selftest(ticks) => {
+                spawner.spawn(selftest(parts, ticks).expect("one selftest"));
+            }
+            _ => {
+                spawner.spawn(link_task(parts, link_cfg).expect("one link task"));
+            }
+        }
+    })
+}
+
+#[embassy_executor::task]
+async fn link_task(parts: qemu::Parts, cfg: link::LinkConfig) {
+    let parts = LinkParts {
+        transport: parts.uart,
+        poses: Some(parts.poses),
+        cmds: parts.cmds,
+        store: parts.config,
+    };
+    link::run(parts, &BOARD, presets::LARGE, cfg).await
+}
+
+/// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop
+/// that never returns (the watchdog's case).
+#[embassy_executor::task]
+async fn crash(mut parts: qemu::Parts, how: &'static str) {
+    let _ = parts.cmds.enqueue(Command::EnableForces);
+    Timer::after_millis(20).await;
+    match how {
+        "hardfault" => {
+            // An undefined instruction: UsageFault, escalated to HardFault (not enabled).
+            // SAFETY: deliberately faults.
+            unsafe { core::arch::asm!("udf #0") };
+        }
+        "stall" => {
+            let _ = parts.cmds.enqueue(Command::Stall);
+        }
+        _ => panic!("crash test"),
+    }
+    Timer::after_millis(1000).await;
+    let _ = writeln!(Stdout, "crash {how}: still running");
+    semihosting::exit(0);
+}
+
+/// Boot test without a link: the bench stroke through the real force loop.
+#[embassy_executor::task]
+async fn selftest(mut parts: qemu::Parts, ticks: u32) {
+    let _ = parts.cmds.enqueue(Command::EnableForces);
+    let mut k = 1;
+    let mut done = 0;
+    let mut snap_tick = 0;
+    let mut tip = [0i64; 3];
+    let mut contacts = 0;
+    let start = embassy_time::Instant::now();
+    while done < ticks {
+        while k <= ticks && parts.poses.ready() {
+            let _ = parts.poses.enqueue(app::PoseIn {
+                seq: k,
+                pose: bench::stroke_pose(k),
+                guide: None,
+            });
+            k += 1;
+        }
+        SNAPSHOT.request();
+        Timer::after_millis(5).await;
+        if let Some(Some((b, t, c, tk))) = SNAPSHOT.take(|s| {
+            let spine = s.brush.as_ref()?.spine();
+            let tip = spine.last()?;
+            Some((
+                s.brush_tick,
+                [um(tip.x), um(tip.y), um(tip.z)],
+                spine.iter().filter(|p| p.z.to_bits() <= 429_497).count(),
+                s.tick,
+            ))
+        }) {
+            done = b;
+            tip = t;
+            contacts = contacts.max(c);
+            snap_tick = tk;
+        }
+    }
+    let _ = writeln!(
+        Stdout,
+        "selftest: brush_ticks={done} force_ticks={snap_tick} elapsed_us={} tip_um=({}, {}, {}) max_masses_on_paper={contacts} faults={:#x} overruns={}",
+        start.elapsed().as_micros(),
+        tip[0],
+        tip[1],
+        tip[2],
+        app::FAULTS.load(Ordering::SeqCst),
+        app::OVERRUNS.load(Ordering::Relaxed),
+    );
+    semihosting::exit(0);
+}
+
+/// Micrometres, rounded toward -inf (integer output keeps float formatting out of the image).
+fn um(v: Fx) -> i64 {
+    ((v.to_bits() as i128 * 1000) >> 32) as i64
+}

@@ -84,6 +84,25 @@ pub fn build() -> Result<PathBuf> {
     build_board(Board::Qemu)
 }
 
+/// The QEMU image for the hil tests, built once per test binary; `None` (the test skips, and
+/// says so) when `qemu-system-arm` is not installed, unless `MAOBI_REQUIRE_QEMU` is set (CI),
+/// where a missing QEMU fails the test instead of skipping it.
+pub fn qemu_test_image() -> Option<PathBuf> {
+    static ELF: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    ELF.get_or_init(|| {
+        if !crate::qemu::available() {
+            assert!(
+                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
+                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
+            );
+            eprintln!("SKIPPED: qemu-system-arm is not installed");
+            return None;
+        }
+        Some(build().expect("firmware builds"))
+    })
+    .clone()
+}
+
 /// Builds `board`'s image.
 pub fn build_board(board: Board) -> Result<PathBuf> {
     let dir = firmware_dir();

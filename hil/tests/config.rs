@@ -14,7 +14,6 @@
 //! is set, as in CI).
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
 use std::time::Duration;
 
 use hil::link::Session;
@@ -34,19 +33,7 @@ const ANSWER: Duration = Duration::from_secs(20);
 type Link = Session<std::net::TcpStream>;
 
 fn image() -> Option<PathBuf> {
-    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
-    ELF.get_or_init(|| {
-        if !qemu::available() {
-            assert!(
-                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-            );
-            eprintln!("SKIPPED: qemu-system-arm is not installed");
-            return None;
-        }
-        Some(firmware::build().expect("firmware builds"))
-    })
-    .clone()
+    firmware::qemu_test_image()
 }
 
 fn calibrated() -> DeviceConfig {

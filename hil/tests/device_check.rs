@@ -9,7 +9,6 @@
 //! is set, as in CI).
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
 use std::time::Duration;
 
 use hil::run::QemuDevice;
@@ -19,19 +18,7 @@ use maobi::device::Endpoint;
 use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
 
 fn image() -> Option<PathBuf> {
-    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
-    ELF.get_or_init(|| {
-        if !qemu::available() {
-            assert!(
-                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-            );
-            eprintln!("SKIPPED: qemu-system-arm is not installed");
-            return None;
-        }
-        Some(firmware::build().expect("firmware builds"))
-    })
-    .clone()
+    firmware::qemu_test_image()
 }
 
 /// Boots the firmware (with `store` preloaded as its configuration, if any) and runs the

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use egui_kittest::Harness;
 use hil::firmware;
-use hil::qemu::{self, free_port, Clock, Run};
+use hil::qemu::{free_port, Clock, Run};
 use hil::selftest::EMULATED_TICK_US;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::app::{Automation, MaobiApp};
@@ -25,15 +25,7 @@ use maobi::gui::{start_hand, GuiOptions};
 use maobi_shared::presets;
 
 fn image() -> Option<PathBuf> {
-    if !qemu::available() {
-        assert!(
-            std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-            "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-        );
-        eprintln!("SKIPPED: qemu-system-arm is not installed");
-        return None;
-    }
-    Some(firmware::build().expect("firmware builds"))
+    firmware::qemu_test_image()
 }
 
 fn app(device: Box<dyn Device>) -> Harness<'static, MaobiApp> {

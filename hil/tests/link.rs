@@ -6,12 +6,11 @@
 //! loop paced at 4 ms per 1 ms model tick, see `hil::selftest::EMULATED_TICK_US`).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+use hil::firmware;
 use hil::link::{self, Action, Session, StreamLog, StreamOptions};
 use hil::run::{self, QemuDevice};
-use hil::{firmware, qemu};
 use maobi::poses::PoseTrack;
 use maobi_shared::protocol::{
     crc32, Command, DeviceMsg, EventKind, Faults, HostMsg, HOST_TO_DEVICE, PROTOCOL_VERSION,
@@ -23,19 +22,7 @@ const TIMEOUT: Duration = Duration::from_secs(600);
 const LINK_TIMEOUT_TICKS: u32 = 100;
 
 fn image() -> Option<PathBuf> {
-    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
-    ELF.get_or_init(|| {
-        if !qemu::available() {
-            assert!(
-                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-            );
-            eprintln!("SKIPPED: qemu-system-arm is not installed");
-            return None;
-        }
-        Some(firmware::build().expect("firmware builds"))
-    })
-    .clone()
+    firmware::qemu_test_image()
 }
 
 fn examples() -> PathBuf {

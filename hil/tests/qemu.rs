@@ -5,28 +5,15 @@
 //! skipped with a message, unless `MAOBI_REQUIRE_QEMU` is set, which makes that a failure.
 
 use std::path::PathBuf;
-use std::sync::OnceLock;
 use std::time::Duration;
 
-use hil::{bench, firmware, qemu, selftest};
+use hil::{bench, firmware, selftest};
 
 const TIMEOUT: Duration = Duration::from_secs(300);
 
 /// Builds the firmware once for all tests; `None` when QEMU is missing outside CI.
 fn image() -> Option<PathBuf> {
-    static ELF: OnceLock<Option<PathBuf>> = OnceLock::new();
-    ELF.get_or_init(|| {
-        if !qemu::available() {
-            assert!(
-                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-            );
-            eprintln!("SKIPPED: qemu-system-arm is not installed");
-            return None;
-        }
-        Some(firmware::build().expect("firmware builds"))
-    })
-    .clone()
+    firmware::qemu_test_image()
 }
 
 #[test]

@@ -13,9 +13,9 @@
 //!   never waits for the link). When the queue is full the task stops reading until it has
 //!   room, so the host's window, not a dropped sample, absorbs the difference. A pen with
 //!   its own sensors has no queue: poses (and guide samples) from the host are ignored.
-//! * `State` frames: the force loop copies the brush into the snapshot slot when one is due
-//!   ([`app::STATE_HZ`] per 1000 ticks, 120 by default); this task builds
-//!   [`BrushState::from_brush`] from it and encodes it here, in thread mode. A state that
+//! * `State` frames: the force loop fills the snapshot slot with the frame's
+//!   [`maobi_shared::protocol::BrushState`] when one is due ([`app::STATE_HZ`] per 1000 ticks,
+//!   120 by default); this task encodes it where it lies, in thread mode. A state that
 //!   finds the transmit ring full is dropped and counted (`Telemetry::frames_dropped`).
 //! * Commands and parameters are validated here and handed to the force loop as
 //!   [`app::Command`]s; every one is answered.
@@ -46,12 +46,12 @@ use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
-    param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg,
+    param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, HostMsg,
     Message, Nudge, ParamRejected, ParamReply, SensorReport, Telemetry, Version,
     SENSOR_RATE_MAX_HZ,
 };
-use maobi_shared::{BrushParams, Fx, Vec3};
+use maobi_shared::{BrushParams, Fx};
 
 use crate::app::{self, Command, CONFIG_OK, FAULTS, FORCES_ENABLED, SENSORS, SNAPSHOT, TICKS};
 use crate::board::{ConfigStore, LinkTransport};
@@ -257,7 +257,8 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                     self.board.force_continuous_n,
                 )
                 .with_config(self.config_state.clone());
-                self.send(&DeviceMsg::Hello(info)).await;
+                let n = self.stage(&DeviceMsg::Hello(info));
+                self.send_staged(n).await;
                 self.command(Command::Reanchor).await;
                 app::LINK_ARMED.store(true, Ordering::SeqCst);
                 if !self.connected_once {
@@ -266,7 +267,10 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                     self.event(now, EventKind::LinkConnected).await;
                 }
             }
-            HostMsg::Ping { seq } => self.send(&DeviceMsg::Pong { seq }).await,
+            HostMsg::Ping { seq } => {
+                let n = self.stage(&DeviceMsg::Pong { seq });
+                self.send_staged(n).await;
+            }
             HostMsg::Pose(s) => {
                 // The guide sample sent for this tick rides with its pose, so the force loop
                 // applies it at the tick that consumes the pose (as the host's mirror does).
@@ -295,7 +299,8 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             HostMsg::Guide(g) => self.guide = Some(g),
             HostMsg::GetParam { id } => {
                 let r = ParamReply::read(&self.params, id);
-                self.send(&DeviceMsg::Param(r)).await;
+                let n = self.stage(&DeviceMsg::Param(r));
+                self.send_staged(n).await;
             }
             HostMsg::SetParam { id, value } => {
                 let reply = match param_id(id) {
@@ -313,22 +318,25 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                         ParamReply::written(id, outcome, &self.params)
                     }
                 };
-                self.send(&DeviceMsg::Param(reply)).await;
+                let n = self.stage(&DeviceMsg::Param(reply));
+                self.send_staged(n).await;
             }
             HostMsg::Command(c) => {
                 let result = self.wire_command(&c).await;
-                self.send(&DeviceMsg::CommandDone { command: c, result })
-                    .await;
+                let n = self.stage(&DeviceMsg::CommandDone { command: c, result });
+                self.send_staged(n).await;
             }
             HostMsg::GetConfig => {
                 let reply = self
                     .config
                     .ok_or_else(|| ConfigRejected::NotStored(self.config_state.clone()));
-                self.send(&DeviceMsg::Config(reply)).await;
+                let n = self.stage(&DeviceMsg::Config(reply));
+                self.send_staged(n).await;
             }
             HostMsg::SetConfig(cfg) => {
                 let reply = self.set_config(cfg).await;
-                self.send(&DeviceMsg::Config(reply)).await;
+                let n = self.stage(&DeviceMsg::Config(reply));
+                self.send_staged(n).await;
             }
         }
     }
@@ -556,27 +564,19 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         }
     }
 
-    /// A state frame from the snapshot, if the force loop left one.
+    /// A state frame from the snapshot, if the force loop left one, encoded where the state
+    /// lies (no copy of it on the stack).
     fn send_state(&mut self) {
-        let Some(Some(state)) = SNAPSHOT.take(|s| {
+        let Some(n) = SNAPSHOT.take(|s| {
             self.pose_gaps = s.pose_gaps;
-            let brush = s.brush.as_ref()?;
-            let haptics = Haptics::new(
-                Vec3::new(s.force[0], s.force[1], s.force[2]),
-                s.motors,
-                s.enabled,
-            );
-            Some(BrushState::from_brush(
-                brush,
-                s.tick,
-                s.pose_seq,
-                haptics,
-                faults_of(s.faults),
-            ))
+            // SAFETY: only the link task uses the buffer, and not re-entrantly (no await).
+            let buf = unsafe { &mut *TX_BUF.0.get() };
+            // As in `stage`: 0 (nothing sent) cannot happen within the bound.
+            DeviceMsg::encode_state(&s.state, buf).unwrap_or(0)
         }) else {
             return;
         };
-        if !self.try_send(&DeviceMsg::State(state)) {
+        if !self.write_staged(n) {
             self.frames_dropped = self.frames_dropped.saturating_add(1);
         }
     }
@@ -641,34 +641,51 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             pose_gaps: self.pose_gaps,
             rx: self.rx.stats(),
         };
-        self.send(&DeviceMsg::Telemetry(t)).await;
+        let n = self.stage(&DeviceMsg::Telemetry(t));
+        self.send_staged(n).await;
     }
 
     async fn event(&mut self, tick: u32, kind: EventKind) {
         let faults = faults_of(FAULTS.load(Ordering::SeqCst));
-        self.send(&DeviceMsg::Event(Event { tick, kind, faults }))
-            .await;
+        let n = self.stage(&DeviceMsg::Event(Event { tick, kind, faults }));
+        self.send_staged(n).await;
     }
 
-    /// Sends a message that must not be lost, waiting for room in the transmit ring.
-    async fn send(&mut self, m: &DeviceMsg) {
-        while !self.try_send(m) {
+    /// Encodes `m` into the transmit buffer and returns the frame's length, for
+    /// [`Self::send_staged`]. Not async, and the call sites build the message in its argument,
+    /// so a message (as large as the largest, a state frame: about 3 KB) lives on the stack
+    /// for this call only, never in the task's future while it waits for room.
+    fn stage(&mut self, m: &DeviceMsg) -> usize {
+        // SAFETY: only the link task uses the buffer, and not re-entrantly (no await here).
+        let buf = unsafe { &mut *TX_BUF.0.get() };
+        // An error cannot happen for messages within the bound; 0 sends nothing rather than
+        // stalling.
+        m.encode(buf).unwrap_or(0)
+    }
+
+    /// Queues the frame [`Self::stage`] left in the transmit buffer (a message that must not
+    /// be lost), waiting for room in the transmit ring. Nothing else stages meanwhile: the
+    /// link task is the buffer's only user and does one thing at a time.
+    async fn send_staged(&mut self, n: usize) {
+        while !self.write_staged(n) {
             Timer::after_micros(u64::from(self.cfg.tick_us / 4).max(100)).await;
         }
     }
 
     /// Encodes `m` and queues it whole, or not at all (false: no room now).
     fn try_send(&mut self, m: &DeviceMsg) -> bool {
-        // SAFETY: only the link task uses the buffer, and not re-entrantly (no await here).
-        let buf = unsafe { &mut *TX_BUF.0.get() };
-        let Ok(n) = m.encode(buf) else {
-            // Cannot happen for messages within the bound; drop rather than stall.
-            return true;
-        };
+        let n = self.stage(m);
+        self.write_staged(n)
+    }
+
+    /// Queues the first `n` bytes of the transmit buffer whole, or not at all.
+    fn write_staged(&mut self, n: usize) -> bool {
         if self.parts.transport.tx_space() < n {
             return false;
         }
-        self.parts.transport.write(&buf[..n]);
+        // SAFETY: as in `stage`: the link task's own buffer, no await in between.
+        let buf = unsafe { &*TX_BUF.0.get() };
+        self.parts.transport.write(buf.get(..n).unwrap_or(&[]));
         true
     }
 }

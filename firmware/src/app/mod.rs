@@ -26,13 +26,14 @@ pub mod mailbox;
 #[cfg_attr(feature = "board-qemu", allow(dead_code, unused_imports))]
 pub mod sensor_pen;
 pub mod slot;
+pub mod stack;
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
 use maobi_shared::guide::GuideInput;
 use maobi_shared::pen_io::DeviceConfig;
-use maobi_shared::protocol::SensorReport;
+use maobi_shared::protocol::{BrushState, Faults, Haptics, SensorReport};
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
@@ -258,40 +259,33 @@ pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
 /// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
 pub const OVERRUN_BURN_CYCLES: u32 = 8_000_000;
 
-/// The state the link task reports, copied out of the force loop when a state frame is due
-/// (or when the link task asks).
+/// The state the link task reports, built by the force loop when a state frame is due (or
+/// when the link task asks).
+///
+/// It holds the frame's [`BrushState`] (about 3 KB), not a copy of the brush (6.3 KB): the
+/// state is what the frame carries, so the link task encodes it as it is. Building it costs
+/// the force loop about what copying the brush did (`BrushState::from_brush` reads the
+/// brush's positions and ellipses, computes nothing).
 #[derive(Clone, Debug)]
 pub struct Snapshot {
-    /// Force-loop ticks since boot.
-    pub tick: u32,
     /// Brush ticks since the last reset (poses consumed).
     pub brush_tick: u32,
-    /// The `seq` of the last pose sample the brush consumed (0 with real sensors).
-    pub pose_seq: u32,
     /// Ticks without a new pose (the virtual pen's queue was empty).
     pub pose_gaps: u32,
-    pub faults: u32,
-    /// The motors were driven at this tick.
-    pub enabled: bool,
-    /// The force model's force on the hand (N) before the output stage and the gate, and
-    /// the torques applied (N·m; 0 when off).
-    pub force: [Fx; 3],
-    pub motors: [Fx; 3],
-    /// The brush after this tick (`None` only before the first fill).
-    pub brush: Option<Brush<Fx>>,
+    /// The state frame of this tick: force-loop tick, the `seq` of the last pose sample the
+    /// brush consumed (0 with real sensors), haptics (the force model's force before the
+    /// output stage and the gate, the torques applied, 0 when off; whether the motors were
+    /// driven), latched faults, and the brush.
+    pub state: BrushState,
 }
 
 impl Snapshot {
+    /// All zero bytes, so the slot lives in `.bss` and costs no flash. Never sent: the slot
+    /// is read only after the force loop has filled it.
     pub const EMPTY: Snapshot = Snapshot {
-        tick: 0,
         brush_tick: 0,
-        pose_seq: 0,
         pose_gaps: 0,
-        faults: 0,
-        enabled: false,
-        force: [<Fx as Scalar>::ZERO; 3],
-        motors: [<Fx as Scalar>::ZERO; 3],
-        brush: None,
+        state: BrushState::EMPTY,
     };
 }
 
@@ -550,19 +544,15 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {
-        s.tick = now;
         s.brush_tick = self.brush_tick;
-        s.pose_seq = self.pen.pose_seq();
         s.pose_gaps = self.pose_gaps;
-        s.faults = FAULTS.load(Ordering::Relaxed);
-        s.enabled = self.enabled;
-        s.force = self.force;
-        s.motors = self.motors.applied();
-        match &mut s.brush {
-            // A copy, not hot enough to be built for speed (state frames are due at 120 Hz).
-            Some(b) => b.clone_from(&self.brush),
-            None => s.brush = Some(self.brush.clone()),
-        }
+        let f = self.force;
+        let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
+        let faults = Faults::from_bits_retain(FAULTS.load(Ordering::Relaxed) as u16);
+        // In place: the slot is a static, so a `BrushState` built and then moved there would
+        // be a 3 KB temporary on the force-tick interrupt's stack.
+        s.state
+            .fill_from_brush(&self.brush, now, self.pen.pose_seq(), haptics, faults);
     }
 }
 
@@ -604,12 +594,15 @@ pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 ///
 /// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
 /// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
+/// Every 100 looks it also reads the stack's high-water mark ([`stack`]) and hands each new
+/// maximum to the board's `report_stack`.
 #[embassy_executor::task]
-pub async fn supervisor(tick_us: u32, motors_off: fn()) {
+pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize)) {
     let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
     let mut last = TICKS.load(Ordering::Relaxed);
     let mut ticker = embassy_time::Ticker::every(period);
     let mut last_look = embassy_time::Instant::now();
+    let mut looks: u32 = 0;
     loop {
         ticker.next().await;
         // After the executor was held up (a flash write), the ticker fires its missed
@@ -625,5 +618,11 @@ pub async fn supervisor(tick_us: u32, motors_off: fn()) {
             latch(fault::LOOP_STALLED);
         }
         last = now;
+        looks = looks.wrapping_add(1);
+        if looks % 100 == 1 {
+            if let Some(used) = stack::new_high_water() {
+                report_stack(used);
+            }
+        }
     }
 }

@@ -307,7 +307,9 @@ fn main() -> ! {
         store,
     };
     crate::executor::run(move |spawner: Spawner| {
-        spawner.spawn(app::supervisor(TICK_US, motors::motors_off).expect("one supervisor"));
+        spawner.spawn(
+            app::supervisor(TICK_US, motors::motors_off, report_stack).expect("one supervisor"),
+        );
         spawner.spawn(usb_task(usb_parts).expect("one USB task"));
         spawner.spawn(link_task(link_parts).expect("one link task"));
         spawner.spawn(led_task(led).expect("one LED task"));
@@ -326,6 +328,12 @@ async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
         telemetry_ticks: 1000,
     };
     link::run(parts, &BOARD, presets::LARGE, cfg).await
+}
+
+/// A new deepest stack reading (`app::stack`), in the defmt log: the figure the RAM budget's
+/// stack reserve must be checked against on the board (it has not run on one yet).
+fn report_stack(used: usize) {
+    defmt::info!("stack high-water mark: {=usize} bytes", used);
 }
 
 /// The fault LED: steady while a fault is latched; fast blink (5 Hz) without a valid

@@ -7,7 +7,8 @@ use heapless::String;
 use serde::{Deserialize, Serialize};
 
 use super::frame::{
-    check_version, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE, PROTOCOL_VERSION,
+    check_version, encode_as, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE,
+    PROTOCOL_VERSION,
 };
 use super::state::{BrushState, GuideSample, PoseSample};
 use crate::params::{BrushParams, ParamError, ParamId};
@@ -108,6 +109,27 @@ impl Message for HostMsg {
 impl Message for DeviceMsg {
     const DIRECTION: u8 = DEVICE_TO_HOST;
     const MAX_DECODED: usize = DEVICE_MSG_MAX;
+}
+
+/// [`DeviceMsg::State`]'s variant index, its tag on the wire.
+const STATE_VARIANT: u32 = 2;
+
+/// A [`DeviceMsg::State`] that borrows its state: serializes exactly as the owned message.
+struct StateRef<'a>(&'a BrushState);
+
+impl Serialize for StateRef<'_> {
+    fn serialize<Ser: serde::Serializer>(&self, s: Ser) -> Result<Ser::Ok, Ser::Error> {
+        s.serialize_newtype_variant("DeviceMsg", STATE_VARIANT, "State", self.0)
+    }
+}
+
+impl DeviceMsg {
+    /// The frame of `DeviceMsg::State(state.clone())`, byte for byte, without the copy: a
+    /// device encodes the state (about 3 KB) where it lies instead of moving it onto its
+    /// stack (test `borrowed_state_encodes_as_the_message`).
+    pub fn encode_state(state: &BrushState, out: &mut [u8]) -> Result<usize, ProtocolError> {
+        encode_as::<DeviceMsg, _>(&StateRef(state), out)
+    }
 }
 
 /// `Debug` as `Faults(0x5: SENSOR_JUMP | LINK_SILENT)` and `Display` as `SENSOR_JUMP |

@@ -11,7 +11,8 @@
 //! * [`config`]: what the pen stores in flash ([`DeviceConfig`]), its validation, and the
 //!   flash image format: magic, format version, length, postcard payload, CRC-32
 //!   ([`encode`], [`decode`], [`ConfigError`]); and the state the handshake reports
-//!   ([`ConfigState`]).
+//!   ([`ConfigState`]); whether that configuration lets the pen render forces and whether
+//!   it is calibrated ([`Readiness`], [`ZeroHold`]).
 //!
 //! * [`config_log`]: where the image lives in NOR flash, a log of slots that survives a
 //!   power loss at any moment ([`ConfigLog`], over `embedded-storage`'s `NorFlash`).
@@ -37,8 +38,9 @@ pub mod drive;
 
 pub use adc::AdcFilter;
 pub use config::{
-    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, CONFIG_FORMAT_VERSION,
-    CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN, IMAGE_HEADER_LEN,
+    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, Readiness, ZeroHold,
+    CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN,
+    IMAGE_HEADER_LEN,
 };
 pub use config_log::{ConfigLog, LogError, Region};
 pub use drive::{Direction, DriveConfig, DriveOutput, ZeroPolicy, ZERO_COMMAND};

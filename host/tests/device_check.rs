@@ -399,3 +399,44 @@ fn the_command_line_exits_non_zero_when_a_step_fails() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("FAIL"), "{text}");
 }
+
+#[test]
+fn a_missing_configuration_is_written_from_the_builders_file() {
+    let file = std::env::temp_dir().join(format!("maobi-check-{}-pen.toml", std::process::id()));
+    let mut mine = DeviceConfig::DEFAULT;
+    mine.pen.upper_arm_mm = 150.0;
+    mine.drive[1].deadband = 0.08;
+    std::fs::write(
+        &file,
+        maobi::device::config_file::to_toml(&mine, "a builder's pen"),
+    )
+    .unwrap();
+    let (addr, pen) = serve(Pen::physical(None, [1, 1, 1]));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--sensor-seconds", "3"])
+        .args(["--connect", &addr, "--config", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("the configuration given with --config was written"),
+        "{text}"
+    );
+    let stored = pen.lock().unwrap().config.unwrap();
+    // The builder's values, then the calibration step's readings.
+    assert_eq!(stored.pen.upper_arm_mm, 150.0);
+    assert_eq!(stored.drive[1].deadband, 0.08);
+    assert!(stored.calibration.is_some());
+    // A file that does not validate stops the check before it connects.
+    std::fs::write(&file, "[pen]\nupper_arm_mm = -1\n").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--connect", &addr])
+        .args(["--config", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("missing field"), "{err}");
+    let _ = std::fs::remove_file(&file);
+}

@@ -171,6 +171,9 @@ pub struct CheckOptions {
     /// Smallest change that counts as a joint having moved: encoder counts, gimbal codes.
     pub min_counts: i64,
     pub min_codes: i32,
+    /// What step 1 writes to a pen with a missing or corrupt configuration: the builder's own
+    /// (`--config FILE`) or, by default, the reference pen's.
+    pub first_config: DeviceConfig,
 }
 
 impl CheckOptions {
@@ -183,6 +186,7 @@ impl CheckOptions {
             nudge_ms: 150,
             min_counts: 4,
             min_codes: 20,
+            first_config: DeviceConfig::DEFAULT,
         }
     }
 }
@@ -671,26 +675,31 @@ fn step_handshake(
                 "The pen's stored configuration is {bad}: forces and motor nudges stay off \
                  until a valid one is written."
             ));
-            if !op.confirm(
-                "Write the reference configuration (link lengths, ratios, signs of the \
-                 reference pen, not calibrated) to the pen now?",
-            ) {
+            let which = if opts.first_config == DeviceConfig::DEFAULT {
+                "the reference configuration (link lengths, ratios, signs of the reference \
+                 pen, not calibrated)"
+            } else {
+                "the configuration given with --config"
+            };
+            let short = which.split(" (").next().unwrap_or(which);
+            if !op.confirm(&format!("Write {which} to the pen now?")) {
                 report.push(
                     "1 handshake",
                     Outcome::Fail,
                     format!(
-                        "{what}: stopped. Run `maobi device check` again and let it write the \
-                         reference configuration, then calibrate (step 4)"
+                        "{what}: stopped. Write a configuration (`maobi device config set \
+                         FILE`, or run `maobi device check` again and let it write one), then \
+                         calibrate (step 4)"
                     ),
                 );
                 return false;
             }
-            match wire.set_config(DeviceConfig::DEFAULT, opts.reply_timeout) {
+            match wire.set_config(opts.first_config, opts.reply_timeout) {
                 Ok(Ok(_)) => {
                     report.push(
                         "1 handshake",
                         Outcome::Pass,
-                        format!("{what}; the reference configuration was written"),
+                        format!("{what}; {} was written", short),
                     );
                     true
                 }
@@ -698,7 +707,7 @@ fn step_handshake(
                     report.push(
                         "1 handshake",
                         Outcome::Fail,
-                        format!("{what}; writing the reference configuration failed: {why}"),
+                        format!("{what}; writing {} failed: {why}", short),
                     );
                     false
                 }

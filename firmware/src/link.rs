@@ -64,7 +64,8 @@ pub struct BoardInfo {
     /// The board's name.
     pub name: &'static str,
     pub capabilities: Capabilities,
-    /// Force limits (N).
+    /// Force limits (N) without a stored configuration; with one, the handshake reports
+    /// the configuration's (`DeviceConfig::limits`, what the force loop applies).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
 }
@@ -256,12 +257,16 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn handle(&mut self, m: HostMsg) {
         match m {
             HostMsg::Hello(_) => {
+                let (peak, continuous) = match &self.config {
+                    Some(c) => (c.limits.peak_n, c.limits.continuous_n),
+                    None => (self.board.force_peak_n, self.board.force_continuous_n),
+                };
                 let info = DeviceInfo::new(
                     self.board.name,
                     firmware_version(),
                     self.board.capabilities,
-                    self.board.force_peak_n,
-                    self.board.force_continuous_n,
+                    peak,
+                    continuous,
                 )
                 .with_config(self.config_state.clone());
                 self.send(&DeviceMsg::Hello(info)).await;

@@ -497,3 +497,45 @@ fn without_an_image_the_virtual_pen_needs_none() {
     }
     drop(dev);
 }
+
+/// The configuration's force limits are the ones in force: the handshake reports them and
+/// the output stage holds the force of a 10 mm press to the configured peak (the Phantom
+/// Omni's default would let about 1.5 N through).
+#[test]
+fn the_configurations_force_limits_are_the_ones_in_force() {
+    let Some(elf) = image() else { return };
+    let mut cfg = calibrated();
+    cfg.limits.peak_n = 0.5;
+    cfg.limits.continuous_n = 0.5;
+    let (_dev, mut s, info, path) = boot(&elf, Some(&encoded(&cfg)));
+    assert_eq!(info.config, ConfigState::Valid);
+    assert_eq!(
+        (info.force_peak_n, info.force_continuous_n),
+        (0.5, 0.5),
+        "{info:?}"
+    );
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    let track = maobi::poses::PoseTrack::from_path(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/press_lift.csv"),
+    )
+    .unwrap();
+    let poses = hil::link::track_poses(&track);
+    let mut log = hil::link::StreamLog::default();
+    hil::link::stream(&mut s, &poses, Default::default(), &mut log).unwrap();
+    // The virtual pen's motor commands are the output stage's force (N, world frame);
+    // `haptics.force_n` is what the model asked for before it.
+    let (mut asked, mut given) = (0.0f64, 0.0f64);
+    for (_, st) in log.states() {
+        asked = asked.max(st.haptics.force().cast::<f64>().norm());
+        let m = st.haptics.motors.map(|b| Fx::from_bits(b).to_f64());
+        given = given.max((m[0] * m[0] + m[1] * m[1] + m[2] * m[2]).sqrt());
+    }
+    println!("the press asked for {asked:.4} N; with a 0.5 N peak the motors gave {given:.4} N");
+    assert!(given <= 0.5 + 1e-6, "{given} N");
+    // The press asks for more than the limit: the clamp is what held it.
+    assert!(
+        asked > 1.0 && given > 0.45,
+        "asked {asked} N, given {given} N"
+    );
+    let _ = std::fs::remove_file(path);
+}

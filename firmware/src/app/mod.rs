@@ -549,6 +549,10 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.motors.disable();
                 self.pen.configure(&cfg);
                 self.motors.configure(&cfg);
+                // The link task validated the whole configuration before storing it, so
+                // its limits are accepted; if not, the old ones stay and nothing is driven
+                // beyond them.
+                let _ = self.forces.set_limits(cfg.limits);
                 if P::POSES_FOLLOW_CONFIG {
                     // New geometry or zeros move the pose at once: not a sensor jump, and
                     // the brush starts at rest where the pen now says it is.

@@ -20,11 +20,14 @@
 //! * Commands and parameters are validated here and handed to the force loop as
 //!   [`app::Command`]s; every one is answered.
 //! * The stored configuration ([`ConfigStore`]): loaded and decoded when the task starts;
-//!   the handshake reports its [`ConfigState`]. Until it allows forces (valid and
-//!   calibrated, or none needed: QEMU without an image) [`app::CONFIG_OK`] stays off, so
-//!   the force loop never drives the motors, and `EnableForces` / `NudgeMotor` are refused
-//!   with `ConfigNotValid`. `SetConfig` is refused while forces are enabled, validated
-//!   whole before anything is written, written, read back and decoded, and only then put in
+//!   the handshake reports its [`ConfigState`]. Until it allows forces
+//!   ([`pen_io::Readiness`]: valid with zeros that hold, or none needed: QEMU without an
+//!   image) [`app::CONFIG_OK`] stays off, so the force loop never drives the motors,
+//!   `EnableForces` / `NudgeMotor` are refused with `ConfigNotValid`, and state frames and
+//!   events carry `Faults::NOT_CALIBRATED`. Zeros hold when stored, except on a board
+//!   announcing `NEEDS_CALIBRATION` (incremental encoders, the Black Pill): there only a
+//!   `Calibrate` since power-on counts. `SetConfig` is refused while forces are enabled,
+//!   validated whole before anything is written, written, read back and decoded, and only then put in
 //!   force (`app::Command::Configure`). `Calibrate` records one raw reading (the pen resting
 //!   in its inkwell) into the configuration and stores it the same way.
 //! * Bring-up: `StreamSensors` asks the force loop for raw readings
@@ -44,7 +47,7 @@ use core::task::Poll;
 use embassy_time::{Duration, Timer};
 use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
-use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
+use maobi_shared::pen_io::{self, DeviceConfig, Readiness, ZeroHold, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
     param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
     DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, HostMsg,
@@ -61,7 +64,8 @@ pub struct BoardInfo {
     /// The board's name.
     pub name: &'static str,
     pub capabilities: Capabilities,
-    /// Force limits (N).
+    /// Force limits (N) without a stored configuration; with one, the handshake reports
+    /// the configuration's (`DeviceConfig::limits`, what the force loop applies).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
 }
@@ -120,6 +124,9 @@ struct Link<T, S> {
     config_state: ConfigState,
     /// The configuration in force (`Valid` only).
     config: Option<DeviceConfig>,
+    /// The zeros `Calibrate` took since power-on (what counts on a board whose encoders
+    /// restart at every power-on).
+    zeros_since_power_on: Option<RawReadings>,
     /// Sensor reports every this many ticks (0: not streaming), next at `next_sensors`.
     sensors_every: u32,
     next_sensors: u32,
@@ -154,6 +161,7 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
         cmds_sent: 0,
         config_state: ConfigState::NotApplicable,
         config: None,
+        zeros_since_power_on: None,
         sensors_every: 0,
         next_sensors: 0,
     };
@@ -229,7 +237,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     /// A valid frame: the link is alive; report a reconnection after a silence.
     async fn heard(&mut self) {
         let now = TICKS.load(Ordering::Relaxed);
-        let faults = FAULTS.load(Ordering::SeqCst);
+        let faults = app::reported_faults();
         if faults & app::fault::LINK_SILENT != 0 && !self.silence_reported {
             self.silence_reported = true;
             let last = app::LAST_RX_TICK.load(Ordering::Relaxed);
@@ -249,12 +257,16 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn handle(&mut self, m: HostMsg) {
         match m {
             HostMsg::Hello(_) => {
+                let (peak, continuous) = match &self.config {
+                    Some(c) => (c.limits.peak_n, c.limits.continuous_n),
+                    None => (self.board.force_peak_n, self.board.force_continuous_n),
+                };
                 let info = DeviceInfo::new(
                     self.board.name,
                     firmware_version(),
                     self.board.capabilities,
-                    self.board.force_peak_n,
-                    self.board.force_continuous_n,
+                    peak,
+                    continuous,
                 )
                 .with_config(self.config_state.clone());
                 let n = self.stage(&DeviceMsg::Hello(info));
@@ -400,8 +412,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
             self.command(Command::Configure).await;
         }
-        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
-        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        self.publish_readiness();
     }
 
     /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
@@ -425,13 +436,32 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         Ok(self.parts.store.store(buf.get(..n).unwrap_or(&[])))
     }
 
-    /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
+    /// Whether forces may be rendered and whether the pen is calibrated, from the
+    /// configuration in force and how long this board's zeros hold.
+    fn readiness(&self) -> Readiness {
+        let zeros = if self
+            .board
+            .capabilities
+            .contains(Capabilities::NEEDS_CALIBRATION)
+        {
+            ZeroHold::SincePowerOn(self.zeros_since_power_on)
+        } else {
+            // Absolute readings: the QEMU board's are synthesised from the host's poses.
+            ZeroHold::Stored
+        };
+        Readiness::of(&self.config_state, self.config.as_ref(), zeros)
+    }
+
     fn config_allows_forces(&self) -> bool {
-        match self.config_state {
-            ConfigState::NotApplicable => true,
-            ConfigState::Valid => self.config.is_some_and(|c| c.calibration.is_some()),
-            ConfigState::Missing | ConfigState::Corrupt(_) => false,
-        }
+        self.readiness().allows_forces
+    }
+
+    /// Tells the force loop (motor gate), the fault report and the LED.
+    fn publish_readiness(&self) {
+        let r = self.readiness();
+        CONFIG_OK.store(r.allows_forces, Ordering::SeqCst);
+        app::NOT_CALIBRATED.store(r.not_calibrated, Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
     }
 
     /// `SetConfig`: refuse while forces are on, validate all of it, then write.
@@ -457,8 +487,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
             self.command(Command::Configure).await;
         }
-        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
-        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        self.publish_readiness();
         if ok {
             Ok(())
         } else {
@@ -484,10 +513,14 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             .sample_sensors()
             .await
             .ok_or(CommandError::OutOfRange)?;
-        cfg.calibration = Some(RawReadings {
+        let zeros = RawReadings {
             encoders: r.encoders,
             gimbal: r.gimbal.map(i32::from),
-        });
+        };
+        cfg.calibration = Some(zeros);
+        // Taken now: they hold until power-off whatever a board's encoders do (in force
+        // once the configuration carrying them is).
+        self.zeros_since_power_on = Some(zeros);
         self.write_config(cfg)
             .await
             .map_err(|_| CommandError::StoreFailed)
@@ -583,7 +616,8 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
 
     async fn events(&mut self) {
         let now = TICKS.load(Ordering::Relaxed);
-        let faults = FAULTS.load(Ordering::SeqCst);
+        // NOT_CALIBRATED included: raised at start, cleared by a successful calibration.
+        let faults = app::reported_faults();
         if faults & app::fault::LINK_SILENT == 0 {
             self.silence_reported = false;
         }
@@ -646,7 +680,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     }
 
     async fn event(&mut self, tick: u32, kind: EventKind) {
-        let faults = faults_of(FAULTS.load(Ordering::SeqCst));
+        let faults = faults_of(app::reported_faults());
         let n = self.stage(&DeviceMsg::Event(Event { tick, kind, faults }));
         self.send_staged(n).await;
     }

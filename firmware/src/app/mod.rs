@@ -56,6 +56,10 @@ pub mod fault {
     pub const LOOP_STALLED: u32 = 1 << 4;
     /// Number of latched fault bits.
     pub const COUNT: usize = 5;
+    /// Not a latched bit: the pen lacks zeros that hold ([`super::NOT_CALIBRATED`]),
+    /// reported beside the latched bits while that lasts ([`super::reported_faults`]). The
+    /// protocol's `Faults::NOT_CALIBRATED`.
+    pub const NOT_CALIBRATED: u32 = 1 << 5;
 }
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
@@ -119,9 +123,10 @@ impl Drop for Maintenance {
 
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
-/// The stored configuration lets the motors be driven (set by the link task: a valid,
-/// calibrated configuration, or none needed). Off at boot until the link task has loaded the
-/// store: the pen starts safe. The force loop drives the motors only while it is set.
+/// The stored configuration lets the motors be driven (set by the link task: a valid
+/// configuration whose zeros hold, or none needed; `pen_io::Readiness::allows_forces`). Off
+/// at boot until the link task has loaded the store: the pen starts safe. The force loop
+/// drives the motors only while it is set.
 pub static CONFIG_OK: AtomicBool = AtomicBool::new(false);
 /// The configuration in force, for [`Command::Configure`]: written by the link task before
 /// it sends the command, read by the force loop when it applies it.
@@ -130,6 +135,24 @@ pub static CONFIG: critical_section::Mutex<core::cell::Cell<DeviceConfig>> =
 /// Raw sensor readings for bring-up: the link task requests, the force loop fills it at the
 /// next tick from [`PoseSource::raw_sensors`] (`None`: the board cannot tell).
 pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
+
+/// The pen lacks zeros that hold (`pen_io::Readiness::not_calibrated`, set by the link task
+/// with [`CONFIG_OK`]): no configuration, none calibrated, or (incremental encoders) not
+/// calibrated since power-on. Set at boot until the link task has loaded the store.
+/// Reported as [`fault::NOT_CALIBRATED`] until `Calibrate` succeeds; `ClearFaults` does not
+/// clear it (its cause is not gone). [`CONFIG_OK`], not this flag, keeps the motors off.
+pub static NOT_CALIBRATED: AtomicBool = AtomicBool::new(true);
+
+/// The fault bits the host is told about: the latched [`FAULTS`] and, while it lasts,
+/// [`fault::NOT_CALIBRATED`].
+pub fn reported_faults() -> u32 {
+    let not_calibrated = if NOT_CALIBRATED.load(Ordering::SeqCst) {
+        fault::NOT_CALIBRATED
+    } else {
+        0
+    };
+    FAULTS.load(Ordering::SeqCst) | not_calibrated
+}
 
 /// Latches fault bits (any context) and notes the tick of the newly raised ones.
 pub fn latch(bits: u32) {
@@ -417,13 +440,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
 
         // Any latched fault switches the forces off (and cuts the guide, and ends a nudge):
         // the host must clear it and enable again. So does a configuration that does not
-        // allow forces.
+        // allow forces (missing, invalid, not calibrated): a nudge that was running when
+        // such a configuration came into force ends too, since nothing else ends it on a
+        // board whose store writes without a pause.
         let faulted = FAULTS.load(Ordering::SeqCst) != 0;
         if faulted || !CONFIG_OK.load(Ordering::SeqCst) {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
-            if faulted {
-                self.nudge = None;
-            }
+            self.nudge = None;
         }
         // A deliberate pause (a flash write) keeps the motors off as well.
         let allowed = FORCES_ENABLED.load(Ordering::SeqCst) && !MAINTENANCE.load(Ordering::SeqCst);
@@ -520,6 +543,10 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.motors.disable();
                 self.pen.configure(&cfg);
                 self.motors.configure(&cfg);
+                // The link task validated the whole configuration before storing it, so
+                // its limits are accepted; if not, the old ones stay and nothing is driven
+                // beyond them.
+                let _ = self.forces.set_limits(cfg.limits);
                 if P::POSES_FOLLOW_CONFIG {
                     // New geometry or zeros move the pose at once: not a sensor jump, and
                     // the brush starts at rest where the pen now says it is.
@@ -548,7 +575,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         s.pose_gaps = self.pose_gaps;
         let f = self.force;
         let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
-        let faults = Faults::from_bits_retain(FAULTS.load(Ordering::Relaxed) as u16);
+        let faults = Faults::from_bits_retain(reported_faults() as u16);
         // In place: the slot is a static, so a `BrushState` built and then moved there would
         // be a 3 KB temporary on the force-tick interrupt's stack.
         s.state

@@ -175,7 +175,7 @@ fn main() -> ! {
     ];
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
-    // The configuration sector. The link task loads and decodes the newest image when it
+    // The configuration log (sectors 6 and 7). The link task loads and decodes the newest image when it
     // starts and puts it in force (`app::Command::Configure`); until then the pen has no
     // kinematics, `app::CONFIG_OK` is off and the motors stay off.
     let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));

@@ -168,7 +168,9 @@ bitflags::bitflags! {
         const REAL_SENSORS = 1 << 1;
         /// The pen's pose comes from the host as [`HostMsg::Pose`] (QEMU board, Phantom bridge).
         const VIRTUAL_PEN = 1 << 2;
-        /// The sensors need [`Command::Calibrate`] before forces may be enabled.
+        /// The sensors need [`Command::Calibrate`] before forces may be enabled, after every
+        /// power-on (incremental encoders: a stored calibration does not survive a reset;
+        /// [`crate::pen_io::ZeroHold::SincePowerOn`]).
         const NEEDS_CALIBRATION = 1 << 3;
         /// The pen has buttons (for a virtual pen: reported in [`PoseSample::buttons`]).
         const BUTTONS = 1 << 4;
@@ -197,7 +199,10 @@ bitflags::bitflags! {
         const PARAM_REJECTED = 1 << 3;
         /// The watchdog reset the board.
         const WATCHDOG = 1 << 4;
-        /// The sensors are not calibrated.
+        /// The sensors are not calibrated: no configuration, none calibrated, or (a pen with
+        /// [`Capabilities::NEEDS_CALIBRATION`]) not since power-on. Not latched: set while it
+        /// is true (forces refused with [`CommandError::ConfigNotValid`]), gone once
+        /// [`Command::Calibrate`] succeeds; [`Command::ClearFaults`] does not clear it.
         const NOT_CALIBRATED = 1 << 5;
     }
 }

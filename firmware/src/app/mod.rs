@@ -28,6 +28,8 @@ pub mod sensor_pen;
 pub mod slot;
 pub mod stack;
 
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
@@ -346,40 +348,107 @@ pub struct ForceLoop<P, M, W> {
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     /// None if the shared force model's defaults are invalid (they are tested not to be).
-    pub fn new(
-        brush: Brush<Fx>,
+    /// The boards build theirs in place ([`Self::new_in`]); the bench builds one here.
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
+    pub fn new(brush: Brush<Fx>, pen: P, motors: M, watchdog: W, cmds: CmdConsumer) -> Option<Self> {
+        let mut slot = MaybeUninit::<Self>::uninit();
+        let p = slot.as_mut_ptr();
+        // SAFETY: a field of the slot's storage; `init_rest` writes all the others.
+        unsafe {
+            addr_of_mut!((*p).brush).write(brush);
+            Self::init_rest(p, pen, motors, watchdog, cmds)?;
+            Some(slot.assume_init())
+        }
+    }
+
+    /// [`Self::new`] with the brush built from `params` at `pose` ([`Brush::new`]), all of
+    /// it built in `slot` (a static's storage): the force loop is about 7.4 KB, and `new`
+    /// moves it and its brush through the stack, which the board pays for at boot in stack
+    /// it must reserve. None if the parameters or the force model's defaults are invalid.
+    pub fn new_in(
+        slot: &mut MaybeUninit<Self>,
+        params: BrushParams,
+        pose: Pose<Fx>,
+        pen: P,
+        motors: M,
+        watchdog: W,
+        cmds: CmdConsumer,
+    ) -> Option<&mut Self> {
+        let p = slot.as_mut_ptr();
+        // SAFETY: the `brush` field of the slot's storage, seen as the uninitialised brush it
+        // is (`MaybeUninit<T>` has `T`'s layout); `init_rest` writes all the other fields, so
+        // the whole slot is initialised when it is assumed to be.
+        unsafe {
+            let brush = &mut *addr_of_mut!((*p).brush).cast::<MaybeUninit<Brush<Fx>>>();
+            Brush::new_in(brush, params, pose).ok()?;
+            Self::init_rest(p, pen, motors, watchdog, cmds)?;
+            Some(slot.assume_init_mut())
+        }
+    }
+
+    /// Writes every field but the brush, the motors disabled; None (nothing written) if the
+    /// force model's defaults are invalid.
+    ///
+    /// # Safety
+    /// `p` points to storage for a force loop, valid for writes.
+    unsafe fn init_rest(
+        p: *mut Self,
         pen: P,
         mut motors: M,
         watchdog: W,
         cmds: CmdConsumer,
-    ) -> Option<Self> {
+    ) -> Option<()> {
+        let forces = force::HandForces::new()?;
         motors.disable();
-        Some(ForceLoop {
-            brush,
-            pen,
-            motors,
-            watchdog,
-            cmds,
-            brush_tick: 0,
-            pose_gaps: 0,
-            last_pose: None,
-            reanchor: false,
-            inject_overrun: false,
-            overrun_burn_cycles: OVERRUN_BURN_CYCLES,
-            forces: force::HandForces::new()?,
-            force: [Fx::ZERO; 3],
-            enabled: false,
-            jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
-            nudge: None,
-        })
+        // SAFETY: fields of the storage the caller vouches for.
+        unsafe {
+            addr_of_mut!((*p).pen).write(pen);
+            addr_of_mut!((*p).motors).write(motors);
+            addr_of_mut!((*p).watchdog).write(watchdog);
+            addr_of_mut!((*p).cmds).write(cmds);
+            addr_of_mut!((*p).brush_tick).write(0);
+            addr_of_mut!((*p).pose_gaps).write(0);
+            addr_of_mut!((*p).last_pose).write(None);
+            addr_of_mut!((*p).reanchor).write(false);
+            addr_of_mut!((*p).inject_overrun).write(false);
+            addr_of_mut!((*p).overrun_burn_cycles).write(OVERRUN_BURN_CYCLES);
+            addr_of_mut!((*p).forces).write(forces);
+            addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
+            addr_of_mut!((*p).enabled).write(false);
+            addr_of_mut!((*p).jump2).write(Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM));
+            addr_of_mut!((*p).nudge).write(None);
+        }
+        // The list above is complete: this pattern names every field (no `..`), so a field
+        // added to `ForceLoop` does not compile until it is written here too.
+        #[allow(clippy::no_effect_underscore_binding)]
+        let _every_field = |f: Self| {
+            let ForceLoop {
+                brush: _,
+                pen: _,
+                motors: _,
+                watchdog: _,
+                cmds: _,
+                brush_tick: _,
+                pose_gaps: _,
+                last_pose: _,
+                reanchor: _,
+                inject_overrun: _,
+                overrun_burn_cycles: _,
+                forces: _,
+                force: _,
+                enabled: _,
+                jump2: _,
+                nudge: _,
+            } = f;
+        };
+        Some(())
     }
 
     /// The cycles [`Command::InjectOverrun`] burns: enough to overrun one tick, short of
     /// the board's hardware watchdog (which would reset the chip instead).
     #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
-    pub fn with_overrun_burn(mut self, cycles: u32) -> Self {
+    pub fn set_overrun_burn(&mut self, cycles: u32) {
         self.overrun_burn_cycles = cycles;
-        self
     }
 
     /// The next pose places the brush at rest there (a board whose sensors start the pen

@@ -20,7 +20,7 @@ use core::sync::atomic::Ordering;
 
 use embassy_executor::Spawner;
 use embassy_time::Timer;
-use maobi_shared::{presets, Brush, Fx};
+use maobi_shared::{presets, Fx};
 
 use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::protocol::Capabilities;
@@ -127,9 +127,6 @@ fn run_bench(shift: u32) -> ! {
 /// for why not inline).
 #[inline(never)]
 fn start() -> (qemu::Parts, u32, link::LinkConfig) {
-    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, bench::stroke_pose(0)) else {
-        semihosting::fatal("the large preset is invalid", 5);
-    };
     let tick_us = tick_us();
     if let Some(hz) = arg_num("state_hz", 1..=1000) {
         app::STATE_HZ.store(hz, Ordering::Relaxed);
@@ -138,7 +135,7 @@ fn start() -> (qemu::Parts, u32, link::LinkConfig) {
         tick_us,
         telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
     };
-    let parts = qemu::start(brush, tick_us);
+    let parts = qemu::start(presets::LARGE, bench::stroke_pose(0), tick_us);
     defmt::info!("maobi-fw up");
     (parts, tick_us, link_cfg)
 }

@@ -410,7 +410,47 @@ macro_rules! float_scalar {
 }
 
 float_scalar!(f64, "f64", libm::sqrt, libm::sincos, libm::atan2);
-float_scalar!(f32, "f32", libm::sqrtf, libm::sincosf, libm::atan2f);
+float_scalar!(f32, "f32", sqrt_f32, libm::sincosf, libm::atan2f);
+
+/// The IEEE `f32` square root, correctly rounded (round to nearest, ties to even).
+///
+/// Every VFP unit has it as one instruction (`vsqrt.f32`; 14 cycles on the Cortex-M4F), and
+/// a hard-float ABI (`eabihf`) means there is one; `core` has no `f32::sqrt` and `libm`
+/// falls back to its software routine on Arm (about 100 instructions). IEEE 754 defines the
+/// square root as correctly rounded, and `libm::sqrtf` is (`libm_sqrtf_is_correctly_rounded`
+/// checks it against the `f64` root), so both give the same bits: the device and the host
+/// simulation stay bit-identical (which the `hil` tests check end to end). The default
+/// FPSCR (round to nearest, no flush-to-zero) is what cortex-m-rt leaves, and nothing here
+/// changes it.
+#[inline]
+fn sqrt_f32(x: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        let root: u32;
+        // The value goes through a core register and s15 (caller-saved, declared clobbered):
+        // stable Rust accepts an `s` register operand only with the `vfp2` feature, which
+        // the single-precision FPU of the Cortex-M4F does not have.
+        // SAFETY: register-to-register moves and one FPU instruction: no memory, no stack,
+        // no condition flags (only the FPSCR's sticky exception bits, which nothing reads).
+        #[allow(unsafe_code)] // the crate's one exception (see lib.rs)
+        unsafe {
+            core::arch::asm!(
+                "vmov s15, {x}",
+                "vsqrt.f32 s15, s15",
+                "vmov {root}, s15",
+                x = in(reg) x.to_bits(),
+                root = lateout(reg) root,
+                out("s15") _,
+                options(pure, nomem, nostack, preserves_flags),
+            );
+        }
+        f32::from_bits(root)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
+    }
+}
 
 /// `1 / b` for `b != 0`: an IEEE `f32` estimate refined by one Newton step in fixed point,
 /// `y (2 - b y)` (relative error about 1e-14; identical on every IEEE target). Replaces a
@@ -588,7 +628,7 @@ impl Scalar for Fx {
     #[inline]
     fn rsqrt(self) -> Self {
         if self.0 > FxRaw::ZERO {
-            let est = 1.0 / libm::sqrtf(to_f32_fast(self));
+            let est = 1.0 / sqrt_f32(to_f32_fast(self));
             let y = from_f32_fast(est);
             let three = Fx(FxRaw::from_bits(3 << 32));
             // x y^2 grouped to keep significant bits: (x y) y for large x (y^2 is tiny),
@@ -769,6 +809,51 @@ mod tests {
             assert_eq!(from_f32_split(v), plain_from(v), "{v}");
             let v = plain_to(x);
             assert_eq!(from_f32_split(v), plain_from(v), "{v}");
+        }
+    }
+
+    /// `sqrt_f32` is `vsqrt.f32` on the device and `libm::sqrtf` elsewhere: they agree
+    /// exactly when `libm::sqrtf` is correctly rounded, which this checks against the `f64`
+    /// root rounded to `f32` (exact: a 53-bit root of a 24-bit argument rounds to 24 bits
+    /// without double-rounding error, since 53 >= 2 * 24 + 2).
+    #[test]
+    fn libm_sqrtf_is_correctly_rounded() {
+        let mut x: u64 = 0x5DEE_CE66_D1CE_4E5B;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let check = |v: f32| {
+            let want = (v as f64).sqrt() as f32;
+            assert_eq!(libm::sqrtf(v).to_bits(), want.to_bits(), "sqrt({v:e})");
+            assert_eq!(sqrt_f32(v).to_bits(), want.to_bits(), "sqrt({v:e})");
+        };
+        for v in [
+            0.0,
+            1.0,
+            2.0,
+            3.0,
+            f32::MIN_POSITIVE,
+            f32::MAX,
+            2.3e-10,
+            7.111,
+            1e12,
+        ] {
+            check(v);
+        }
+        // Every exponent the model's values reach and beyond, random significands; and
+        // runs of consecutive floats, where rounding ties would show.
+        for _ in 0..1_000_000 {
+            let bits = (next() as u32) & 0x7F7F_FFFF;
+            check(f32::from_bits(bits));
+        }
+        for start in [1.0f32, 2.0, 4.2e-10, 7.25, 1.0e6] {
+            let b = start.to_bits();
+            for k in 0..20_000 {
+                check(f32::from_bits(b + k));
+            }
         }
     }
 

@@ -478,7 +478,7 @@ impl<S: Scalar> Brush<S> {
             pi.copy_from_slice(&[r.x, r.y, r.z]);
         }
         let r = row_rhs(&tip, last, -seg[last], self.vel[last - 1] - self.vel[last])
-            + self.tip_load.scale(tip.c_f);
+            + self.tip_load.scale_coef(tip.c_f);
         p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
         let mut du = [S::ZERO; FLAT];
@@ -550,15 +550,15 @@ impl<S: Scalar> Brush<S> {
         for i in 1..n {
             let mut rhs = Vec3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
             if i == 1 {
-                rhs += du0.scale(c_j(1));
+                rhs += du0.scale_coef(c_j(1));
             }
             // d'_i = (d_i - a_i d'_{i-1}) / m_i with a_i = -c_j,i.
-            prev = (rhs + prev.scale(c_j(i))).scale(self.inv_pivot[i]);
+            prev = (rhs + prev.scale_coef(c_j(i))).scale(self.inv_pivot[i]);
             d[i] = prev;
         }
         let mut du = d;
         for i in (1..n - 1).rev() {
-            du[i] = d[i] + du[i + 1].scale(self.cprime[i]);
+            du[i] = d[i] + du[i + 1].scale_coef(self.cprime[i]);
         }
         for (f, v) in out.chunks_exact_mut(3).zip(&du[..n]) {
             f.copy_from_slice(&[v.x, v.y, v.z]);
@@ -604,7 +604,13 @@ impl<S: Scalar> Brush<S> {
             .zip(&mut oz[1..n])
             .zip(&self.skel_dir[..n - 1])
         {
-            acc += dir.scale(self.d.segment);
+            // A unit direction's components are the coefficients (the same products).
+            let seg = self.d.segment;
+            acc += Vec3::new(
+                seg.mul_coef(dir.x),
+                seg.mul_coef(dir.y),
+                seg.mul_coef(dir.z),
+            );
             (*x, *y, *z) = (acc.x, acc.y, acc.z);
         }
         out
@@ -647,7 +653,8 @@ impl<S: Scalar> Brush<S> {
         };
         let goal_local = self.handle.rot.rotate_inv(goal);
         let dd = self.d.plasticity;
-        let end = self.skel_dir[n - 2].scale(S::ONE - dd) + goal_local.scale(dd);
+        // Interpolation weights in [0, 1]: coefficient products (the same values).
+        let end = self.skel_dir[n - 2].scale_coef(S::ONE - dd) + goal_local.scale_coef(dd);
         let Some(end) = end.normalized_or_none(self.d.tiny) else {
             return;
         };
@@ -655,7 +662,7 @@ impl<S: Scalar> Brush<S> {
         let first = self.skel_dir[0];
         for i in 1..n - 2 {
             let w = self.d.skel_weight[i];
-            let v = first.scale(S::ONE - w) + end.scale(w);
+            let v = first.scale_coef(S::ONE - w) + end.scale_coef(w);
             if let Some(v) = v.normalized_or_none(self.d.tiny) {
                 self.skel_dir[i] = v;
             }
@@ -681,7 +688,7 @@ impl<S: Scalar> Brush<S> {
                         normal
                     } else {
                         let w = S::from_usize(i) * inv_c;
-                        sa0.scale(S::ONE - w) + normal.scale(w)
+                        sa0.scale_coef(S::ONE - w) + normal.scale_coef(w)
                     };
                 }
             }
@@ -689,7 +696,7 @@ impl<S: Scalar> Brush<S> {
                 let end = self.layers[n - 1].short_axis;
                 for i in 1..n - 1 {
                     let w = self.d.layer_frac[i];
-                    self.layers[i].short_axis = sa0.scale(S::ONE - w) + end.scale(w);
+                    self.layers[i].short_axis = sa0.scale_coef(S::ONE - w) + end.scale_coef(w);
                 }
             }
         }
@@ -702,7 +709,8 @@ impl<S: Scalar> Brush<S> {
             seg[i] = v.normalized_or_none(self.d.tiny).unwrap_or(down);
             let layer = &mut self.layers[i];
             let sa = layer.short_axis;
-            let la = sa.cross(seg[i]);
+            // Unit vectors: coefficient products (the same values), here and below.
+            let la = sa.cross_coef(seg[i]);
             // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined; keep the old
             // long axis, made perpendicular to the segment, and rebuild the short one.
             let min_cross = self.d.tiny;
@@ -711,7 +719,7 @@ impl<S: Scalar> Brush<S> {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
-                    layer.short_axis = seg[i].cross(la);
+                    layer.short_axis = seg[i].cross_coef(la);
                 }
                 None => {
                     let old = layer.long_axis;
@@ -728,7 +736,7 @@ impl<S: Scalar> Brush<S> {
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         for i in 1..n - 1 {
-            tilt[i] = S::ONE - seg[i + 1].dot(seg[i]);
+            tilt[i] = S::ONE - seg[i + 1].dot_coef(seg[i]);
             tilt_sum += tilt[i];
         }
         tilt[n - 1] = tilt[n - 2];
@@ -746,15 +754,18 @@ impl<S: Scalar> Brush<S> {
             let layer = &mut self.layers[i];
             let rl = layer.long_radius;
             let goal = if any_contact {
-                let bend = self.d.spread_tf * tilt[i] + (S::ONE - tilt[i]) * tilt_all;
+                // The factors in [0, 1] (tilts, dryness, layer fraction, rates) are the
+                // coefficients of `mul_coef`: the same products, cheaper in fixed point.
+                let bend = self.d.spread_tf.mul_coef(tilt[i]) + tilt_all.mul_coef(S::ONE - tilt[i]);
                 rl + (self.d.max_radius[i] - rl)
-                    * (S::ONE - layer.wetness)
-                    * self.d.layer_frac[i]
-                    * bend
+                    .mul_coef(S::ONE - layer.wetness)
+                    .mul_coef(self.d.layer_frac[i])
+                    .mul_coef(bend)
             } else {
                 rest
             };
-            let rl = (rate * goal + (S::ONE - rate) * rl).clamp(rest, self.d.max_radius[i]);
+            let rl = (goal.mul_coef(rate) + rl.mul_coef(S::ONE - rate))
+                .clamp(rest, self.d.max_radius[i]);
             layer.long_radius = rl;
             layer.short_radius = (rest * rest).div(rl);
         }
@@ -846,7 +857,8 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
 fn spring<S: Scalar>(dv: &Derived<S>, d: Vec3<S>) -> Vec3<S> {
     let len2 = d.norm2();
     if len2 > dv.tiny2 {
-        let strain = S::ONE - dv.segment * len2.rsqrt();
+        // 1/|d| is below one for segments longer than 1 mm: the coefficient.
+        let strain = S::ONE - dv.segment.mul_coef(len2.rsqrt());
         // Negative strain: the segment is compressed and the hairs buckle.
         // A compression ratio is in [0, 1], and so is a stretched segment's strain.
         let strain = if strain < S::ZERO {

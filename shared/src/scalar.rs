@@ -184,10 +184,12 @@ fn mul_coef_bits(a: i64, c: i64) -> i64 {
 #[allow(dead_code)]
 fn mul_coef_partial(a: i64, c: i64) -> i64 {
     let cl = c as u32 as u64;
-    let high = (a >> 32) * cl as i64;
+    let high = (a >> 32).wrapping_mul(cl as i64);
     let low = (((a as u32) as u64 * cl) >> 32) as i64;
-    // c >> 63 is all ones for a negative c: subtract a, else nothing.
-    high + low - (a & (c >> 63))
+    // c >> 63 is all ones for a negative c: subtract a, else nothing. Wrapping operations
+    // (none wraps for |c| < 1), so that a caller's broken promise gives a wrong value, not a
+    // panic in a build with overflow checks.
+    high.wrapping_add(low).wrapping_sub(a & (c >> 63))
 }
 
 /// `floor(a b / 2^32)` clamped to `i64`, from 32-bit halves: a = ah 2^32 + al with ah signed,
@@ -203,6 +205,16 @@ fn mul_coef_partial(a: i64, c: i64) -> i64 {
 fn mul_floor_partial(a: i64, b: i64) -> i64 {
     let (ah, al) = ((a >> 32) as i32, a as u32);
     let (bh, bl) = ((b >> 32) as i32, b as u32);
+    // The model's values have integer parts far below 2^15 (mm, coefficients, radians): then
+    // |hh| <= 2^30 is one 32-bit multiply, |hl|, |lh| < 2^47 and the whole sum is below
+    // 2^62 + 2^48 + 2^32 < 2^63, so it needs no overflow test at all.
+    if (ah as u32).wrapping_add(1 << 15) < 1 << 16 && (bh as u32).wrapping_add(1 << 15) < 1 << 16 {
+        let hh = (ah * bh) as i64;
+        let hl = ah as i64 * bl as i64;
+        let lh = al as i64 * bh as i64;
+        let ll = ((al as u64 * bl as u64) >> 32) as i64;
+        return (hh << 32) + hl + lh + ll;
+    }
     let hh = ah as i64 * bh as i64; // signed x signed
     let hl = ah as i64 * bl as i64; // signed x unsigned: |.| < 2^63
     let lh = al as i64 * bh as i64;
@@ -322,6 +334,20 @@ pub trait Scalar:
     /// the ordinary product.
     #[inline]
     fn mul_coef(self, c: Self) -> Self {
+        self * c
+    }
+    /// Whether [`Scalar::mul_tested_coef`] may take `self` as its coefficient: `|self| < 1` in
+    /// fixed point, always for the float types. A loop that multiplies by the same
+    /// coefficients many times tests them once with this instead of on every product.
+    #[inline]
+    fn is_coef(self) -> bool {
+        true
+    }
+    /// `self * c` for a `c` whose [`Scalar::is_coef`] holds (the caller tested it), the same
+    /// value as [`Scalar::mul_coef`] without its test. For any other `c` the fixed-point
+    /// result is wrong (never a panic): call it only behind the test.
+    #[inline]
+    fn mul_tested_coef(self, c: Self) -> Self {
         self * c
     }
     /// Sine and cosine of an angle in radians.
@@ -577,13 +603,27 @@ impl Scalar for Fx {
     /// `self * c` without the overflow test for `|c| < 1` (see [`mul_coef_bits`]).
     #[inline]
     fn mul_coef(self, c: Self) -> Self {
-        let cb = c.0.to_bits();
-        // -2^32 < cb < 2^32, as one unsigned comparison of the shifted range.
-        if (cb.wrapping_add((1 << 32) - 1) as u64) < (1 << 33) - 1 {
-            Fx(FxRaw::from_bits(mul_coef_bits(self.0.to_bits(), cb)))
+        if c.is_coef() {
+            self.mul_tested_coef(c)
         } else {
             self * c
         }
+    }
+    /// -2^32 < bits < 2^32: the high word is 0, or -1 with a non-zero low word. Tested on
+    /// the 32-bit words (a compare with zero each on the Cortex-M4) rather than as one
+    /// 64-bit range comparison, which took about twice the instructions there.
+    #[inline]
+    fn is_coef(self) -> bool {
+        let bits = self.0.to_bits();
+        let high = (bits >> 32) as i32;
+        high == 0 || (high == -1 && bits as u32 != 0)
+    }
+    #[inline]
+    fn mul_tested_coef(self, c: Self) -> Self {
+        Fx(FxRaw::from_bits(mul_coef_bits(
+            self.0.to_bits(),
+            c.0.to_bits(),
+        )))
     }
     #[inline]
     fn div(self, rhs: Self) -> Self {
@@ -746,6 +786,13 @@ mod tests {
             1 << 47,
             -(1 << 47),
             (1 << 47) + 12345,
+            // The small-operand fast path's bounds: integer parts -2^15 and 2^15 - 1 (in),
+            // -2^15 - 1 and 2^15 (out).
+            (1 << 47) - 1,
+            -(1 << 47) - 1,
+            -(1 << 47) + 1,
+            ((1 << 15) - 1) << 32,
+            (-(1 << 15)) << 32,
         ];
         let want = |a: i64, b: i64| clamp_i128(mul_wide(a, b) >> 32);
         for &a in &edges {
@@ -948,6 +995,13 @@ mod tests {
                 let (a, c) = (Fx::from_bits(a), Fx::from_bits(c));
                 assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
                 check_partial(a, c);
+                // is_coef is exactly -1 < c < 1, and behind it the untested product is the
+                // product.
+                let raw = c.to_bits();
+                assert_eq!(c.is_coef(), raw > -(1 << 32) && raw < 1 << 32, "{c:?}");
+                if c.is_coef() {
+                    assert_eq!(a.mul_tested_coef(c), a * c, "{a:?} * {c:?}");
+                }
             }
         }
         for _ in 0..200_000 {
@@ -956,6 +1010,9 @@ mod tests {
             let c = Fx::from_bits(next() >> (28 + (next() & 7)));
             assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
             check_partial(a, c);
+            if c.is_coef() {
+                assert_eq!(a.mul_tested_coef(c), a * c, "{a:?} * {c:?}");
+            }
         }
     }
 

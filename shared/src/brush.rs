@@ -448,37 +448,29 @@ impl<S: Scalar> Brush<S> {
             *t = tie_weight_at(d, x.z);
         }
 
-        // Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs).
-        let row_rhs = |row: &Row<S>, i: usize, spring: Vec3<S>, rel: Vec3<S>| {
-            // The coefficients are in [0, 1) (fractions of the mass's W'), and so is a tie
-            // weight below one.
-            let mut pi = spring.scale_coef(row.c_k) + rel.scale_coef(row.c_j);
-            let w = ties[i];
-            if w > S::ZERO {
-                let tie = (self.skel[i] - self.spine[i]).scale_coef(row.c_t)
-                    + (self.skel_vel[i] - self.vel[i]).scale_coef(row.c_tv);
-                // A mass clear of the paper has weight exactly one, and scaling by one is
-                // exact in every scalar type: skip those three multiplies.
-                pi += if w < S::ONE { tie.scale_coef(w) } else { tie };
-            }
-            pi
-        };
         // p is kept flattened (x_0, y_0, z_0, x_1, ...) for the solve, see [`jacobi`].
         let last = n - 1;
         let mut p = [S::ZERO; FLAT];
         // Entry 0 (the ferrule has no row) holds du_0 for the solve.
         p[..3].copy_from_slice(&[du0.x, du0.y, du0.z]);
-        for (i, (pi, (v, s))) in p[3..3 * last]
-            .chunks_exact_mut(3)
-            .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
-            .enumerate()
+        // The interior rows share their coefficients (in [0, 1): fractions of the mass's
+        // W'): tested once for the whole loop instead of on each product.
+        if [inner.c_k, inner.c_j, inner.c_t, inner.c_tv]
+            .iter()
+            .all(|c| c.is_coef())
         {
-            let ui = v[1];
-            let r = row_rhs(&inner, i + 1, s[1] - s[0], (v[0] - ui) + (v[2] - ui));
-            pi.copy_from_slice(&[r.x, r.y, r.z]);
+            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
+        } else {
+            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
         }
-        let r = row_rhs(&tip, last, -seg[last], self.vel[last - 1] - self.vel[last])
-            + self.tip_load.scale_coef(tip.c_f);
+        let r = self.row_rhs(
+            &tip,
+            last,
+            -seg[last],
+            self.vel[last - 1] - self.vel[last],
+            ties[last],
+            S::mul_coef,
+        ) + self.tip_load.scale_coef(tip.c_f);
         p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
         let mut du = [S::ZERO; FLAT];
@@ -518,6 +510,54 @@ impl<S: Scalar> Brush<S> {
             *u = v;
             *x = s;
             *touching = s.z <= tol;
+        }
+    }
+
+    /// Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs) for mass `i` with tie
+    /// weight `w`, the row's coefficients multiplied by `mul` (a coefficient product).
+    #[inline(always)]
+    fn row_rhs(
+        &self,
+        row: &Row<S>,
+        i: usize,
+        spring: Vec3<S>,
+        rel: Vec3<S>,
+        w: S,
+        mul: impl Fn(S, S) -> S,
+    ) -> Vec3<S> {
+        let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
+        let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
+        if w > S::ZERO {
+            let tie = scale(self.skel[i] - self.spine[i], row.c_t)
+                + scale(self.skel_vel[i] - self.vel[i], row.c_tv);
+            // A mass clear of the paper has weight exactly one, and scaling by one is exact in
+            // every scalar type: skip those three multiplies. A weight below one is a
+            // coefficient.
+            pi += if w < S::ONE { tie.scale_coef(w) } else { tie };
+        }
+        pi
+    }
+
+    /// [`Self::row_rhs`] of the interior masses 1..n-1 into `p` (flattened, see [`jacobi`]).
+    #[inline(always)]
+    fn interior_rhs(
+        &self,
+        inner: &Row<S>,
+        seg: &[Vec3<S>; MAX_LAYERS + 1],
+        ties: &[S; MAX_LAYERS],
+        p: &mut [S; FLAT],
+        mul: impl Fn(S, S) -> S + Copy,
+    ) {
+        let n = self.d.n;
+        for (i, (pi, (v, s))) in p[3..3 * (n - 1)]
+            .chunks_exact_mut(3)
+            .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
+            .enumerate()
+        {
+            let ui = v[1];
+            let rel = (v[0] - ui) + (v[2] - ui);
+            let r = self.row_rhs(inner, i + 1, s[1] - s[0], rel, ties[i + 1], mul);
+            pi.copy_from_slice(&[r.x, r.y, r.z]);
         }
     }
 
@@ -619,8 +659,26 @@ impl<S: Scalar> Brush<S> {
     /// Rebuilds VS_i from the handle (eqs. 3-5, 3-6) and the node offsets
     /// ([`Self::skeleton_offsets`]); records their displacement if `track`.
     fn rebuild_skeleton(&mut self, track: bool, offsets: &Offsets<S>) {
-        let n = self.d.n;
         let m = RotMat::from_quat(self.handle.rot).m;
+        // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
+        // nine entries tested once for all nodes rather than on each product.
+        if m.iter().flatten().all(|c| c.is_coef()) {
+            self.place_skeleton(track, offsets, &m, S::mul_tested_coef);
+        } else {
+            self.place_skeleton(track, offsets, &m, S::mul_coef);
+        }
+    }
+
+    /// [`Self::rebuild_skeleton`] with the rotation `m`, products by its entries by `mul`.
+    #[inline(always)]
+    fn place_skeleton(
+        &mut self,
+        track: bool,
+        offsets: &Offsets<S>,
+        m: &[[S; 3]; 3],
+        mul: impl Fn(S, S) -> S,
+    ) {
+        let n = self.d.n;
         let pos = self.handle.pos;
         let [ox, oy, oz] = offsets;
         // Node 0 is the handle itself (offset zero).
@@ -631,11 +689,10 @@ impl<S: Scalar> Brush<S> {
             .zip(&oy[..n])
             .zip(&oz[..n])
         {
-            // A rotation's entries are in [-1, 1]: coefficient products (the same values).
             let next = Vec3::new(
-                pos.x + (x.mul_coef(m[0][0]) + y.mul_coef(m[0][1]) + z.mul_coef(m[0][2])),
-                pos.y + (x.mul_coef(m[1][0]) + y.mul_coef(m[1][1]) + z.mul_coef(m[1][2])),
-                pos.z + (x.mul_coef(m[2][0]) + y.mul_coef(m[2][1]) + z.mul_coef(m[2][2])),
+                pos.x + (mul(x, m[0][0]) + mul(y, m[0][1]) + mul(z, m[0][2])),
+                pos.y + (mul(x, m[1][0]) + mul(y, m[1][1]) + mul(z, m[1][2])),
+                pos.z + (mul(x, m[2][0]) + mul(y, m[2][1]) + mul(z, m[2][2])),
             );
             if track {
                 *vel = next - *node;
@@ -797,6 +854,26 @@ fn jacobi<S: Scalar>(
     iterations: usize,
     du: &mut [S; FLAT],
 ) {
+    // The two coefficients are the same for every sweep: tested once (the presets' are in
+    // (-1, 1)), not on each of the sweeps' products; the same values either way.
+    if c.is_coef() && c_tip.is_coef() {
+        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_tested_coef);
+    } else {
+        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_coef);
+    }
+}
+
+/// [`jacobi`] with the product by a coefficient `mul`.
+#[inline(always)]
+fn jacobi_with<S: Scalar>(
+    p: &[S; FLAT],
+    c: S,
+    c_tip: S,
+    n: usize,
+    iterations: usize,
+    du: &mut [S; FLAT],
+    mul: impl Fn(S, S) -> S,
+) {
     // Components of the interior masses 1..n-1, and of the tip.
     let (lo, tip) = (3, 3 * (n - 1));
     let sweep = |src: &[S; FLAT], dst: &mut [S; FLAT]| {
@@ -806,14 +883,14 @@ fn jacobi<S: Scalar>(
             .zip(&src[lo - 3..tip - 3])
             .zip(&src[lo + 3..tip + 3])
         {
-            *o = *pk + (*left + *right).mul_coef(c);
+            *o = *pk + mul(*left + *right, c);
         }
         for ((o, pk), left) in dst[tip..tip + 3]
             .iter_mut()
             .zip(&p[tip..tip + 3])
             .zip(&src[tip - 3..tip])
         {
-            *o = *pk + left.mul_coef(c_tip);
+            *o = *pk + mul(*left, c_tip);
         }
     };
     // The first sweep reads p itself (du starts at p); the buffers alternate so that the last

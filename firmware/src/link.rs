@@ -13,18 +13,21 @@
 //!   never waits for the link). When the queue is full the task stops reading until it has
 //!   room, so the host's window, not a dropped sample, absorbs the difference. A pen with
 //!   its own sensors has no queue: poses (and guide samples) from the host are ignored.
-//! * `State` frames: the force loop copies the brush into the snapshot slot when one is due
-//!   ([`app::STATE_HZ`] per 1000 ticks, 120 by default); this task builds
-//!   [`BrushState::from_brush`] from it and encodes it here, in thread mode. A state that
+//! * `State` frames: the force loop fills the snapshot slot with the frame's
+//!   [`maobi_shared::protocol::BrushState`] when one is due ([`app::STATE_HZ`] per 1000 ticks,
+//!   120 by default); this task encodes it where it lies, in thread mode. A state that
 //!   finds the transmit ring full is dropped and counted (`Telemetry::frames_dropped`).
 //! * Commands and parameters are validated here and handed to the force loop as
 //!   [`app::Command`]s; every one is answered.
 //! * The stored configuration ([`ConfigStore`]): loaded and decoded when the task starts;
-//!   the handshake reports its [`ConfigState`]. Until it allows forces (valid and
-//!   calibrated, or none needed: QEMU without an image) [`app::CONFIG_OK`] stays off, so
-//!   the force loop never drives the motors, and `EnableForces` / `NudgeMotor` are refused
-//!   with `ConfigNotValid`. `SetConfig` is refused while forces are enabled, validated
-//!   whole before anything is written, written, read back and decoded, and only then put in
+//!   the handshake reports its [`ConfigState`]. Until it allows forces
+//!   ([`pen_io::Readiness`]: valid with zeros that hold, or none needed: QEMU without an
+//!   image) [`app::CONFIG_OK`] stays off, so the force loop never drives the motors,
+//!   `EnableForces` / `NudgeMotor` are refused with `ConfigNotValid`, and state frames and
+//!   events carry `Faults::NOT_CALIBRATED`. Zeros hold when stored, except on a board
+//!   announcing `NEEDS_CALIBRATION` (incremental encoders, the Black Pill): there only a
+//!   `Calibrate` since power-on counts. `SetConfig` is refused while forces are enabled,
+//!   validated whole before anything is written, written, read back and decoded, and only then put in
 //!   force (`app::Command::Configure`). `Calibrate` records one raw reading (the pen resting
 //!   in its inkwell) into the configuration and stores it the same way.
 //! * Bring-up: `StreamSensors` asks the force loop for raw readings
@@ -44,14 +47,14 @@ use core::task::Poll;
 use embassy_time::{Duration, Timer};
 use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
-use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
+use maobi_shared::pen_io::{self, DeviceConfig, Readiness, ZeroHold, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
-    param_id, BrushState, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg,
+    param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
+    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, HostMsg,
     Message, Nudge, ParamRejected, ParamReply, SensorReport, Telemetry, Version,
     SENSOR_RATE_MAX_HZ,
 };
-use maobi_shared::{BrushParams, Fx, Vec3};
+use maobi_shared::{BrushParams, Fx};
 
 use crate::app::{self, Command, CONFIG_OK, FAULTS, FORCES_ENABLED, SENSORS, SNAPSHOT, TICKS};
 use crate::board::{ConfigStore, LinkTransport};
@@ -61,7 +64,8 @@ pub struct BoardInfo {
     /// The board's name.
     pub name: &'static str,
     pub capabilities: Capabilities,
-    /// Force limits (N).
+    /// Force limits (N) without a stored configuration; with one, the handshake reports
+    /// the configuration's (`DeviceConfig::limits`, what the force loop applies).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
 }
@@ -120,6 +124,9 @@ struct Link<T, S> {
     config_state: ConfigState,
     /// The configuration in force (`Valid` only).
     config: Option<DeviceConfig>,
+    /// The zeros `Calibrate` took since power-on (what counts on a board whose encoders
+    /// restart at every power-on).
+    zeros_since_power_on: Option<RawReadings>,
     /// Sensor reports every this many ticks (0: not streaming), next at `next_sensors`.
     sensors_every: u32,
     next_sensors: u32,
@@ -154,6 +161,7 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
         cmds_sent: 0,
         config_state: ConfigState::NotApplicable,
         config: None,
+        zeros_since_power_on: None,
         sensors_every: 0,
         next_sensors: 0,
     };
@@ -229,7 +237,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     /// A valid frame: the link is alive; report a reconnection after a silence.
     async fn heard(&mut self) {
         let now = TICKS.load(Ordering::Relaxed);
-        let faults = FAULTS.load(Ordering::SeqCst);
+        let faults = app::reported_faults();
         if faults & app::fault::LINK_SILENT != 0 && !self.silence_reported {
             self.silence_reported = true;
             let last = app::LAST_RX_TICK.load(Ordering::Relaxed);
@@ -249,15 +257,20 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn handle(&mut self, m: HostMsg) {
         match m {
             HostMsg::Hello(_) => {
+                let (peak, continuous) = match &self.config {
+                    Some(c) => (c.limits.peak_n, c.limits.continuous_n),
+                    None => (self.board.force_peak_n, self.board.force_continuous_n),
+                };
                 let info = DeviceInfo::new(
                     self.board.name,
                     firmware_version(),
                     self.board.capabilities,
-                    self.board.force_peak_n,
-                    self.board.force_continuous_n,
+                    peak,
+                    continuous,
                 )
                 .with_config(self.config_state.clone());
-                self.send(&DeviceMsg::Hello(info)).await;
+                let n = self.stage(&DeviceMsg::Hello(info));
+                self.send_staged(n).await;
                 self.command(Command::Reanchor).await;
                 app::LINK_ARMED.store(true, Ordering::SeqCst);
                 if !self.connected_once {
@@ -266,7 +279,10 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                     self.event(now, EventKind::LinkConnected).await;
                 }
             }
-            HostMsg::Ping { seq } => self.send(&DeviceMsg::Pong { seq }).await,
+            HostMsg::Ping { seq } => {
+                let n = self.stage(&DeviceMsg::Pong { seq });
+                self.send_staged(n).await;
+            }
             HostMsg::Pose(s) => {
                 // The guide sample sent for this tick rides with its pose, so the force loop
                 // applies it at the tick that consumes the pose (as the host's mirror does).
@@ -295,7 +311,8 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             HostMsg::Guide(g) => self.guide = Some(g),
             HostMsg::GetParam { id } => {
                 let r = ParamReply::read(&self.params, id);
-                self.send(&DeviceMsg::Param(r)).await;
+                let n = self.stage(&DeviceMsg::Param(r));
+                self.send_staged(n).await;
             }
             HostMsg::SetParam { id, value } => {
                 let reply = match param_id(id) {
@@ -313,22 +330,25 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                         ParamReply::written(id, outcome, &self.params)
                     }
                 };
-                self.send(&DeviceMsg::Param(reply)).await;
+                let n = self.stage(&DeviceMsg::Param(reply));
+                self.send_staged(n).await;
             }
             HostMsg::Command(c) => {
                 let result = self.wire_command(&c).await;
-                self.send(&DeviceMsg::CommandDone { command: c, result })
-                    .await;
+                let n = self.stage(&DeviceMsg::CommandDone { command: c, result });
+                self.send_staged(n).await;
             }
             HostMsg::GetConfig => {
                 let reply = self
                     .config
                     .ok_or_else(|| ConfigRejected::NotStored(self.config_state.clone()));
-                self.send(&DeviceMsg::Config(reply)).await;
+                let n = self.stage(&DeviceMsg::Config(reply));
+                self.send_staged(n).await;
             }
             HostMsg::SetConfig(cfg) => {
                 let reply = self.set_config(cfg).await;
-                self.send(&DeviceMsg::Config(reply)).await;
+                let n = self.stage(&DeviceMsg::Config(reply));
+                self.send_staged(n).await;
             }
         }
     }
@@ -392,8 +412,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
             self.command(Command::Configure).await;
         }
-        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
-        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        self.publish_readiness();
     }
 
     /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
@@ -417,13 +436,32 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         Ok(self.parts.store.store(buf.get(..n).unwrap_or(&[])))
     }
 
-    /// Forces may be rendered: no configuration needed, or a valid and calibrated one.
+    /// Whether forces may be rendered and whether the pen is calibrated, from the
+    /// configuration in force and how long this board's zeros hold.
+    fn readiness(&self) -> Readiness {
+        let zeros = if self
+            .board
+            .capabilities
+            .contains(Capabilities::NEEDS_CALIBRATION)
+        {
+            ZeroHold::SincePowerOn(self.zeros_since_power_on)
+        } else {
+            // Absolute readings: the QEMU board's are synthesised from the host's poses.
+            ZeroHold::Stored
+        };
+        Readiness::of(&self.config_state, self.config.as_ref(), zeros)
+    }
+
     fn config_allows_forces(&self) -> bool {
-        match self.config_state {
-            ConfigState::NotApplicable => true,
-            ConfigState::Valid => self.config.is_some_and(|c| c.calibration.is_some()),
-            ConfigState::Missing | ConfigState::Corrupt(_) => false,
-        }
+        self.readiness().allows_forces
+    }
+
+    /// Tells the force loop (motor gate), the fault report and the LED.
+    fn publish_readiness(&self) {
+        let r = self.readiness();
+        CONFIG_OK.store(r.allows_forces, Ordering::SeqCst);
+        app::NOT_CALIBRATED.store(r.not_calibrated, Ordering::SeqCst);
+        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
     }
 
     /// `SetConfig`: refuse while forces are on, validate all of it, then write.
@@ -449,8 +487,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
             self.command(Command::Configure).await;
         }
-        CONFIG_OK.store(self.config_allows_forces(), Ordering::SeqCst);
-        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        self.publish_readiness();
         if ok {
             Ok(())
         } else {
@@ -476,10 +513,14 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             .sample_sensors()
             .await
             .ok_or(CommandError::OutOfRange)?;
-        cfg.calibration = Some(RawReadings {
+        let zeros = RawReadings {
             encoders: r.encoders,
             gimbal: r.gimbal.map(i32::from),
-        });
+        };
+        cfg.calibration = Some(zeros);
+        // Taken now: they hold until power-off whatever a board's encoders do (in force
+        // once the configuration carrying them is).
+        self.zeros_since_power_on = Some(zeros);
         self.write_config(cfg)
             .await
             .map_err(|_| CommandError::StoreFailed)
@@ -556,34 +597,27 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         }
     }
 
-    /// A state frame from the snapshot, if the force loop left one.
+    /// A state frame from the snapshot, if the force loop left one, encoded where the state
+    /// lies (no copy of it on the stack).
     fn send_state(&mut self) {
-        let Some(Some(state)) = SNAPSHOT.take(|s| {
+        let Some(n) = SNAPSHOT.take(|s| {
             self.pose_gaps = s.pose_gaps;
-            let brush = s.brush.as_ref()?;
-            let haptics = Haptics::new(
-                Vec3::new(s.force[0], s.force[1], s.force[2]),
-                s.motors,
-                s.enabled,
-            );
-            Some(BrushState::from_brush(
-                brush,
-                s.tick,
-                s.pose_seq,
-                haptics,
-                faults_of(s.faults),
-            ))
+            // SAFETY: only the link task uses the buffer, and not re-entrantly (no await).
+            let buf = unsafe { &mut *TX_BUF.0.get() };
+            // As in `stage`: 0 (nothing sent) cannot happen within the bound.
+            DeviceMsg::encode_state(&s.state, buf).unwrap_or(0)
         }) else {
             return;
         };
-        if !self.try_send(&DeviceMsg::State(state)) {
+        if !self.write_staged(n) {
             self.frames_dropped = self.frames_dropped.saturating_add(1);
         }
     }
 
     async fn events(&mut self) {
         let now = TICKS.load(Ordering::Relaxed);
-        let faults = FAULTS.load(Ordering::SeqCst);
+        // NOT_CALIBRATED included: raised at start, cleared by a successful calibration.
+        let faults = app::reported_faults();
         if faults & app::fault::LINK_SILENT == 0 {
             self.silence_reported = false;
         }
@@ -641,34 +675,51 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             pose_gaps: self.pose_gaps,
             rx: self.rx.stats(),
         };
-        self.send(&DeviceMsg::Telemetry(t)).await;
+        let n = self.stage(&DeviceMsg::Telemetry(t));
+        self.send_staged(n).await;
     }
 
     async fn event(&mut self, tick: u32, kind: EventKind) {
-        let faults = faults_of(FAULTS.load(Ordering::SeqCst));
-        self.send(&DeviceMsg::Event(Event { tick, kind, faults }))
-            .await;
+        let faults = faults_of(app::reported_faults());
+        let n = self.stage(&DeviceMsg::Event(Event { tick, kind, faults }));
+        self.send_staged(n).await;
     }
 
-    /// Sends a message that must not be lost, waiting for room in the transmit ring.
-    async fn send(&mut self, m: &DeviceMsg) {
-        while !self.try_send(m) {
+    /// Encodes `m` into the transmit buffer and returns the frame's length, for
+    /// [`Self::send_staged`]. Not async, and the call sites build the message in its argument,
+    /// so a message (as large as the largest, a state frame: about 3 KB) lives on the stack
+    /// for this call only, never in the task's future while it waits for room.
+    fn stage(&mut self, m: &DeviceMsg) -> usize {
+        // SAFETY: only the link task uses the buffer, and not re-entrantly (no await here).
+        let buf = unsafe { &mut *TX_BUF.0.get() };
+        // An error cannot happen for messages within the bound; 0 sends nothing rather than
+        // stalling.
+        m.encode(buf).unwrap_or(0)
+    }
+
+    /// Queues the frame [`Self::stage`] left in the transmit buffer (a message that must not
+    /// be lost), waiting for room in the transmit ring. Nothing else stages meanwhile: the
+    /// link task is the buffer's only user and does one thing at a time.
+    async fn send_staged(&mut self, n: usize) {
+        while !self.write_staged(n) {
             Timer::after_micros(u64::from(self.cfg.tick_us / 4).max(100)).await;
         }
     }
 
     /// Encodes `m` and queues it whole, or not at all (false: no room now).
     fn try_send(&mut self, m: &DeviceMsg) -> bool {
-        // SAFETY: only the link task uses the buffer, and not re-entrantly (no await here).
-        let buf = unsafe { &mut *TX_BUF.0.get() };
-        let Ok(n) = m.encode(buf) else {
-            // Cannot happen for messages within the bound; drop rather than stall.
-            return true;
-        };
+        let n = self.stage(m);
+        self.write_staged(n)
+    }
+
+    /// Queues the first `n` bytes of the transmit buffer whole, or not at all.
+    fn write_staged(&mut self, n: usize) -> bool {
         if self.parts.transport.tx_space() < n {
             return false;
         }
-        self.parts.transport.write(&buf[..n]);
+        // SAFETY: as in `stage`: the link task's own buffer, no await in between.
+        let buf = unsafe { &*TX_BUF.0.get() };
+        self.parts.transport.write(buf.get(..n).unwrap_or(&[]));
         true
     }
 }

@@ -184,13 +184,17 @@ fn main() -> Result<()> {
         }
         Cmd::Size { .. } => {
             let s = firmware::size(&elf, 0x2000_0000)?;
+            let ram = s.static_ram + firmware::Board::STACK_RESERVE;
             println!("image: {}", elf.display());
             println!(
-                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB incl. stack)",
+                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB incl. stack) ram_with_stack={} bytes ({:.1} KiB, budget 32 KiB, stack reserve {} bytes)",
                 s.flash,
                 s.flash as f64 / 1024.0,
                 s.static_ram,
-                s.static_ram as f64 / 1024.0
+                s.static_ram as f64 / 1024.0,
+                ram,
+                ram as f64 / 1024.0,
+                firmware::Board::STACK_RESERVE,
             );
         }
         Cmd::Selftest { ticks } => {

@@ -8,6 +8,10 @@
 //! * a corrupt byte, a truncated image, erased flash, another format version: the handshake
 //!   says which, `EnableForces` and nudges are refused, the motors stay at zero; a valid
 //!   `SetConfig` recovers;
+//! * an uncalibrated image: no force before calibration. State frames and events carry
+//!   `NOT_CALIBRATED` (not cleared by `ClearFaults`), forces and nudges are refused; a
+//!   `Calibrate` clears it and forces enable; a configuration written without zeros brings
+//!   it back and ends a nudge that was running;
 //! * no image: the virtual pen needs none (`NotApplicable`), as before.
 //!
 //! Needs `qemu-system-arm` (skipped with a message without it, unless `MAOBI_REQUIRE_QEMU`
@@ -22,8 +26,8 @@ use hil::{firmware, qemu};
 use maobi_shared::kinematics::{Joints, Pen, PenConfig, RawReadings};
 use maobi_shared::pen_io::{self, ConfigError, ConfigState, DeviceConfig, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
-    crc32, Buttons, Capabilities, Command, CommandError, ConfigRejected, DeviceInfo, DeviceMsg,
-    HostMsg, Nudge, PoseSample, SensorReport,
+    crc32, BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, DeviceInfo,
+    DeviceMsg, EventKind, Faults, HostMsg, Nudge, PoseSample, SensorReport,
 };
 use maobi_shared::{Fx, Scalar};
 
@@ -343,6 +347,131 @@ fn damaged_images_start_safe_and_say_why() {
     }
 }
 
+/// The next `n` state frames (pinging as it goes, as `motor_states`).
+fn next_states(s: &mut Link, n: usize) -> Vec<BrushState> {
+    let mut out = Vec::new();
+    while out.len() < n {
+        s.send(&HostMsg::Ping {
+            seq: out.len() as u32,
+        })
+        .unwrap();
+        let (st, _) = s
+            .wait_for(ANSWER, &mut vec![], |r| match r {
+                DeviceMsg::State(st) => Some(st.clone()),
+                _ => None,
+            })
+            .unwrap()
+            .expect("state frames");
+        out.push(st);
+    }
+    out
+}
+
+#[test]
+fn no_force_before_calibration() {
+    let Some(elf) = image() else { return };
+    let uncalibrated = DeviceConfig::DEFAULT;
+    assert_eq!(uncalibrated.calibration, None);
+    let (dev, mut s, info, path) = boot(&elf, Some(&encoded(&uncalibrated)));
+    // The image is valid: the handshake says so; the faults say it is not calibrated.
+    assert_eq!(info.config, ConfigState::Valid);
+    let mut seen = vec![];
+    let (connected, _) = s
+        .wait_for(ANSWER, &mut seen, |r| match r {
+            DeviceMsg::Event(e) if e.kind == EventKind::LinkConnected => Some(e.clone()),
+            _ => None,
+        })
+        .unwrap()
+        .expect("the connection event");
+    assert!(
+        connected.faults.contains(Faults::NOT_CALIBRATED),
+        "{connected:?}"
+    );
+    for st in next_states(&mut s, 10) {
+        assert!(
+            st.faults.contains(Faults::NOT_CALIBRATED),
+            "{:?}",
+            st.faults
+        );
+        assert!(!st.haptics.enabled);
+        assert_eq!(st.haptics.motors, [0; 3]);
+    }
+    // Forces and nudges are refused; clearing faults does not clear it.
+    assert_eq!(
+        command(&mut s, Command::EnableForces),
+        Err(CommandError::ConfigNotValid)
+    );
+    let nudge = Nudge {
+        channel: 0,
+        command_permille: 100,
+        duration_ms: 300,
+    };
+    assert_eq!(
+        command(&mut s, Command::NudgeMotor(nudge.clone())),
+        Err(CommandError::ConfigNotValid)
+    );
+    assert_eq!(command(&mut s, Command::ClearFaults), Ok(()));
+    let st = next_states(&mut s, 3);
+    assert!(
+        st.iter().all(|st| st.faults == Faults::NOT_CALIBRATED),
+        "{st:?}"
+    );
+
+    // Calibrate at the inkwell: the fault is cleared (an event says so), forces enable.
+    s.send(&HostMsg::Pose(PoseSample::new(
+        1,
+        inkwell_pose(),
+        Buttons::empty(),
+    )))
+    .unwrap();
+    assert_eq!(command(&mut s, Command::Calibrate), Ok(()));
+    let mut seen = vec![];
+    let (cleared, _) = s
+        .wait_for(ANSWER, &mut seen, |r| match r {
+            DeviceMsg::Event(e) if matches!(e.kind, EventKind::FaultCleared(_)) => Some(e.clone()),
+            _ => None,
+        })
+        .unwrap()
+        .expect("a fault-cleared event");
+    assert_eq!(
+        cleared.kind,
+        EventKind::FaultCleared(Faults::NOT_CALIBRATED)
+    );
+    assert_eq!(cleared.faults, Faults::empty());
+    let st = next_states(&mut s, 3);
+    assert!(st.iter().all(|st| st.faults.is_empty()), "{st:?}");
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    assert_eq!(command(&mut s, Command::DisableForces), Ok(()));
+
+    // A nudge runs; a configuration without zeros written meanwhile ends it at once and
+    // the pen is not calibrated again.
+    assert_eq!(command(&mut s, Command::NudgeMotor(nudge)), Ok(()));
+    let running = next_states(&mut s, 2);
+    assert!(
+        running.iter().any(|st| st.haptics.motors[0] != 0),
+        "the nudge runs: {running:?}"
+    );
+    assert_eq!(
+        config(&mut s, HostMsg::SetConfig(uncalibrated)),
+        Ok(uncalibrated)
+    );
+    let after = next_states(&mut s, 40);
+    let first = after[0].tick;
+    // A state copied before the write may still be on its way; from the next tick on
+    // the motors are off (the nudge had up to 300 ticks left).
+    for st in after.iter().filter(|st| st.tick > first + 1) {
+        assert_eq!(st.haptics.motors, [0; 3], "tick {}", st.tick);
+        assert!(st.faults.contains(Faults::NOT_CALIBRATED));
+    }
+    assert!(after.last().unwrap().tick > first + 100, "{first}..");
+    assert_eq!(
+        command(&mut s, Command::EnableForces),
+        Err(CommandError::ConfigNotValid)
+    );
+    drop(dev);
+    let _ = std::fs::remove_file(path);
+}
+
 #[test]
 fn without_an_image_the_virtual_pen_needs_none() {
     let Some(elf) = image() else { return };
@@ -358,5 +487,55 @@ fn without_an_image_the_virtual_pen_needs_none() {
         Err(CommandError::Unsupported)
     );
     assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    // Calibrated by construction: the fault is never reported.
+    for st in next_states(&mut s, 5) {
+        assert!(
+            !st.faults.contains(Faults::NOT_CALIBRATED),
+            "{:?}",
+            st.faults
+        );
+    }
     drop(dev);
+}
+
+/// The configuration's force limits are the ones in force: the handshake reports them and
+/// the output stage holds the force of a 10 mm press to the configured peak (the Phantom
+/// Omni's default would let about 1.5 N through).
+#[test]
+fn the_configurations_force_limits_are_the_ones_in_force() {
+    let Some(elf) = image() else { return };
+    let mut cfg = calibrated();
+    cfg.limits.peak_n = 0.5;
+    cfg.limits.continuous_n = 0.5;
+    let (_dev, mut s, info, path) = boot(&elf, Some(&encoded(&cfg)));
+    assert_eq!(info.config, ConfigState::Valid);
+    assert_eq!(
+        (info.force_peak_n, info.force_continuous_n),
+        (0.5, 0.5),
+        "{info:?}"
+    );
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    let track = maobi::poses::PoseTrack::from_path(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/press_lift.csv"),
+    )
+    .unwrap();
+    let poses = hil::link::track_poses(&track);
+    let mut log = hil::link::StreamLog::default();
+    hil::link::stream(&mut s, &poses, Default::default(), &mut log).unwrap();
+    // The virtual pen's motor commands are the output stage's force (N, world frame);
+    // `haptics.force_n` is what the model asked for before it.
+    let (mut asked, mut given) = (0.0f64, 0.0f64);
+    for (_, st) in log.states() {
+        asked = asked.max(st.haptics.force().cast::<f64>().norm());
+        let m = st.haptics.motors.map(|b| Fx::from_bits(b).to_f64());
+        given = given.max((m[0] * m[0] + m[1] * m[1] + m[2] * m[2]).sqrt());
+    }
+    println!("the press asked for {asked:.4} N; with a 0.5 N peak the motors gave {given:.4} N");
+    assert!(given <= 0.5 + 1e-6, "{given} N");
+    // The press asks for more than the limit: the clamp is what held it.
+    assert!(
+        asked > 1.0 && given > 0.45,
+        "asked {asked} N, given {given} N"
+    );
+    let _ = std::fs::remove_file(path);
 }

@@ -91,3 +91,72 @@ fn a_corrupt_store_is_rewritten_then_calibrated() {
         r.table()
     );
 }
+
+/// `maobi device config set` / `get` (the library functions behind them) against the
+/// firmware's own store: a builder's file without a calibration keeps the pen's, the pen
+/// answers with exactly what it stored, and its own validation refuses what the host's would.
+#[test]
+fn configuration_files_go_through_the_firmware_store() {
+    use maobi::device::bringup::Wire;
+    use maobi::device::config_file::{from_toml, read_from_pen, to_toml, write_to_pen};
+    use maobi_shared::kinematics::RawReadings;
+    use maobi_shared::protocol::ConfigRejected;
+
+    let Some(elf) = image() else { return };
+    let answer = Duration::from_secs(10);
+    let calibrated = DeviceConfig {
+        calibration: Some(RawReadings {
+            encoders: [0; 3],
+            gimbal: [2048; 3],
+        }),
+        ..DeviceConfig::DEFAULT
+    };
+    let mut buf = vec![0u8; CONFIG_IMAGE_MAX];
+    let n = pen_io::encode(&calibrated, &mut buf).unwrap();
+    let path = std::env::temp_dir().join(format!("maobi-cfgfile-{}.bin", std::process::id()));
+    std::fs::write(&path, &buf[..n]).unwrap();
+    let loader = qemu::config_loader_args(&path);
+    let (dev, first) =
+        QemuDevice::start_with(&elf, &[], &loader, Duration::from_secs(600)).unwrap();
+    drop(first);
+    let mut wire =
+        Wire::connect(&Endpoint::Tcp(format!("127.0.0.1:{}", dev.port)), answer).unwrap();
+
+    // The builder's file: the template with their arm and gentler limits, no calibration.
+    let text = to_toml(&DeviceConfig::DEFAULT, "a builder's pen")
+        .replace("forearm_mm = 133.35", "forearm_mm = 141.0")
+        .replace("peak_n = 3.3", "peak_n = 2.5");
+    let mine = from_toml(&text).unwrap();
+    assert_eq!(mine.calibration, None);
+    let w = write_to_pen(&mut wire, mine, false, answer).unwrap();
+    assert_eq!(w.before, Some(calibrated));
+    assert_eq!(w.stored.pen.forearm_mm, 141.0);
+    assert_eq!(w.stored.limits.peak_n, 2.5);
+    assert_eq!(
+        w.stored.calibration, calibrated.calibration,
+        "calibration lost"
+    );
+    assert_eq!(read_from_pen(&mut wire, answer).unwrap(), w.stored);
+
+    // Past the host's check, the firmware's own refuses the same value and keeps the old.
+    let mut bad = w.stored;
+    bad.drive[2].max_duty = 1.5;
+    match wire.set_config(bad, answer).unwrap() {
+        Err(ConfigRejected::Invalid(f)) => assert_eq!(f.field.as_str(), "drive[2].max_duty"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(read_from_pen(&mut wire, answer).unwrap(), w.stored);
+    let _ = std::fs::remove_file(&path);
+
+    // Without a store the virtual pen keeps no configuration, and says so.
+    let (dev, first) = QemuDevice::start_with(&elf, &[], &[], Duration::from_secs(600)).unwrap();
+    drop(first);
+    let mut wire =
+        Wire::connect(&Endpoint::Tcp(format!("127.0.0.1:{}", dev.port)), answer).unwrap();
+    let e = write_to_pen(&mut wire, mine, false, answer)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("keeps no configuration"), "{e}");
+    let e = read_from_pen(&mut wire, answer).unwrap_err().to_string();
+    assert!(e.contains("not applicable"), "{e}");
+}

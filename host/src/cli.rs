@@ -58,25 +58,74 @@ pub enum DeviceCmd {
     /// move each joint, each motor nudged gently (after a confirmation) with its direction
     /// checked, calibration in the inkwell, then a summary. Exits non-zero if a step failed.
     Check(DeviceCheckArgs),
+    /// The pen's stored configuration (link lengths, encoders, motors, drive, force limits,
+    /// calibration) as a TOML file: start from `template`, edit, `check`, then `set`.
+    #[command(subcommand)]
+    Config(DeviceConfigCmd),
 }
 
+#[derive(Debug, Subcommand)]
+pub enum DeviceConfigCmd {
+    /// Write the reference pen's configuration, every key commented, to start from.
+    Template {
+        /// Output file (default: standard output).
+        #[arg(short = 'o', long, value_name = "FILE")]
+        output: Option<PathBuf>,
+    },
+    /// Check a configuration file without a pen: syntax, unknown keys, every value's range.
+    Check {
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+    },
+    /// Read the configuration stored in the pen.
+    Get {
+        #[command(flatten)]
+        pen: PenArgs,
+        /// Output file (default: standard output).
+        #[arg(short = 'o', long, value_name = "FILE")]
+        output: Option<PathBuf>,
+    },
+    /// Check a configuration file, write it to the pen (forces must be off) and read it back.
+    /// Without a `[calibration]` table the pen's own calibration is kept.
+    Set {
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+        #[command(flatten)]
+        pen: PenArgs,
+        /// Drop the pen's calibration (the pen gives no force until it is calibrated again).
+        #[arg(long)]
+        clear_calibration: bool,
+    },
+}
+
+/// Which pen, and how long it may take to answer.
 #[derive(Debug, Args)]
-pub struct DeviceCheckArgs {
+pub struct PenArgs {
     /// The pen's serial port (default: the first port with Maobi's USB IDs 1209:0001).
     #[arg(long, value_name = "PATH", conflicts_with = "connect")]
     pub port: Option<String>,
     /// A device on TCP instead (the QEMU board's UART, `maobi sim-device`).
     #[arg(long, value_name = "HOST:PORT")]
     pub connect: Option<String>,
+    /// How long the pen may take to answer (s).
+    #[arg(long, value_name = "S", default_value = "3", value_parser = parse_px_per_mm)]
+    pub timeout: f64,
+}
+
+#[derive(Debug, Args)]
+pub struct DeviceCheckArgs {
+    #[command(flatten)]
+    pub pen: PenArgs,
+    /// The configuration to write if the pen has none or a corrupt one (a file from `maobi
+    /// device config template`; default: the reference pen's).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Answer yes to every question and wait for no key (scripts, tests).
     #[arg(long)]
     pub yes: bool,
     /// How long the live sensor readings run (Enter ends them sooner).
     #[arg(long, value_name = "S", default_value = "10", value_parser = parse_px_per_mm)]
     pub sensor_seconds: f64,
-    /// How long the pen may take to answer (s).
-    #[arg(long, value_name = "S", default_value = "3", value_parser = parse_px_per_mm)]
-    pub timeout: f64,
     /// Nudge strength in thousandths of full current (at most 150).
     #[arg(long, value_name = "N", default_value = "80", value_parser = clap::value_parser!(i16).range(1..=150))]
     pub nudge_permille: i16,
@@ -337,6 +386,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Some(Command::Bridge(a)) => run_bridge(&a),
         Some(Command::Device(DeviceCmd::Check(a))) => run_device_check(&a),
+        Some(Command::Device(DeviceCmd::Config(c))) => run_device_config(&c),
         Some(Command::Gui(a)) => crate::gui::run(gui_options(a)),
         None => crate::gui::run(gui_options(cli.gui)),
     }
@@ -452,20 +502,20 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
 }
 
 /// `maobi device check`: the bring-up wizard on the terminal (or scripted with `--yes`).
-fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
-    use crate::device::bringup::{run_check, CheckOptions, Operator, Scripted, Terminal};
+/// The pen `--port` / `--connect` name, or the first serial port with Maobi's USB IDs.
+fn pen_endpoint(a: &PenArgs) -> anyhow::Result<crate::device::Endpoint> {
     use crate::device::Endpoint;
-    let endpoint =
-        match (&a.connect, &a.port) {
-            (Some(addr), _) => format!("tcp:{addr}")
-                .parse::<Endpoint>()
-                .map_err(|e| anyhow::anyhow!(e))?,
-            (None, Some(p)) => Endpoint::Serial(p.clone()),
-            (None, None) => {
-                let ports = crate::device::serial_ports();
-                match ports.iter().find(|p| p.is_maobi()) {
-                    Some(p) => Endpoint::Serial(p.name.clone()),
-                    None => anyhow::bail!(
+    Ok(match (&a.connect, &a.port) {
+        (Some(addr), _) => format!("tcp:{addr}")
+            .parse::<Endpoint>()
+            .map_err(|e| anyhow::anyhow!(e))?,
+        (None, Some(p)) => Endpoint::Serial(p.clone()),
+        (None, None) => {
+            let ports = crate::device::serial_ports();
+            match ports.iter().find(|p| p.is_maobi()) {
+                Some(p) => Endpoint::Serial(p.name.clone()),
+                None => {
+                    anyhow::bail!(
                     "no serial port with Maobi's USB IDs (1209:0001); ports here: {}. Give one \
                      with --port PATH",
                     if ports.is_empty() {
@@ -473,14 +523,23 @@ fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
                     } else {
                         ports.iter().map(|p| p.label()).collect::<Vec<_>>().join(", ")
                     }
-                ),
+                )
                 }
             }
-        };
+        }
+    })
+}
+
+fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
+    use crate::device::bringup::{run_check, CheckOptions, Operator, Scripted, Terminal};
+    let endpoint = pen_endpoint(&a.pen)?;
     let mut opts = CheckOptions::new(endpoint.clone());
     opts.sensor_time = std::time::Duration::from_secs_f64(a.sensor_seconds);
-    opts.reply_timeout = std::time::Duration::from_secs_f64(a.timeout);
+    opts.reply_timeout = std::time::Duration::from_secs_f64(a.pen.timeout);
     opts.nudge_permille = a.nudge_permille;
+    if let Some(path) = &a.config {
+        opts.first_config = crate::device::config_file::load(path)?;
+    }
     opts.nudge_ms = a.nudge_ms;
     let mut scripted = Scripted {
         echo: true,
@@ -502,6 +561,104 @@ fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
         Ok(())
     } else {
         anyhow::bail!("some bring-up steps failed (see the table above)")
+    }
+}
+
+/// `maobi device config ...`.
+fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
+    use crate::device::bringup::Wire;
+    use crate::device::config_file::{
+        changes, load, read_from_pen, to_toml, write_to_pen, Written,
+    };
+    use maobi_shared::pen_io::DeviceConfig;
+
+    let write_out = |text: &str, output: &Option<PathBuf>| -> anyhow::Result<()> {
+        match output {
+            Some(path) => {
+                std::fs::write(path, text)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                eprintln!("wrote {}", path.display());
+            }
+            None => print!("{text}"),
+        }
+        Ok(())
+    };
+    let connect = |pen: &PenArgs| -> anyhow::Result<(Wire, std::time::Duration)> {
+        let endpoint = pen_endpoint(pen)?;
+        let timeout = std::time::Duration::from_secs_f64(pen.timeout);
+        let wire = Wire::connect(&endpoint, timeout).map_err(|e| anyhow::anyhow!(e))?;
+        eprintln!(
+            "{endpoint}: board {}, firmware {}, stored configuration {}",
+            wire.info.board, wire.info.firmware, wire.info.config
+        );
+        Ok((wire, timeout))
+    };
+    match c {
+        DeviceConfigCmd::Template { output } => write_out(
+            &to_toml(
+                &DeviceConfig::DEFAULT,
+                "The reference pen (maobi device config template): measure your own build and\n\
+                 change what differs; `maobi device check` finds the motor signs.",
+            ),
+            output,
+        ),
+        DeviceConfigCmd::Check { file } => {
+            let cfg = load(file)?;
+            let diff = changes(&DeviceConfig::DEFAULT, &cfg);
+            println!(
+                "{}: a valid configuration, {}; {} value(s) differ from the reference pen{}",
+                file.display(),
+                if cfg.calibration.is_some() {
+                    "with a calibration"
+                } else {
+                    "without a calibration (the pen's own is kept by `set`)"
+                },
+                diff.len(),
+                if diff.is_empty() { "" } else { ":" }
+            );
+            for line in diff {
+                println!("  {line}");
+            }
+            Ok(())
+        }
+        DeviceConfigCmd::Get { pen, output } => {
+            let (mut wire, timeout) = connect(pen)?;
+            let cfg = read_from_pen(&mut wire, timeout)?;
+            let title = format!(
+                "Read from the pen ({}, firmware {}) by `maobi device config get`.",
+                wire.info.board, wire.info.firmware
+            );
+            write_out(&to_toml(&cfg, &title), output)
+        }
+        DeviceConfigCmd::Set {
+            file,
+            pen,
+            clear_calibration,
+        } => {
+            let cfg = load(file)?;
+            let (mut wire, timeout) = connect(pen)?;
+            let Written { before, stored } =
+                write_to_pen(&mut wire, cfg, *clear_calibration, timeout)?;
+            match before.map(|o| changes(&o, &stored)) {
+                Some(d) if d.is_empty() => {
+                    println!("stored; the pen already had this configuration")
+                }
+                Some(d) => {
+                    println!("stored and read back; {} value(s) changed:", d.len());
+                    for line in d {
+                        println!("  {line}");
+                    }
+                }
+                None => println!("stored and read back (the pen had no valid configuration)"),
+            }
+            if stored.calibration.is_none() {
+                println!(
+                    "not calibrated: the pen gives no force until it is (`maobi device check`, \
+                     step 4, with the pen in its inkwell)"
+                );
+            }
+            Ok(())
+        }
     }
 }
 

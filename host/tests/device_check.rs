@@ -14,7 +14,7 @@ use maobi::device::Endpoint;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
     BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
-    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, HostMsg, Message, SensorReport, Version,
+    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, Faults, HostMsg, Message, SensorReport, Version,
 };
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Vec3};
 
@@ -31,6 +31,10 @@ struct Pen {
     gimbal: [u16; 3],
     poses_received: usize,
     nudges: usize,
+    /// `Calibrate` succeeded since this (fake) power-on: a physical pen's incremental
+    /// encoders make stored zeros meaningless after a reset, so, as the firmware does, the
+    /// pen reports `NOT_CALIBRATED` and refuses nudges until then.
+    calibrated_since_power_on: bool,
 }
 
 impl Pen {
@@ -44,6 +48,15 @@ impl Pen {
             gimbal: [2048; 3],
             poses_received: 0,
             nudges: 0,
+            calibrated_since_power_on: false,
+        }
+    }
+    /// What the firmware reports beside latched faults (`pen_io::Readiness`).
+    fn faults(&self) -> Faults {
+        if self.virtual_pen || self.calibrated_since_power_on {
+            Faults::empty()
+        } else {
+            Faults::NOT_CALIBRATED
         }
     }
     fn info(&self) -> DeviceInfo {
@@ -96,6 +109,9 @@ impl Pen {
                     return Err(CommandError::OutOfRange);
                 }
                 let cfg = self.config.as_ref().ok_or(CommandError::ConfigNotValid)?;
+                if !self.virtual_pen && !self.calibrated_since_power_on {
+                    return Err(CommandError::ConfigNotValid);
+                }
                 let ch = usize::from(n.channel);
                 self.nudges += 1;
                 if !self.virtual_pen {
@@ -114,6 +130,7 @@ impl Pen {
                 };
                 let cfg = self.config.as_mut().ok_or(CommandError::ConfigNotValid)?;
                 cfg.calibration = Some(raw);
+                self.calibrated_since_power_on = true;
                 Ok(())
             }
             _ => Err(CommandError::Unsupported),
@@ -182,6 +199,9 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
                     }),
                     HostMsg::SetConfig(c) => DeviceMsg::Config(match c.validate() {
                         Ok(()) => {
+                            // Zeros hold only if they are the ones taken since power-on.
+                            p.calibrated_since_power_on &=
+                                p.config.is_some_and(|old| old.calibration == c.calibration);
                             p.config = Some(c);
                             Ok(c)
                         }
@@ -208,14 +228,10 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
                 let q = pose.rot;
                 p.gimbal = [q.x, q.y, q.z].map(|v| (2048.0 + v * 2000.0) as u16);
             }
-            if p.virtual_pen && (consumed || last_report.elapsed() >= Duration::from_millis(20)) {
-                let st = BrushState::from_brush(
-                    &brush,
-                    tick,
-                    last_seq,
-                    Default::default(),
-                    Default::default(),
-                );
+            // A physical pen's states carry its faults (the brush stays at rest).
+            if consumed || last_report.elapsed() >= Duration::from_millis(20) {
+                let st =
+                    BrushState::from_brush(&brush, tick, last_seq, Default::default(), p.faults());
                 send(&mut s, &DeviceMsg::State(st));
             }
             if last_report.elapsed() >= Duration::from_millis(20) {
@@ -300,6 +316,28 @@ fn a_reversed_motor_is_flipped_and_every_step_passes() {
     assert!(cfg.calibration.is_some());
     // Four nudges: one per motor and the elbow's again.
     assert_eq!(pen.nudges, 4);
+}
+
+/// A pen calibrated at an earlier power-on: its stored zeros do not hold (incremental
+/// encoders), it reports NOT_CALIBRATED and refuses nudges, so the wizard calibrates first.
+#[test]
+fn zeros_from_an_earlier_power_on_are_taken_again_before_the_nudges() {
+    let mut cfg = DeviceConfig::DEFAULT;
+    cfg.calibration = Some(RawReadings {
+        encoders: [7, 7, 7],
+        gimbal: [2000; 3],
+    });
+    let (r, pen, said) = run(Pen::physical(Some(cfg), [1, 1, 1]));
+    assert!(r.passed(), "{}", r.table());
+    let order: Vec<&str> = r.steps.iter().map(|s| s.step.as_str()).collect();
+    assert_eq!(order[2], "4 calibration", "{order:?}");
+    assert!(
+        said.iter().any(|l| l.contains("not calibrated yet")),
+        "{said:?}"
+    );
+    assert!(pen.calibrated_since_power_on);
+    assert_ne!(pen.config.unwrap().calibration, cfg.calibration);
+    assert_eq!(pen.nudges, 3);
 }
 
 #[test]
@@ -398,4 +436,45 @@ fn the_command_line_exits_non_zero_when_a_step_fails() {
     assert!(!out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("FAIL"), "{text}");
+}
+
+#[test]
+fn a_missing_configuration_is_written_from_the_builders_file() {
+    let file = std::env::temp_dir().join(format!("maobi-check-{}-pen.toml", std::process::id()));
+    let mut mine = DeviceConfig::DEFAULT;
+    mine.pen.upper_arm_mm = 150.0;
+    mine.drive[1].deadband = 0.08;
+    std::fs::write(
+        &file,
+        maobi::device::config_file::to_toml(&mine, "a builder's pen"),
+    )
+    .unwrap();
+    let (addr, pen) = serve(Pen::physical(None, [1, 1, 1]));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--sensor-seconds", "3"])
+        .args(["--connect", &addr, "--config", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("the configuration given with --config was written"),
+        "{text}"
+    );
+    let stored = pen.lock().unwrap().config.unwrap();
+    // The builder's values, then the calibration step's readings.
+    assert_eq!(stored.pen.upper_arm_mm, 150.0);
+    assert_eq!(stored.drive[1].deadband, 0.08);
+    assert!(stored.calibration.is_some());
+    // A file that does not validate stops the check before it connects.
+    std::fs::write(&file, "[pen]\nupper_arm_mm = -1\n").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--connect", &addr])
+        .args(["--config", file.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("missing field"), "{err}");
+    let _ = std::fs::remove_file(&file);
 }

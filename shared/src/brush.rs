@@ -58,6 +58,8 @@
 // loops say that more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+use core::mem::MaybeUninit;
+
 use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
@@ -203,6 +205,43 @@ impl<S: Scalar> Brush<S> {
             cprime: [S::ZERO; MAX_LAYERS],
             substeps_done: 0,
         };
+        b.reset(pose);
+        Ok(b)
+    }
+
+    /// [`Self::new`] built where it is to live (a `static`'s storage, say): a brush is
+    /// about 6 KB, and `new` returns it through two or three copies on the stack, which a
+    /// microcontroller pays for at boot in stack it must reserve. The same brush, bit for
+    /// bit (test `brush_built_in_place_is_the_same`).
+    pub fn new_in(
+        slot: &mut MaybeUninit<Self>,
+        params: BrushParams,
+        pose: Pose<S>,
+    ) -> Result<&mut Self, ParamError> {
+        params.validate()?;
+        let b = slot.write(Brush {
+            params,
+            d: derive::<S>(&params),
+            handle: pose,
+            spine: [Vec3::ZERO; MAX_LAYERS],
+            vel: [Vec3::ZERO; MAX_LAYERS],
+            contact: [false; MAX_LAYERS],
+            skel_dir: [-Vec3::Z; MAX_LAYERS],
+            skel: [Vec3::ZERO; MAX_LAYERS],
+            skel_vel: [Vec3::ZERO; MAX_LAYERS],
+            layers: [Layer {
+                short_axis: Vec3::X,
+                long_axis: Vec3::Y,
+                long_radius: S::ZERO,
+                short_radius: S::ZERO,
+                wetness: S::ONE,
+            }; MAX_LAYERS],
+            tip_load: Vec3::ZERO,
+            pivots_for: None,
+            inv_pivot: [S::ZERO; MAX_LAYERS],
+            cprime: [S::ZERO; MAX_LAYERS],
+            substeps_done: 0,
+        });
         b.reset(pose);
         Ok(b)
     }

@@ -207,3 +207,38 @@ fn parameters_are_validated_and_never_stored_when_bad() {
         assert_eq!(ParamId::from_name(id.name()), Some(id));
     }
 }
+
+/// `Brush::new_in` builds the brush `Brush::new` returns, and it runs the same: the same
+/// state frame (every position, ellipse and contact, bit for bit) at rest and after a
+/// pressed, dragged stroke; invalid parameters are refused alike.
+#[test]
+fn brush_built_in_place_is_the_same() {
+    use maobi_shared::protocol::{BrushState, Faults, Haptics};
+    let state =
+        |b: &Brush<Fx>| BrushState::from_brush(b, 0, 0, Haptics::default(), Faults::empty());
+    let tilt = Quat::from_f64([0.991_444_861_373_810_4, 0.0, 0.130_526_192_220_051_6, 0.0]);
+    let at = |x: f64, z: f64| Pose::new(Vec3::from_f64([x, 0.0, z]), tilt);
+    // Over storage that held another brush, as a static may.
+    let mut slot =
+        std::mem::MaybeUninit::new(Brush::<Fx>::new(presets::SMALL, at(5.0, 30.0)).unwrap());
+    let mut owned = Brush::<Fx>::new(presets::LARGE, at(0.0, 44.0)).unwrap();
+    let built = Brush::<Fx>::new_in(&mut slot, presets::LARGE, at(0.0, 44.0)).unwrap();
+    assert_eq!(state(built), state(&owned));
+    let mut touched = 0;
+    for k in 0..200 {
+        let pose = at(f64::from(k) * 0.2, 44.0 - f64::from(k.min(100)) * 0.14);
+        owned.tick(pose);
+        built.tick(pose);
+        touched = touched.max(owned.contacts());
+    }
+    assert!(touched > 0, "the stroke reaches the paper");
+    assert_eq!(state(built), state(&owned));
+    let bad = BrushParams {
+        layers: 0,
+        ..presets::LARGE
+    };
+    assert_eq!(
+        Brush::<Fx>::new_in(&mut slot, bad, at(0.0, 44.0)).err(),
+        Brush::<Fx>::new(bad, at(0.0, 44.0)).err()
+    );
+}

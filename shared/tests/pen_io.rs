@@ -568,3 +568,120 @@ fn config_state_says_what_the_handshake_says() {
         "corrupt: configuration format version 7, this firmware reads 1"
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// No force before calibration
+
+#[test]
+fn forces_wait_for_zeros_that_hold() {
+    let zeros = RawReadings {
+        encoders: [120, -4, 9],
+        gimbal: [2000, 2100, 2048],
+    };
+    let mut calibrated = DeviceConfig::DEFAULT;
+    calibrated.calibration = Some(zeros);
+    let uncalibrated = DeviceConfig::DEFAULT;
+    let mut invalid = calibrated;
+    invalid.limits.peak_n = -1.0;
+    let earlier = RawReadings {
+        encoders: [0, 0, 0],
+        ..zeros
+    };
+    let ready = Readiness {
+        allows_forces: true,
+        not_calibrated: false,
+    };
+    let not = Readiness {
+        allows_forces: false,
+        not_calibrated: true,
+    };
+    let valid = ConfigState::Valid;
+    let cases: [(&str, ConfigState, Option<DeviceConfig>, ZeroHold, Readiness); 12] = [
+        // The virtual pen without a store: calibrated by construction.
+        (
+            "virtual",
+            ConfigState::NotApplicable,
+            None,
+            ZeroHold::Stored,
+            ready,
+        ),
+        ("missing", ConfigState::Missing, None, ZeroHold::Stored, not),
+        (
+            "corrupt",
+            ConfigState::Corrupt(ConfigError::Truncated),
+            None,
+            ZeroHold::Stored,
+            not,
+        ),
+        (
+            "uncalibrated",
+            valid.clone(),
+            Some(uncalibrated),
+            ZeroHold::Stored,
+            not,
+        ),
+        (
+            "calibrated",
+            valid.clone(),
+            Some(calibrated),
+            ZeroHold::Stored,
+            ready,
+        ),
+        // A state that says valid with nothing in force, or a value out of range: no.
+        (
+            "valid, no config",
+            valid.clone(),
+            None,
+            ZeroHold::Stored,
+            not,
+        ),
+        (
+            "invalid",
+            valid.clone(),
+            Some(invalid),
+            ZeroHold::Stored,
+            not,
+        ),
+        // Incremental encoders: stored zeros from an earlier power-on do not count.
+        (
+            "stored, not since power-on",
+            valid.clone(),
+            Some(calibrated),
+            ZeroHold::SincePowerOn(None),
+            not,
+        ),
+        (
+            "zeroed since power-on",
+            valid.clone(),
+            Some(calibrated),
+            ZeroHold::SincePowerOn(Some(zeros)),
+            ready,
+        ),
+        // A configuration written since, carrying other zeros (copied from an earlier
+        // session), or none.
+        (
+            "other zeros written since",
+            valid.clone(),
+            Some(calibrated),
+            ZeroHold::SincePowerOn(Some(earlier)),
+            not,
+        ),
+        (
+            "uncalibrated written since",
+            valid.clone(),
+            Some(uncalibrated),
+            ZeroHold::SincePowerOn(Some(zeros)),
+            not,
+        ),
+        (
+            "missing, zeroed",
+            ConfigState::Missing,
+            None,
+            ZeroHold::SincePowerOn(Some(zeros)),
+            not,
+        ),
+    ];
+    for (name, state, cfg, hold, want) in cases {
+        assert_eq!(Readiness::of(&state, cfg.as_ref(), hold), want, "{name}");
+    }
+}

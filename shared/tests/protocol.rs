@@ -4,7 +4,7 @@
 //! stuck loop).
 
 use maobi_shared::footprint::Geometry;
-use maobi_shared::params::{ParamId, MAX_LAYERS};
+use maobi_shared::params::{BrushParams, ParamId, MAX_LAYERS};
 use maobi_shared::protocol::*;
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec2, Vec3};
 use proptest::prelude::*;
@@ -442,6 +442,40 @@ fn presets_resolve_by_index_and_name() {
     // Names are cut on a character boundary.
     let cut: heapless::String<4> = bounded_str("大楷");
     assert_eq!(cut.as_str(), "大");
+}
+
+/// The device fills its state slot in place and encodes the state where it lies: the same
+/// state and the same bytes as building the owned message.
+#[test]
+fn borrowed_state_encodes_as_the_message() {
+    let brush = pressed_brush(presets::LARGE);
+    let haptics = Haptics::new(Vec3::from_f64([0.01, 0.0, 0.6]), motors(), true);
+    let state = BrushState::from_brush(&brush, 300, 250, haptics, Faults::SENSOR_JUMP);
+    // Over a stale state with more layers than this brush has, as the slot may hold.
+    let mut slot = BrushState::from_brush(
+        &Brush::<Fx>::new(
+            BrushParams {
+                layers: MAX_LAYERS as u8,
+                ..presets::LARGE
+            },
+            pose(1.0, 2.0, 40.0, 10.0),
+        )
+        .unwrap(),
+        9,
+        9,
+        Haptics::default(),
+        Faults::all(),
+    );
+    assert!(slot.layers.len() > state.layers.len());
+    slot.fill_from_brush(&brush, 300, 250, haptics, Faults::SENSOR_JUMP);
+    assert_eq!(slot, state);
+    let mut out = vec![0u8; DeviceMsg::MAX_FRAME];
+    let n = DeviceMsg::encode_state(&state, &mut out).unwrap();
+    assert_eq!(out[..n], frame(&DeviceMsg::State(state.clone()))[..]);
+    // Empty and too small a buffer behave as the owned message's encoding does.
+    let n = DeviceMsg::encode_state(&BrushState::EMPTY, &mut out).unwrap();
+    assert_eq!(out[..n], frame(&DeviceMsg::State(BrushState::EMPTY))[..]);
+    assert!(DeviceMsg::encode_state(&state, &mut out[..64]).is_err());
 }
 
 #[test]

@@ -12,7 +12,7 @@
 //! ([`HandForces::reset`]) cuts it too, so every stream of guide samples starts from zero
 //! gain, as the host's mirror does.
 
-use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{Brush, Fx, Scalar, Vec3};
 
@@ -88,6 +88,23 @@ impl HandForces {
 
     /// A new stroke: the model's filters and the dragged mass start afresh, the guide
     /// from zero.
+    /// Puts a configuration's force limits in force (peak, continuous, slew, ramps). The
+    /// output stage starts over disabled, so forces ramp in again from zero; the link task
+    /// changes the configuration only while forces are off. Invalid limits (which a
+    /// validated configuration never has) are refused and the old ones kept.
+    pub fn set_limits(&mut self, limits: DeviceLimits) -> bool {
+        if *self.out.limits() == limits {
+            return true;
+        }
+        match OutputStage::new(limits) {
+            Ok(out) => {
+                self.out = out;
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
     pub fn reset(&mut self) {
         self.model.reset();
         self.guide.cut();

@@ -26,13 +26,16 @@ pub mod mailbox;
 #[cfg_attr(feature = "board-qemu", allow(dead_code, unused_imports))]
 pub mod sensor_pen;
 pub mod slot;
+pub mod stack;
 
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
 use maobi_shared::guide::GuideInput;
 use maobi_shared::pen_io::DeviceConfig;
-use maobi_shared::protocol::SensorReport;
+use maobi_shared::protocol::{BrushState, Faults, Haptics, SensorReport};
 use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
@@ -55,6 +58,10 @@ pub mod fault {
     pub const LOOP_STALLED: u32 = 1 << 4;
     /// Number of latched fault bits.
     pub const COUNT: usize = 5;
+    /// Not a latched bit: the pen lacks zeros that hold ([`super::NOT_CALIBRATED`]),
+    /// reported beside the latched bits while that lasts ([`super::reported_faults`]). The
+    /// protocol's `Faults::NOT_CALIBRATED`.
+    pub const NOT_CALIBRATED: u32 = 1 << 5;
 }
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
@@ -118,9 +125,10 @@ impl Drop for Maintenance {
 
 /// Woken by the force loop when it has filled the snapshot slot.
 pub static SNAPSHOT_WAKER: AtomicWaker = AtomicWaker::new();
-/// The stored configuration lets the motors be driven (set by the link task: a valid,
-/// calibrated configuration, or none needed). Off at boot until the link task has loaded the
-/// store: the pen starts safe. The force loop drives the motors only while it is set.
+/// The stored configuration lets the motors be driven (set by the link task: a valid
+/// configuration whose zeros hold, or none needed; `pen_io::Readiness::allows_forces`). Off
+/// at boot until the link task has loaded the store: the pen starts safe. The force loop
+/// drives the motors only while it is set.
 pub static CONFIG_OK: AtomicBool = AtomicBool::new(false);
 /// The configuration in force, for [`Command::Configure`]: written by the link task before
 /// it sends the command, read by the force loop when it applies it.
@@ -129,6 +137,24 @@ pub static CONFIG: critical_section::Mutex<core::cell::Cell<DeviceConfig>> =
 /// Raw sensor readings for bring-up: the link task requests, the force loop fills it at the
 /// next tick from [`PoseSource::raw_sensors`] (`None`: the board cannot tell).
 pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
+
+/// The pen lacks zeros that hold (`pen_io::Readiness::not_calibrated`, set by the link task
+/// with [`CONFIG_OK`]): no configuration, none calibrated, or (incremental encoders) not
+/// calibrated since power-on. Set at boot until the link task has loaded the store.
+/// Reported as [`fault::NOT_CALIBRATED`] until `Calibrate` succeeds; `ClearFaults` does not
+/// clear it (its cause is not gone). [`CONFIG_OK`], not this flag, keeps the motors off.
+pub static NOT_CALIBRATED: AtomicBool = AtomicBool::new(true);
+
+/// The fault bits the host is told about: the latched [`FAULTS`] and, while it lasts,
+/// [`fault::NOT_CALIBRATED`].
+pub fn reported_faults() -> u32 {
+    let not_calibrated = if NOT_CALIBRATED.load(Ordering::SeqCst) {
+        fault::NOT_CALIBRATED
+    } else {
+        0
+    };
+    FAULTS.load(Ordering::SeqCst) | not_calibrated
+}
 
 /// Latches fault bits (any context) and notes the tick of the newly raised ones.
 pub fn latch(bits: u32) {
@@ -258,40 +284,33 @@ pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
 /// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
 pub const OVERRUN_BURN_CYCLES: u32 = 8_000_000;
 
-/// The state the link task reports, copied out of the force loop when a state frame is due
-/// (or when the link task asks).
+/// The state the link task reports, built by the force loop when a state frame is due (or
+/// when the link task asks).
+///
+/// It holds the frame's [`BrushState`] (about 3 KB), not a copy of the brush (6.3 KB): the
+/// state is what the frame carries, so the link task encodes it as it is. Building it costs
+/// the force loop about what copying the brush did (`BrushState::from_brush` reads the
+/// brush's positions and ellipses, computes nothing).
 #[derive(Clone, Debug)]
 pub struct Snapshot {
-    /// Force-loop ticks since boot.
-    pub tick: u32,
     /// Brush ticks since the last reset (poses consumed).
     pub brush_tick: u32,
-    /// The `seq` of the last pose sample the brush consumed (0 with real sensors).
-    pub pose_seq: u32,
     /// Ticks without a new pose (the virtual pen's queue was empty).
     pub pose_gaps: u32,
-    pub faults: u32,
-    /// The motors were driven at this tick.
-    pub enabled: bool,
-    /// The force model's force on the hand (N) before the output stage and the gate, and
-    /// the torques applied (N·m; 0 when off).
-    pub force: [Fx; 3],
-    pub motors: [Fx; 3],
-    /// The brush after this tick (`None` only before the first fill).
-    pub brush: Option<Brush<Fx>>,
+    /// The state frame of this tick: force-loop tick, the `seq` of the last pose sample the
+    /// brush consumed (0 with real sensors), haptics (the force model's force before the
+    /// output stage and the gate, the torques applied, 0 when off; whether the motors were
+    /// driven), latched faults, and the brush.
+    pub state: BrushState,
 }
 
 impl Snapshot {
+    /// All zero bytes, so the slot lives in `.bss` and costs no flash. Never sent: the slot
+    /// is read only after the force loop has filled it.
     pub const EMPTY: Snapshot = Snapshot {
-        tick: 0,
         brush_tick: 0,
-        pose_seq: 0,
         pose_gaps: 0,
-        faults: 0,
-        enabled: false,
-        force: [<Fx as Scalar>::ZERO; 3],
-        motors: [<Fx as Scalar>::ZERO; 3],
-        brush: None,
+        state: BrushState::EMPTY,
     };
 }
 
@@ -329,40 +348,107 @@ pub struct ForceLoop<P, M, W> {
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     /// None if the shared force model's defaults are invalid (they are tested not to be).
-    pub fn new(
-        brush: Brush<Fx>,
+    /// The boards build theirs in place ([`Self::new_in`]); the bench builds one here.
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
+    pub fn new(brush: Brush<Fx>, pen: P, motors: M, watchdog: W, cmds: CmdConsumer) -> Option<Self> {
+        let mut slot = MaybeUninit::<Self>::uninit();
+        let p = slot.as_mut_ptr();
+        // SAFETY: a field of the slot's storage; `init_rest` writes all the others.
+        unsafe {
+            addr_of_mut!((*p).brush).write(brush);
+            Self::init_rest(p, pen, motors, watchdog, cmds)?;
+            Some(slot.assume_init())
+        }
+    }
+
+    /// [`Self::new`] with the brush built from `params` at `pose` ([`Brush::new`]), all of
+    /// it built in `slot` (a static's storage): the force loop is about 7.4 KB, and `new`
+    /// moves it and its brush through the stack, which the board pays for at boot in stack
+    /// it must reserve. None if the parameters or the force model's defaults are invalid.
+    pub fn new_in(
+        slot: &mut MaybeUninit<Self>,
+        params: BrushParams,
+        pose: Pose<Fx>,
+        pen: P,
+        motors: M,
+        watchdog: W,
+        cmds: CmdConsumer,
+    ) -> Option<&mut Self> {
+        let p = slot.as_mut_ptr();
+        // SAFETY: the `brush` field of the slot's storage, seen as the uninitialised brush it
+        // is (`MaybeUninit<T>` has `T`'s layout); `init_rest` writes all the other fields, so
+        // the whole slot is initialised when it is assumed to be.
+        unsafe {
+            let brush = &mut *addr_of_mut!((*p).brush).cast::<MaybeUninit<Brush<Fx>>>();
+            Brush::new_in(brush, params, pose).ok()?;
+            Self::init_rest(p, pen, motors, watchdog, cmds)?;
+            Some(slot.assume_init_mut())
+        }
+    }
+
+    /// Writes every field but the brush, the motors disabled; None (nothing written) if the
+    /// force model's defaults are invalid.
+    ///
+    /// # Safety
+    /// `p` points to storage for a force loop, valid for writes.
+    unsafe fn init_rest(
+        p: *mut Self,
         pen: P,
         mut motors: M,
         watchdog: W,
         cmds: CmdConsumer,
-    ) -> Option<Self> {
+    ) -> Option<()> {
+        let forces = force::HandForces::new()?;
         motors.disable();
-        Some(ForceLoop {
-            brush,
-            pen,
-            motors,
-            watchdog,
-            cmds,
-            brush_tick: 0,
-            pose_gaps: 0,
-            last_pose: None,
-            reanchor: false,
-            inject_overrun: false,
-            overrun_burn_cycles: OVERRUN_BURN_CYCLES,
-            forces: force::HandForces::new()?,
-            force: [Fx::ZERO; 3],
-            enabled: false,
-            jump2: Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM),
-            nudge: None,
-        })
+        // SAFETY: fields of the storage the caller vouches for.
+        unsafe {
+            addr_of_mut!((*p).pen).write(pen);
+            addr_of_mut!((*p).motors).write(motors);
+            addr_of_mut!((*p).watchdog).write(watchdog);
+            addr_of_mut!((*p).cmds).write(cmds);
+            addr_of_mut!((*p).brush_tick).write(0);
+            addr_of_mut!((*p).pose_gaps).write(0);
+            addr_of_mut!((*p).last_pose).write(None);
+            addr_of_mut!((*p).reanchor).write(false);
+            addr_of_mut!((*p).inject_overrun).write(false);
+            addr_of_mut!((*p).overrun_burn_cycles).write(OVERRUN_BURN_CYCLES);
+            addr_of_mut!((*p).forces).write(forces);
+            addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
+            addr_of_mut!((*p).enabled).write(false);
+            addr_of_mut!((*p).jump2).write(Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM));
+            addr_of_mut!((*p).nudge).write(None);
+        }
+        // The list above is complete: this pattern names every field (no `..`), so a field
+        // added to `ForceLoop` does not compile until it is written here too.
+        #[allow(clippy::no_effect_underscore_binding)]
+        let _every_field = |f: Self| {
+            let ForceLoop {
+                brush: _,
+                pen: _,
+                motors: _,
+                watchdog: _,
+                cmds: _,
+                brush_tick: _,
+                pose_gaps: _,
+                last_pose: _,
+                reanchor: _,
+                inject_overrun: _,
+                overrun_burn_cycles: _,
+                forces: _,
+                force: _,
+                enabled: _,
+                jump2: _,
+                nudge: _,
+            } = f;
+        };
+        Some(())
     }
 
     /// The cycles [`Command::InjectOverrun`] burns: enough to overrun one tick, short of
     /// the board's hardware watchdog (which would reset the chip instead).
     #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
-    pub fn with_overrun_burn(mut self, cycles: u32) -> Self {
+    pub fn set_overrun_burn(&mut self, cycles: u32) {
         self.overrun_burn_cycles = cycles;
-        self
     }
 
     /// The next pose places the brush at rest there (a board whose sensors start the pen
@@ -423,13 +509,13 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
 
         // Any latched fault switches the forces off (and cuts the guide, and ends a nudge):
         // the host must clear it and enable again. So does a configuration that does not
-        // allow forces.
+        // allow forces (missing, invalid, not calibrated): a nudge that was running when
+        // such a configuration came into force ends too, since nothing else ends it on a
+        // board whose store writes without a pause.
         let faulted = FAULTS.load(Ordering::SeqCst) != 0;
         if faulted || !CONFIG_OK.load(Ordering::SeqCst) {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
-            if faulted {
-                self.nudge = None;
-            }
+            self.nudge = None;
         }
         // A deliberate pause (a flash write) keeps the motors off as well.
         let allowed = FORCES_ENABLED.load(Ordering::SeqCst) && !MAINTENANCE.load(Ordering::SeqCst);
@@ -526,6 +612,10 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 self.motors.disable();
                 self.pen.configure(&cfg);
                 self.motors.configure(&cfg);
+                // The link task validated the whole configuration before storing it, so
+                // its limits are accepted; if not, the old ones stay and nothing is driven
+                // beyond them.
+                let _ = self.forces.set_limits(cfg.limits);
                 if P::POSES_FOLLOW_CONFIG {
                     // New geometry or zeros move the pose at once: not a sensor jump, and
                     // the brush starts at rest where the pen now says it is.
@@ -550,19 +640,15 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {
-        s.tick = now;
         s.brush_tick = self.brush_tick;
-        s.pose_seq = self.pen.pose_seq();
         s.pose_gaps = self.pose_gaps;
-        s.faults = FAULTS.load(Ordering::Relaxed);
-        s.enabled = self.enabled;
-        s.force = self.force;
-        s.motors = self.motors.applied();
-        match &mut s.brush {
-            // A copy, not hot enough to be built for speed (state frames are due at 120 Hz).
-            Some(b) => b.clone_from(&self.brush),
-            None => s.brush = Some(self.brush.clone()),
-        }
+        let f = self.force;
+        let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
+        let faults = Faults::from_bits_retain(reported_faults() as u16);
+        // In place: the slot is a static, so a `BrushState` built and then moved there would
+        // be a 3 KB temporary on the force-tick interrupt's stack.
+        s.state
+            .fill_from_brush(&self.brush, now, self.pen.pose_seq(), haptics, faults);
     }
 }
 
@@ -604,12 +690,15 @@ pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 ///
 /// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
 /// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
+/// Every 100 looks it also reads the stack's high-water mark ([`stack`]) and hands each new
+/// maximum to the board's `report_stack`.
 #[embassy_executor::task]
-pub async fn supervisor(tick_us: u32, motors_off: fn()) {
+pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize)) {
     let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
     let mut last = TICKS.load(Ordering::Relaxed);
     let mut ticker = embassy_time::Ticker::every(period);
     let mut last_look = embassy_time::Instant::now();
+    let mut looks: u32 = 0;
     loop {
         ticker.next().await;
         // After the executor was held up (a flash write), the ticker fires its missed
@@ -625,5 +714,11 @@ pub async fn supervisor(tick_us: u32, motors_off: fn()) {
             latch(fault::LOOP_STALLED);
         }
         last = now;
+        looks = looks.wrapping_add(1);
+        if looks % 100 == 1 {
+            if let Some(used) = stack::new_high_water() {
+                report_stack(used);
+            }
+        }
     }
 }

@@ -5,13 +5,13 @@ use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 
-/// Uninitialised storage (in .bss, not copied from flash) until [`ForceLoopSlot::init`].
+/// Uninitialised storage (in .bss, not copied from flash) until [`ForceLoopSlot::init_with`].
 pub struct ForceLoopSlot<L> {
     cell: UnsafeCell<MaybeUninit<L>>,
     ready: AtomicBool,
 }
 
-// SAFETY: `init` writes the value once, before the force-tick interrupt is enabled (its
+// SAFETY: `init_with` writes the value once, before the force-tick interrupt is enabled (its
 // contract); afterwards only that interrupt handler reaches it through `get`, and nothing
 // else that preempts the handler touches it.
 unsafe impl<L: Send> Sync for ForceLoopSlot<L> {}
@@ -24,21 +24,28 @@ impl<L> ForceLoopSlot<L> {
         }
     }
 
-    /// Stores the force loop.
+    /// Builds the force loop in place with `build` (which returns None, leaving the slot
+    /// empty, if it cannot), and returns it for what remains to set up before the
+    /// interrupt starts. Nothing the size of the force loop passes through the stack.
     ///
     /// # Safety
     /// Call once, at boot, before the force-tick interrupt that calls [`Self::get`] is
-    /// enabled.
-    pub unsafe fn init(&self, value: L) {
+    /// enabled; the reference returned must not be used after that.
+    #[allow(clippy::mut_from_ref)] // exclusive by the contract above
+    pub unsafe fn init_with(
+        &self,
+        build: impl FnOnce(&mut MaybeUninit<L>) -> Option<&mut L>,
+    ) -> Option<&mut L> {
         // SAFETY: by the contract nobody else accesses the cell yet.
-        unsafe { (*self.cell.get()).write(value) };
+        let fl = build(unsafe { &mut *self.cell.get() })?;
         self.ready.store(true, Ordering::SeqCst);
+        Some(fl)
     }
 
     /// The force loop, once initialised.
     ///
     /// # Safety
-    /// Only from the force-tick interrupt handler (the single user after `init`), and not
+    /// Only from the force-tick interrupt handler (the single user after `init_with`), and not
     /// re-entrantly.
     #[allow(clippy::mut_from_ref)] // exclusive by the contract above
     pub unsafe fn get(&self) -> Option<&mut L> {

@@ -39,7 +39,7 @@ use embassy_stm32::{bind_interrupts, pac, peripherals};
 use embassy_time::{Duration, Ticker};
 use maobi_shared::pen_io::DriveConfig;
 use maobi_shared::protocol::Capabilities;
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
 use crate::app::{self, SensorPen};
 use crate::board::CycleCounter;
@@ -127,6 +127,28 @@ use embassy_stm32::pac::interrupt;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    // Everything built at boot is built in `start`'s frame, which is gone before the executor
+    // runs: `main` never returns, so what its own frame held (the peripherals' drivers, the
+    // USB builder: 7 KB) would sit under the tasks' and the interrupts' stack for good.
+    let (usb_parts, link_parts, led) = start();
+    crate::executor::run(move |spawner: Spawner| {
+        spawner.spawn(
+            app::supervisor(TICK_US, motors::motors_off, report_stack).expect("one supervisor"),
+        );
+        spawner.spawn(usb_task(usb_parts).expect("one USB task"));
+        spawner.spawn(link_task(link_parts).expect("one link task"));
+        spawner.spawn(led_task(led).expect("one LED task"));
+    })
+}
+
+/// The board brought up: clocks, motors off, sensors, the force loop built and ticking, USB;
+/// what the tasks take (see `main` for why not inline).
+#[inline(never)]
+fn start() -> (
+    usb::UsbParts,
+    LinkParts<usb::UsbSerial, config::FlashConfig>,
+    Output<'static>,
+) {
     // Whatever state the pins come up in, the bridges are off before anything else runs.
     motors::motors_off();
     let mut config = embassy_stm32::Config::default();
@@ -175,7 +197,7 @@ fn main() -> ! {
     ];
     let led = Output::new(p.PC13, Level::High, Speed::Low);
 
-    // The configuration sector. The link task loads and decodes the newest image when it
+    // The configuration log (sectors 6 and 7). The link task loads and decodes the newest image when it
     // starts and puts it in force (`app::Command::Configure`); until then the pen has no
     // kinematics, `app::CONFIG_OK` is off and the motors stay off.
     let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
@@ -233,29 +255,33 @@ fn main() -> ! {
 
     // The brush starts at rest wherever the first sensor pose puts it.
     let start = Pose::new(Vec3::from_f64([0.0, 0.0, 44.0]), Quat::IDENTITY);
-    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, start) else {
-        fatal("the large preset is invalid");
-    };
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
     // SAFETY: `main` runs once; the queue is split here and never touched otherwise.
     let (cmd_tx, cmd_rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
 
     let mut iwdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
     iwdg.unleash();
-    let Some(fl) = app::ForceLoop::new(
-        brush,
-        SensorPen::new(sensors, None),
-        motors,
-        watchdog::Iwdg(iwdg),
-        cmd_rx,
-    ) else {
-        fatal("the force model's defaults are invalid");
+    // Built in its static, not on the stack (`ForceLoop::new_in`).
+    // SAFETY: once, and TIM9's interrupt is not enabled yet.
+    let built = unsafe {
+        LOOP.init_with(|slot| {
+            app::ForceLoop::new_in(
+                slot,
+                presets::LARGE,
+                start,
+                SensorPen::new(sensors, None),
+                motors,
+                watchdog::Iwdg(iwdg),
+                cmd_rx,
+            )
+        })
+    };
+    let Some(fl) = built else {
+        fatal("the brush preset or the force model's defaults are invalid");
     };
     // 2 ms of cycles: one tick overruns, the watchdog does not fire.
-    let mut fl = fl.with_overrun_burn(2 * SYSCLK_HZ / 1000);
+    fl.set_overrun_burn(2 * SYSCLK_HZ / 1000);
     fl.reanchor();
-    // SAFETY: once, and TIM9's interrupt is not enabled yet.
-    unsafe { LOOP.init(fl) };
     if reset_by_watchdog {
         defmt::error!("reset by the watchdog: the force loop had stopped");
         app::latch(app::fault::LOOP_STALLED);
@@ -306,12 +332,7 @@ fn main() -> ! {
         cmds: cmd_tx,
         store,
     };
-    crate::executor::run(move |spawner: Spawner| {
-        spawner.spawn(app::supervisor(TICK_US, motors::motors_off).expect("one supervisor"));
-        spawner.spawn(usb_task(usb_parts).expect("one USB task"));
-        spawner.spawn(link_task(link_parts).expect("one link task"));
-        spawner.spawn(led_task(led).expect("one LED task"));
-    })
+    (usb_parts, link_parts, led)
 }
 
 #[embassy_executor::task]
@@ -326,6 +347,12 @@ async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
         telemetry_ticks: 1000,
     };
     link::run(parts, &BOARD, presets::LARGE, cfg).await
+}
+
+/// A new deepest stack reading (`app::stack`), in the defmt log: the figure the RAM budget's
+/// stack reserve must be checked against on the board (it has not run on one yet).
+fn report_stack(used: usize) {
+    defmt::info!("stack high-water mark: {=usize} bytes", used);
 }
 
 /// The fault LED: steady while a fault is latched; fast blink (5 Hz) without a valid

@@ -20,7 +20,7 @@ use core::sync::atomic::Ordering;
 
 use embassy_executor::Spawner;
 use embassy_time::Timer;
-use maobi_shared::{presets, Brush, Fx};
+use maobi_shared::{presets, Fx};
 
 use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::protocol::Capabilities;
@@ -89,30 +89,17 @@ fn boot_mode() -> Mode {
 fn main() -> ! {
     let mode = boot_mode();
     if let Mode::Bench(shift) = mode {
-        let clk = qemu::IcountCounter;
-        let _ = writeln!(Stdout, "BENCH icount_shift={shift}");
-        qemu::time_driver::init();
-        cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout));
-        let _ = writeln!(Stdout, "BENCH done");
-        semihosting::exit(0);
+        run_bench(shift);
     }
-
-    let Ok(brush) = Brush::<Fx>::new(presets::LARGE, bench::stroke_pose(0)) else {
-        semihosting::fatal("the large preset is invalid", 5);
-    };
-    let tick_us = tick_us();
-    if let Some(hz) = arg_num("state_hz", 1..=1000) {
-        app::STATE_HZ.store(hz, Ordering::Relaxed);
-    }
-    let link_cfg = link::LinkConfig {
-        tick_us,
-        telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
-    };
-    let parts = qemu::start(brush, tick_us);
-    defmt::info!("maobi-fw up");
+    // Everything built at boot is built in `start`'s frame, which is gone before the executor
+    // runs: `main` never returns, so what its own frame held would sit under the tasks' and
+    // the interrupts' stack for good (the brush and the force loop: 12 KB of it).
+    let (parts, tick_us, link_cfg) = start();
 
     crate::executor::run(move |spawner: Spawner| {
-        spawner.spawn(app::supervisor(tick_us, qemu::motors_off).expect("one supervisor"));
+        spawner.spawn(
+            app::supervisor(tick_us, qemu::motors_off, report_stack).expect("one supervisor"),
+        );
         match mode {
             Mode::Crash(how) => spawner.spawn(crash(parts, how).expect("one crash task")),
             Mode::Selftest(ticks) => {
@@ -123,6 +110,34 @@ fn main() -> ! {
             }
         }
     })
+}
+
+/// `bench SHIFT`: the per-tick counts, interrupts masked, then exit.
+#[inline(never)]
+fn run_bench(shift: u32) -> ! {
+    let clk = qemu::IcountCounter;
+    let _ = writeln!(Stdout, "BENCH icount_shift={shift}");
+    qemu::time_driver::init();
+    cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout));
+    let _ = writeln!(Stdout, "BENCH done");
+    semihosting::exit(0);
+}
+
+/// The brush, the force loop and the board, from the command line's settings (see `main`
+/// for why not inline).
+#[inline(never)]
+fn start() -> (qemu::Parts, u32, link::LinkConfig) {
+    let tick_us = tick_us();
+    if let Some(hz) = arg_num("state_hz", 1..=1000) {
+        app::STATE_HZ.store(hz, Ordering::Relaxed);
+    }
+    let link_cfg = link::LinkConfig {
+        tick_us,
+        telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
+    };
+    let parts = qemu::start(presets::LARGE, bench::stroke_pose(0), tick_us);
+    defmt::info!("maobi-fw up");
+    (parts, tick_us, link_cfg)
 }
 
 #[embassy_executor::task]
@@ -180,13 +195,15 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
         SNAPSHOT.request();
         Timer::after_millis(5).await;
         if let Some(Some((b, t, c, tk))) = SNAPSHOT.take(|s| {
-            let spine = s.brush.as_ref()?.spine();
+            // The spine rebuilt from the state frame, bit for bit as the host rebuilds it.
+            let shape = s.state.shape();
+            let spine = shape.spine();
             let tip = spine.last()?;
             Some((
                 s.brush_tick,
                 [um(tip.x), um(tip.y), um(tip.z)],
                 spine.iter().filter(|p| p.z.to_bits() <= 429_497).count(),
-                s.tick,
+                s.state.tick,
             ))
         }) {
             done = b;
@@ -206,6 +223,13 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
         app::OVERRUNS.load(Ordering::Relaxed),
     );
     semihosting::exit(0);
+}
+
+/// A new deepest stack reading (`app::stack`), as plain text on stdout for the host
+/// (`hil`'s stack test) and in the log.
+fn report_stack(used: usize) {
+    let _ = writeln!(Stdout, "STACK high_water_bytes={used}");
+    defmt::info!("stack high-water mark: {=usize} bytes", used);
 }
 
 /// Micrometres, rounded toward -inf (integer output keeps float formatting out of the image).

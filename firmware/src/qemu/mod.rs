@@ -225,9 +225,10 @@ pub struct Parts {
     pub cmds: app::CmdProducer,
 }
 
-/// Brings the board up: time driver, UART, the force loop around `brush` ticking every
-/// `tick_us`, the watchdog, and the interrupt priorities. Interrupts are enabled on return.
-pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
+/// Brings the board up: time driver, UART, the force loop around a brush of `params` at rest
+/// at `pose`, ticking every `tick_us`, the watchdog, and the interrupt priorities. Interrupts
+/// are enabled on return.
+pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, tick_us: u32) -> Parts {
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
     static mut POSES: PoseQueue = PoseQueue::new();
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
@@ -238,23 +239,30 @@ pub fn start(brush: maobi_shared::Brush<Fx>, tick_us: u32) -> Parts {
     time_driver::init();
     let uart = uart::Uart0::init();
 
-    let Some(fl) = app::ForceLoop::new(
-        brush,
-        VirtualPen {
-            rx: pose_rx,
-            seq: 0,
-            guide: None,
-            last: None,
-            synth: synth_pen(&PenConfig::OMNI_LIKE, None),
-        },
-        ReportedMotors { _private: () },
-        TimerWatchdog { _private: () },
-        cmd_rx,
-    ) else {
-        semihosting::fatal("the force model's defaults are invalid", 5);
-    };
+    // Built in its static, not on the stack (`ForceLoop::new_in`).
     // SAFETY: once, and the TIMER0 interrupt is not enabled yet.
-    unsafe { LOOP.init(fl) };
+    let built = unsafe {
+        LOOP.init_with(|slot| {
+            app::ForceLoop::new_in(
+                slot,
+                params,
+                pose,
+                VirtualPen {
+                    rx: pose_rx,
+                    seq: 0,
+                    guide: None,
+                    last: None,
+                    synth: synth_pen(&PenConfig::OMNI_LIKE, None),
+                },
+                ReportedMotors { _private: () },
+                TimerWatchdog { _private: () },
+                cmd_rx,
+            )
+        })
+    };
+    if built.is_none() {
+        semihosting::fatal("the brush preset or the force model's defaults are invalid", 5);
+    }
 
     // TIMER1: watchdog; TIMER0: 1 kHz force tick.
     wr(t::TIMER1 + t::CTRL, 0);

@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 
 use maobi_shared::protocol::{
     Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState, DeviceConfig,
-    DeviceInfo, DeviceMsg, HostMsg, HostRx, Message, Nudge, PoseSample, SensorReport,
+    DeviceInfo, DeviceMsg, Faults, HostMsg, HostRx, Message, Nudge, PoseSample, SensorReport,
 };
 use maobi_shared::{Pose, Quat, Vec3};
 
@@ -171,6 +171,9 @@ pub struct CheckOptions {
     /// Smallest change that counts as a joint having moved: encoder counts, gimbal codes.
     pub min_counts: i64,
     pub min_codes: i32,
+    /// What step 1 writes to a pen with a missing or corrupt configuration: the builder's own
+    /// (`--config FILE`) or, by default, the reference pen's.
+    pub first_config: DeviceConfig,
 }
 
 impl CheckOptions {
@@ -183,6 +186,7 @@ impl CheckOptions {
             nudge_ms: 150,
             min_counts: 4,
             min_codes: 20,
+            first_config: DeviceConfig::DEFAULT,
         }
     }
 }
@@ -263,6 +267,9 @@ pub struct Wire {
     /// [`SENSOR_BACKLOG`]; the oldest are dropped).
     backlog: VecDeque<SensorReport>,
     pub handle: Option<Pose<f64>>,
+    /// The faults the latest state frame or event reported (latched ones and
+    /// `NOT_CALIBRATED`), and when that message arrived.
+    pub faults: Option<(Faults, Instant)>,
     last_sent: Instant,
     ping: u32,
     /// A virtual pen's pose stream, once started.
@@ -310,6 +317,7 @@ impl Wire {
             sensors: None,
             backlog: VecDeque::new(),
             handle: None,
+            faults: None,
             last_sent: Instant::now(),
             ping: 0,
             pen: None,
@@ -356,7 +364,9 @@ impl Wire {
                     }
                     self.backlog.push_back(r.clone());
                 }
+                DeviceMsg::Event(e) => self.faults = Some((e.faults, Instant::now())),
                 DeviceMsg::State(s) => {
+                    self.faults = Some((s.faults, Instant::now()));
                     self.handle = Some(s.shape().handle().cast());
                     if let Some(pen) = &mut self.pen {
                         if s.pose_seq.wrapping_sub(pen.first_seq) < 1 << 31
@@ -373,6 +383,25 @@ impl Wire {
             self.pending.push_back(m);
         }
         Ok(())
+    }
+
+    /// The faults the device reports in state frames and events arriving after `since`:
+    /// the first report `wanted` accepts, else (after `timeout`) the last one that came;
+    /// `None` if none came.
+    pub fn faults_since(
+        &mut self,
+        since: Instant,
+        timeout: Duration,
+        wanted: impl Fn(Faults) -> bool,
+    ) -> Result<Option<Faults>, String> {
+        let end = Instant::now() + timeout;
+        loop {
+            let latest = self.faults.filter(|(_, at)| *at > since).map(|(f, _)| f);
+            if latest.is_some_and(&wanted) || Instant::now() >= end {
+                return Ok(latest);
+            }
+            self.pump()?;
+        }
     }
 
     /// Waits up to `timeout` for the first message `pick` accepts (others are dropped; the
@@ -631,9 +660,14 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
     }
     let streaming = step_sensors(&mut wire, opts, op, &mut report, virtual_pen);
     // The firmware keeps the motors off until the pen is calibrated (a configuration just
-    // written, or never calibrated): then calibration comes before the nudges.
+    // written, never calibrated, or on a pen with incremental encoders not since power-on)
+    // and says so with NOT_CALIBRATED: then calibration comes before the nudges. Firmware
+    // that does not report it yet is judged by its stored calibration.
     let uncalibrated = wire.info.config != ConfigState::NotApplicable
-        && matches!(wire.get_config(opts.reply_timeout), Ok(Ok(c)) if c.calibration.is_none());
+        && (matches!(
+            wire.faults_since(Instant::now(), opts.reply_timeout, |_| true),
+            Ok(Some(f)) if f.contains(Faults::NOT_CALIBRATED)
+        ) || matches!(wire.get_config(opts.reply_timeout), Ok(Ok(c)) if c.calibration.is_none()));
     if uncalibrated {
         op.say(
             "The pen is not calibrated yet and its firmware keeps the motors off until it is: \
@@ -671,26 +705,31 @@ fn step_handshake(
                 "The pen's stored configuration is {bad}: forces and motor nudges stay off \
                  until a valid one is written."
             ));
-            if !op.confirm(
-                "Write the reference configuration (link lengths, ratios, signs of the \
-                 reference pen, not calibrated) to the pen now?",
-            ) {
+            let which = if opts.first_config == DeviceConfig::DEFAULT {
+                "the reference configuration (link lengths, ratios, signs of the reference \
+                 pen, not calibrated)"
+            } else {
+                "the configuration given with --config"
+            };
+            let short = which.split(" (").next().unwrap_or(which);
+            if !op.confirm(&format!("Write {which} to the pen now?")) {
                 report.push(
                     "1 handshake",
                     Outcome::Fail,
                     format!(
-                        "{what}: stopped. Run `maobi device check` again and let it write the \
-                         reference configuration, then calibrate (step 4)"
+                        "{what}: stopped. Write a configuration (`maobi device config set \
+                         FILE`, or run `maobi device check` again and let it write one), then \
+                         calibrate (step 4)"
                     ),
                 );
                 return false;
             }
-            match wire.set_config(DeviceConfig::DEFAULT, opts.reply_timeout) {
+            match wire.set_config(opts.first_config, opts.reply_timeout) {
                 Ok(Ok(_)) => {
                     report.push(
                         "1 handshake",
                         Outcome::Pass,
-                        format!("{what}; the reference configuration was written"),
+                        format!("{what}; {} was written", short),
                     );
                     true
                 }
@@ -698,7 +737,7 @@ fn step_handshake(
                     report.push(
                         "1 handshake",
                         Outcome::Fail,
-                        format!("{what}; writing the reference configuration failed: {why}"),
+                        format!("{what}; writing {} failed: {why}", short),
                     );
                     false
                 }
@@ -1069,16 +1108,33 @@ fn step_calibrate(
             return;
         }
     }
+    let calibrated_at = Instant::now();
     match wire.get_config(opts.reply_timeout) {
         Ok(Ok(c)) => match (c.validate(), c.calibration) {
-            (Ok(()), Some(r)) => report.push(
-                step,
-                Outcome::Pass,
-                format!(
-                    "stored and read back valid; inkwell encoders {:?}, gimbal {:?}",
-                    r.encoders, r.gimbal
-                ),
-            ),
+            (Ok(()), Some(r)) => {
+                // The pen itself must now count as calibrated: the next report after the
+                // read-back no longer carries NOT_CALIBRATED.
+                // A frame copied just before the calibration may still be on its way:
+                // waits for a clear one.
+                match wire.faults_since(calibrated_at, opts.reply_timeout, |f| {
+                    !f.contains(Faults::NOT_CALIBRATED)
+                }) {
+                    Ok(Some(f)) if f.contains(Faults::NOT_CALIBRATED) => report.push(
+                        step,
+                        Outcome::Fail,
+                        "stored and read back, but the pen still reports NOT_CALIBRATED",
+                    ),
+                    Err(e) => report.push(step, Outcome::Fail, e),
+                    Ok(_) => report.push(
+                        step,
+                        Outcome::Pass,
+                        format!(
+                            "stored and read back valid; inkwell encoders {:?}, gimbal {:?}",
+                            r.encoders, r.gimbal
+                        ),
+                    ),
+                }
+            }
             (Ok(()), None) => report.push(
                 step,
                 Outcome::Fail,

@@ -14,6 +14,7 @@
 //!   ([`crate::phantom::device::BridgeModel`]).
 
 pub mod bringup;
+pub mod config_file;
 pub mod endpoint;
 pub mod link;
 pub mod sim_device;

@@ -9,10 +9,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, PoseSample};
-use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar, Vec3};
+use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
-use super::servo::{Bridge, BridgeOptions, ServoCommand, ServoShared};
+use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared};
 use crate::device::link::frame_from_state;
 use crate::device::ProtocolModel;
 use crate::gui::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
@@ -284,8 +284,7 @@ impl Device for PhantomDevice {
             )),
             DeviceCommand::Guide(Some(track)) => {
                 // The moving point in the paper frame, one per servo tick (1 kHz).
-                let points: Arc<[Vec3<Fx>]> =
-                    track.resample().map(|p| p.pos.cast::<Fx>()).collect();
+                let points: GuidePoints = track.resample().map(|p| p.pos.cast::<Fx>()).collect();
                 if points.is_empty() {
                     return Err(DeviceError::Rejected("the stroke is empty".into()));
                 }

@@ -287,8 +287,11 @@ pub enum ServoCommand {
     /// mm, the pose track resampled at 1 kHz), played from the next tick; the shared
     /// [`GuideStream`] pulls the stylus toward it inside the output stage. `None` stops it:
     /// the point reached is held while the guide fades out.
-    Guide(Option<Arc<[Vec3<Fx>]>>),
+    Guide(Option<GuidePoints>),
 }
+
+/// A guide stroke's moving point, one per servo tick, in the paper frame (mm).
+pub type GuidePoints = Arc<[Vec3<Fx>]>;
 
 /// The servo loop's model, with no HD calls.
 pub struct ServoCore {
@@ -307,7 +310,7 @@ pub struct ServoCore {
     /// Guided writing: the coupling, the stroke being played (points, next index; at or past
     /// the end the last point is held, fading out) and this tick's figures for the state.
     guide: GuideStream<Fx>,
-    guide_play: Option<(Arc<[Vec3<Fx>]>, usize)>,
+    guide_play: Option<(GuidePoints, usize)>,
     guide_frame: Option<GuideFrame>,
 }
 
@@ -646,6 +649,11 @@ pub struct ServoShared {
     /// States with the guide's figures at their tick.
     states_q: Mutex<VecDeque<(BrushState, Option<GuideFrame>)>>,
     commands: Mutex<VecDeque<ServoCommand>>,
+    /// Every guide stroke handed to the servo loop, kept alive here until the loop has let go
+    /// of it. When a stroke ends or is replaced the callback only drops *a* reference: the
+    /// last one, and with it the free (an allocator call, with a lock inside, in a 1 kHz
+    /// real-time callback), is always dropped on this side, by [`Self::release_played_guides`].
+    guides: Mutex<Vec<GuidePoints>>,
     stop: AtomicBool,
     /// The callback has returned HD_CALLBACK_DONE (and will not run again).
     done: AtomicBool,
@@ -668,6 +676,7 @@ impl ServoShared {
         ServoShared {
             states_q: Mutex::new(VecDeque::with_capacity(STATE_QUEUE)),
             commands: Mutex::new(VecDeque::new()),
+            guides: Mutex::new(Vec::new()),
             stop: AtomicBool::new(false),
             done: AtomicBool::new(false),
             why: AtomicU32::new(0),
@@ -704,16 +713,49 @@ impl ServoShared {
     }
 
     /// As [`Self::take_state`], with guided writing's figures at the state's tick.
+    /// (The reader calls this all the time, so it also frees the strokes the servo loop has
+    /// finished with.)
     pub fn take_state_with_guide(&self) -> Option<(BrushState, Option<GuideFrame>)> {
+        self.release_played_guides();
         self.states_q.lock().ok()?.pop_front()
     }
 
     /// Queues a command for the next servo tick.
     pub fn send(&self, cmd: ServoCommand) {
+        self.release_played_guides();
+        if let ServoCommand::Guide(Some(points)) = &cmd {
+            if let Ok(mut g) = self.guides.lock() {
+                g.push(points.clone());
+            }
+        }
         if let Ok(mut q) = self.commands.lock() {
             // A stalled servo must not grow this without bound.
             if q.len() < 64 {
                 q.push_back(cmd);
+            }
+        }
+    }
+
+    /// Frees the guide strokes nobody but this list holds any more (the servo loop has played
+    /// or dropped them, and no queued command carries them). A count read while the callback
+    /// drops its reference is at worst one too high: that stroke goes at the next call.
+    pub fn release_played_guides(&self) {
+        if let Ok(mut g) = self.guides.lock() {
+            g.retain(|points| Arc::strong_count(points) > 1);
+        }
+    }
+
+    /// Guide strokes still held for the servo loop (tests and diagnostics).
+    pub fn guides_held(&self) -> usize {
+        self.guides.lock().map(|g| g.len()).unwrap_or(0)
+    }
+
+    /// Applies the queued commands to `core`, as the callback does at the start of a tick; if
+    /// the sender holds the queue right now, they wait for the next tick.
+    fn apply_pending(&self, core: &mut ServoCore) {
+        if let Ok(mut q) = self.commands.try_lock() {
+            while let Some(c) = q.pop_front() {
+                core.apply(c);
             }
         }
     }
@@ -802,11 +844,7 @@ impl ServoCtx {
                 (f.end_frame)(self.hhd);
                 return self.finish(0, HdErrorInfo::none());
             }
-            if let Ok(mut q) = self.shared.commands.try_lock() {
-                while let Some(c) = q.pop_front() {
-                    self.core.apply(c);
-                }
-            }
+            self.shared.apply_pending(&mut self.core);
             let force = self.core.step(&m, buttons);
             (f.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
             (f.end_frame)(self.hhd);
@@ -1191,6 +1229,67 @@ mod tests {
         assert_eq!(b.update(2), None);
         assert_eq!(b.update(0), None);
         assert_eq!(b.update(0), None);
+    }
+
+    /// The servo loop plays a stroke to its end and a second one is replaced mid-way, yet the
+    /// last reference to each (and so the free) stays on the non-real-time side.
+    #[test]
+    fn the_servo_loop_never_frees_a_guide_stroke() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        let shared = ServoShared::new();
+        let q = Quat::new(
+            std::f64::consts::FRAC_1_SQRT_2,
+            -std::f64::consts::FRAC_1_SQRT_2,
+            0.0,
+            0.0,
+        );
+        let m = transform_of_pose([0.0, -10.0, 0.0], q);
+        let stroke = |n: usize| -> GuidePoints {
+            (0..n)
+                .map(|i| Vec3::from_f64([i as f64 * 0.05, 0.0, 1.0]))
+                .collect()
+        };
+        let (first, second) = (stroke(200), stroke(5000));
+        let (first_w, second_w) = (Arc::downgrade(&first), Arc::downgrade(&second));
+        shared.send(ServoCommand::Guide(Some(first)));
+        let mut ticks = 0;
+        loop {
+            shared.apply_pending(&mut core);
+            core.step(&m, 0);
+            ticks += 1;
+            if !core.guiding() || ticks > 5000 {
+                break;
+            }
+        }
+        assert!(!core.guiding(), "the stroke did not end in {ticks} ticks");
+        assert!(ticks > 200, "the stroke ended after {ticks} ticks");
+        assert!(
+            first_w.upgrade().is_some(),
+            "the servo side freed the stroke"
+        );
+        // Replaced mid-way by a new one: the old one's last reference is still not the servo's.
+        shared.send(ServoCommand::Guide(Some(second)));
+        for _ in 0..100 {
+            shared.apply_pending(&mut core);
+            core.step(&m, 0);
+        }
+        assert!(core.guiding());
+        assert!(
+            first_w.upgrade().is_none(),
+            "a played stroke was not released"
+        );
+        shared.send(ServoCommand::ResetBrush);
+        shared.apply_pending(&mut core);
+        assert!(!core.guiding());
+        assert!(
+            second_w.upgrade().is_some(),
+            "the servo side freed the stroke"
+        );
+        assert_eq!(shared.guides_held(), 1);
+        shared.release_played_guides();
+        assert!(second_w.upgrade().is_none());
+        assert_eq!(shared.guides_held(), 0);
     }
 
     #[test]

@@ -235,9 +235,60 @@ impl ConfigState {
         }
     }
 
-    /// Whether forces may be enabled in this state (valid, or no configuration needed).
+    /// Whether forces may be enabled in this state (valid, or no configuration needed),
+    /// calibration aside: [`Readiness`] adds it.
     pub fn allows_forces(&self) -> bool {
         matches!(self, ConfigState::Valid | ConfigState::NotApplicable)
+    }
+}
+
+/// How long a pen's zeros ([`DeviceConfig::calibration`]) hold.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum ZeroHold {
+    /// Across power cycles: the sensors read absolute positions (potentiometers, hall
+    /// sensors, the QEMU board's readings synthesised from the host's poses), so the stored
+    /// calibration stays true.
+    Stored,
+    /// Until power-off: incremental encoders count from wherever the arm was when the chip
+    /// started (a reset clears the timers), so a stored calibration from an earlier power-on
+    /// is meaningless. Only the zeros `Calibrate` took since power-on hold (`None` until
+    /// then). The boards that announce `Capabilities::NEEDS_CALIBRATION`.
+    SincePowerOn(Option<RawReadings>),
+}
+
+/// Whether a pen may render forces, and whether it reports
+/// [`crate::protocol::Faults::NOT_CALIBRATED`]: the supervisor's "no force before
+/// calibration".
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct Readiness {
+    /// Forces (and bring-up nudges) may be driven: a valid configuration whose zeros hold,
+    /// or none needed.
+    pub allows_forces: bool,
+    /// The pen needs zeros it does not have (no configuration, none calibrated, or zeros
+    /// from an earlier power-on): reported until `Calibrate` succeeds.
+    pub not_calibrated: bool,
+}
+
+impl Readiness {
+    /// From the store's state, the configuration in force (`Some` exactly when `state` is
+    /// [`ConfigState::Valid`]) and how long this pen's zeros hold.
+    ///
+    /// A pen without a stored configuration that needs none ([`ConfigState::NotApplicable`]:
+    /// the QEMU board's virtual pen, whose poses come from the host already in the world
+    /// frame) is calibrated by construction.
+    pub fn of(state: &ConfigState, config: Option<&DeviceConfig>, zeros: ZeroHold) -> Self {
+        let calibrated = match (state, config) {
+            (ConfigState::NotApplicable, _) => true,
+            (ConfigState::Valid, Some(cfg)) if cfg.validate().is_ok() => match zeros {
+                ZeroHold::Stored => cfg.calibration.is_some(),
+                ZeroHold::SincePowerOn(taken) => taken.is_some() && cfg.calibration == taken,
+            },
+            _ => false,
+        };
+        Readiness {
+            allows_forces: calibrated,
+            not_calibrated: !calibrated,
+        }
     }
 }
 

@@ -11,13 +11,17 @@
 //! * [`config`]: what the pen stores in flash ([`DeviceConfig`]), its validation, and the
 //!   flash image format: magic, format version, length, postcard payload, CRC-32
 //!   ([`encode`], [`decode`], [`ConfigError`]); and the state the handshake reports
-//!   ([`ConfigState`]).
+//!   ([`ConfigState`]); whether that configuration lets the pen render forces and whether
+//!   it is calibrated ([`Readiness`], [`ZeroHold`]).
+//!
+//! * [`config_log`]: where the image lives in NOR flash, a log of slots that survives a
+//!   power loss at any moment ([`ConfigLog`], over `embedded-storage`'s `NorFlash`).
 //!
 //! Encoder unwrapping is [`crate::kinematics::EncoderUnwrap`] (tested in
 //! `shared/tests/pen_io.rs` too).
 //!
 //! The board supplies only what touches hardware: timer and GPIO registers for
-//! [`DriveOutput`], ADC conversions for [`AdcFilter`], a flash page for the image.
+//! [`DriveOutput`], ADC conversions for [`AdcFilter`], its flash driver for [`ConfigLog`].
 
 // Bad input (a flash image, a command) must not panic: no indexing, no unwrap.
 #![deny(
@@ -29,11 +33,16 @@
 
 pub mod adc;
 pub mod config;
+pub mod config_log;
 pub mod drive;
 
 pub use adc::AdcFilter;
 pub use config::{
-    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, CONFIG_FORMAT_VERSION,
-    CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN, IMAGE_HEADER_LEN,
+    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, Readiness, ZeroHold,
+    CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN,
+    IMAGE_HEADER_LEN,
 };
+pub use config_log::{ConfigLog, LogError, Region};
 pub use drive::{Direction, DriveConfig, DriveOutput, ZeroPolicy, ZERO_COMMAND};
+/// The flash traits [`ConfigLog`] is generic over, for a board's driver wrapper and for tests.
+pub use embedded_storage::nor_flash;

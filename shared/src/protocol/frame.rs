@@ -128,6 +128,18 @@ pub trait Message: Serialize + DeserializeOwned {
     }
 }
 
+/// Encodes a frame of `M`'s direction and bound whose message is `message`: any value that
+/// serializes as an `M` would (a borrowed view of one), for senders that should not build
+/// the owned message first ([`super::DeviceMsg::encode_state`]).
+pub(crate) fn encode_as<M: Message, T: Serialize + ?Sized>(
+    message: &T,
+    out: &mut [u8],
+) -> Result<usize, ProtocolError> {
+    let mut framer = Framer::new(out, M::MAX_DECODED)?;
+    framer.push(&(PROTOCOL_VERSION, M::DIRECTION, message))?;
+    framer.finish()
+}
+
 /// Frames raw `content` (the version and direction bytes, then postcard message bytes):
 /// appends the CRC, COBS-stuffs, adds the delimiter. For tests and protocol tools that need
 /// frames no well-typed sender would produce; `max_decoded` bounds it like

@@ -7,7 +7,8 @@ use heapless::String;
 use serde::{Deserialize, Serialize};
 
 use super::frame::{
-    check_version, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE, PROTOCOL_VERSION,
+    check_version, encode_as, Message, ProtocolError, DEVICE_TO_HOST, HOST_TO_DEVICE,
+    PROTOCOL_VERSION,
 };
 use super::state::{BrushState, GuideSample, PoseSample};
 use crate::params::{BrushParams, ParamError, ParamId};
@@ -110,6 +111,27 @@ impl Message for DeviceMsg {
     const MAX_DECODED: usize = DEVICE_MSG_MAX;
 }
 
+/// [`DeviceMsg::State`]'s variant index, its tag on the wire.
+const STATE_VARIANT: u32 = 2;
+
+/// A [`DeviceMsg::State`] that borrows its state: serializes exactly as the owned message.
+struct StateRef<'a>(&'a BrushState);
+
+impl Serialize for StateRef<'_> {
+    fn serialize<Ser: serde::Serializer>(&self, s: Ser) -> Result<Ser::Ok, Ser::Error> {
+        s.serialize_newtype_variant("DeviceMsg", STATE_VARIANT, "State", self.0)
+    }
+}
+
+impl DeviceMsg {
+    /// The frame of `DeviceMsg::State(state.clone())`, byte for byte, without the copy: a
+    /// device encodes the state (about 3 KB) where it lies instead of moving it onto its
+    /// stack (test `borrowed_state_encodes_as_the_message`).
+    pub fn encode_state(state: &BrushState, out: &mut [u8]) -> Result<usize, ProtocolError> {
+        encode_as::<DeviceMsg, _>(&StateRef(state), out)
+    }
+}
+
 /// `Debug` as `Faults(0x5: SENSOR_JUMP | LINK_SILENT)` and `Display` as `SENSOR_JUMP |
 /// LINK_SILENT` for a flag set (bits without a name print in hex).
 macro_rules! flag_fmt {
@@ -146,7 +168,9 @@ bitflags::bitflags! {
         const REAL_SENSORS = 1 << 1;
         /// The pen's pose comes from the host as [`HostMsg::Pose`] (QEMU board, Phantom bridge).
         const VIRTUAL_PEN = 1 << 2;
-        /// The sensors need [`Command::Calibrate`] before forces may be enabled.
+        /// The sensors need [`Command::Calibrate`] before forces may be enabled, after every
+        /// power-on (incremental encoders: a stored calibration does not survive a reset;
+        /// [`crate::pen_io::ZeroHold::SincePowerOn`]).
         const NEEDS_CALIBRATION = 1 << 3;
         /// The pen has buttons (for a virtual pen: reported in [`PoseSample::buttons`]).
         const BUTTONS = 1 << 4;
@@ -175,7 +199,10 @@ bitflags::bitflags! {
         const PARAM_REJECTED = 1 << 3;
         /// The watchdog reset the board.
         const WATCHDOG = 1 << 4;
-        /// The sensors are not calibrated.
+        /// The sensors are not calibrated: no configuration, none calibrated, or (a pen with
+        /// [`Capabilities::NEEDS_CALIBRATION`]) not since power-on. Not latched: set while it
+        /// is true (forces refused with [`CommandError::ConfigNotValid`]), gone once
+        /// [`Command::Calibrate`] succeeds; [`Command::ClearFaults`] does not clear it.
         const NOT_CALIBRATED = 1 << 5;
     }
 }

@@ -201,9 +201,48 @@ impl BrushState {
         haptics: Haptics,
         faults: Faults,
     ) -> Self {
+        let mut state = BrushState::EMPTY;
+        state.fill_from_brush(brush, tick, pose_seq, haptics, faults);
+        state
+    }
+
+    /// No layers, every field zero: a placeholder to [fill](Self::fill_from_brush). All zero
+    /// bytes, so a `static` holding it costs no flash.
+    pub const EMPTY: BrushState = BrushState {
+        tick: 0,
+        pose_seq: 0,
+        spine_index: 0,
+        spine_count: 0,
+        handle: PoseBits {
+            pos: [0; 3],
+            rot: [0; 4],
+        },
+        haptics: Haptics {
+            force_n: [0; 3],
+            motors: [0; 3],
+            enabled: false,
+        },
+        faults: Faults::empty(),
+        contacts: 0,
+        ring_nodes: 0,
+        footprint_eps: 0,
+        layers: Vec::new(),
+    };
+
+    /// [`Self::from_brush`] written over `self` in place: the device's force loop fills the
+    /// state slot it shares with the link task this way, with no 3 KB temporary on its
+    /// (interrupt) stack.
+    pub fn fill_from_brush(
+        &mut self,
+        brush: &Brush<Fx>,
+        tick: u32,
+        pose_seq: u32,
+        haptics: Haptics,
+        faults: Faults,
+    ) {
         let handle = brush.handle();
         let geometry = Geometry::of(brush);
-        let mut layers = Vec::new();
+        self.layers.clear();
         let mut contacts = 0u32;
         let mut prev = handle.pos;
         let per_layer = geometry
@@ -220,7 +259,7 @@ impl BrushState {
                     .unwrap_or(0);
             }
             // A brush has at most MAX_LAYERS layers: the push cannot fail.
-            let _ = layers.push(LayerState {
+            let _ = self.layers.push(LayerState {
                 spine: delta_bits(s, prev),
                 skeleton: delta_bits(k, s),
                 short_axis: vec3_bits(l.short_axis),
@@ -231,19 +270,16 @@ impl BrushState {
             });
             prev = s;
         }
-        BrushState {
-            tick,
-            pose_seq,
-            spine_index: 0,
-            spine_count: 1,
-            handle: handle.into(),
-            haptics,
-            faults,
-            contacts,
-            ring_nodes: u8::try_from(geometry.ring_nodes).unwrap_or(u8::MAX),
-            footprint_eps: geometry.eps.to_bits(),
-            layers,
-        }
+        self.tick = tick;
+        self.pose_seq = pose_seq;
+        self.spine_index = 0;
+        self.spine_count = 1;
+        self.handle = handle.into();
+        self.haptics = haptics;
+        self.faults = faults;
+        self.contacts = contacts;
+        self.ring_nodes = u8::try_from(geometry.ring_nodes).unwrap_or(u8::MAX);
+        self.footprint_eps = geometry.eps.to_bits();
     }
 
     /// Whether layer `i` lies on the paper.

@@ -215,6 +215,16 @@ fn mul_floor_partial(a: i64, b: i64) -> i64 {
         let ll = ((al as u64 * bl as u64) >> 32) as i64;
         return (hh << 32) + hl + lh + ll;
     }
+    mul_floor_large(a, b)
+}
+
+/// [`mul_floor_partial`] for operands with an integer part beyond +-2^15: out of line, since
+/// the model never forms them on its hot path and every product site inlines the fast path.
+#[inline(never)]
+#[allow(dead_code)]
+fn mul_floor_large(a: i64, b: i64) -> i64 {
+    let (ah, al) = ((a >> 32) as i32, a as u32);
+    let (bh, bl) = ((b >> 32) as i32, b as u32);
     let hh = ah as i64 * bh as i64; // signed x signed
     let hl = ah as i64 * bl as i64; // signed x unsigned: |.| < 2^63
     let lh = al as i64 * bh as i64;

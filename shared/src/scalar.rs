@@ -466,8 +466,9 @@ fn sqrt_f32(x: f32) -> f32 {
         // The value goes through a core register and s15 (caller-saved, declared clobbered):
         // stable Rust accepts an `s` register operand only with the `vfp2` feature, which
         // the single-precision FPU of the Cortex-M4F does not have.
-        // SAFETY: register-to-register moves and one FPU instruction: no memory, no stack,
-        // no condition flags (only the FPSCR's sticky exception bits, which nothing reads).
+        // SAFETY: register-to-register moves and one FPU instruction: no memory, no stack.
+        // Not `preserves_flags`: vsqrt sets the FPSCR's sticky exception bits (inexact),
+        // which Rust's asm rules count among the flags on Arm.
         #[allow(unsafe_code)] // the crate's one exception (see lib.rs)
         unsafe {
             core::arch::asm!(
@@ -477,7 +478,7 @@ fn sqrt_f32(x: f32) -> f32 {
                 x = in(reg) x.to_bits(),
                 root = lateout(reg) root,
                 out("s15") _,
-                options(pure, nomem, nostack, preserves_flags),
+                options(pure, nomem, nostack),
             );
         }
         f32::from_bits(root)

@@ -487,37 +487,29 @@ impl<S: Scalar> Brush<S> {
             *t = tie_weight_at(d, x.z);
         }
 
-        // Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs).
-        let row_rhs = |row: &Row<S>, i: usize, spring: Vec3<S>, rel: Vec3<S>| {
-            // The coefficients are in [0, 1) (fractions of the mass's W'), and so is a tie
-            // weight below one.
-            let mut pi = spring.scale_coef(row.c_k) + rel.scale_coef(row.c_j);
-            let w = ties[i];
-            if w > S::ZERO {
-                let tie = (self.skel[i] - self.spine[i]).scale_coef(row.c_t)
-                    + (self.skel_vel[i] - self.vel[i]).scale_coef(row.c_tv);
-                // A mass clear of the paper has weight exactly one, and scaling by one is
-                // exact in every scalar type: skip those three multiplies.
-                pi += if w < S::ONE { tie.scale_coef(w) } else { tie };
-            }
-            pi
-        };
         // p is kept flattened (x_0, y_0, z_0, x_1, ...) for the solve, see [`jacobi`].
         let last = n - 1;
         let mut p = [S::ZERO; FLAT];
         // Entry 0 (the ferrule has no row) holds du_0 for the solve.
         p[..3].copy_from_slice(&[du0.x, du0.y, du0.z]);
-        for (i, (pi, (v, s))) in p[3..3 * last]
-            .chunks_exact_mut(3)
-            .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
-            .enumerate()
+        // The interior rows share their coefficients (in [0, 1): fractions of the mass's
+        // W'): tested once for the whole loop instead of on each product.
+        if [inner.c_k, inner.c_j, inner.c_t, inner.c_tv]
+            .iter()
+            .all(|c| c.is_coef())
         {
-            let ui = v[1];
-            let r = row_rhs(&inner, i + 1, s[1] - s[0], (v[0] - ui) + (v[2] - ui));
-            pi.copy_from_slice(&[r.x, r.y, r.z]);
+            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
+        } else {
+            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
         }
-        let r = row_rhs(&tip, last, -seg[last], self.vel[last - 1] - self.vel[last])
-            + self.tip_load.scale(tip.c_f);
+        let r = self.row_rhs(
+            &tip,
+            last,
+            -seg[last],
+            self.vel[last - 1] - self.vel[last],
+            ties[last],
+            S::mul_coef,
+        ) + self.tip_load.scale_coef(tip.c_f);
         p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
         let mut du = [S::ZERO; FLAT];
@@ -560,6 +552,54 @@ impl<S: Scalar> Brush<S> {
         }
     }
 
+    /// Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs) for mass `i` with tie
+    /// weight `w`, the row's coefficients multiplied by `mul` (a coefficient product).
+    #[inline(always)]
+    fn row_rhs(
+        &self,
+        row: &Row<S>,
+        i: usize,
+        spring: Vec3<S>,
+        rel: Vec3<S>,
+        w: S,
+        mul: impl Fn(S, S) -> S,
+    ) -> Vec3<S> {
+        let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
+        let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
+        if w > S::ZERO {
+            let tie = scale(self.skel[i] - self.spine[i], row.c_t)
+                + scale(self.skel_vel[i] - self.vel[i], row.c_tv);
+            // A mass clear of the paper has weight exactly one, and scaling by one is exact in
+            // every scalar type: skip those three multiplies. A weight below one is a
+            // coefficient.
+            pi += if w < S::ONE { tie.scale_coef(w) } else { tie };
+        }
+        pi
+    }
+
+    /// [`Self::row_rhs`] of the interior masses 1..n-1 into `p` (flattened, see [`jacobi`]).
+    #[inline(always)]
+    fn interior_rhs(
+        &self,
+        inner: &Row<S>,
+        seg: &[Vec3<S>; MAX_LAYERS + 1],
+        ties: &[S; MAX_LAYERS],
+        p: &mut [S; FLAT],
+        mul: impl Fn(S, S) -> S + Copy,
+    ) {
+        let n = self.d.n;
+        for (i, (pi, (v, s))) in p[3..3 * (n - 1)]
+            .chunks_exact_mut(3)
+            .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
+            .enumerate()
+        {
+            let ui = v[1];
+            let rel = (v[0] - ui) + (v[2] - ui);
+            let r = self.row_rhs(inner, i + 1, s[1] - s[0], rel, ties[i + 1], mul);
+            pi.copy_from_slice(&[r.x, r.y, r.z]);
+        }
+    }
+
     /// Solves eq. 2.30's tridiagonal system `du_i - c_j,i (du_{i-1} + du_{i+1}) = p_i` exactly
     /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
     /// lie on the paper... and since the tie is weighted on the right-hand side, not at all:
@@ -589,15 +629,15 @@ impl<S: Scalar> Brush<S> {
         for i in 1..n {
             let mut rhs = Vec3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
             if i == 1 {
-                rhs += du0.scale(c_j(1));
+                rhs += du0.scale_coef(c_j(1));
             }
             // d'_i = (d_i - a_i d'_{i-1}) / m_i with a_i = -c_j,i.
-            prev = (rhs + prev.scale(c_j(i))).scale(self.inv_pivot[i]);
+            prev = (rhs + prev.scale_coef(c_j(i))).scale(self.inv_pivot[i]);
             d[i] = prev;
         }
         let mut du = d;
         for i in (1..n - 1).rev() {
-            du[i] = d[i] + du[i + 1].scale(self.cprime[i]);
+            du[i] = d[i] + du[i + 1].scale_coef(self.cprime[i]);
         }
         for (f, v) in out.chunks_exact_mut(3).zip(&du[..n]) {
             f.copy_from_slice(&[v.x, v.y, v.z]);
@@ -643,7 +683,13 @@ impl<S: Scalar> Brush<S> {
             .zip(&mut oz[1..n])
             .zip(&self.skel_dir[..n - 1])
         {
-            acc += dir.scale(self.d.segment);
+            // A unit direction's components are the coefficients (the same products).
+            let seg = self.d.segment;
+            acc += Vec3::new(
+                seg.mul_coef(dir.x),
+                seg.mul_coef(dir.y),
+                seg.mul_coef(dir.z),
+            );
             (*x, *y, *z) = (acc.x, acc.y, acc.z);
         }
         out
@@ -652,8 +698,26 @@ impl<S: Scalar> Brush<S> {
     /// Rebuilds VS_i from the handle (eqs. 3-5, 3-6) and the node offsets
     /// ([`Self::skeleton_offsets`]); records their displacement if `track`.
     fn rebuild_skeleton(&mut self, track: bool, offsets: &Offsets<S>) {
-        let n = self.d.n;
         let m = RotMat::from_quat(self.handle.rot).m;
+        // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
+        // nine entries tested once for all nodes rather than on each product.
+        if m.iter().flatten().all(|c| c.is_coef()) {
+            self.place_skeleton(track, offsets, &m, S::mul_tested_coef);
+        } else {
+            self.place_skeleton(track, offsets, &m, S::mul_coef);
+        }
+    }
+
+    /// [`Self::rebuild_skeleton`] with the rotation `m`, products by its entries by `mul`.
+    #[inline(always)]
+    fn place_skeleton(
+        &mut self,
+        track: bool,
+        offsets: &Offsets<S>,
+        m: &[[S; 3]; 3],
+        mul: impl Fn(S, S) -> S,
+    ) {
+        let n = self.d.n;
         let pos = self.handle.pos;
         let [ox, oy, oz] = offsets;
         // Node 0 is the handle itself (offset zero).
@@ -664,11 +728,10 @@ impl<S: Scalar> Brush<S> {
             .zip(&oy[..n])
             .zip(&oz[..n])
         {
-            // A rotation's entries are in [-1, 1]: coefficient products (the same values).
             let next = Vec3::new(
-                pos.x + (x.mul_coef(m[0][0]) + y.mul_coef(m[0][1]) + z.mul_coef(m[0][2])),
-                pos.y + (x.mul_coef(m[1][0]) + y.mul_coef(m[1][1]) + z.mul_coef(m[1][2])),
-                pos.z + (x.mul_coef(m[2][0]) + y.mul_coef(m[2][1]) + z.mul_coef(m[2][2])),
+                pos.x + (mul(x, m[0][0]) + mul(y, m[0][1]) + mul(z, m[0][2])),
+                pos.y + (mul(x, m[1][0]) + mul(y, m[1][1]) + mul(z, m[1][2])),
+                pos.z + (mul(x, m[2][0]) + mul(y, m[2][1]) + mul(z, m[2][2])),
             );
             if track {
                 *vel = next - *node;
@@ -686,7 +749,8 @@ impl<S: Scalar> Brush<S> {
         };
         let goal_local = self.handle.rot.rotate_inv(goal);
         let dd = self.d.plasticity;
-        let end = self.skel_dir[n - 2].scale(S::ONE - dd) + goal_local.scale(dd);
+        // Interpolation weights in [0, 1]: coefficient products (the same values).
+        let end = self.skel_dir[n - 2].scale_coef(S::ONE - dd) + goal_local.scale_coef(dd);
         let Some(end) = end.normalized_or_none(self.d.tiny) else {
             return;
         };
@@ -694,7 +758,7 @@ impl<S: Scalar> Brush<S> {
         let first = self.skel_dir[0];
         for i in 1..n - 2 {
             let w = self.d.skel_weight[i];
-            let v = first.scale(S::ONE - w) + end.scale(w);
+            let v = first.scale_coef(S::ONE - w) + end.scale_coef(w);
             if let Some(v) = v.normalized_or_none(self.d.tiny) {
                 self.skel_dir[i] = v;
             }
@@ -720,7 +784,7 @@ impl<S: Scalar> Brush<S> {
                         normal
                     } else {
                         let w = S::from_usize(i) * inv_c;
-                        sa0.scale(S::ONE - w) + normal.scale(w)
+                        sa0.scale_coef(S::ONE - w) + normal.scale_coef(w)
                     };
                 }
             }
@@ -728,7 +792,7 @@ impl<S: Scalar> Brush<S> {
                 let end = self.layers[n - 1].short_axis;
                 for i in 1..n - 1 {
                     let w = self.d.layer_frac[i];
-                    self.layers[i].short_axis = sa0.scale(S::ONE - w) + end.scale(w);
+                    self.layers[i].short_axis = sa0.scale_coef(S::ONE - w) + end.scale_coef(w);
                 }
             }
         }
@@ -741,7 +805,8 @@ impl<S: Scalar> Brush<S> {
             seg[i] = v.normalized_or_none(self.d.tiny).unwrap_or(down);
             let layer = &mut self.layers[i];
             let sa = layer.short_axis;
-            let la = sa.cross(seg[i]);
+            // Unit vectors: coefficient products (the same values), here and below.
+            let la = sa.cross_coef(seg[i]);
             // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined; keep the old
             // long axis, made perpendicular to the segment, and rebuild the short one.
             let min_cross = self.d.tiny;
@@ -750,7 +815,7 @@ impl<S: Scalar> Brush<S> {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
-                    layer.short_axis = seg[i].cross(la);
+                    layer.short_axis = seg[i].cross_coef(la);
                 }
                 None => {
                     let old = layer.long_axis;
@@ -767,7 +832,7 @@ impl<S: Scalar> Brush<S> {
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         for i in 1..n - 1 {
-            tilt[i] = S::ONE - seg[i + 1].dot(seg[i]);
+            tilt[i] = S::ONE - seg[i + 1].dot_coef(seg[i]);
             tilt_sum += tilt[i];
         }
         tilt[n - 1] = tilt[n - 2];
@@ -785,15 +850,18 @@ impl<S: Scalar> Brush<S> {
             let layer = &mut self.layers[i];
             let rl = layer.long_radius;
             let goal = if any_contact {
-                let bend = self.d.spread_tf * tilt[i] + (S::ONE - tilt[i]) * tilt_all;
+                // The factors in [0, 1] (tilts, dryness, layer fraction, rates) are the
+                // coefficients of `mul_coef`: the same products, cheaper in fixed point.
+                let bend = self.d.spread_tf.mul_coef(tilt[i]) + tilt_all.mul_coef(S::ONE - tilt[i]);
                 rl + (self.d.max_radius[i] - rl)
-                    * (S::ONE - layer.wetness)
-                    * self.d.layer_frac[i]
-                    * bend
+                    .mul_coef(S::ONE - layer.wetness)
+                    .mul_coef(self.d.layer_frac[i])
+                    .mul_coef(bend)
             } else {
                 rest
             };
-            let rl = (rate * goal + (S::ONE - rate) * rl).clamp(rest, self.d.max_radius[i]);
+            let rl = (goal.mul_coef(rate) + rl.mul_coef(S::ONE - rate))
+                .clamp(rest, self.d.max_radius[i]);
             layer.long_radius = rl;
             layer.short_radius = (rest * rest).div(rl);
         }
@@ -825,6 +893,26 @@ fn jacobi<S: Scalar>(
     iterations: usize,
     du: &mut [S; FLAT],
 ) {
+    // The two coefficients are the same for every sweep: tested once (the presets' are in
+    // (-1, 1)), not on each of the sweeps' products; the same values either way.
+    if c.is_coef() && c_tip.is_coef() {
+        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_tested_coef);
+    } else {
+        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_coef);
+    }
+}
+
+/// [`jacobi`] with the product by a coefficient `mul`.
+#[inline(always)]
+fn jacobi_with<S: Scalar>(
+    p: &[S; FLAT],
+    c: S,
+    c_tip: S,
+    n: usize,
+    iterations: usize,
+    du: &mut [S; FLAT],
+    mul: impl Fn(S, S) -> S,
+) {
     // Components of the interior masses 1..n-1, and of the tip.
     let (lo, tip) = (3, 3 * (n - 1));
     let sweep = |src: &[S; FLAT], dst: &mut [S; FLAT]| {
@@ -834,14 +922,14 @@ fn jacobi<S: Scalar>(
             .zip(&src[lo - 3..tip - 3])
             .zip(&src[lo + 3..tip + 3])
         {
-            *o = *pk + (*left + *right).mul_coef(c);
+            *o = *pk + mul(*left + *right, c);
         }
         for ((o, pk), left) in dst[tip..tip + 3]
             .iter_mut()
             .zip(&p[tip..tip + 3])
             .zip(&src[tip - 3..tip])
         {
-            *o = *pk + left.mul_coef(c_tip);
+            *o = *pk + mul(*left, c_tip);
         }
     };
     // The first sweep reads p itself (du starts at p); the buffers alternate so that the last
@@ -885,7 +973,8 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
 fn spring<S: Scalar>(dv: &Derived<S>, d: Vec3<S>) -> Vec3<S> {
     let len2 = d.norm2();
     if len2 > dv.tiny2 {
-        let strain = S::ONE - dv.segment * len2.rsqrt();
+        // 1/|d| is below one for segments longer than 1 mm: the coefficient.
+        let strain = S::ONE - dv.segment.mul_coef(len2.rsqrt());
         // Negative strain: the segment is compressed and the hairs buckle.
         // A compression ratio is in [0, 1], and so is a stretched segment's strain.
         let strain = if strain < S::ZERO {

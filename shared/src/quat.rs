@@ -82,7 +82,13 @@ impl<S: Scalar> Quat<S> {
             // One reciprocal square root instead of a square root and a division (the
             // fixed-point division is the dearer of the two; nlerp runs every substep).
             let inv = n2.rsqrt();
-            Quat::new(self.w * inv, self.x * inv, self.y * inv, self.z * inv)
+            // Near-unit components are the coefficients (the same products).
+            Quat::new(
+                inv.mul_coef(self.w),
+                inv.mul_coef(self.x),
+                inv.mul_coef(self.y),
+                inv.mul_coef(self.z),
+            )
         } else {
             Self::IDENTITY
         }

@@ -184,10 +184,12 @@ fn mul_coef_bits(a: i64, c: i64) -> i64 {
 #[allow(dead_code)]
 fn mul_coef_partial(a: i64, c: i64) -> i64 {
     let cl = c as u32 as u64;
-    let high = (a >> 32) * cl as i64;
+    let high = (a >> 32).wrapping_mul(cl as i64);
     let low = (((a as u32) as u64 * cl) >> 32) as i64;
-    // c >> 63 is all ones for a negative c: subtract a, else nothing.
-    high + low - (a & (c >> 63))
+    // c >> 63 is all ones for a negative c: subtract a, else nothing. Wrapping operations
+    // (none wraps for |c| < 1), so that a caller's broken promise gives a wrong value, not a
+    // panic in a build with overflow checks.
+    high.wrapping_add(low).wrapping_sub(a & (c >> 63))
 }
 
 /// `floor(a b / 2^32)` clamped to `i64`, from 32-bit halves: a = ah 2^32 + al with ah signed,
@@ -201,6 +203,26 @@ fn mul_coef_partial(a: i64, c: i64) -> i64 {
 #[inline]
 #[allow(dead_code)]
 fn mul_floor_partial(a: i64, b: i64) -> i64 {
+    let (ah, al) = ((a >> 32) as i32, a as u32);
+    let (bh, bl) = ((b >> 32) as i32, b as u32);
+    // The model's values have integer parts far below 2^15 (mm, coefficients, radians): then
+    // |hh| <= 2^30 is one 32-bit multiply, |hl|, |lh| < 2^47 and the whole sum is below
+    // 2^62 + 2^48 + 2^32 < 2^63, so it needs no overflow test at all.
+    if (ah as u32).wrapping_add(1 << 15) < 1 << 16 && (bh as u32).wrapping_add(1 << 15) < 1 << 16 {
+        let hh = (ah * bh) as i64;
+        let hl = ah as i64 * bl as i64;
+        let lh = al as i64 * bh as i64;
+        let ll = ((al as u64 * bl as u64) >> 32) as i64;
+        return (hh << 32) + hl + lh + ll;
+    }
+    mul_floor_large(a, b)
+}
+
+/// [`mul_floor_partial`] for operands with an integer part beyond +-2^15: out of line, since
+/// the model never forms them on its hot path and every product site inlines the fast path.
+#[inline(never)]
+#[allow(dead_code)]
+fn mul_floor_large(a: i64, b: i64) -> i64 {
     let (ah, al) = ((a >> 32) as i32, a as u32);
     let (bh, bl) = ((b >> 32) as i32, b as u32);
     let hh = ah as i64 * bh as i64; // signed x signed
@@ -324,6 +346,20 @@ pub trait Scalar:
     fn mul_coef(self, c: Self) -> Self {
         self * c
     }
+    /// Whether [`Scalar::mul_tested_coef`] may take `self` as its coefficient: `|self| < 1` in
+    /// fixed point, always for the float types. A loop that multiplies by the same
+    /// coefficients many times tests them once with this instead of on every product.
+    #[inline]
+    fn is_coef(self) -> bool {
+        true
+    }
+    /// `self * c` for a `c` whose [`Scalar::is_coef`] holds (the caller tested it), the same
+    /// value as [`Scalar::mul_coef`] without its test. For any other `c` the fixed-point
+    /// result is wrong (never a panic): call it only behind the test.
+    #[inline]
+    fn mul_tested_coef(self, c: Self) -> Self {
+        self * c
+    }
     /// Sine and cosine of an angle in radians.
     fn sin_cos(self) -> (Self, Self);
     /// Angle of the point (x, y) = (`x`, `self`) in (-pi, pi]; 0 for (0, 0).
@@ -410,7 +446,48 @@ macro_rules! float_scalar {
 }
 
 float_scalar!(f64, "f64", libm::sqrt, libm::sincos, libm::atan2);
-float_scalar!(f32, "f32", libm::sqrtf, libm::sincosf, libm::atan2f);
+float_scalar!(f32, "f32", sqrt_f32, libm::sincosf, libm::atan2f);
+
+/// The IEEE `f32` square root, correctly rounded (round to nearest, ties to even).
+///
+/// Every VFP unit has it as one instruction (`vsqrt.f32`; 14 cycles on the Cortex-M4F), and
+/// a hard-float ABI (`eabihf`) means there is one; `core` has no `f32::sqrt` and `libm`
+/// falls back to its software routine on Arm (about 100 instructions). IEEE 754 defines the
+/// square root as correctly rounded, and `libm::sqrtf` is (`libm_sqrtf_is_correctly_rounded`
+/// checks it against the `f64` root), so both give the same bits: the device and the host
+/// simulation stay bit-identical (which the `hil` tests check end to end). The default
+/// FPSCR (round to nearest, no flush-to-zero) is what cortex-m-rt leaves, and nothing here
+/// changes it.
+#[inline]
+fn sqrt_f32(x: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        let root: u32;
+        // The value goes through a core register and s15 (caller-saved, declared clobbered):
+        // stable Rust accepts an `s` register operand only with the `vfp2` feature, which
+        // the single-precision FPU of the Cortex-M4F does not have.
+        // SAFETY: register-to-register moves and one FPU instruction: no memory, no stack.
+        // Not `preserves_flags`: vsqrt sets the FPSCR's sticky exception bits (inexact),
+        // which Rust's asm rules count among the flags on Arm.
+        #[allow(unsafe_code)] // the crate's one exception (see lib.rs)
+        unsafe {
+            core::arch::asm!(
+                "vmov s15, {x}",
+                "vsqrt.f32 s15, s15",
+                "vmov {root}, s15",
+                x = in(reg) x.to_bits(),
+                root = lateout(reg) root,
+                out("s15") _,
+                options(pure, nomem, nostack),
+            );
+        }
+        f32::from_bits(root)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
+    }
+}
 
 /// `1 / b` for `b != 0`: an IEEE `f32` estimate refined by one Newton step in fixed point,
 /// `y (2 - b y)` (relative error about 1e-14; identical on every IEEE target). Replaces a
@@ -537,13 +614,27 @@ impl Scalar for Fx {
     /// `self * c` without the overflow test for `|c| < 1` (see [`mul_coef_bits`]).
     #[inline]
     fn mul_coef(self, c: Self) -> Self {
-        let cb = c.0.to_bits();
-        // -2^32 < cb < 2^32, as one unsigned comparison of the shifted range.
-        if (cb.wrapping_add((1 << 32) - 1) as u64) < (1 << 33) - 1 {
-            Fx(FxRaw::from_bits(mul_coef_bits(self.0.to_bits(), cb)))
+        if c.is_coef() {
+            self.mul_tested_coef(c)
         } else {
             self * c
         }
+    }
+    /// -2^32 < bits < 2^32: the high word is 0, or -1 with a non-zero low word. Tested on
+    /// the 32-bit words (a compare with zero each on the Cortex-M4) rather than as one
+    /// 64-bit range comparison, which took about twice the instructions there.
+    #[inline]
+    fn is_coef(self) -> bool {
+        let bits = self.0.to_bits();
+        let high = (bits >> 32) as i32;
+        high == 0 || (high == -1 && bits as u32 != 0)
+    }
+    #[inline]
+    fn mul_tested_coef(self, c: Self) -> Self {
+        Fx(FxRaw::from_bits(mul_coef_bits(
+            self.0.to_bits(),
+            c.0.to_bits(),
+        )))
     }
     #[inline]
     fn div(self, rhs: Self) -> Self {
@@ -588,7 +679,7 @@ impl Scalar for Fx {
     #[inline]
     fn rsqrt(self) -> Self {
         if self.0 > FxRaw::ZERO {
-            let est = 1.0 / libm::sqrtf(to_f32_fast(self));
+            let est = 1.0 / sqrt_f32(to_f32_fast(self));
             let y = from_f32_fast(est);
             let three = Fx(FxRaw::from_bits(3 << 32));
             // x y^2 grouped to keep significant bits: (x y) y for large x (y^2 is tiny),
@@ -706,6 +797,13 @@ mod tests {
             1 << 47,
             -(1 << 47),
             (1 << 47) + 12345,
+            // The small-operand fast path's bounds: integer parts -2^15 and 2^15 - 1 (in),
+            // -2^15 - 1 and 2^15 (out).
+            (1 << 47) - 1,
+            -(1 << 47) - 1,
+            -(1 << 47) + 1,
+            ((1 << 15) - 1) << 32,
+            (-(1 << 15)) << 32,
         ];
         let want = |a: i64, b: i64| clamp_i128(mul_wide(a, b) >> 32);
         for &a in &edges {
@@ -769,6 +867,51 @@ mod tests {
             assert_eq!(from_f32_split(v), plain_from(v), "{v}");
             let v = plain_to(x);
             assert_eq!(from_f32_split(v), plain_from(v), "{v}");
+        }
+    }
+
+    /// `sqrt_f32` is `vsqrt.f32` on the device and `libm::sqrtf` elsewhere: they agree
+    /// exactly when `libm::sqrtf` is correctly rounded, which this checks against the `f64`
+    /// root rounded to `f32` (exact: a 53-bit root of a 24-bit argument rounds to 24 bits
+    /// without double-rounding error, since 53 >= 2 * 24 + 2).
+    #[test]
+    fn libm_sqrtf_is_correctly_rounded() {
+        let mut x: u64 = 0x5DEE_CE66_D1CE_4E5B;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let check = |v: f32| {
+            let want = (v as f64).sqrt() as f32;
+            assert_eq!(libm::sqrtf(v).to_bits(), want.to_bits(), "sqrt({v:e})");
+            assert_eq!(sqrt_f32(v).to_bits(), want.to_bits(), "sqrt({v:e})");
+        };
+        for v in [
+            0.0,
+            1.0,
+            2.0,
+            3.0,
+            f32::MIN_POSITIVE,
+            f32::MAX,
+            2.3e-10,
+            7.111,
+            1e12,
+        ] {
+            check(v);
+        }
+        // Every exponent the model's values reach and beyond, random significands; and
+        // runs of consecutive floats, where rounding ties would show.
+        for _ in 0..1_000_000 {
+            let bits = (next() as u32) & 0x7F7F_FFFF;
+            check(f32::from_bits(bits));
+        }
+        for start in [1.0f32, 2.0, 4.2e-10, 7.25, 1.0e6] {
+            let b = start.to_bits();
+            for k in 0..20_000 {
+                check(f32::from_bits(b + k));
+            }
         }
     }
 
@@ -863,6 +1006,13 @@ mod tests {
                 let (a, c) = (Fx::from_bits(a), Fx::from_bits(c));
                 assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
                 check_partial(a, c);
+                // is_coef is exactly -1 < c < 1, and behind it the untested product is the
+                // product.
+                let raw = c.to_bits();
+                assert_eq!(c.is_coef(), raw > -(1 << 32) && raw < 1 << 32, "{c:?}");
+                if c.is_coef() {
+                    assert_eq!(a.mul_tested_coef(c), a * c, "{a:?} * {c:?}");
+                }
             }
         }
         for _ in 0..200_000 {
@@ -871,6 +1021,9 @@ mod tests {
             let c = Fx::from_bits(next() >> (28 + (next() & 7)));
             assert_eq!(a.mul_coef(c), a * c, "{a:?} * {c:?}");
             check_partial(a, c);
+            if c.is_coef() {
+                assert_eq!(a.mul_tested_coef(c), a * c, "{a:?} * {c:?}");
+            }
         }
     }
 

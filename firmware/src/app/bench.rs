@@ -159,7 +159,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     };
     super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
 
-    for substeps in [25u8, 20, 16, 12, 10, 8, 5] {
+    for substeps in [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1] {
         if fl
             .brush
             .set_param(ParamId::SubstepsPerTick, substeps as f32)

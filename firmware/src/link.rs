@@ -68,6 +68,22 @@ pub struct BoardInfo {
     /// the configuration's (`DeviceConfig::limits`, what the force loop applies).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
+    /// The substep rate this board's core can run within the 1 kHz tick, in place of the
+    /// preset's (`None`: the preset's). Applied to the brush at boot and to every preset
+    /// the host chooses; the host may still set `SubstepsPerTick` itself (a rate the core
+    /// cannot hold latches `LOOP_OVERRUN`, motors off).
+    pub substeps_per_tick: Option<u8>,
+}
+
+impl BoardInfo {
+    /// `preset` as this board runs it.
+    pub const fn brush(&self, preset: BrushParams) -> BrushParams {
+        let mut p = preset;
+        if let Some(n) = self.substeps_per_tick {
+            p.substeps_per_tick = n;
+        }
+        p
+    }
 }
 
 /// What the link task drives.
@@ -370,7 +386,9 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             Wire::Calibrate => return self.calibrate().await,
             Wire::DipInk { wetness } => Command::Dip(Fx::from_bits(*wetness)),
             Wire::ChoosePreset(p) => {
-                let params = p.resolve().ok_or(CommandError::UnknownPreset)?;
+                let params = self
+                    .board
+                    .brush(p.resolve().ok_or(CommandError::UnknownPreset)?);
                 self.params = params;
                 Command::SetParams(params)
             }

@@ -242,3 +242,71 @@ fn brush_built_in_place_is_the_same() {
         Brush::<Fx>::new(bad, at(0.0, 44.0)).err()
     );
 }
+
+/// The Black Pill runs the large brush at one substep per 1 ms tick (all its core holds,
+/// `firmware/src/blackpill/mod.rs`): at that rate the brush must still rest, return from a
+/// press (more slowly than at 25 kHz: within 0.2 mm after 3 s instead of 0.1 mm after
+/// 0.5 s), keep still while pressed (no substep-to-substep ringing), and bend to the same
+/// scale under a load as at the presets' 25 kHz.
+#[test]
+fn the_boards_one_substep_per_tick_still_behaves() {
+    let mut params = presets::LARGE;
+    params.substeps_per_tick = 1;
+    params.plasticity = 0.0;
+
+    let p = pose::<Fx>(5.0, -3.0, 70.0, 30.0);
+    let mut b = Brush::new(params, p).unwrap();
+    let mut rest = 0.0f64;
+    for _ in 0..2000 {
+        b.tick(p);
+        rest = rest.max(deviation_from_rest(&b));
+    }
+    // Large steps damp the spine's return: the hairs creep back instead of springing back
+    // (1.2 mm from rest 0.5 s after the press at 1 substep, 0.25 mm at 5, 0.025 mm at 25).
+    let (back_half, _) = press_and_release::<Fx>(params, 500);
+    let (back, _) = press_and_release::<Fx>(params, 3000);
+
+    // Pressed and held: after 300 ms the spine no longer moves between ticks.
+    let tilt = 20.0f64;
+    let reach = params.length_mm as f64 * tilt.to_radians().cos();
+    let pressed = pose::<Fx>(0.0, 0.0, reach - 8.0, tilt);
+    let mut b = Brush::new(params, pose(0.0, 0.0, reach + 5.0, tilt)).unwrap();
+    for k in 1..=200 {
+        b.tick(pose(0.0, 0.0, reach + 5.0 - 13.0 * k as f64 / 200.0, tilt));
+    }
+    ticks(&mut b, 300, pressed);
+    let mut jitter = 0.0f64;
+    let mut last: Vec<Vec3<f64>> = b.spine().iter().map(|s| s.cast()).collect();
+    for _ in 0..200 {
+        b.tick(pressed);
+        for (s, l) in b.spine().iter().zip(last.iter_mut()) {
+            let s = s.cast::<f64>();
+            jitter = jitter.max((s - *l).norm());
+            *l = s;
+        }
+    }
+
+    let upright = pose::<Fx>(0.0, 0.0, 60.0, 0.0);
+    let mut b = Brush::new(params, upright).unwrap();
+    b.set_tip_load(Vec3::from_f64([1.0, 0.0, 0.0]));
+    ticks(&mut b, 500, upright);
+    let s = b.spine();
+    let chord = (s[s.len() - 1] - s[0]).to_f64();
+    let bend = chord[0].atan2(-chord[2]).to_degrees();
+
+    println!(
+        "large brush, 1 substep per tick: rest drift {rest:.2e} mm; from rest after a press: \
+         {back_half:.3} mm at 0.5 s, {back:.3} mm at 3 s; largest move per tick while held \
+         pressed {jitter:.2e} mm; 1 N bends the chord {bend:.0} deg"
+    );
+    assert!(rest < 1e-3, "rest drift {rest} mm");
+    assert!(
+        back < 0.2 && back < back_half / 4.0,
+        "{back_half} -> {back} mm from rest"
+    );
+    assert!(
+        jitter < 5e-3,
+        "the held brush still moves {jitter} mm per tick"
+    );
+    assert!((60.0..85.0).contains(&bend), "1 N bends it {bend} deg");
+}

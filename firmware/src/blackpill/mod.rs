@@ -88,6 +88,16 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
+    // One substep per 1 ms tick: the only rate whose tick fits a millisecond of this core
+    // today. `hil bench` (Cortex-M4 under QEMU, large brush, worst of 600 ticks) counts
+    // 62,655 instructions at 1 substep, 91,085 at 2 and 804,380 at the presets' 25; at
+    // 96 MHz and roughly one instruction per cycle (flash wait states hidden by the ART
+    // accelerator for loops) one substep takes about 0.65 ms of the 1 ms, two would not fit.
+    // The cost of the rate: large steps damp the spine, so the hairs creep back after a
+    // press (1.2 mm from rest after 0.5 s, 0.14 mm after 3 s, against 0.025 mm after 0.5 s
+    // at 25 kHz); rest, stability and the bend under load hold
+    // (`shared/tests/model.rs`, `shared/tests/properties.rs`). Not measured on a board yet.
+    substeps_per_tick: Some(1),
 };
 
 type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;
@@ -267,7 +277,7 @@ fn start() -> (
         LOOP.init_with(|slot| {
             app::ForceLoop::new_in(
                 slot,
-                presets::LARGE,
+                BOARD.brush(presets::LARGE),
                 start,
                 SensorPen::new(sensors, None),
                 motors,
@@ -346,7 +356,7 @@ async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
         tick_us: TICK_US,
         telemetry_ticks: 1000,
     };
-    link::run(parts, &BOARD, presets::LARGE, cfg).await
+    link::run(parts, &BOARD, BOARD.brush(presets::LARGE), cfg).await
 }
 
 /// A new deepest stack reading (`app::stack`), in the defmt log: the figure the RAM budget's

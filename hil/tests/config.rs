@@ -100,25 +100,13 @@ fn config(s: &mut Link, m: HostMsg) -> Result<DeviceConfig, ConfigRejected> {
     }
 }
 
-/// The applied motor commands (Fx bits) and the enable flag of the next `n` state frames.
-/// Pings as it goes: the device latches LINK_SILENT after 100 ticks without a frame.
+/// The applied motor commands (Fx bits), the enable flag and the tick of the next `n` state
+/// frames ([`next_states`]).
 fn motor_states(s: &mut Link, n: usize) -> Vec<([i64; 3], bool, u32)> {
-    let mut out = Vec::new();
-    while out.len() < n {
-        s.send(&HostMsg::Ping {
-            seq: out.len() as u32,
-        })
-        .unwrap();
-        let (st, _) = s
-            .wait_for(ANSWER, &mut vec![], |r| match r {
-                DeviceMsg::State(st) => Some(st.clone()),
-                _ => None,
-            })
-            .unwrap()
-            .expect("state frames");
-        out.push((st.haptics.motors, st.haptics.enabled, st.tick));
-    }
-    out
+    next_states(s, n)
+        .into_iter()
+        .map(|st| (st.haptics.motors, st.haptics.enabled, st.tick))
+        .collect()
 }
 
 /// The pose of the reference pen resting in its inkwell (inside its workspace).
@@ -347,7 +335,8 @@ fn damaged_images_start_safe_and_say_why() {
     }
 }
 
-/// The next `n` state frames (pinging as it goes, as `motor_states`).
+/// The next `n` state frames. Pings as it goes: the device latches LINK_SILENT after 100
+/// ticks without a frame.
 fn next_states(s: &mut Link, n: usize) -> Vec<BrushState> {
     let mut out = Vec::new();
     while out.len() < n {

@@ -180,31 +180,7 @@ pub struct Brush<S: Scalar> {
 impl<S: Scalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
-        params.validate()?;
-        let d = derive::<S>(&params);
-        let mut b = Brush {
-            params,
-            d,
-            handle: pose,
-            spine: [Vec3::ZERO; MAX_LAYERS],
-            vel: [Vec3::ZERO; MAX_LAYERS],
-            contact: [false; MAX_LAYERS],
-            skel_dir: [-Vec3::Z; MAX_LAYERS],
-            skel: [Vec3::ZERO; MAX_LAYERS],
-            skel_vel: [Vec3::ZERO; MAX_LAYERS],
-            layers: [Layer {
-                short_axis: Vec3::X,
-                long_axis: Vec3::Y,
-                long_radius: S::ZERO,
-                short_radius: S::ZERO,
-                wetness: S::ONE,
-            }; MAX_LAYERS],
-            tip_load: Vec3::ZERO,
-            pivots_for: None,
-            inv_pivot: [S::ZERO; MAX_LAYERS],
-            cprime: [S::ZERO; MAX_LAYERS],
-            substeps_done: 0,
-        };
+        let mut b = Self::unplaced(params, pose)?;
         b.reset(pose);
         Ok(b)
     }
@@ -218,8 +194,18 @@ impl<S: Scalar> Brush<S> {
         params: BrushParams,
         pose: Pose<S>,
     ) -> Result<&mut Self, ParamError> {
+        let b = slot.write(Self::unplaced(params, pose)?);
+        b.reset(pose);
+        Ok(b)
+    }
+
+    /// The validated parameters and their derived coefficients, everything else zero:
+    /// [`Self::reset`] places it. Inlined into both constructors so that `new_in` writes
+    /// the fields straight into its slot.
+    #[inline(always)]
+    fn unplaced(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         params.validate()?;
-        let b = slot.write(Brush {
+        Ok(Brush {
             params,
             d: derive::<S>(&params),
             handle: pose,
@@ -241,9 +227,7 @@ impl<S: Scalar> Brush<S> {
             inv_pivot: [S::ZERO; MAX_LAYERS],
             cprime: [S::ZERO; MAX_LAYERS],
             substeps_done: 0,
-        });
-        b.reset(pose);
-        Ok(b)
+        })
     }
 
     /// Puts the brush at rest at `pose`: straight, no velocity, round, wet as configured.

@@ -30,7 +30,9 @@ impl<L> ForceLoopSlot<L> {
     ///
     /// # Safety
     /// Call once, at boot, before the force-tick interrupt that calls [`Self::get`] is
-    /// enabled; the reference returned must not be used after that.
+    /// enabled; the reference returned must not be used after that. `build` returns `Some`
+    /// only after it has initialised the slot it was given (as `MaybeUninit::write` does),
+    /// and a reference into it.
     #[allow(clippy::mut_from_ref)] // exclusive by the contract above
     pub unsafe fn init_with(
         &self,

@@ -753,10 +753,13 @@ impl<S: Scalar> Brush<S> {
     fn update_surface(&mut self) {
         let n = self.d.n;
         let normal = Vec3::<S>::Z;
-        let sa0 = self.handle.rot.rotate(Vec3::X);
-        let down = self.handle.down();
+        // The handle's x, y and -z axes are columns of its rotation matrix: one matrix for
+        // the three, instead of three quaternion rotations of basis vectors.
+        let m = RotMat::from_quat(self.handle.rot).m;
+        let sa0 = Vec3::new(m[0][0], m[1][0], m[2][0]);
+        let down = -Vec3::new(m[0][2], m[1][2], m[2][2]);
         self.layers[0].short_axis = sa0;
-        self.layers[0].long_axis = self.handle.rot.rotate(Vec3::Y);
+        self.layers[0].long_axis = Vec3::new(m[0][1], m[1][1], m[2][1]);
 
         // Step 1: short axes. First layer lying on the paper, if any.
         let first_contact = (1..n).find(|&i| self.contact[i]);

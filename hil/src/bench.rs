@@ -3,7 +3,7 @@
 //! The firmware (boot mode `bench SHIFT`) reads the 25 MHz dual-timer count around each
 //! force-loop tick with interrupts masked and prints `BENCH` lines of raw counts. Under
 //! `-icount shift=N` a count is exactly 40 / 2^N instructions (the firmware's calibration
-//! line checks it with 4000 NOPs), so the default shift 3 resolves 5 instructions.
+//! line checks it with 1000 NOPs), so the default shift 3 resolves 5 instructions.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -123,13 +123,13 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
             );
         } else if m.contains_key("overhead_counts") {
             overhead = num(&m, "overhead_counts")?;
-        } else if m.contains_key("calib_4000_nops_counts") {
+        } else if m.contains_key("calib_1000_nops_counts") {
             // Like the ticks, less the cost of reading the counter twice.
-            let got = to_instr(num(&m, "calib_4000_nops_counts")?.saturating_sub(overhead));
+            let got = to_instr(num(&m, "calib_1000_nops_counts")?.saturating_sub(overhead));
             // One count of resolution (40 / 2^shift instructions).
-            if got.abs_diff(4000) > 40 >> shift {
+            if got.abs_diff(1000) > 40 >> shift {
                 bail!(
-                    "calibration failed: 4000 NOPs measured as {got} instructions (shift {shift})"
+                    "calibration failed: 1000 NOPs measured as {got} instructions (shift {shift})"
                 );
             }
             calibrated = true;

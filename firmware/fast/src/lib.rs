@@ -11,12 +11,24 @@
 
 use maobi_shared::force::{ForceModel, Forces, OutputStage};
 use maobi_shared::kinematics::{Joints, KinematicsError, Pen, RawReadings};
-use maobi_shared::{Brush, Fx, Pose, Vec3};
+use maobi_shared::{Brush, Fx, Pose, Scalar, Vec3};
 
 /// `Brush::tick`: every substep and the surface update of one 1 ms tick.
 #[inline(never)]
 pub fn brush_tick(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
     brush.tick(pose);
+}
+
+/// `Brush::substep`: one substep alone (the bench's per-part figures).
+#[inline(never)]
+pub fn brush_substep(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
+    brush.substep(pose);
+}
+
+/// `Brush::end_tick`: the once-per-tick surface update alone (the bench's per-part figures).
+#[inline(never)]
+pub fn brush_end_tick(brush: &mut Brush<Fx>) {
+    brush.end_tick();
 }
 
 /// `Brush::reset`: the brush at rest at `pose`.
@@ -60,4 +72,32 @@ pub fn pen_pose(pen: &Pen<Fx>, raw: &RawReadings) -> Result<(Pose<Fx>, [Fx; 3]),
 #[inline(never)]
 pub fn pen_torques(pen: &Pen<Fx>, arm: &[Fx; 3], f: Vec3<Fx>) -> [Fx; 3] {
     pen.torques(arm, f)
+}
+
+/// The scalar operations the model is built from (the bench's per-operation figures).
+#[derive(Copy, Clone, Debug)]
+pub enum ScalarOp {
+    Add,
+    Mul,
+    Div,
+    Sqrt,
+    Rsqrt,
+    FromF64,
+}
+
+/// `times` evaluations of `op` on `x` and `y`, summed: compiled here, like the hot path, so
+/// that the bench's per-operation counts are those of the code the tick runs.
+#[inline(never)]
+pub fn repeat_scalar_op(op: ScalarOp, x: Fx, y: Fx, times: u32) -> Fx {
+    let mut acc = Fx::ZERO;
+    let bb = core::hint::black_box::<Fx>;
+    match op {
+        ScalarOp::Add => (0..times).for_each(|_| acc += bb(x) + bb(y)),
+        ScalarOp::Mul => (0..times).for_each(|_| acc += bb(x) * bb(y)),
+        ScalarOp::Div => (0..times).for_each(|_| acc += Scalar::div(bb(x), bb(y))),
+        ScalarOp::Sqrt => (0..times).for_each(|_| acc += Scalar::sqrt(bb(x))),
+        ScalarOp::Rsqrt => (0..times).for_each(|_| acc += Scalar::rsqrt(bb(x))),
+        ScalarOp::FromF64 => (0..times).for_each(|_| acc += Fx::from_f64(bb(x).to_bits() as f64)),
+    }
+    acc
 }

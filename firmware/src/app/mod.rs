@@ -17,6 +17,9 @@
 //! switches the host's force enable off. Only an explicit [`Command::ClearFaults`] clears
 //! them; the host then enables the forces again.
 
+/// `maobi-fw arith`: the fixed-point operators' assembly against their references.
+#[cfg(feature = "board-qemu")]
+pub mod arith;
 #[cfg(feature = "board-qemu")]
 pub mod bench;
 pub mod force;

@@ -13,6 +13,9 @@
 //! * `telemetry_ticks=N`: telemetry every N force-loop ticks (default 1000).
 //! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
 //!   lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//! * `arith`: checks the fixed-point operators' inline assembly against their portable
+//!   references on this core, prints `ARITH` lines (see [`crate::app::arith`]) and exits 0
+//!   when every case agrees, 1 otherwise.
 //! * `crash panic|hardfault|stall`: test hooks for the fault paths.
 
 use core::fmt::Write;
@@ -48,6 +51,7 @@ enum Mode {
     Run,
     Selftest(u32),
     Bench(u32),
+    Arith,
     /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
     Crash(&'static str),
 }
@@ -78,6 +82,7 @@ fn boot_mode() -> Mode {
     let num = |w: Option<&str>, d: u32| w.and_then(|s| s.parse().ok()).unwrap_or(d);
     match words.next() {
         Some("bench") => Mode::Bench(num(words.next(), 0)),
+        Some("arith") => Mode::Arith,
         Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
         Some("crash") => Mode::Crash(match words.next() {
             Some("hardfault") => "hardfault",
@@ -93,6 +98,10 @@ fn main() -> ! {
     let mode = boot_mode();
     if let Mode::Bench(shift) = mode {
         run_bench(shift);
+    }
+    if let Mode::Arith = mode {
+        let mismatches = app::arith::run(&mut Stdout);
+        semihosting::exit(u32::from(mismatches != 0));
     }
     // Everything built at boot is built in `start`'s frame, which is gone before the executor
     // runs: `main` never returns, so what its own frame held would sit under the tasks' and

@@ -174,6 +174,15 @@ pub struct Brush<S: Scalar> {
     pivots_for: Option<u32>,
     inv_pivot: [S; MAX_LAYERS],
     cprime: [S; MAX_LAYERS],
+    /// Squared length and its `rsqrt` of each spine segment i (masses i-1 to i) as the
+    /// surface update left the spine, valid while `segments_cached`: the next substep's
+    /// springs need the same two numbers for every segment but the first (only the ferrule
+    /// moves before they are computed), which at one substep per tick saves a fifth of the
+    /// device's square roots. Set by [`Self::measure_segments`] (the surface update and
+    /// [`Self::reset`]), cleared by every substep.
+    seg_len2: [S; MAX_LAYERS],
+    seg_rsqrt: [S; MAX_LAYERS],
+    segments_cached: bool,
     substeps_done: u64,
 }
 
@@ -181,6 +190,7 @@ impl<S: Scalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
+        b.prepare_pivots();
         b.reset(pose);
         Ok(b)
     }
@@ -195,6 +205,7 @@ impl<S: Scalar> Brush<S> {
         pose: Pose<S>,
     ) -> Result<&mut Self, ParamError> {
         let b = slot.write(Self::unplaced(params, pose)?);
+        b.prepare_pivots();
         b.reset(pose);
         Ok(b)
     }
@@ -226,6 +237,9 @@ impl<S: Scalar> Brush<S> {
             pivots_for: None,
             inv_pivot: [S::ZERO; MAX_LAYERS],
             cprime: [S::ZERO; MAX_LAYERS],
+            seg_len2: [S::ZERO; MAX_LAYERS],
+            seg_rsqrt: [S::ZERO; MAX_LAYERS],
+            segments_cached: false,
             substeps_done: 0,
         })
     }
@@ -234,6 +248,7 @@ impl<S: Scalar> Brush<S> {
     pub fn reset(&mut self, pose: Pose<S>) {
         let pose = clamp_to_paper(pose);
         self.handle = pose;
+        self.segments_cached = false;
         self.skel_dir = [-Vec3::Z; MAX_LAYERS];
         let offsets = self.skeleton_offsets();
         self.rebuild_skeleton(false, &offsets);
@@ -258,6 +273,8 @@ impl<S: Scalar> Brush<S> {
         }
         // A brush reset into the paper settles onto it on the first substep.
         self.project_onto_paper();
+        // What the first substep's springs need, as the surface update would leave it.
+        self.measure_segments();
     }
 
     pub fn params(&self) -> &BrushParams {
@@ -274,7 +291,7 @@ impl<S: Scalar> Brush<S> {
             || params.wetness != self.params.wetness;
         self.params = params;
         self.d = derive::<S>(&params);
-        self.pivots_for = None;
+        self.prepare_pivots();
         if relayout {
             self.reset(self.handle);
         }
@@ -460,8 +477,29 @@ impl<S: Scalar> Brush<S> {
         // opposite signs by both ends: (1 - L/|d|) d with d = S_j - S_{j-1}. `seg[n]` stays
         // zero: the tip has no outer segment, so its row needs no special case here.
         let mut seg = [Vec3::<S>::ZERO; MAX_LAYERS + 1];
-        for (f, pair) in seg[1..n].iter_mut().zip(self.spine[..n].windows(2)) {
-            *f = spring(d, pair[1] - pair[0]);
+        // Segments 2.. have not moved since the surface update measured them (if it did).
+        let first_cached = if self.segments_cached { 2 } else { usize::MAX };
+        self.segments_cached = false;
+        for (j, (f, pair)) in seg[1..n]
+            .iter_mut()
+            .zip(self.spine[..n].windows(2))
+            .enumerate()
+            .map(|(k, x)| (k + 1, x))
+        {
+            let v = pair[1] - pair[0];
+            *f = if j >= first_cached {
+                spring_with(d, v, self.seg_len2[j], self.seg_rsqrt[j])
+            } else {
+                let len2 = v.norm2();
+                // Only a segment longer than `tiny` needs its root (the same test as in
+                // `spring_with`); others give no force.
+                let r = if len2 > d.tiny2 {
+                    len2.rsqrt()
+                } else {
+                    S::ZERO
+                };
+                spring_with(d, v, len2, r)
+            };
         }
 
         // The tie weight of each mass, once: the tie and the paper drag both read it, and both
@@ -590,24 +628,13 @@ impl<S: Scalar> Brush<S> {
     /// they are computed once per parameter change.
     fn solve_exact(&mut self, p: &[S; FLAT], du0: Vec3<S>, out: &mut [S; FLAT]) {
         let n = self.d.n;
-        let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
         // The rows no longer depend on contact (the tie is weighted in the right-hand side),
         // so the pivots change only with the parameters.
-        let mask = 0;
-        if self.pivots_for != Some(mask) {
-            // Forward elimination of the coefficients: cp_i = -c_i / m_i, inv_m_i = 1 / m_i
-            // with m_i = 1 - c_i * (-cp_{i-1})... written for sub = super = -c_j,i.
-            let mut prev_cp = S::ZERO;
-            for i in 1..n {
-                let c = c_j(i);
-                let m = S::ONE - c * prev_cp;
-                let inv_m = S::ONE.div(m);
-                self.inv_pivot[i] = inv_m;
-                prev_cp = if i + 1 < n { c * inv_m } else { S::ZERO };
-                self.cprime[i] = prev_cp;
-            }
-            self.pivots_for = Some(mask);
+        if self.pivots_for != Some(0) {
+            // (Set with the parameters; kept total for a brush whose pivots were not.)
+            self.prepare_pivots();
         }
+        let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
         let mut d = [Vec3::<S>::ZERO; MAX_LAYERS];
         let mut prev = Vec3::ZERO;
         for i in 1..n {
@@ -619,13 +646,42 @@ impl<S: Scalar> Brush<S> {
             prev = (rhs + prev.scale_coef(c_j(i))).scale(self.inv_pivot[i]);
             d[i] = prev;
         }
-        let mut du = d;
+        // Back substitution in place: d[i + 1] is already du_{i+1} when d[i] becomes du_i.
         for i in (1..n - 1).rev() {
-            du[i] = d[i] + du[i + 1].scale_coef(self.cprime[i]);
+            d[i] += d[i + 1].scale_coef(self.cprime[i]);
         }
-        for (f, v) in out.chunks_exact_mut(3).zip(&du[..n]) {
+        for (f, v) in out.chunks_exact_mut(3).zip(&d[..n]) {
             f.copy_from_slice(&[v.x, v.y, v.z]);
         }
+    }
+
+    /// The exact solve's pivots ([`Self::solve_exact`]): forward elimination of the
+    /// coefficients, `cp_i = -c_i / m_i`, `inv_m_i = 1 / m_i` with `m_i = 1 - c_i (-cp_{i-1})`,
+    /// written for sub = super = `-c_j,i`. They depend on the parameters only, so they are
+    /// computed where the parameters change (fifteen divisions, which would otherwise land
+    /// on the next force-loop tick).
+    fn prepare_pivots(&mut self) {
+        let n = self.d.n;
+        let mut prev_cp = S::ZERO;
+        for i in 1..n {
+            let c = self.d.rows[usize::from(i == n - 1)][1].c_j;
+            let m = S::ONE - c * prev_cp;
+            let inv_m = S::ONE.div(m);
+            self.inv_pivot[i] = inv_m;
+            prev_cp = if i + 1 < n { c * inv_m } else { S::ZERO };
+            self.cprime[i] = prev_cp;
+        }
+        self.pivots_for = Some(0);
+    }
+
+    /// Measures every spine segment for the next substep's springs and the surface
+    /// ([`Self::seg_len2`]): squared length, and its `rsqrt` when positive (both users test
+    /// their own threshold on the same numbers, so they get exactly what they would compute).
+    fn measure_segments(&mut self) {
+        for i in 1..self.d.n {
+            (self.seg_len2[i], self.seg_rsqrt[i]) = measure(self.spine[i] - self.spine[i - 1]);
+        }
+        self.segments_cached = true;
     }
 
     /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
@@ -788,8 +844,16 @@ impl<S: Scalar> Brush<S> {
         let mut seg = [Vec3::<S>::ZERO; MAX_LAYERS];
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
+            // Kept for the next substep's springs too (as `measure_segments` does).
+            let (len2, r) = measure(v);
+            (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
-            seg[i] = v.normalized_or_none(self.d.tiny).unwrap_or(down);
+            let tiny = self.d.tiny;
+            seg[i] = if len2 > tiny * tiny {
+                v.normalized_by(len2, r)
+            } else {
+                down
+            };
             let layer = &mut self.layers[i];
             let sa = layer.short_axis;
             // Unit vectors: coefficient products (the same values), here and below.
@@ -823,6 +887,7 @@ impl<S: Scalar> Brush<S> {
             tilt_sum += tilt[i];
         }
         tilt[n - 1] = tilt[n - 2];
+        self.segments_cached = true;
         let tilt_all = if n > 2 {
             tilt_sum.div(S::from_usize(n - 2))
         } else {
@@ -955,13 +1020,26 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
     }
 }
 
-/// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm).
+/// A segment's squared length and, when positive, its `rsqrt` (else zero): see
+/// [`Brush::measure_segments`].
 #[inline]
-fn spring<S: Scalar>(dv: &Derived<S>, d: Vec3<S>) -> Vec3<S> {
-    let len2 = d.norm2();
+fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
+    let len2 = v.norm2();
+    let r = if len2 > S::ZERO {
+        len2.rsqrt()
+    } else {
+        S::ZERO
+    };
+    (len2, r)
+}
+
+/// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm), given `len2 =
+/// |d|^2` and, if `len2 > tiny2`, `inv_len = len2.rsqrt()`.
+#[inline]
+fn spring_with<S: Scalar>(dv: &Derived<S>, d: Vec3<S>, len2: S, inv_len: S) -> Vec3<S> {
     if len2 > dv.tiny2 {
         // 1/|d| is below one for segments longer than 1 mm: the coefficient.
-        let strain = S::ONE - dv.segment.mul_coef(len2.rsqrt());
+        let strain = S::ONE - dv.segment.mul_coef(inv_len);
         // Negative strain: the segment is compressed and the hairs buckle.
         // A compression ratio is in [0, 1], and so is a stretched segment's strain.
         let strain = if strain < S::ZERO {
@@ -1104,5 +1182,56 @@ mod tests {
         assert!((rate_at(0.01, 25_000.0) - 0.01).abs() < 1e-12);
         // Half the rate: two reference steps per substep.
         assert!((rate_at(0.01, 12_500.0) - (1.0 - 0.99f64 * 0.99)).abs() < 1e-12);
+    }
+
+    /// The segment lengths the surface update leaves for the next substep's springs change
+    /// nothing: a brush that never uses them (the cache dropped before every tick) ends a
+    /// pressed, dragged and lifted stroke with the same bits, at one substep per tick and
+    /// at the presets' 25, in fixed point and in f64.
+    #[test]
+    fn cached_segment_lengths_change_no_bit() {
+        fn run<S: Scalar>(substeps: f32) {
+            let pose = |k: u32| {
+                let z = if k < 100 {
+                    44.0 - 0.12 * k as f64
+                } else {
+                    32.0
+                };
+                let x = if k < 100 { 0.0 } else { 0.2 * (k - 100) as f64 };
+                let z = if k > 250 {
+                    z + 0.1 * (k - 250) as f64
+                } else {
+                    z
+                };
+                Pose::new(
+                    Vec3::<S>::from_f64([x, 0.0, z]),
+                    Quat::from_f64([0.991_444_861_373_810_4, 0.0, 0.130_526_192_220_051_6, 0.0]),
+                )
+            };
+            let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
+            cached
+                .set_param(ParamId::SubstepsPerTick, substeps)
+                .unwrap();
+            let mut fresh = cached.clone();
+            let mut used = 0;
+            let mut touched = 0;
+            for k in 1..=300 {
+                used += cached.segments_cached as u32;
+                cached.tick(pose(k));
+                fresh.segments_cached = false;
+                fresh.tick(pose(k));
+                touched = touched.max(cached.contacts());
+                assert_eq!(cached.spine, fresh.spine, "{} tick {k}", S::NAME);
+                assert_eq!(cached.vel, fresh.vel, "{} tick {k}", S::NAME);
+                assert_eq!(cached.layers, fresh.layers, "{} tick {k}", S::NAME);
+            }
+            // The cache was there to use on every tick, and the stroke reached the paper.
+            assert_eq!(used, 300);
+            assert!(touched > 0, "{touched}");
+        }
+        for substeps in [1.0, 25.0] {
+            run::<crate::scalar::Fx>(substeps);
+            run::<f64>(substeps);
+        }
     }
 }

@@ -64,17 +64,33 @@ impl<S: Scalar> Vec3<S> {
     /// unit vector (or any vector of components below one).
     #[inline]
     pub fn dot_coef(self, o: Self) -> S {
-        self.x.mul_coef(o.x) + self.y.mul_coef(o.y) + self.z.mul_coef(o.z)
+        // The three coefficients tested together, then three bare products: the compiler
+        // does not merge the tests of separate `mul_coef` calls by itself.
+        if o.is_coef() {
+            self.x.mul_tested_coef(o.x) + self.y.mul_tested_coef(o.y) + self.z.mul_tested_coef(o.z)
+        } else {
+            self.dot(o)
+        }
+    }
+    /// Whether every component is a coefficient ([`Scalar::is_coef`]).
+    #[inline]
+    fn is_coef(self) -> bool {
+        self.x.is_coef() && self.y.is_coef() && self.z.is_coef()
     }
     /// `self.cross(o)` with `o`'s components as the coefficients of [`Scalar::mul_coef`]:
     /// the same value, cheaper in fixed point when `o` is a unit vector.
     #[inline]
     pub fn cross_coef(self, o: Self) -> Self {
-        Vec3::new(
-            self.y.mul_coef(o.z) - self.z.mul_coef(o.y),
-            self.z.mul_coef(o.x) - self.x.mul_coef(o.z),
-            self.x.mul_coef(o.y) - self.y.mul_coef(o.x),
-        )
+        if o.is_coef() {
+            let m = |a: S, c: S| a.mul_tested_coef(c);
+            Vec3::new(
+                m(self.y, o.z) - m(self.z, o.y),
+                m(self.z, o.x) - m(self.x, o.z),
+                m(self.x, o.y) - m(self.y, o.x),
+            )
+        } else {
+            self.cross(o)
+        }
     }
     #[inline]
     pub fn scale(self, s: S) -> Self {
@@ -84,7 +100,15 @@ impl<S: Scalar> Vec3<S> {
     /// value, cheaper in fixed point.
     #[inline]
     pub fn scale_coef(self, c: S) -> Self {
-        Vec3::new(self.x.mul_coef(c), self.y.mul_coef(c), self.z.mul_coef(c))
+        if c.is_coef() {
+            Vec3::new(
+                self.x.mul_tested_coef(c),
+                self.y.mul_tested_coef(c),
+                self.z.mul_tested_coef(c),
+            )
+        } else {
+            self.scale(c)
+        }
     }
     #[inline]
     pub fn norm2(self) -> S {
@@ -100,18 +124,24 @@ impl<S: Scalar> Vec3<S> {
     pub fn normalized_or_none(self, min_len: S) -> Option<Self> {
         let n2 = self.norm2();
         if n2 > min_len * min_len {
-            let r = n2.rsqrt();
-            // A product's value does not depend on which factor is the coefficient of
-            // `mul_coef`: take the one below one, so fixed point skips the overflow test and
-            // half the partial products. Longer than one, 1/|v| is below one; shorter, every
-            // component is.
-            Some(if n2 > S::ONE {
-                self.scale_coef(r)
-            } else {
-                Vec3::new(r.mul_coef(self.x), r.mul_coef(self.y), r.mul_coef(self.z))
-            })
+            Some(self.normalized_by(n2, n2.rsqrt()))
         } else {
             None
+        }
+    }
+    /// `self` scaled to unit length, given its squared length `n2` and `r = n2.rsqrt()`
+    /// (for a caller that has them already): the same value as
+    /// [`Self::normalized_or_none`]'s.
+    #[inline]
+    pub fn normalized_by(self, n2: S, r: S) -> Self {
+        // A product's value does not depend on which factor is the coefficient of
+        // `mul_coef`: take the one below one, so fixed point skips the overflow test and half
+        // the partial products. Longer than one, 1/|v| is below one; shorter, every component
+        // is.
+        if n2 > S::ONE {
+            self.scale_coef(r)
+        } else {
+            Vec3::new(r.mul_coef(self.x), r.mul_coef(self.y), r.mul_coef(self.z))
         }
     }
     /// The part of `self` in the paper plane (z set to zero).

@@ -170,8 +170,7 @@ pub struct Brush<S: Scalar> {
     layers: [Layer<S>; MAX_LAYERS],
     /// External force on the tip mass (N), e.g. a finger or a test load.
     tip_load: Vec3<S>,
-    /// Cached pivots of the exact solve (`Some(0)` once computed for the current parameters).
-    pivots_for: Option<u32>,
+    /// The exact solve's pivots ([`Self::prepare_pivots`]), computed with the parameters.
     inv_pivot: [S; MAX_LAYERS],
     cprime: [S; MAX_LAYERS],
     /// Squared length and its `rsqrt` of each spine segment i (masses i-1 to i) as the
@@ -234,7 +233,6 @@ impl<S: Scalar> Brush<S> {
                 wetness: S::ONE,
             }; MAX_LAYERS],
             tip_load: Vec3::ZERO,
-            pivots_for: None,
             inv_pivot: [S::ZERO; MAX_LAYERS],
             cprime: [S::ZERO; MAX_LAYERS],
             seg_len2: [S::ZERO; MAX_LAYERS],
@@ -248,7 +246,6 @@ impl<S: Scalar> Brush<S> {
     pub fn reset(&mut self, pose: Pose<S>) {
         let pose = clamp_to_paper(pose);
         self.handle = pose;
-        self.segments_cached = false;
         self.skel_dir = [-Vec3::Z; MAX_LAYERS];
         let offsets = self.skeleton_offsets();
         self.rebuild_skeleton(false, &offsets);
@@ -480,26 +477,14 @@ impl<S: Scalar> Brush<S> {
         // Segments 2.. have not moved since the surface update measured them (if it did).
         let first_cached = if self.segments_cached { 2 } else { usize::MAX };
         self.segments_cached = false;
-        for (j, (f, pair)) in seg[1..n]
-            .iter_mut()
-            .zip(self.spine[..n].windows(2))
-            .enumerate()
-            .map(|(k, x)| (k + 1, x))
-        {
+        for (j, (f, pair)) in (1..).zip(seg[1..n].iter_mut().zip(self.spine[..n].windows(2))) {
             let v = pair[1] - pair[0];
-            *f = if j >= first_cached {
-                spring_with(d, v, self.seg_len2[j], self.seg_rsqrt[j])
+            let (len2, r) = if j >= first_cached {
+                (self.seg_len2[j], self.seg_rsqrt[j])
             } else {
-                let len2 = v.norm2();
-                // Only a segment longer than `tiny` needs its root (the same test as in
-                // `spring_with`); others give no force.
-                let r = if len2 > d.tiny2 {
-                    len2.rsqrt()
-                } else {
-                    S::ZERO
-                };
-                spring_with(d, v, len2, r)
+                measure(v)
             };
+            *f = spring_with(d, v, len2, r);
         }
 
         // The tie weight of each mass, once: the tie and the paper drag both read it, and both
@@ -626,14 +611,10 @@ impl<S: Scalar> Brush<S> {
     /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
     /// lie on the paper... and since the tie is weighted on the right-hand side, not at all:
     /// they are computed once per parameter change.
-    fn solve_exact(&mut self, p: &[S; FLAT], du0: Vec3<S>, out: &mut [S; FLAT]) {
+    fn solve_exact(&self, p: &[S; FLAT], du0: Vec3<S>, out: &mut [S; FLAT]) {
         let n = self.d.n;
-        // The rows no longer depend on contact (the tie is weighted in the right-hand side),
-        // so the pivots change only with the parameters.
-        if self.pivots_for != Some(0) {
-            // (Set with the parameters; kept total for a brush whose pivots were not.)
-            self.prepare_pivots();
-        }
+        // The pivots: set by `prepare_pivots` with the parameters (the rows do not depend on
+        // contact: the tie is weighted in the right-hand side).
         let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
         let mut d = [Vec3::<S>::ZERO; MAX_LAYERS];
         let mut prev = Vec3::ZERO;
@@ -671,7 +652,6 @@ impl<S: Scalar> Brush<S> {
             prev_cp = if i + 1 < n { c * inv_m } else { S::ZERO };
             self.cprime[i] = prev_cp;
         }
-        self.pivots_for = Some(0);
     }
 
     /// Measures every spine segment for the next substep's springs and the surface
@@ -841,15 +821,17 @@ impl<S: Scalar> Brush<S> {
         }
 
         // Steps 2-3: long axes from the cross product, both normalised; Step 4: bends.
+        // A segment shorter than `tiny` has no direction (`Vec3::normalized_or_none`'s test).
+        let min_len2 = self.d.tiny * self.d.tiny;
         let mut seg = [Vec3::<S>::ZERO; MAX_LAYERS];
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
-            // Kept for the next substep's springs too (as `measure_segments` does).
+            // Kept for the next substep's springs too (as `measure_segments` does, inline
+            // here so the loop reads each segment once).
             let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
-            let tiny = self.d.tiny;
-            seg[i] = if len2 > tiny * tiny {
+            seg[i] = if len2 > min_len2 {
                 v.normalized_by(len2, r)
             } else {
                 down

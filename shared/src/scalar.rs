@@ -290,7 +290,8 @@ fn clamp_i128(p: i128) -> i64 {
 ///   fewer per tick.
 ///
 /// No host test can execute the assembly, so the firmware checks it on the device against
-/// the references here: `maobi-fw arith` under QEMU (`hil` test `arith`) runs every operator
+/// the references here: `maobi-fw arith` under QEMU (`hil` test
+/// `qemu::fixed_point_assembly_matches_its_reference_on_the_core`) runs every operator
 /// over edge cases and a million pseudo-random operands, and the `hil` link tests compare
 /// every tick of every example stroke with the host simulation bit for bit.
 pub mod raw {

@@ -88,11 +88,12 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    // One substep per 1 ms tick: the only rate whose tick fits a millisecond of this core
-    // today. `hil bench` (Cortex-M4 under QEMU, large brush, worst of 600 ticks) counts
-    // 62,655 instructions at 1 substep, 91,085 at 2 and 804,380 at the presets' 25; at
-    // 96 MHz and roughly one instruction per cycle (flash wait states hidden by the ART
-    // accelerator for loops) one substep takes about 0.65 ms of the 1 ms, two would not fit.
+    // One substep per 1 ms tick: the only rate within the 50,000-instruction budget (half a
+    // millisecond of this core, the rest left for USB, the link and flash wait states).
+    // `hil bench` (Cortex-M4 under QEMU, large brush, worst of 600 ticks, this image's code
+    // generation) counts 47,825 instructions at 1 substep, 68,905 at 2 and 578,785 at the
+    // presets' 25; at 96 MHz and roughly one instruction per cycle one substep takes about
+    // 0.51 ms of the 1 ms, two about 0.72 ms.
     // The cost of the rate: large steps damp the spine, so the hairs creep back after a
     // press (1.2 mm from rest after 0.5 s, 0.14 mm after 3 s, against 0.025 mm after 0.5 s
     // at 25 kHz); rest, stability and the bend under load hold

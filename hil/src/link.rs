@@ -224,7 +224,8 @@ pub struct StreamOptions {
     /// Pose `k` of the track is sent with `seq = base + k` (base > 0: a state with
     /// `pose_seq` 0 is one from before any pose).
     pub base: u32,
-    /// At most this many poses sent ahead of the last one the device reported consumed.
+    /// At most this many poses sent ahead of the last one the device reported consumed
+    /// (the protocol allows up to [`maobi_shared::protocol::POSES_IN_FLIGHT`]).
     pub window: u32,
     /// Give up after this long without progress.
     pub stall_timeout: Duration,

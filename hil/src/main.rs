@@ -156,7 +156,7 @@ fn main() -> Result<()> {
         let ram = s.static_ram + firmware::Board::STACK_RESERVE;
         println!("image: {}", elf.display());
         println!(
-            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB) ram_with_stack={} bytes ({:.1} KiB, budget 32 KiB, stack reserve {} bytes)",
+            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB) ram_with_stack={} bytes ({:.1} KiB: static RAM and a stack reserve of {} bytes)",
             s.flash,
             s.flash as f64 / 1024.0,
             s.static_ram,
@@ -187,7 +187,7 @@ fn main() -> Result<()> {
             let ram = s.static_ram + firmware::Board::STACK_RESERVE;
             println!("image: {}", elf.display());
             println!(
-                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB incl. stack) ram_with_stack={} bytes ({:.1} KiB, budget 32 KiB, stack reserve {} bytes)",
+                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB) ram_with_stack={} bytes ({:.1} KiB: static RAM and a stack reserve of {} bytes)",
                 s.flash,
                 s.flash as f64 / 1024.0,
                 s.static_ram,

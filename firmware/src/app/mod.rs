@@ -267,9 +267,12 @@ pub struct PoseIn {
     pub guide: Option<GuideInput<Fx>>,
 }
 
-/// Capacity of the virtual pen's pose queue and of the command queue.
+/// Length of the virtual pen's pose queue and of the command queue (`heapless::spsc`
+/// queues hold one fewer than their length). The pose queue holds the protocol's
+/// [`POSES_IN_FLIGHT`](maobi_shared::protocol::POSES_IN_FLIGHT), all a host may send ahead,
+/// and no more: each slot is 96 bytes of RAM.
 #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // the virtual pen's
-pub const POSE_QUEUE: usize = 64;
+pub const POSE_QUEUE: usize = maobi_shared::protocol::POSES_IN_FLIGHT as usize + 1;
 pub const CMD_QUEUE: usize = 8;
 
 pub type CmdQueue = heapless::spsc::Queue<Command, CMD_QUEUE>;

@@ -62,10 +62,10 @@ pub const SYNC_WAIT: Duration = Duration::from_millis(300);
 /// Pose ticks the writer may fall behind the wall clock before it skips ahead.
 pub const MAX_BEHIND_TICKS: u64 = 50;
 /// At most this many poses in flight: sent but not yet reported consumed (a state's
-/// `pose_seq`). A device in real time consumes one per millisecond and reports at 120 Hz, so
-/// 48 leaves it about 40 ms of slack; a slower-than-real-time device (the firmware under
-/// QEMU) paces the writer instead of overflowing its 64-pose queue, so no replay pose is lost.
-pub const POSES_IN_FLIGHT: u32 = 48;
+/// `pose_seq`); the protocol's bound, which every device's pose queue holds. A
+/// slower-than-real-time device (the firmware under QEMU) paces the writer instead of
+/// overflowing its queue, so no replay pose is lost.
+pub const POSES_IN_FLIGHT: u32 = maobi_shared::protocol::POSES_IN_FLIGHT;
 
 /// What the link client says about itself in the handshake.
 #[derive(Clone, Debug)]

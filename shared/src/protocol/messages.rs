@@ -26,6 +26,13 @@ pub const HOST_MSG_MAX: usize = 512;
 /// can reach fits in one frame; the large preset's is 0.85-0.93 KB.
 pub const DEVICE_MSG_MAX: usize = 4096;
 
+/// At most this many [`HostMsg::Pose`] samples a host keeps in flight: sent, but not yet
+/// reported consumed by a state's `pose_seq`. A device with a virtual pen queues at least this
+/// many, so a host that keeps to it never fills the queue: nothing is lost when the device runs
+/// slower than real time (the firmware under QEMU). A device in real time consumes one pose per
+/// millisecond and reports at 120 Hz, so 48 leaves it about 40 ms of slack.
+pub const POSES_IN_FLIGHT: u32 = 48;
+
 /// Capacity of names on the wire (board, host program, preset).
 pub const NAME_LEN: usize = 24;
 /// Capacity of a rejected parameter's explanation.

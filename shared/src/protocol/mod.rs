@@ -149,7 +149,7 @@ pub use messages::{
     bounded_str, param_id, Buttons, Capabilities, Command, CommandError, ConfigRejected,
     DeviceInfo, DeviceMsg, Event, EventKind, Faults, HostHello, HostMsg, Nudge, ParamRejected,
     ParamReply, PresetRef, RejectReason, SensorReport, Telemetry, Version, DEVICE_MSG_MAX,
-    HOST_MSG_MAX, NAME_LEN, REASON_LEN, SENSOR_RATE_MAX_HZ,
+    HOST_MSG_MAX, NAME_LEN, POSES_IN_FLIGHT, REASON_LEN, SENSOR_RATE_MAX_HZ,
 };
 pub use state::{
     vec3_bits, vec3_from_bits, BrushShape, BrushState, GuideSample, Haptics, LayerState, PoseBits,

@@ -186,12 +186,14 @@ fn mul_coef_partial(a: i64, c: i64) -> i64 {
 #[inline]
 #[allow(dead_code)]
 fn mul_floor_partial(a: i64, b: i64) -> i64 {
-    let (ah, al) = ((a >> 32) as i32, a as u32);
-    let (bh, bl) = ((b >> 32) as i32, b as u32);
+    let (ah, bh) = ((a >> 32) as i32, (b >> 32) as i32);
     // The model's values have integer parts far below 2^15 (mm, coefficients, radians): then
     // |hh| <= 2^30 is one 32-bit multiply, |hl|, |lh| < 2^47 and the whole sum is below
     // 2^62 + 2^48 + 2^32 < 2^63, so it needs no overflow test at all.
-    if (ah as u32).wrapping_add(1 << 15) < 1 << 16 && (bh as u32).wrapping_add(1 << 15) < 1 << 16 {
+    // Both high words in [-2^15, 2^15): one unsigned compare of the two biased words OR-ed
+    // (either above 2^16 sets a bit at or above 16).
+    if ((ah as u32).wrapping_add(1 << 15) | (bh as u32).wrapping_add(1 << 15)) < 1 << 16 {
+        let (al, bl) = (a as u32, b as u32);
         let hh = (ah * bh) as i64;
         let hl = ah as i64 * bl as i64;
         let lh = al as i64 * bh as i64;
@@ -258,7 +260,8 @@ fn narrow(p: i128) -> i64 {
     }
 }
 
-#[cfg(test)]
+/// `p` clamped to `i64`: the references' saturation (see [`raw`]).
+#[allow(dead_code)]
 fn clamp_i128(p: i128) -> i64 {
     if p > i64::MAX as i128 {
         i64::MAX
@@ -269,13 +272,13 @@ fn clamp_i128(p: i128) -> i64 {
     }
 }
 
-/// [`Fx`]'s saturating add and subtract and its coefficient multiply on the raw bits: what
-/// `+`, `-` and [`Scalar::mul_tested_coef`] run on this target, beside the portable reference
-/// each must equal bit for bit.
+/// [`Fx`]'s saturating add, subtract and multiply and its coefficient multiply on the raw
+/// bits: what `+`, `-`, `*` and [`Scalar::mul_tested_coef`] run on this target, beside the
+/// portable reference each must equal bit for bit.
 ///
-/// On the pen (`cfg(arm_asm)`, see `build.rs`) they are a few lines of inline assembly each,
-/// because the compiler's own code for them is what the force loop spends most of its
-/// instructions on (measured with `hil bench`, QEMU `-icount`):
+/// On the pen (`cfg(arm_asm)`, see `build.rs`) all but the multiply are a few lines of
+/// inline assembly each, because the compiler's own code for them is what the force loop
+/// spends most of its instructions on (measured with `hil bench`, QEMU `-icount`):
 ///
 /// * **add / subtract.** LLVM tests a 64-bit overflow with two exclusive-ors, a bit clear and
 ///   a branch on the sign after `adds`/`adc`, six instructions for every sum; the hardware
@@ -288,6 +291,12 @@ fn clamp_i128(p: i128) -> i64 {
 ///   `ah < 0` correction subtracts `cl` from the high word) and a masked 64-bit subtract of
 ///   `a` when `c < 0`: nine instructions, no branch, against about fourteen. About 4,500
 ///   fewer per tick.
+/// * **multiply** `floor(a b / 2^32)`, saturating, stays the compiler's
+///   (`mul_floor_partial`): the same identity as the coefficient product's with
+///   both operands split is nine instructions of assembly against eleven, and measured
+///   1,000 fewer per 1-substep tick, but LLVM takes an `asm!` block for cheap and inlined
+///   and unrolled more around it: 6.5 KB more flash on both images (the QEMU image past
+///   128 KiB). It is still checked on the core like the others, as the 32-bit path.
 ///
 /// No host test can execute the assembly, so the firmware checks it on the device against
 /// the references here: `maobi-fw arith` under QEMU (`hil` test
@@ -327,6 +336,18 @@ pub mod raw {
     #[inline]
     pub fn mul_coef(a: i64, c: i64) -> i64 {
         super::mul_coef_bits(a, c)
+    }
+
+    /// The saturating product `floor(a b / 2^32)` of two raw [`super::Fx`] values: what `*`
+    /// runs on this target.
+    #[inline]
+    pub fn mul(a: i64, b: i64) -> i64 {
+        super::mul_bits(a, b)
+    }
+
+    /// The reference for [`mul`]: the exact product in 128 bits, shifted (floor) and clamped.
+    pub fn mul_reference(a: i64, b: i64) -> i64 {
+        super::clamp_i128((a as i128 * b as i128) >> 32)
     }
 
     /// The reference for [`add`]: Rust's checked sum, clamped toward the sign of `b`.

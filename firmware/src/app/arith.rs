@@ -1,8 +1,9 @@
 //! The fixed-point operators checked on the device: `maobi-fw arith` under QEMU.
 //!
 //! On the Cortex-M4F, `Fx`'s add, subtract and coefficient multiply are inline assembly
-//! (`maobi_shared::scalar::raw`), which no host test can execute. This runs each against
-//! its portable reference, compiled for this core too: every pair of a table of edge values
+//! (`maobi_shared::scalar::raw`), which no host test can execute, and its multiply takes
+//! the 32-bit targets' partial-product path. This runs each against its portable 128-bit
+//! reference, compiled for this core too: every pair of a table of edge values
 //! (zero, one, the format's ends and the word boundaries where carries and borrows cross),
 //! then pseudo-random operands of every magnitude. Prints one `ARITH` line per operator and
 //! `ARITH mismatches=N`; the `hil` test `arith` asserts there are none.
@@ -16,9 +17,9 @@ use maobi_shared::scalar::raw;
 pub const RANDOM_CASES: u32 = 1_000_000;
 
 /// Values at which a 64-bit add, subtract or multiply changes behaviour: signs, the ends of
-/// the range, and the 32-bit word boundary (carries from the low word, the `2^32` = 1.0 of
-/// the format).
-const EDGES: [i64; 22] = [
+/// the range, the 32-bit word boundary (carries from the low word, the `2^32` = 1.0 of
+/// the format), and the ends of the multiply's short path (high words in `[-2^15, 2^15)`).
+const EDGES: [i64; 26] = [
     0,
     1,
     -1,
@@ -41,6 +42,10 @@ const EDGES: [i64; 22] = [
     0x7fff_ffff_0000_0000,
     0x1234_5678_9abc_def0,
     -0x1234_5678_9abc_def0,
+    0x0000_7fff_ffff_ffff,
+    0x0000_8000_0000_0000,
+    -0x0000_8000_0000_0000,
+    -0x0000_8000_0000_0001,
 ];
 
 /// One operator's tally.
@@ -86,14 +91,16 @@ impl Rng {
 
 /// Runs the checks, writes the report to `out`, and returns the total of mismatches.
 pub fn run(out: &mut impl Write) -> u32 {
-    let (mut add, mut sub, mut mul) = (Tally::default(), Tally::default(), Tally::default());
+    let (mut add, mut sub) = (Tally::default(), Tally::default());
+    let (mut mul, mut mul_coef) = (Tally::default(), Tally::default());
     let coef = |v: i64| -(1 << 32) < v && v < 1 << 32;
     let mut case = |a: i64, b: i64| {
         let (a, b) = (black_box(a), black_box(b));
         add.check(a, b, raw::add(a, b), raw::add_reference(a, b));
         sub.check(a, b, raw::sub(a, b), raw::sub_reference(a, b));
+        mul.check(a, b, raw::mul(a, b), raw::mul_reference(a, b));
         if coef(b) {
-            mul.check(a, b, raw::mul_coef(a, b), raw::mul_coef_reference(a, b));
+            mul_coef.check(a, b, raw::mul_coef(a, b), raw::mul_coef_reference(a, b));
         }
     };
     for &a in &EDGES {
@@ -109,7 +116,12 @@ pub fn run(out: &mut impl Write) -> u32 {
         case(a, c);
     }
     let mut total = 0;
-    for (name, t) in [("add", &add), ("sub", &sub), ("mul_coef", &mul)] {
+    for (name, t) in [
+        ("add", &add),
+        ("sub", &sub),
+        ("mul", &mul),
+        ("mul_coef", &mul_coef),
+    ] {
         let _ = write!(
             out,
             "ARITH op={name} cases={} mismatches={}",

@@ -80,7 +80,7 @@ impl<S: Scalar> Quat<S> {
         let n2 = self.norm2();
         if n2 > S::ZERO {
             // One reciprocal square root instead of a square root and a division (the
-            // fixed-point division is the dearer of the two; nlerp runs every substep).
+            // fixed-point division is the dearer of the two).
             let inv = n2.rsqrt();
             // Near-unit components are the coefficients (the same products).
             Quat::new(
@@ -93,9 +93,9 @@ impl<S: Scalar> Quat<S> {
             Self::IDENTITY
         }
     }
-    /// Normalised linear interpolation along the shorter arc. Used between the 1 ms ticks'
-    /// poses inside one tick, where the rotation is tiny and nlerp equals slerp to far below
-    /// the format's resolution.
+    /// Normalised linear interpolation along the shorter arc: for the small turns of one
+    /// step (a tick, a hand's move), where nlerp equals slerp to far below the format's
+    /// resolution.
     pub fn nlerp(a: Self, b: Self, t: S) -> Self {
         // Unit quaternions: components in [-1, 1], coefficient products (the same values).
         let d = a.w.mul_coef(b.w) + a.x.mul_coef(b.x) + a.y.mul_coef(b.y) + a.z.mul_coef(b.z);

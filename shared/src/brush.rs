@@ -173,12 +173,14 @@ pub struct Brush<S: Scalar> {
     /// The exact solve's pivots ([`Self::prepare_pivots`]), computed with the parameters.
     inv_pivot: [S; MAX_LAYERS],
     cprime: [S; MAX_LAYERS],
-    /// Squared length and its `rsqrt` of each spine segment i (masses i-1 to i) as the
-    /// surface update left the spine, valid while `segments_cached`: the next substep's
-    /// springs need the same two numbers for every segment but the first (only the ferrule
-    /// moves before they are computed), which at one substep per tick saves a fifth of the
-    /// device's square roots. Set by [`Self::measure_segments`] (the surface update and
-    /// [`Self::reset`]), cleared by every substep.
+    /// Squared length and its `rsqrt` of each spine segment i (masses i-1 to i) as last
+    /// measured. Exact for the spine as it is while `segments_cached`: the surface update
+    /// measured them, and the next substep's springs need the same two numbers for every
+    /// segment but the first (only the ferrule moves before they are computed), which at
+    /// one substep per tick saves a fifth of the device's square roots. Set by
+    /// [`Self::measure_segments`] (the surface update and [`Self::reset`]); every substep
+    /// then measures again, each `rsqrt` from the last ([`Scalar::rsqrt_near`]), and clears
+    /// `segments_cached`.
     seg_len2: [S; MAX_LAYERS],
     seg_rsqrt: [S; MAX_LAYERS],
     segments_cached: bool,
@@ -512,14 +514,20 @@ impl<S: Scalar> Brush<S> {
         // Segments 2.. have not moved since the surface update measured them (if it did).
         let first_cached = if self.segments_cached { 2 } else { usize::MAX };
         self.segments_cached = false;
-        for (j, (f, pair)) in (1..).zip(seg[1..n].iter_mut().zip(self.spine[..n].windows(2))) {
+        // The others start their inverse square root from the segment's last one, which is
+        // kept for the next substep.
+        for (j, ((f, pair), (len2, r))) in (1..).zip(
+            seg[1..n].iter_mut().zip(self.spine[..n].windows(2)).zip(
+                self.seg_len2[1..n]
+                    .iter_mut()
+                    .zip(&mut self.seg_rsqrt[1..n]),
+            ),
+        ) {
             let v = pair[1] - pair[0];
-            let (len2, r) = if j >= first_cached {
-                (self.seg_len2[j], self.seg_rsqrt[j])
-            } else {
-                measure(v)
-            };
-            *f = spring_with(d, v, len2, r);
+            if j < first_cached {
+                (*len2, *r) = measure_near(v, *r);
+            }
+            *f = spring_with(d, v, *len2, *r);
         }
 
         // The tie weight of each mass, once: the tie and the paper drag both read it, and both
@@ -1069,6 +1077,18 @@ fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
     (len2, r)
 }
 
+/// [`measure`] with the segment's last `rsqrt` as the guess for [`Scalar::rsqrt_near`].
+#[inline]
+fn measure_near<S: Scalar>(v: Vec3<S>, last: S) -> (S, S) {
+    let len2 = v.norm2();
+    let r = if len2 > S::ZERO {
+        len2.rsqrt_near(last)
+    } else {
+        S::ZERO
+    };
+    (len2, r)
+}
+
 /// `c`-free spring term `(1 - L/|d|) d` for a neighbour offset `d` (mm), given `len2 =
 /// |d|^2` and, if `len2 > tiny2`, `inv_len = len2.rsqrt()`.
 #[inline]
@@ -1254,7 +1274,10 @@ mod tests {
             for k in 1..=300 {
                 used += cached.segments_cached as u32;
                 cached.tick(pose(k));
+                // Forget what the surface update measured of the segments the cache serves,
+                // so that they are measured from scratch (no guess for their roots either).
                 fresh.segments_cached = false;
+                fresh.seg_rsqrt[2..].fill(S::ZERO);
                 fresh.tick(pose(k));
                 touched = touched.max(cached.contacts());
                 assert_eq!(cached.spine, fresh.spine, "{} tick {k}", S::NAME);

@@ -250,7 +250,7 @@ impl<S: Scalar> Brush<S> {
         self.handle = pose;
         self.skel_dir = [-Vec3::Z; MAX_LAYERS];
         let offsets = self.skeleton_offsets();
-        self.rebuild_skeleton(false, &offsets);
+        place_skeleton(pose, &offsets, &mut self.skel[..self.d.n]);
         self.skel_vel = [Vec3::ZERO; MAX_LAYERS];
         let n = self.d.n;
         for i in 0..n {
@@ -414,23 +414,35 @@ impl<S: Scalar> Brush<S> {
         // The skeleton's shape in the handle frame changes only in `end_tick` (plastic flow),
         // so its node offsets are summed once here for all the tick's substeps.
         let offsets = self.skeleton_offsets();
+        let target = clamp_to_paper(target);
         if n > 1 {
             // The poses come one per tick, so the handle's path between two is ours to
             // choose. Straight node paths differ from placing the skeleton rigidly at an
             // interpolated pose by r dθ^2 / 8 for a node r from the ferrule and a turn dθ in
             // the tick (0.5 um at 40 mm for a turn of 10 rad/s), and spare every substep but
             // the last the rotation of every node: a fifth of the host's tick, a seventh of
-            // the device's at 25 substeps.
-            let end = self.placed_skeleton(clamp_to_paper(target), &offsets);
+            // the device's at 25 substeps. (The last substep places the nodes again, in
+            // place: at one substep per tick, the board's rate, that is the only placement.)
+            let mut end = [Vec3::<S>::ZERO; MAX_LAYERS];
+            place_skeleton(target, &offsets, &mut end[..self.d.n]);
             let mut step = [Vec3::<S>::ZERO; MAX_LAYERS];
             for ((st, e), now) in step.iter_mut().zip(&end).zip(&self.skel) {
                 *st = (*e - *now).scale_coef(self.d.inv_substeps);
             }
             for _ in 1..n {
-                self.substep_stepped(&step);
+                self.substep_by(|b| {
+                    let n = b.d.n;
+                    for ((node, vel), st) in b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
+                    {
+                        *node += *st;
+                        *vel = *st;
+                    }
+                    // The orientation stays the tick's start until its last substep.
+                    b.handle.pos = b.skel[0];
+                });
             }
         }
-        self.substep_with(target, &offsets);
+        self.substep_by(|b| b.place_at(target, &offsets));
         self.end_tick();
     }
 
@@ -448,45 +460,34 @@ impl<S: Scalar> Brush<S> {
     /// One substep of length h with the handle at `pose`.
     pub fn substep(&mut self, pose: Pose<S>) {
         let offsets = self.skeleton_offsets();
-        self.substep_with(pose, &offsets);
+        self.substep_by(|b| b.place_at(clamp_to_paper(pose), &offsets));
     }
 
-    /// One substep with the skeleton's node offsets ([`Self::skeleton_offsets`]) given.
-    fn substep_with(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
-        // Dynamics, integration and the paper projection of the free masses in one pass.
-        self.substep_dynamics(pose, offsets);
-        self.contact[0] = self.spine[0].z <= self.d.contact_tol;
-        self.substeps_done = self.substeps_done.wrapping_add(1);
-    }
-
-    /// A substep of [`Self::tick`] with the skeleton moved by `step` (node by node).
-    fn substep_stepped(&mut self, step: &[Vec3<S>; MAX_LAYERS]) {
-        let n = self.d.n;
+    /// One substep (steps 1-3): `place` puts the handle and the skeleton where the substep
+    /// has them, then the dynamics, integration, drag and paper projection.
+    #[inline(always)]
+    fn substep_by(&mut self, place: impl FnOnce(&mut Self)) {
         let old_ferrule = self.spine[0];
         let old_ferrule_vel = self.vel[0];
-        for ((node, vel), st) in self.skel[..n]
-            .iter_mut()
-            .zip(&mut self.skel_vel[..n])
-            .zip(step)
-        {
-            *node += *st;
-            *vel = *st;
-        }
-        // The orientation is the tick's start until its last substep places the skeleton.
-        self.handle.pos = self.skel[0];
+        place(self);
         self.dynamics(old_ferrule, old_ferrule_vel);
         self.contact[0] = self.spine[0].z <= self.d.contact_tol;
         self.substeps_done = self.substeps_done.wrapping_add(1);
     }
 
-    /// Everything in a substep: handle, dynamics, paper drag and projection (steps 1-3).
-    fn substep_dynamics(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
-        let pose = clamp_to_paper(pose);
-        let old_ferrule = self.spine[0];
-        let old_ferrule_vel = self.vel[0];
+    /// Puts the handle at `pose` and the skeleton nodes where it places them, recording
+    /// their displacement.
+    fn place_at(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
         self.handle = pose;
-        self.rebuild_skeleton(true, offsets);
-        self.dynamics(old_ferrule, old_ferrule_vel);
+        let n = self.d.n;
+        // The new nodes go into the displacement slots first, then swap in: no copy of the
+        // whole skeleton on the 1 kHz path.
+        place_skeleton(pose, offsets, &mut self.skel_vel[..n]);
+        for (node, vel) in self.skel[..n].iter_mut().zip(&mut self.skel_vel[..n]) {
+            let next = *vel;
+            *vel = next - *node;
+            *node = next;
+        }
     }
 
     /// The substep's dynamics, integration and paper projection (steps 2-3) once the
@@ -758,28 +759,6 @@ impl<S: Scalar> Brush<S> {
         out
     }
 
-    /// Rebuilds VS_i from the handle (eqs. 3-5, 3-6) and the node offsets
-    /// ([`Self::skeleton_offsets`]); records their displacement if `track`.
-    fn rebuild_skeleton(&mut self, track: bool, offsets: &Offsets<S>) {
-        let n = self.d.n;
-        let nodes = self.skel[..n].iter_mut().zip(&mut self.skel_vel[..n]);
-        place_skeleton(self.handle, offsets, nodes, |(node, vel), next| {
-            if track {
-                *vel = next - *node;
-            }
-            *node = next;
-        });
-    }
-
-    /// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6).
-    fn placed_skeleton(&self, pose: Pose<S>, offsets: &Offsets<S>) -> [Vec3<S>; MAX_LAYERS] {
-        let mut out = [Vec3::ZERO; MAX_LAYERS];
-        place_skeleton(pose, offsets, out[..self.d.n].iter_mut(), |o, node| {
-            *o = node
-        });
-        out
-    }
-
     /// Bends the skeleton toward the spine's tip direction (eqs. 3-1..3-4).
     fn plastic_flow(&mut self) {
         let n = self.d.n;
@@ -1010,44 +989,35 @@ fn jacobi_with<S: Scalar>(
     }
 }
 
-/// The skeleton nodes the handle at `pose` places, `pos + R offset_i` (node 0 is the handle
-/// itself: offset zero), handed in order to `put` with the items of `out` (one per node).
-#[inline(always)]
-fn place_skeleton<S: Scalar, T>(
-    pose: Pose<S>,
-    offsets: &Offsets<S>,
-    out: impl Iterator<Item = T>,
-    put: impl FnMut(T, Vec3<S>),
-) {
+/// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6), from the node
+/// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
+fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
     // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
     // nine entries tested once for all nodes rather than on each product.
     if m.iter().flatten().all(|c| c.is_coef()) {
-        place_nodes(pose.pos, offsets, &m, out, put, S::mul_tested_coef);
+        place_nodes(pose.pos, offsets, &m, out, S::mul_tested_coef);
     } else {
-        place_nodes(pose.pos, offsets, &m, out, put, S::mul_coef);
+        place_nodes(pose.pos, offsets, &m, out, S::mul_coef);
     }
 }
 
-/// [`place_skeleton`] with the rotation `m`, products by its entries by `mul`.
+/// The skeleton nodes `pos + m offset_i` into `out` (node 0 is the handle itself: offset
+/// zero), products by the rotation's entries by `mul`.
 #[inline(always)]
-fn place_nodes<S: Scalar, T>(
+fn place_nodes<S: Scalar>(
     pos: Vec3<S>,
     offsets: &Offsets<S>,
     m: &[[S; 3]; 3],
-    out: impl Iterator<Item = T>,
-    mut put: impl FnMut(T, Vec3<S>),
+    out: &mut [Vec3<S>],
     mul: impl Fn(S, S) -> S,
 ) {
     let [ox, oy, oz] = offsets;
-    for (o, ((&x, &y), &z)) in out.zip(ox.iter().zip(oy).zip(oz)) {
-        put(
-            o,
-            Vec3::new(
-                pos.x + (mul(x, m[0][0]) + mul(y, m[0][1]) + mul(z, m[0][2])),
-                pos.y + (mul(x, m[1][0]) + mul(y, m[1][1]) + mul(z, m[1][2])),
-                pos.z + (mul(x, m[2][0]) + mul(y, m[2][1]) + mul(z, m[2][2])),
-            ),
+    for (node, ((&x, &y), &z)) in out.iter_mut().zip(ox.iter().zip(oy).zip(oz)) {
+        *node = Vec3::new(
+            pos.x + (mul(x, m[0][0]) + mul(y, m[0][1]) + mul(z, m[0][2])),
+            pos.y + (mul(x, m[1][0]) + mul(y, m[1][1]) + mul(z, m[1][2])),
+            pos.z + (mul(x, m[2][0]) + mul(y, m[2][1]) + mul(z, m[2][2])),
         );
     }
 }

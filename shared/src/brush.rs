@@ -492,8 +492,9 @@ impl<S: Scalar> Brush<S> {
 
     /// The substep's dynamics, integration and paper projection (steps 2-3) once the
     /// skeleton is where the substep puts it; the ferrule was at `old_ferrule` moving by
-    /// `old_ferrule_vel`. Out of line: both kinds of substep run it, and one copy of the
-    /// largest function of the model is worth more flash than a call costs (one per substep).
+    /// `old_ferrule_vel`. Out of line: [`Self::substep_by`] is inlined where a tick or
+    /// [`Self::substep`] moves the skeleton, and one copy of the largest function of the
+    /// model is worth more flash than a call costs (one per substep).
     #[inline(never)]
     fn dynamics(&mut self, old_ferrule: Vec3<S>, old_ferrule_vel: Vec3<S>) {
         let n = self.d.n;

@@ -1192,7 +1192,7 @@ mod tests {
             x ^= x << 17;
             x
         };
-        let (mut stepped, mut worst) = (0, 0i64);
+        let (mut differs, mut worst) = (0, 0i64);
         for _ in 0..200_000 {
             let len2 = Fx(FxRaw::from_bits((1 << 32) + (next() % (99 << 32)) as i64));
             let root = len2.rsqrt();
@@ -1204,7 +1204,8 @@ mod tests {
             let near = len2.rsqrt_near(guess);
             let d = (near.0.to_bits() - root.0.to_bits()).abs();
             worst = worst.max(d);
-            stepped += (d != 0 || guess != root) as u32;
+            // Only the step can differ from rsqrt (a fallback is rsqrt itself).
+            differs += (d != 0) as u32;
             let exact = 1.0 / len2.to_f64().sqrt();
             // The format's resolution, 2^-32, plus the step's own error.
             let lsb = 1.0 / 4_294_967_296.0;
@@ -1213,9 +1214,10 @@ mod tests {
                 "{len2:?} {guess:?}"
             );
         }
-        // Within one unit in the last place of the full computation.
+        // Within one unit in the last place of the full computation, and the step was taken
+        // (about half the guesses are within its reach).
         assert!(worst <= 1, "worst {worst}");
-        assert!(stepped > 100_000, "{stepped}");
+        assert!(differs > 1_000, "{differs}");
         // A guess that is no guess falls back to rsqrt, bit for bit.
         let five = <Fx as Scalar>::from_f64(5.0);
         for bad in [0.0, -0.3, 0.2, 0.9, 1.5] {

@@ -155,6 +155,24 @@ pub struct Size {
     pub static_ram: u64,
 }
 
+impl Size {
+    /// The `hil size` report: flash and static RAM against the budgets, and the RAM a chip
+    /// needs with the stack reserve ([`Board::STACK_RESERVE`]).
+    pub fn report(&self) -> String {
+        let ram = self.static_ram + Board::STACK_RESERVE;
+        format!(
+            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB) ram_with_stack={} bytes ({:.1} KiB: static RAM and a stack reserve of {} bytes)",
+            self.flash,
+            self.flash as f64 / 1024.0,
+            self.static_ram,
+            self.static_ram as f64 / 1024.0,
+            ram,
+            ram as f64 / 1024.0,
+            Board::STACK_RESERVE,
+        )
+    }
+}
+
 /// Reads [`Size`] from a 32-bit little-endian ELF: allocated sections at addresses below
 /// `ram_start` are flash; allocated ones at or above it are RAM, and those with contents
 /// (`.data`) count in flash too (their initial values are copied from there).

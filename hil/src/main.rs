@@ -153,18 +153,8 @@ fn main() -> Result<()> {
     {
         let elf = firmware::board_image(board, cli.elf.as_deref(), cli.no_build)?;
         let s = firmware::size(&elf, board.ram_start())?;
-        let ram = s.static_ram + firmware::Board::STACK_RESERVE;
         println!("image: {}", elf.display());
-        println!(
-            "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB) ram_with_stack={} bytes ({:.1} KiB: static RAM and a stack reserve of {} bytes)",
-            s.flash,
-            s.flash as f64 / 1024.0,
-            s.static_ram,
-            s.static_ram as f64 / 1024.0,
-            ram,
-            ram as f64 / 1024.0,
-            firmware::Board::STACK_RESERVE,
-        );
+        println!("{}", s.report());
         return Ok(());
     }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
@@ -183,19 +173,9 @@ fn main() -> Result<()> {
             println!("{}", bench::render(&r));
         }
         Cmd::Size { .. } => {
-            let s = firmware::size(&elf, 0x2000_0000)?;
-            let ram = s.static_ram + firmware::Board::STACK_RESERVE;
+            let s = firmware::size(&elf, firmware::Board::Qemu.ram_start())?;
             println!("image: {}", elf.display());
-            println!(
-                "flash={} bytes ({:.1} KiB, budget 128 KiB) static_ram={} bytes ({:.1} KiB, budget 32 KiB) ram_with_stack={} bytes ({:.1} KiB: static RAM and a stack reserve of {} bytes)",
-                s.flash,
-                s.flash as f64 / 1024.0,
-                s.static_ram,
-                s.static_ram as f64 / 1024.0,
-                ram,
-                ram as f64 / 1024.0,
-                firmware::Board::STACK_RESERVE,
-            );
+            println!("{}", s.report());
         }
         Cmd::Selftest { ticks } => {
             println!("{}", selftest::selftest(&elf, ticks, timeout)?);

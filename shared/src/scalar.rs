@@ -388,12 +388,26 @@ pub mod raw {
         }
     }
 
-    // The operands go in as 32-bit halves, the low word first, as AAPCS holds an i64.
+    /// An `i64`'s low and high 32-bit words: the assembly works on the halves, the low word
+    /// first, as AAPCS holds an i64.
+    #[cfg(arm_asm)]
+    #[inline(always)]
+    fn words(x: i64) -> (u32, u32) {
+        (x as u32, (x >> 32) as u32)
+    }
+
+    /// The `i64` with low word `lo` and high word `hi`.
+    #[cfg(arm_asm)]
+    #[inline(always)]
+    fn from_words(lo: u32, hi: u32) -> i64 {
+        ((hi as u64) << 32 | lo as u64) as i64
+    }
+
     #[cfg(arm_asm)]
     #[inline]
     fn add_arm(a: i64, b: i64) -> i64 {
-        let (mut lo, mut hi) = (a as u32, (a >> 32) as u32);
-        let (b_lo, b_hi) = (b as u32, (b >> 32) as u32);
+        let (mut lo, mut hi) = words(a);
+        let (b_lo, b_hi) = words(b);
         // SAFETY: register arithmetic only: no memory, no stack; the flags are clobbered
         // (not `preserves_flags`).
         #[allow(unsafe_code)] // audited, see lib.rs
@@ -416,14 +430,14 @@ pub mod raw {
                 options(pure, nomem, nostack),
             );
         }
-        ((hi as u64) << 32 | lo as u64) as i64
+        from_words(lo, hi)
     }
 
     #[cfg(arm_asm)]
     #[inline]
     fn sub_arm(a: i64, b: i64) -> i64 {
-        let (mut lo, mut hi) = (a as u32, (a >> 32) as u32);
-        let (b_lo, b_hi) = (b as u32, (b >> 32) as u32);
+        let (mut lo, mut hi) = words(a);
+        let (b_lo, b_hi) = words(b);
         // SAFETY: as in `add_arm`.
         #[allow(unsafe_code)] // audited, see lib.rs
         unsafe {
@@ -443,15 +457,15 @@ pub mod raw {
                 options(pure, nomem, nostack),
             );
         }
-        ((hi as u64) << 32 | lo as u64) as i64
+        from_words(lo, hi)
     }
 
     /// [`mul_coef`] on the Cortex-M4: see the module docs for the identity.
     #[cfg(arm_asm)]
     #[inline]
     pub(super) fn mul_coef_arm(a: i64, c: i64) -> i64 {
-        let (a_lo, a_hi) = (a as u32, (a >> 32) as u32);
-        let (c_lo, c_hi) = (c as u32, (c >> 32) as u32);
+        let (a_lo, a_hi) = words(a);
+        let (c_lo, c_hi) = words(c);
         let (lo, hi): (u32, u32);
         // SAFETY: register arithmetic only: no memory, no stack; the flags are clobbered.
         #[allow(unsafe_code)] // audited, see lib.rs
@@ -480,7 +494,7 @@ pub mod raw {
                 options(pure, nomem, nostack),
             );
         }
-        ((hi as u64) << 32 | lo as u64) as i64
+        from_words(lo, hi)
     }
 }
 

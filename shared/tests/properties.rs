@@ -55,18 +55,23 @@ proptest! {
 
     /// Every spring 1000x stiffer than the preset, at the largest substep offered (1 ms, one
     /// substep per tick), handle held still after a random jolt, in the air or pressed into
-    /// the paper: the energy never rises above what it was just after the jolt.
-    /// In the air it falls on every substep. (This needs the exact solve that `JACOBI_LIMIT`
-    /// switches to: four Jacobi iterations alone blow up at this stiffness.) On the paper the
-    /// thesis unties masses lying on it from the skeleton (3.1.2); that makes the tie a
-    /// position-dependent, non-conservative force, and a mass pulled onto the paper by its tie
-    /// can leave more energy in the axial springs than the released tie held (seen: 6.4 J ->
-    /// 7.8 J in one substep after a 7 mm jolt into the paper at this stiffness), and a stiff
-    /// brush pressed straight down can settle into a bounded two-substep cycle (0.22 J <->
-    /// 0.03 J) where a substep moves a mass further than the tie's 0.05 mm ramp; over 3,000
-    /// random cases the energy reached 4.2x its value after the jolt. So on the paper the claim
-    /// is stability: bounded by 10x (a runaway, like the one four Jacobi iterations produce
-    /// here, reaches 1e180 J), not decay.
+    /// the paper.
+    ///
+    /// In the air the energy never rises above what it was just after the jolt and falls on
+    /// every substep. (This needs the exact solve that `JACOBI_LIMIT` switches to: four Jacobi
+    /// iterations alone blow up at this stiffness.)
+    ///
+    /// On the paper the claim is stability, not decay. The thesis unties masses lying on the
+    /// paper (3.1.2), and the tie fades back in over `TIE_RAMP_MM` as a mass leaves it. That
+    /// makes the tie a position-dependent, non-conservative force: a mass rising through the
+    /// ramp re-engages a tie to a skeleton node below the paper, and the energy that tie then
+    /// holds, up to `press_energy` (every node's tie at full weight from the paper), was paid
+    /// for by no force. So a stiff brush pressed into the paper can settle into a bounded
+    /// two-substep cycle: masses 0.18 mm up with their ties engaged (0.24 J), then back on the
+    /// paper (0.013 J), seen on the large brush at 37.5 degrees pressed 11.1 mm without a jolt
+    /// (0.0088 J after the jolt: a bound on that alone fails). Over 60,000 random cases the
+    /// largest energy was 13.6 times the energy after the jolt plus `press_energy`; a runaway,
+    /// like the one four Jacobi iterations produce here, reaches 1e180 J. The bound is 50.
     #[test]
     fn stiff_brush_at_the_largest_step_never_gains_energy(
         jolt in (-8.0..8.0f64, -8.0..8.0f64, -8.0..8.0f64),
@@ -81,13 +86,18 @@ proptest! {
             substeps_per_tick: 1,
             ..base
         };
-        let (start_e, worst, end_e, rise) = jolt_and_hold(params, jolt, tilt, press, 3000);
+        let held = jolt_and_hold(params, jolt, tilt, press, 3000);
+        let (start_e, worst, end_e, rise) = (held.start, held.worst, held.end, held.rise);
         if press < 0.0 {
             prop_assert!(rise <= 1e-9 * start_e + 1e-15, "energy grew by {:e} J in one substep", rise);
+            prop_assert!(worst <= start_e * (1.0 + 1e-9) + 1e-3,
+                "energy rose from {:e} to {:e} J", start_e, worst);
+        } else {
+            let scale = start_e + held.press;
+            prop_assert!(worst <= 50.0 * scale,
+                "energy rose from {:e} J (with {:e} J of ties at full weight from the paper) to {:e} J",
+                start_e, held.press, worst);
         }
-        let bound = if press < 0.0 { 1.0 + 1e-9 } else { 10.0 };
-        prop_assert!(worst <= start_e * bound + 1e-3,
-            "energy rose from {:e} to {:e} J", start_e, worst);
         // In the air it dies away; pressed into the paper it settles at the energy of the
         // pressed shape (ties stretched toward skeleton nodes below the paper).
         if press < 0.0 {
@@ -120,30 +130,60 @@ proptest! {
     }
 }
 
-/// Jolts the handle and holds it: returns the energy just after the jolt, the largest energy
-/// seen afterwards, the energy at the end, and the largest rise over one substep.
+/// What [`jolt_and_hold`] saw.
+struct Held {
+    /// Energy just after the jolt (J).
+    start: f64,
+    /// Largest energy afterwards.
+    worst: f64,
+    /// Energy at the end.
+    end: f64,
+    /// Largest rise over one substep.
+    rise: f64,
+    /// [`press_energy`] just after the jolt.
+    press: f64,
+}
+
+/// Jolts the handle and holds it for `substeps`.
 fn jolt_and_hold(
     params: BrushParams,
     jolt: (f64, f64, f64),
     tilt: f64,
     press: f64,
     substeps: usize,
-) -> (f64, f64, f64, f64) {
+) -> Held {
     let reach = params.length_mm as f64 * tilt.to_radians().cos();
     let hold = [0.0, 0.0, reach - press];
     let start = [jolt.0, jolt.1, reach - press + jolt.2];
     let mut b = Brush::<f64>::new(params, pose(start, tilt, 0.0)).unwrap();
     b.substep(pose(hold, tilt, 0.0));
     let start_e = energy(&b).total();
-    let mut worst = 0.0f64;
-    let mut e = start_e;
-    let mut rise = 0.0f64;
+    let mut held = Held {
+        start: start_e,
+        worst: 0.0,
+        end: start_e,
+        rise: 0.0,
+        press: press_energy(&b),
+    };
     for _ in 0..substeps {
         b.substep(pose(hold, tilt, 0.0));
         let next = energy(&b).total();
-        rise = rise.max(next - e);
-        e = next;
-        worst = worst.max(e);
+        held.rise = held.rise.max(next - held.end);
+        held.end = next;
+        held.worst = held.worst.max(next);
     }
-    (start_e, worst, e, rise)
+    held
+}
+
+/// The energy the ties would hold at full weight if every mass lay on the paper straight
+/// above its skeleton node (J): what ties re-engaging as masses leave the paper can add.
+fn press_energy(b: &Brush<f64>) -> f64 {
+    let kt = b.params().tie_stiffness as f64;
+    b.skeleton()[1..]
+        .iter()
+        .map(|node| {
+            let depth_m = node.z.min(0.0) * 1e-3;
+            0.5 * kt * depth_m * depth_m
+        })
+        .sum()
 }

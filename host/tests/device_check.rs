@@ -146,11 +146,20 @@ fn send(s: &mut TcpStream, m: &DeviceMsg) {
 
 /// Serves one connection on a loopback port; returns the address and the pen's state.
 fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
+    serve_turning_away(pen, 0)
+}
+
+/// As [`serve`], after closing the first `turn_away` connections as soon as they arrive (as
+/// QEMU's UART socket does to a client that comes before it has seen the last one leave).
+fn serve_turning_away(pen: Pen, turn_away: usize) -> (String, Arc<Mutex<Pen>>) {
     let l = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = l.local_addr().unwrap().to_string();
     let shared = Arc::new(Mutex::new(pen));
     let pen = shared.clone();
     std::thread::spawn(move || {
+        for _ in 0..turn_away {
+            drop(l.accept().unwrap());
+        }
         let (mut s, _) = l.accept().unwrap();
         s.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
         let mut rx = DeviceRx::new();
@@ -285,6 +294,39 @@ fn run(pen: Pen) -> (CheckReport, Pen, Vec<String>) {
     println!("{}\n{}", op.transcript.join("\n"), r.table());
     let p = state.lock().unwrap().clone();
     (r, p, op.transcript)
+}
+
+#[test]
+fn a_connection_turned_away_before_the_handshake_is_tried_again() {
+    let (addr, _) = serve_turning_away(Pen::physical(Some(DeviceConfig::DEFAULT), [1; 3]), 2);
+    let mut op = Scripted::default();
+    let r = run_check(&opts(&addr), &mut op);
+    assert_eq!(
+        r.outcome("1 handshake"),
+        Some(Outcome::Pass),
+        "{}",
+        r.table()
+    );
+    assert!(r.passed(), "{}", r.table());
+}
+
+#[test]
+fn a_refused_handshake_is_not_retried() {
+    // Nothing listens: the open fails at once, with the address in the message.
+    let addr = {
+        let l = TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().to_string()
+    };
+    let started = Instant::now();
+    let r = run_check(&opts(&addr), &mut Scripted::default());
+    assert_eq!(
+        r.outcome("1 handshake"),
+        Some(Outcome::Fail),
+        "{}",
+        r.table()
+    );
+    assert!(detail(&r, "1 handshake").contains(&addr), "{}", r.table());
+    assert!(started.elapsed() < Duration::from_secs(2));
 }
 
 #[test]

@@ -298,16 +298,37 @@ pub const POSES_AHEAD: u32 = 32;
 const SENSOR_BACKLOG: usize = 3000;
 /// How often an otherwise idle wizard pings (so the device does not count the host gone).
 const KEEPALIVE: Duration = Duration::from_millis(100);
+/// Pause between connection attempts a TCP endpoint turned away (see [`Wire::connect`]).
+const RETRY_PAUSE: Duration = Duration::from_millis(100);
 
 impl Wire {
-    /// Opens `endpoint` and shakes hands.
+    /// Opens `endpoint` and shakes hands. A TCP endpoint that drops the connection before
+    /// answering is tried again (every 100 ms, within `timeout`): QEMU's UART socket serves
+    /// one client at a time and turns away one that arrives before it has seen the last
+    /// one leave.
     pub fn connect(endpoint: &Endpoint, timeout: Duration) -> Result<Wire, String> {
-        let mut conn = endpoint
-            .open()
-            .map_err(|e| format!("cannot open {endpoint}: {e}"))?;
+        let started = Instant::now();
         let mut dec = Box::new(HostRx::new());
-        let info = super::link::handshake(&mut *conn, &mut dec, "maobi-check", timeout, &|| false)
-            .unwrap_or_else(|| Err("stopped".into()))?;
+        let (conn, info) = loop {
+            let mut conn = endpoint
+                .open()
+                .map_err(|e| format!("cannot open {endpoint}: {e}"))?;
+            dec.reset();
+            let left = timeout.saturating_sub(started.elapsed());
+            match super::link::handshake(&mut *conn, &mut dec, "maobi-check", left, &|| false) {
+                Some(Ok(info)) => break (conn, info),
+                Some(Err(e))
+                    if e.closed
+                        && matches!(endpoint, Endpoint::Tcp(_))
+                        && started.elapsed() + RETRY_PAUSE < timeout =>
+                {
+                    conn.shut();
+                    std::thread::sleep(RETRY_PAUSE);
+                }
+                Some(Err(e)) => return Err(e.into()),
+                None => return Err("stopped".into()),
+            }
+        };
         Ok(Wire {
             conn,
             dec,

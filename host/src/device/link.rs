@@ -542,23 +542,61 @@ fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usiz
 /// Sends our `Hello` on `conn` and waits up to `timeout` for the device's; `None` when
 /// `stop` said to give up. A version mismatch (in a frame's version byte or in the device's
 /// hello) is an error that says so.
+/// Why a handshake failed.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct HandshakeError {
+    pub message: String,
+    /// The other end closed or reset the connection before it answered. A TCP server that
+    /// serves one client at a time (QEMU's UART socket) does that to a client that arrives
+    /// before it has seen the previous one leave: another try soon after can succeed.
+    pub closed: bool,
+}
+
+impl HandshakeError {
+    fn other(message: String) -> Self {
+        HandshakeError {
+            message,
+            closed: false,
+        }
+    }
+}
+
+impl std::fmt::Display for HandshakeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl From<HandshakeError> for String {
+    fn from(e: HandshakeError) -> String {
+        e.message
+    }
+}
+
 pub(crate) fn handshake(
     conn: &mut dyn Conn,
     dec: &mut HostRx,
     host_name: &str,
     timeout: Duration,
     stop: &dyn Fn() -> bool,
-) -> Option<Result<DeviceInfo, String>> {
+) -> Option<Result<DeviceInfo, HandshakeError>> {
     // A lone delimiter flushes whatever partial frame the device holds, then our hello.
     let hello = HostMsg::Hello(HostHello::new(host_name, host_version()));
     let mut buf = [0u8; HostMsg::MAX_FRAME + 1];
     buf[0] = DELIMITER;
     let n = match hello.encode(&mut buf[1..]) {
         Ok(n) => n,
-        Err(e) => return Some(Err(format!("cannot encode the hello: {e}"))),
+        Err(e) => {
+            return Some(Err(HandshakeError::other(format!(
+                "cannot encode the hello: {e}"
+            ))))
+        }
     };
     if let Err(e) = conn.write_all(&buf[..n + 1]) {
-        return Some(Err(format!("cannot write: {e}")));
+        return Some(Err(HandshakeError {
+            closed: is_closed(&e),
+            message: format!("cannot write: {e}"),
+        }));
     }
     let started = Instant::now();
     let mut rx = vec![0u8; 8192];
@@ -567,16 +605,26 @@ pub(crate) fn handshake(
             return None;
         }
         if started.elapsed() > timeout {
-            return Some(Err(format!(
+            return Some(Err(HandshakeError::other(format!(
                 "no answer to the handshake within {} ms: is this a Maobi device?",
                 timeout.as_millis()
-            )));
+            ))));
         }
         let n = match read_some(conn, &mut rx) {
-            Ok(Some(0)) => return Some(Err("the device closed the link".into())),
+            Ok(Some(0)) => {
+                return Some(Err(HandshakeError {
+                    message: "the device closed the link".into(),
+                    closed: true,
+                }))
+            }
             Ok(Some(n)) => n,
             Ok(None) => continue,
-            Err(e) => return Some(Err(format!("read failed: {e}"))),
+            Err(e) => {
+                return Some(Err(HandshakeError {
+                    closed: is_closed(&e),
+                    message: format!("read failed: {e}"),
+                }))
+            }
         };
         let mut mismatch = None;
         let mut got = None;
@@ -588,12 +636,25 @@ pub(crate) fn handshake(
             }
         }
         if let Some(e) = mismatch {
-            return Some(Err(e.to_string()));
+            return Some(Err(HandshakeError::other(e.to_string())));
         }
         if let Some(info) = got {
-            return Some(info.check().map(|()| info).map_err(|e| e.to_string()));
+            return Some(
+                info.check()
+                    .map(|()| info)
+                    .map_err(|e| HandshakeError::other(e.to_string())),
+            );
         }
     }
+}
+
+/// The other end is gone: reset, aborted or closed under us.
+fn is_closed(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::*;
+    matches!(
+        e.kind(),
+        ConnectionReset | ConnectionAborted | BrokenPipe | UnexpectedEof
+    )
 }
 
 /// Whether a Maobi device answers at `endpoint`: opens it, shakes hands, closes it. For
@@ -604,7 +665,8 @@ pub fn identify(endpoint: &Endpoint, timeout: Duration) -> Result<DeviceInfo, St
         .map_err(|e| format!("cannot open {endpoint}: {e}"))?;
     let mut dec = Box::new(HostRx::new());
     let r = handshake(&mut *conn, &mut dec, "maobi-probe", timeout, &|| false)
-        .unwrap_or_else(|| Err("stopped".into()));
+        .unwrap_or_else(|| Err(HandshakeError::other("stopped".into())))
+        .map_err(String::from);
     conn.shut();
     r
 }
@@ -633,7 +695,7 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
     inner.shared().report.rx = dec.stats();
     let info = match outcome {
         None => return End::Stopped,
-        Some(Err(e)) => return End::Failed(e),
+        Some(Err(e)) => return End::Failed(e.into()),
         Some(Ok(info)) => info,
     };
     let mut rx = vec![0u8; 8192];

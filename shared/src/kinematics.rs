@@ -208,6 +208,10 @@ pub struct Pen<S> {
     rad_per_count: [S; 3],
     rad_per_code: [S; 3],
     torque_per_command: [S; 3],
+    /// `cfg`'s inkwell angles and stylus length as scalars, converted once: the force loop
+    /// reads them every tick.
+    inkwell: Joints<S>,
+    stylus: S,
 }
 
 impl<S: Scalar> Pen<S> {
@@ -235,6 +239,11 @@ impl<S: Scalar> Pen<S> {
                     cfg.ratio[j] as f64 * cfg.torque_constant[j] as f64 * cfg.max_current[j] as f64,
                 )
             }),
+            inkwell: Joints {
+                arm: cfg.inkwell_joints.map(S::from_f32),
+                gimbal: cfg.inkwell_gimbal.map(S::from_f32),
+            },
+            stylus: S::from_f32(cfg.stylus_mm),
         })
     }
 
@@ -255,35 +264,66 @@ impl<S: Scalar> Pen<S> {
         let zero = self.zero.ok_or(KinematicsError::NotCalibrated)?;
         let arm = [0, 1, 2].map(|j| {
             // Counts since calibration as a scalar: exact for any realistic travel.
-            let d = S::from_f64((raw.encoders[j] - zero.encoders[j]) as f64);
-            S::from_f32(self.cfg.inkwell_joints[j]) + d * self.rad_per_count[j]
+            let d = S::from_i64(raw.encoders[j].wrapping_sub(zero.encoders[j]));
+            self.inkwell.arm[j] + d * self.rad_per_count[j]
         });
         let gimbal = [0, 1, 2].map(|j| {
-            let d = S::from_f64((raw.gimbal[j] - zero.gimbal[j]) as f64);
-            S::from_f32(self.cfg.inkwell_gimbal[j]) + d * self.rad_per_code[j]
+            // In i64: two codes a whole i32 range apart do not overflow.
+            let d = S::from_i64(i64::from(raw.gimbal[j]) - i64::from(zero.gimbal[j]));
+            self.inkwell.gimbal[j] + d * self.rad_per_code[j]
         });
         Ok(Joints { arm, gimbal })
     }
 
     /// The wrist (gimbal centre) in the paper frame (mm).
     pub fn wrist(&self, q: &[S; 3]) -> Vec3<S> {
-        let (s1, c1) = q[0].sin_cos();
-        let (s2, c2) = q[1].sin_cos();
-        let (s23, c23) = (q[1] + q[2]).sin_cos();
-        let r = self.l1 * c2 + self.l2 * c23;
-        let h = self.l1 * s2 + self.l2 * s23;
-        self.base + Vec3::new(-r * s1, r * c1, h)
+        self.wrist_at(&ArmTrig::of(q))
+    }
+
+    /// [`Self::wrist`] from the arm's sines and cosines.
+    pub fn wrist_at(&self, t: &ArmTrig<S>) -> Vec3<S> {
+        let r = self.l1 * t.c2 + self.l2 * t.c23;
+        let h = self.l1 * t.s2 + self.l2 * t.s23;
+        self.base + Vec3::new(-r * t.s1, r * t.c1, h)
     }
 
     /// Forward kinematics: the ferrule's pose.
     pub fn forward(&self, j: &Joints<S>) -> Pose<S> {
-        let rot = axis_quat(2, j.arm[0])
-            .compose(axis_quat(0, j.arm[1] + j.arm[2]))
-            .compose(axis_quat(2, j.gimbal[0]))
-            .compose(axis_quat(0, j.gimbal[1]))
-            .compose(axis_quat(1, j.gimbal[2]));
-        let pos = self.wrist(&j.arm) + rot.rotate(-Vec3::Z).scale(S::from_f32(self.cfg.stylus_mm));
-        Pose::new(pos, rot)
+        self.forward_with_trig(j).0
+    }
+
+    /// [`Self::forward`], with the arm's sines and cosines for the torques of the same
+    /// reading ([`Self::torques_at`]). The rotation is `Rz(q1) Rx(q2 + q3) Rz(g1) Rx(g2)
+    /// Ry(g3)`, built one axis at a time ([`Quat::then_about`]: half the products of a
+    /// general composition); the wrist's sines and cosines of `q1` and `q2 + q3` are the
+    /// double angles of the first two half-angle rotations (two products each instead of
+    /// a sine and cosine).
+    pub fn forward_with_trig(&self, j: &Joints<S>) -> (Pose<S>, ArmTrig<S>) {
+        let (h1s, h1c) = half_angle(j.arm[0]).sin_cos();
+        let (h23s, h23c) = half_angle(j.arm[1] + j.arm[2]).sin_cos();
+        let (s2, c2) = j.arm[1].sin_cos();
+        let twice = |v: S| v + v;
+        let trig = ArmTrig {
+            s1: twice(h1s * h1c),
+            c1: h1c * h1c - h1s * h1s,
+            s2,
+            c2,
+            s23: twice(h23s * h23c),
+            c23: h23c * h23c - h23s * h23s,
+        };
+        let about = |axis: usize, angle: S| {
+            let (s, c) = half_angle(angle).sin_cos();
+            (axis, c, s)
+        };
+        let rot = Quat::new(h1c, S::ZERO, S::ZERO, h1s)
+            .then_about(0, h23c, h23s)
+            .then_about_pair(about(2, j.gimbal[0]))
+            .then_about_pair(about(0, j.gimbal[1]))
+            .then_about_pair(about(1, j.gimbal[2]));
+        // The stylus runs from the wrist along the pen's -z axis: the rotation's third column
+        // (six products; a general rotation of -z takes fifteen).
+        let pos = self.wrist_at(&trig) - rot.z_axis().scale(self.stylus);
+        (Pose::new(pos, rot), trig)
     }
 
     /// Inverse kinematics of the arm: the joint angles that put the wrist at `p` (elbow bent
@@ -317,11 +357,7 @@ impl<S: Scalar> Pen<S> {
     /// [`Self::raw_readings`] it synthesises what a pen's sensors would read at a pose (the
     /// QEMU board's virtual pen, for bring-up tests).
     pub fn inverse(&self, pose: &Pose<S>) -> Result<Joints<S>, KinematicsError> {
-        let wrist = pose.pos
-            + pose
-                .rot
-                .rotate(Vec3::Z)
-                .scale(S::from_f32(self.cfg.stylus_mm));
+        let wrist = pose.pos + pose.rot.rotate(Vec3::Z).scale(self.stylus);
         let arm = self.inverse_wrist(wrist)?;
         let forearm = axis_quat(2, arm[0]).compose(axis_quat(0, arm[1] + arm[2]));
         let g = forearm.conj().compose(pose.rot);
@@ -373,26 +409,35 @@ impl<S: Scalar> Pen<S> {
 
     /// Jacobian of the wrist position (mm per rad), columns = joints.
     pub fn jacobian(&self, q: &[S; 3]) -> [Vec3<S>; 3] {
-        let (s1, c1) = q[0].sin_cos();
-        let (s2, c2) = q[1].sin_cos();
-        let (s23, c23) = (q[1] + q[2]).sin_cos();
-        let r = self.l1 * c2 + self.l2 * c23;
-        let u = Vec3::new(-s1, c1, S::ZERO);
-        let du = Vec3::new(-c1, -s1, S::ZERO);
-        let dr2 = -(self.l1 * s2 + self.l2 * s23);
+        self.jacobian_at(&ArmTrig::of(q))
+    }
+
+    /// [`Self::jacobian`] from the arm's sines and cosines.
+    pub fn jacobian_at(&self, t: &ArmTrig<S>) -> [Vec3<S>; 3] {
+        let (s1, c1) = (t.s1, t.c1);
+        let r = self.l1 * t.c2 + self.l2 * t.c23;
+        let dr2 = -(self.l1 * t.s2 + self.l2 * t.s23);
         let dh2 = r;
-        let dr3 = -(self.l2 * s23);
-        let dh3 = self.l2 * c23;
+        let dr3 = -(self.l2 * t.s23);
+        let dh3 = self.l2 * t.c23;
+        // Joint 1 turns the arm about z: d/dq1 = r (-cos q1, -sin q1, 0). Joints 2 and 3 move
+        // the wrist in the arm's vertical plane, along u = (-sin q1, cos q1, 0) and z. Written
+        // out, without the products with the zero and unit components (the same values).
         [
-            du.scale(r),
-            u.scale(dr2) + Vec3::Z.scale(dh2),
-            u.scale(dr3) + Vec3::Z.scale(dh3),
+            Vec3::new(-c1 * r, -s1 * r, S::ZERO),
+            Vec3::new(-s1 * dr2, c1 * dr2, dh2),
+            Vec3::new(-s1 * dr3, c1 * dr3, dh3),
         ]
     }
 
     /// Joint torques (N m) that produce force `f` (N) at the wrist: `tau = J^T F`.
     pub fn torques(&self, q: &[S; 3], f: Vec3<S>) -> [S; 3] {
-        let j = self.jacobian(q);
+        self.torques_at(&ArmTrig::of(q), f)
+    }
+
+    /// [`Self::torques`] from the arm's sines and cosines ([`Self::forward_with_trig`]).
+    pub fn torques_at(&self, t: &ArmTrig<S>, f: Vec3<S>) -> [S; 3] {
+        let j = self.jacobian_at(t);
         let mm = S::from_f64(1e-3);
         [j[0].dot(f) * mm, j[1].dot(f) * mm, j[2].dot(f) * mm]
     }
@@ -408,10 +453,42 @@ impl<S: Scalar> Pen<S> {
     }
 }
 
+/// Sines and cosines of the arm's joint angles `q1`, `q2` and `q2 + q3`: what the wrist
+/// position ([`Pen::wrist_at`]) and its Jacobian ([`Pen::jacobian_at`]) are made of,
+/// computed once per reading and shared by the pose and the torques of a tick.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct ArmTrig<S> {
+    pub s1: S,
+    pub c1: S,
+    pub s2: S,
+    pub c2: S,
+    pub s23: S,
+    pub c23: S,
+}
+
+impl<S: Scalar> ArmTrig<S> {
+    pub fn of(q: &[S; 3]) -> Self {
+        let (s1, c1) = q[0].sin_cos();
+        let (s2, c2) = q[1].sin_cos();
+        let (s23, c23) = (q[1] + q[2]).sin_cos();
+        ArmTrig {
+            s1,
+            c1,
+            s2,
+            c2,
+            s23,
+            c23,
+        }
+    }
+}
+
+fn half_angle<S: Scalar>(angle: S) -> S {
+    angle.halve()
+}
+
 /// Rotation by `angle` about axis 0 (x), 1 (y) or 2 (z).
 fn axis_quat<S: Scalar>(axis: usize, angle: S) -> Quat<S> {
-    let half = angle * S::from_f64(0.5);
-    let (s, c) = half.sin_cos();
+    let (s, c) = half_angle(angle).sin_cos();
     match axis {
         0 => Quat::new(c, s, S::ZERO, S::ZERO),
         1 => Quat::new(c, S::ZERO, s, S::ZERO),

@@ -619,6 +619,15 @@ pub trait Scalar:
     fn from_usize(v: usize) -> Self {
         Self::from_f64(v as f64)
     }
+    /// A count (encoder counts, ADC codes): the conversion through `f64`, which an
+    /// implementation may do exactly without it.
+    fn from_i64(v: i64) -> Self {
+        Self::from_f64(v as f64)
+    }
+    /// `self * 0.5`, which an implementation may compute without a multiply.
+    fn halve(self) -> Self {
+        self * Self::from_f64(0.5)
+    }
 }
 
 /// The float references: IEEE arithmetic, with `libm` for the functions `core` lacks, so the
@@ -720,6 +729,49 @@ fn recip(b: Fx) -> Fx {
     let y = from_f32_fast(est);
     let two = Fx(FxRaw::from_bits(2 << 32));
     y * (two - b * y)
+}
+
+/// `±2^32 / n` rounded to nearest (the sign of `n`): the Taylor coefficients below.
+const fn inverse_of(n: i64) -> Fx {
+    let m = n.unsigned_abs() as i64;
+    let q = ((1 << 32) + m / 2) / m;
+    Fx::from_bits(if n < 0 { -q } else { q })
+}
+
+/// The Taylor coefficients of sin r / r and cos r in z = r^2, highest first:
+/// `(-1)^k / (2k+1)!` for k = 5..1 and `(-1)^k / (2k)!` for k = 5..1 (the constant terms,
+/// one, are added last). Computed at compile time.
+const SIN_SERIES: [Fx; 5] = [
+    inverse_of(-39_916_800),
+    inverse_of(362_880),
+    inverse_of(-5_040),
+    inverse_of(120),
+    inverse_of(-6),
+];
+const COS_SERIES: [Fx; 5] = [
+    inverse_of(-3_628_800),
+    inverse_of(40_320),
+    inverse_of(-720),
+    inverse_of(24),
+    inverse_of(-2),
+];
+
+/// sin and cos of `r`, |r| <= pi/4 (a little more is harmless), by their Taylor series to
+/// r^11 and r^10 (truncation below 2e-11 and 2e-10 there) in Horner form in `z = r^2`:
+/// `1 + z (c1 + z (c2 + ...))`. Every product is of a partial sum (below one in magnitude)
+/// and `z <= 0.62` or `r`, so each is a coefficient product
+/// ([`Scalar::mul_tested_coef`]): 11 of them and one for `z`. Rounding: each product floors
+/// by under 2^-32, and later products shrink what earlier ones lost; within 1e-9 in all.
+#[inline]
+fn sin_cos_near_zero(r: Fx) -> (Fx, Fx) {
+    // z = r^2 with |r| < 1: r is itself a coefficient.
+    let z = r.mul_tested_coef(r);
+    // The highest coefficient starts the sum (indices into constant arrays: checked by the
+    // compiler).
+    let horner = |top: Fx, rest: &[Fx]| rest.iter().fold(top, |acc, &c| c + acc.mul_tested_coef(z));
+    let sin_over_r = Fx::ONE + horner(SIN_SERIES[0], &SIN_SERIES[1..]).mul_tested_coef(z);
+    let cos = Fx::ONE + horner(COS_SERIES[0], &COS_SERIES[1..]).mul_tested_coef(z);
+    (sin_over_r.mul_tested_coef(r), cos)
 }
 
 /// `x / 2` rounded toward -inf: the same bits as `x * 0.5` (the product `floor(x 2^31 / 2^32)`
@@ -833,6 +885,24 @@ impl Scalar for Fx {
             Fx::MAX
         }
     }
+    /// An arithmetic shift: the same bits as `self * 0.5` ([`half`]).
+    #[inline]
+    fn halve(self) -> Self {
+        half(self)
+    }
+    /// The integer shifted into place: the same value as `from_f64(v as f64)` (exact within
+    /// +-2^31, saturated beyond) without two software `f64` conversions and a multiply (the
+    /// pen's six joint readings are converted every force-loop tick).
+    #[inline]
+    fn from_i64(v: i64) -> Self {
+        if v >= 1 << 31 {
+            Fx::MAX
+        } else if v < -(1 << 31) {
+            Fx::MIN
+        } else {
+            Fx::from_bits(v << 32)
+        }
+    }
     /// `self * c` without the overflow test for `|c| < 1` (see [`mul_coef_bits`]).
     #[inline]
     fn mul_coef(self, c: Self) -> Self {
@@ -941,18 +1011,44 @@ impl Scalar for Fx {
         }
         self.rsqrt()
     }
-    /// CORDIC (the `cordic` crate, 32 rotations: about 1e-9 rad) after reducing the angle to
-    /// [-pi, pi] here, so the crate's own reduction loop runs at most once.
+    /// The angle reduced to [-pi, pi] (the remainder of 2 pi, skipped when already there),
+    /// then to `r` within pi/4 of the nearest multiple of pi/2, and [`sin_cos_near_zero`]
+    /// of `r`, swapped and negated into the quadrant. About 1e-9 from the exact values.
+    ///
+    /// It replaced the `cordic` crate's `sin_cos`, which runs its 32 rotations twice (once
+    /// for the gain) and divides in 64 bits: about 4,300 instructions a call on the
+    /// Cortex-M4, eleven calls in the kinematics of every force-loop tick.
     fn sin_cos(self) -> (Self, Self) {
-        let two_pi = FxRaw::TAU;
-        let mut a = self.0 % two_pi;
-        if a > FxRaw::PI {
-            a -= two_pi;
-        } else if a < -FxRaw::PI {
-            a += two_pi;
+        let (pi, half_pi, quarter_pi) = (FxRaw::PI, FxRaw::FRAC_PI_2, FxRaw::FRAC_PI_4);
+        let mut a = self.0;
+        if a > pi || a < -pi {
+            a %= FxRaw::TAU;
+            if a > pi {
+                a -= FxRaw::TAU;
+            } else if a < -pi {
+                a += FxRaw::TAU;
+            }
         }
-        let (s, c) = cordic::sin_cos(a);
-        (Fx(s), Fx(c))
+        let three_quarters_pi = half_pi + quarter_pi;
+        if a > quarter_pi {
+            if a > three_quarters_pi {
+                let (s, c) = sin_cos_near_zero(Fx(a - pi));
+                (-s, -c)
+            } else {
+                let (s, c) = sin_cos_near_zero(Fx(a - half_pi));
+                (c, -s)
+            }
+        } else if a < -quarter_pi {
+            if a < -three_quarters_pi {
+                let (s, c) = sin_cos_near_zero(Fx(a + pi));
+                (-s, -c)
+            } else {
+                let (s, c) = sin_cos_near_zero(Fx(a + half_pi));
+                (-c, s)
+            }
+        } else {
+            sin_cos_near_zero(Fx(a))
+        }
     }
     /// CORDIC arc tangent of a ratio kept within [-1, 1] (the crate's `atan2` divides `y / x`
     /// unguarded, which can overflow), with the quadrant restored here.
@@ -990,6 +1086,35 @@ mod tests {
     use super::*;
     extern crate std;
     use std::println;
+
+    /// Densely over several turns, at and around the quadrant boundaries where the reduction
+    /// switches, and at angles that need the remainder of 2 pi.
+    #[test]
+    fn fixed_sin_cos_is_within_2e_9() {
+        let q = core::f64::consts::FRAC_PI_4;
+        let boundaries = (-8..=8).flat_map(|k| {
+            let b = <Fx as Scalar>::from_f64(k as f64 * q).to_bits();
+            (-3..=3).map(move |d| b + d)
+        });
+        let sweep = (-200_000..=200_000).map(|k| (k as f64 * 1.37e-4 * 4_294_967_296.0) as i64);
+        let far =
+            [1e3, -1e3, 12345.678, -2e6, 2.1e9, -2.1e9].map(|a: f64| (a * 4_294_967_296.0) as i64);
+        let mut worst: f64 = 0.0;
+        for bits in boundaries.chain(sweep).chain(far) {
+            let x = Fx::from_bits(bits);
+            let (s, c) = x.sin_cos();
+            let a = x.to_f64();
+            // Far out, the remainder of a rounded 2 pi shifts the angle by about a * 2^-35.
+            let slack = (a.abs() / core::f64::consts::TAU).floor() * 2.0f64.powi(-33);
+            let err = (s.to_f64() - a.sin())
+                .abs()
+                .max((c.to_f64() - a.cos()).abs())
+                - slack;
+            assert!(err < 2e-9, "sin_cos({a}) off by {err:e}");
+            worst = worst.max(err);
+        }
+        println!("worst sin_cos error {worst:e}");
+    }
 
     #[test]
     fn fixed_trigonometry_matches_f64() {
@@ -1166,6 +1291,43 @@ mod tests {
             assert_eq!(
                 <Fx as Scalar>::from_usize(v),
                 <Fx as Scalar>::from_f64(v as f64)
+            );
+        }
+    }
+
+    #[test]
+    fn from_i64_is_the_conversion_through_f64() {
+        let edges = [
+            0,
+            1,
+            -1,
+            4096,
+            -70_000,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            -(1 << 31) + 1,
+            -(1 << 31),
+            -(1 << 31) - 1,
+            1 << 53,
+            (1 << 53) + 1,
+            i64::MAX,
+            i64::MIN,
+            i64::MIN + 1,
+        ];
+        let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+        let random = (0..100_000).map(|_| {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            // Mostly within the exact range, some beyond it.
+            (rng as i64) >> (rng % 40)
+        });
+        for v in edges.into_iter().chain(random) {
+            assert_eq!(
+                <Fx as Scalar>::from_i64(v),
+                <Fx as Scalar>::from_f64(v as f64),
+                "{v}"
             );
         }
     }

@@ -10,7 +10,7 @@
 #![no_std]
 
 use maobi_shared::force::{ForceModel, Forces, OutputStage};
-use maobi_shared::kinematics::{Joints, KinematicsError, Pen, RawReadings};
+use maobi_shared::kinematics::{ArmTrig, Joints, KinematicsError, Pen, RawReadings};
 use maobi_shared::{Brush, Fx, Pose, Scalar, Vec3};
 
 /// `Brush::tick`: every substep and the surface update of one 1 ms tick.
@@ -60,18 +60,22 @@ pub fn output_stage_apply(
     out.apply_with_source(wanted, hand_step, source_j)
 }
 
-/// `Pen::joints` and `Pen::forward`: the ferrule's pose from raw readings, with the arm's
-/// joint angles (for the torques of the same tick).
+/// `Pen::joints` and `Pen::forward_with_trig`: the ferrule's pose from raw readings, with
+/// the arm's sines and cosines (for the torques of the same tick).
 #[inline(never)]
-pub fn pen_pose(pen: &Pen<Fx>, raw: &RawReadings) -> Result<(Pose<Fx>, [Fx; 3]), KinematicsError> {
+pub fn pen_pose(
+    pen: &Pen<Fx>,
+    raw: &RawReadings,
+) -> Result<(Pose<Fx>, ArmTrig<Fx>), KinematicsError> {
     let joints: Joints<Fx> = pen.joints(raw)?;
-    Ok((pen.forward(&joints), joints.arm))
+    Ok(pen.forward_with_trig(&joints))
 }
 
-/// `Pen::torques`: joint torques (N m) for force `f` (N) at the wrist, `tau = J^T F`.
+/// `Pen::torques_at`: joint torques (N m) for force `f` (N) at the wrist, `tau = J^T F`,
+/// at the arm angles whose sines and cosines `pen_pose` gave.
 #[inline(never)]
-pub fn pen_torques(pen: &Pen<Fx>, arm: &[Fx; 3], f: Vec3<Fx>) -> [Fx; 3] {
-    pen.torques(arm, f)
+pub fn pen_torques(pen: &Pen<Fx>, arm: &ArmTrig<Fx>, f: Vec3<Fx>) -> [Fx; 3] {
+    pen.torques_at(arm, f)
 }
 
 /// The scalar operations the model is built from (the bench's per-operation figures).

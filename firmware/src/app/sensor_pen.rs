@@ -9,7 +9,7 @@
 //! turns the readings into joint angles and the ferrule's pose ([`Pen::forward`]). The joint angles of that reading map the force on the hand to joint
 //! torques ([`Pen::torques`], `tau = J^T F`) for the same tick.
 
-use maobi_shared::kinematics::{EncoderUnwrap, Pen, RawReadings};
+use maobi_shared::kinematics::{ArmTrig, EncoderUnwrap, Pen, RawReadings};
 use maobi_shared::pen_io::{AdcFilter, DeviceConfig};
 use maobi_shared::protocol::{Buttons, SensorReport};
 use maobi_shared::{Fx, Pose, Scalar, Vec3};
@@ -56,8 +56,8 @@ pub struct SensorPen<J> {
     buttons_now: u8,
     /// The last reading as the board gave it.
     last: JointReading,
-    /// Arm joint angles of the last pose (rad), for the torques.
-    arm: Option<[Fx; 3]>,
+    /// Sines and cosines of the last pose's arm angles, for the torques.
+    arm: Option<ArmTrig<Fx>>,
 }
 
 impl<J: JointSensors> SensorPen<J> {
@@ -73,6 +73,12 @@ impl<J: JointSensors> SensorPen<J> {
             last: JointReading::default(),
             arm: None,
         }
+    }
+
+    /// The board's sensors (the bench scripts their readings).
+    #[allow(dead_code)] // used by the bench, which only the QEMU image has
+    pub fn sensors_mut(&mut self) -> &mut J {
+        &mut self.sensors
     }
 
     /// The last reading as the board gave it.

@@ -119,6 +119,9 @@ struct Derived<S> {
     spread_rate: S,
     spread_tf: S,
     rest_radius: [S; MAX_LAYERS],
+    /// `rest_radius` squared (the same product): the area-preserving short radius
+    /// divides it by the long radius every tick.
+    rest_area: [S; MAX_LAYERS],
     max_radius: [S; MAX_LAYERS],
     /// i / (N - 2) for the skeleton interpolation (eq. 3-3).
     skel_weight: [S; MAX_LAYERS],
@@ -564,12 +567,18 @@ impl<S: Scalar> Brush<S> {
         ) + self.tip_load.scale_coef(tip.c_f);
         p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
-        let mut du = [S::ZERO; FLAT];
-        if d.exact_solve {
-            self.solve_exact(&p, du0, &mut du);
+        // The exact solve turns p into du in place; Jacobi sweeps need a second array. (A
+        // zeroed array is about 300 instructions of clearing on the Cortex-M4, and the force
+        // loop's one-substep tick runs the exact solve.)
+        let mut du_jacobi;
+        let du = if d.exact_solve {
+            self.solve_exact(&mut p, du0);
+            &p
         } else {
-            jacobi(&p, inner.c_j, tip.c_j, n, d.iterations, &mut du);
-        }
+            du_jacobi = [S::ZERO; FLAT];
+            jacobi(&p, inner.c_j, tip.c_j, n, d.iterations, &mut du_jacobi);
+            &du_jacobi
+        };
 
         // Integrate, paper drag, projection (Fig. 4-5), all per mass.
         let drag_loss = self.d.drag_loss;
@@ -653,31 +662,34 @@ impl<S: Scalar> Brush<S> {
     }
 
     /// Solves eq. 2.30's tridiagonal system `du_i - c_j,i (du_{i-1} + du_{i+1}) = p_i` exactly
-    /// (Thomas algorithm; the ferrule's du_0 is known). The pivots depend only on which masses
-    /// lie on the paper... and since the tie is weighted on the right-hand side, not at all:
-    /// they are computed once per parameter change.
-    fn solve_exact(&self, p: &[S; FLAT], du0: Vec3<S>, out: &mut [S; FLAT]) {
+    /// (Thomas algorithm; the ferrule's du_0 is known), in place: `p` (flattened, entries
+    /// 1..n) becomes `du`. The pivots depend only on which masses lie on the paper... and
+    /// since the tie is weighted on the right-hand side, not at all: they are computed once
+    /// per parameter change.
+    fn solve_exact(&self, p: &mut [S; FLAT], du0: Vec3<S>) {
         let n = self.d.n;
         // The pivots: set by `prepare_pivots` with the parameters (the rows do not depend on
         // contact: the tie is weighted in the right-hand side).
         let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
-        let mut d = [Vec3::<S>::ZERO; MAX_LAYERS];
-        let mut prev = Vec3::ZERO;
-        for i in 1..n {
-            let mut rhs = Vec3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
+        let get = |e: &[S]| Vec3::new(e[0], e[1], e[2]);
+        let mut prev = Vec3::<S>::ZERO;
+        for (i, e) in (1..n).zip(p[3..].chunks_exact_mut(3)) {
+            let mut rhs = get(e);
             if i == 1 {
                 rhs += du0.scale_coef(c_j(1));
             }
             // d'_i = (d_i - a_i d'_{i-1}) / m_i with a_i = -c_j,i.
             prev = (rhs + prev.scale_coef(c_j(i))).scale(self.inv_pivot[i]);
-            d[i] = prev;
+            e.copy_from_slice(&[prev.x, prev.y, prev.z]);
         }
-        // Back substitution in place: d[i + 1] is already du_{i+1} when d[i] becomes du_i.
-        for i in (1..n - 1).rev() {
-            d[i] += d[i + 1].scale_coef(self.cprime[i]);
-        }
-        for (f, v) in out.chunks_exact_mut(3).zip(&d[..n]) {
-            f.copy_from_slice(&[v.x, v.y, v.z]);
+        // Back substitution: `next` is already du_{i+1} when entry i becomes du_i.
+        let mut next = prev;
+        for (i, e) in (1..n - 1)
+            .rev()
+            .zip(p[3..3 * (n - 1)].chunks_exact_mut(3).rev())
+        {
+            next = get(e) + next.scale_coef(self.cprime[i]);
+            e.copy_from_slice(&[next.x, next.y, next.z]);
         }
     }
 
@@ -823,7 +835,12 @@ impl<S: Scalar> Brush<S> {
         // Steps 2-3: long axes from the cross product, both normalised; Step 4: bends.
         // A segment shorter than `tiny` has no direction (`Vec3::normalized_or_none`'s test).
         let min_len2 = self.d.tiny * self.d.tiny;
-        let mut seg = [Vec3::<S>::ZERO; MAX_LAYERS];
+        // Each layer's tilt (step 5) is 1 - cos of the angle between its segment and the
+        // next: summed here as each segment follows the last, so no array of segments (a
+        // zeroed array is about 300 instructions on the Cortex-M4, in every tick).
+        let mut tilt = [S::ZERO; MAX_LAYERS];
+        let mut tilt_sum = S::ZERO;
+        let mut prev_dir = Vec3::<S>::ZERO;
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
             // Kept for the next substep's springs too (as `measure_segments` does, inline
@@ -831,15 +848,20 @@ impl<S: Scalar> Brush<S> {
             let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
-            seg[i] = if len2 > min_len2 {
+            let dir = if len2 > min_len2 {
                 v.normalized_by(len2, r)
             } else {
                 down
             };
+            if i >= 2 {
+                tilt[i - 1] = S::ONE - dir.dot_coef(prev_dir);
+                tilt_sum += tilt[i - 1];
+            }
+            prev_dir = dir;
             let layer = &mut self.layers[i];
             let sa = layer.short_axis;
             // Unit vectors: coefficient products (the same values), here and below.
-            let la = sa.cross_coef(seg[i]);
+            let la = sa.cross_coef(dir);
             // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined; keep the old
             // long axis, made perpendicular to the segment, and rebuild the short one.
             let min_cross = self.d.tiny;
@@ -848,25 +870,19 @@ impl<S: Scalar> Brush<S> {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
-                    layer.short_axis = seg[i].cross_coef(la);
+                    layer.short_axis = dir.cross_coef(la);
                 }
                 None => {
                     let old = layer.long_axis;
-                    let la = old - seg[i].scale(old.dot(seg[i]));
+                    let la = old - dir.scale(old.dot(dir));
                     if let Some(la) = la.normalized_or_none(self.d.tiny) {
                         layer.long_axis = la;
-                        if let Some(sa) = seg[i].cross(la).normalized_or_none(self.d.tiny) {
+                        if let Some(sa) = dir.cross(la).normalized_or_none(self.d.tiny) {
                             layer.short_axis = sa;
                         }
                     }
                 }
             }
-        }
-        let mut tilt = [S::ZERO; MAX_LAYERS];
-        let mut tilt_sum = S::ZERO;
-        for i in 1..n - 1 {
-            tilt[i] = S::ONE - seg[i + 1].dot_coef(seg[i]);
-            tilt_sum += tilt[i];
         }
         tilt[n - 1] = tilt[n - 2];
         self.segments_cached = true;
@@ -897,7 +913,7 @@ impl<S: Scalar> Brush<S> {
             let rl = (goal.mul_coef(rate) + rl.mul_coef(S::ONE - rate))
                 .clamp(rest, self.d.max_radius[i]);
             layer.long_radius = rl;
-            layer.short_radius = (rest * rest).div(rl);
+            layer.short_radius = self.d.rest_area[i].div(rl);
         }
     }
 }
@@ -1145,12 +1161,14 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         }
     };
     let mut rest_radius = [S::ZERO; MAX_LAYERS];
+    let mut rest_area = [S::ZERO; MAX_LAYERS];
     let mut max_radius = [S::ZERO; MAX_LAYERS];
     let mut skel_weight = [S::ZERO; MAX_LAYERS];
     let mut layer_frac = [S::ZERO; MAX_LAYERS];
     for i in 0..n {
         let r = p.rest_radius_mm(i);
         rest_radius[i] = S::from_f64(r);
+        rest_area[i] = rest_radius[i] * rest_radius[i];
         max_radius[i] = S::from_f64(r * p.spread_max as f64);
         skel_weight[i] = S::from_f64(if n > 2 {
             i as f64 / (n as f64 - 2.0)
@@ -1183,6 +1201,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         spread_rate: S::from_f64(per_substep_rate(p.spread_rate as f64, TICK_HZ as f64)),
         spread_tf: S::from_f64(p.spread_tf as f64),
         rest_radius,
+        rest_area,
         max_radius,
         skel_weight,
         layer_frac,

@@ -3,7 +3,7 @@
 //! The firmware (boot mode `bench SHIFT`) reads the 25 MHz dual-timer count around each
 //! force-loop tick with interrupts masked and prints `BENCH` lines of raw counts. Under
 //! `-icount shift=N` a count is exactly 40 / 2^N instructions (the firmware's calibration
-//! line checks it with 1000 NOPs), so the default shift 3 resolves 5 instructions.
+//! line checks it with a block of NOPs), so the default shift 3 resolves 5 instructions.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -32,6 +32,8 @@ pub struct Report {
     pub ticks: Vec<TickCost>,
     pub substep: u64,
     pub end_tick: u64,
+    /// The pen's kinematics in a tick (mean instructions): pose from the readings, torques.
+    pub kinematics: Option<(u64, u64)>,
     /// The preset's substeps with guided writing on every tick (a guide sample per tick).
     pub guided: Option<TickCost>,
     /// `GuideStream::tick` alone, mean and max (instructions).
@@ -78,6 +80,7 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         ticks: vec![],
         substep: 0,
         end_tick: 0,
+        kinematics: None,
         guided: None,
         guide_alone: (0, 0),
         unguided: (0, 0),
@@ -92,6 +95,16 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         };
         let m = fields(rest);
         if rest.starts_with("tick ") {
+            // Images before the kinematics were timed do not report it.
+            let unreachable = m
+                .get("unreachable")
+                .map_or(Ok(0), |_| num(&m, "unreachable"))?;
+            if unreachable > 0 {
+                bail!(
+                    "the bench stroke left the reference linkage's reach on {unreachable} ticks \
+                     (their kinematics were not timed):\n{line}"
+                );
+            }
             r.ticks.push(TickCost {
                 substeps: num(&m, "substeps")?,
                 min: to_instr(num(&m, "min_counts")?),
@@ -116,6 +129,14 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         } else if rest.starts_with("parts ") {
             r.substep = to_instr(num(&m, "substep_mean_counts")?);
             r.end_tick = to_instr(num(&m, "end_tick_mean_counts")?);
+        } else if rest.starts_with("kinematics ") {
+            if num(&m, "poses")? == 0 {
+                bail!("the bench timed no pen pose (the stroke is out of the linkage's reach):\n{line}");
+            }
+            r.kinematics = Some((
+                to_instr(num(&m, "pose_mean_counts")?),
+                to_instr(num(&m, "torques_mean_counts")?),
+            ));
         } else if let Some(name) = m.get("op") {
             r.ops.insert(
                 name.to_string(),
@@ -123,13 +144,14 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
             );
         } else if m.contains_key("overhead_counts") {
             overhead = num(&m, "overhead_counts")?;
-        } else if m.contains_key("calib_1000_nops_counts") {
+        } else if m.contains_key("calib_nops") {
+            let nops = num(&m, "calib_nops")?;
             // Like the ticks, less the cost of reading the counter twice.
-            let got = to_instr(num(&m, "calib_1000_nops_counts")?.saturating_sub(overhead));
+            let got = to_instr(num(&m, "calib_counts")?.saturating_sub(overhead));
             // One count of resolution (40 / 2^shift instructions).
-            if got.abs_diff(1000) > 40 >> shift {
+            if got.abs_diff(nops) > 40 >> shift {
                 bail!(
-                    "calibration failed: 1000 NOPs measured as {got} instructions (shift {shift})"
+                    "calibration failed: {nops} NOPs measured as {got} instructions (shift {shift})"
                 );
             }
             calibrated = true;
@@ -201,6 +223,12 @@ pub fn render(r: &Report) -> String {
         "one substep: {} instructions; once-per-tick surface update (end_tick): {}",
         r.substep, r.end_tick
     );
+    if let Some((pose, torques)) = r.kinematics {
+        let _ = writeln!(
+            s,
+            "pen kinematics in every tick: pose from the sensor readings {pose}, joint torques {torques}"
+        );
+    }
     let ops: Vec<String> = r.ops.iter().map(|(k, v)| format!("{k} {v:.0}")).collect();
     let _ = writeln!(
         s,

@@ -14,8 +14,11 @@ use core::fmt::Write;
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
+use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
+
+use super::sensor_pen::SensorPen;
 use super::{CmdQueue, ForceLoop};
-use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
+use crate::board::{CycleCounter, JointReading, JointSensors, Motors, PoseSource, Watchdog};
 
 /// Ticks of the scripted stroke.
 pub const STROKE_TICKS: u32 = 600;
@@ -42,25 +45,89 @@ pub fn stroke_pose(k: u32) -> Pose<Fx> {
     )
 }
 
+/// The bench's pen: the scripted stroke read through a physical pen's sensor path. Before
+/// each timed tick, [`ScriptPen::feed`] turns the stroke's pose into the readings the
+/// reference linkage ([`PenConfig::OMNI_LIKE`]) would give (inverse kinematics, untimed);
+/// the tick then runs what the Black Pill runs on its sensors ([`SensorPen`]: encoder
+/// unwrap, ADC filter, buttons, forward kinematics, and `J^T F` for the torques).
 struct ScriptPen {
-    next: Option<Pose<Fx>>,
+    sensed: SensorPen<ScriptedSensors>,
+    /// The same linkage and calibration, for the inverse kinematics.
+    synth: Pen<Fx>,
     guide: Option<GuideInput<Fx>>,
+    /// Stroke poses the reference linkage could not reach (their ticks reuse the last
+    /// reading); reported, and zero for the bench stroke.
+    unreachable: u32,
+}
+
+/// The reference linkage at rest in its inkwell: mid-range encoder counts, so that the
+/// 16-bit counters the unwrap extends start on the right turn, and mid-scale ADC codes.
+const INKWELL: RawReadings = RawReadings {
+    encoders: [1 << 15; 3],
+    gimbal: [2048; 3],
+};
+
+impl ScriptPen {
+    fn new() -> Option<Self> {
+        let mut synth = Pen::new(PenConfig::OMNI_LIKE).ok()?;
+        synth.calibrate(INKWELL);
+        Some(ScriptPen {
+            sensed: SensorPen::new(ScriptedSensors::default(), Some(synth.clone())),
+            synth,
+            guide: None,
+            unreachable: 0,
+        })
+    }
+
+    /// The sensors read `pose` on the next tick.
+    fn feed(&mut self, pose: &Pose<Fx>) {
+        let raw = self
+            .synth
+            .inverse(pose)
+            .and_then(|joints| self.synth.raw_readings(&joints));
+        match raw {
+            Ok(raw) => {
+                self.sensed.sensors_mut().0 = JointReading {
+                    // The counters' low 16 bits, as a board reads them.
+                    encoders: raw.encoders.map(|e| i32::from(e as u16)),
+                    gimbal: raw.gimbal,
+                    buttons: 0,
+                }
+            }
+            Err(_) => self.unreachable += 1,
+        }
+    }
+
+    /// A new stroke: the unwrap and the filters start afresh from the next reading.
+    fn restart(&mut self) {
+        self.sensed = SensorPen::new(ScriptedSensors::default(), Some(self.synth.clone()));
+    }
 }
 
 impl PoseSource for ScriptPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
-        self.next.take()
+        self.sensed.next_pose()
     }
     fn take_guide(&mut self) -> Option<GuideInput<Fx>> {
         self.guide.take()
     }
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
-        f
+        self.sensed.torques_for(f)
     }
-    // The bench measures the force loop, not bring-up: no configuration, no sensors.
+    // The bench measures the force loop, not bring-up: no configuration, no sensor reports.
     fn configure(&mut self, _cfg: &maobi_shared::pen_io::DeviceConfig) {}
     fn raw_sensors(&mut self, _tick: u32) -> Option<maobi_shared::protocol::SensorReport> {
         None
+    }
+}
+
+/// Sensors that read what [`ScriptPen::feed`] put there.
+#[derive(Default)]
+struct ScriptedSensors(JointReading);
+
+impl JointSensors for ScriptedSensors {
+    fn read(&mut self) -> JointReading {
+        self.0
     }
 }
 
@@ -120,7 +187,12 @@ fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
     maobi_fast::brush_reset(&mut fl.brush, stroke_pose(0));
     fl.forces.reset();
     fl.last_pose = None;
+    fl.pen.restart();
     super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
+    // A configuration that allows forces (the link sets this from the stored one): without
+    // it the force loop holds the motors off every tick and the output stage and the
+    // torques would not be counted.
+    super::CONFIG_OK.store(true, core::sync::atomic::Ordering::SeqCst);
     super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
 }
 
@@ -144,16 +216,12 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         let _ = writeln!(out, "BENCH error=invalid_preset");
         return;
     };
-    let Some(mut fl) = ForceLoop::new(
-        brush,
-        ScriptPen {
-            next: None,
-            guide: None,
-        },
-        NullMotors([Fx::ZERO; 3]),
-        NullWatchdog,
-        rx,
-    ) else {
+    let Some(pen) = ScriptPen::new() else {
+        let _ = writeln!(out, "BENCH error=invalid_pen_config");
+        return;
+    };
+    let Some(mut fl) = ForceLoop::new(brush, pen, NullMotors([Fx::ZERO; 3]), NullWatchdog, rx)
+    else {
         let _ = writeln!(out, "BENCH error=invalid_force_model");
         return;
     };
@@ -171,7 +239,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         let mut st = Stats::default();
         let mut contact_max = 0;
         for k in 1..=STROKE_TICKS {
-            fl.pen.next = Some(stroke_pose(k));
+            fl.pen.feed(&stroke_pose(k));
             let a = clk.now();
             fl.tick();
             let b = clk.now();
@@ -180,7 +248,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         }
         let _ = writeln!(
             out,
-            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={}",
+            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={}",
             fl.brush.len(),
             st.n,
             st.min,
@@ -188,6 +256,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
             st.max,
             st.max_at,
             fl.brush.solves_exactly() as u8,
+            fl.pen.unreachable,
         );
     }
 
@@ -206,7 +275,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     for guided in [false, true] {
         restart(&mut fl);
         for k in 1..=STROKE_TICKS {
-            fl.pen.next = Some(stroke_pose(k));
+            fl.pen.feed(&stroke_pose(k));
             fl.pen.guide = guided.then(|| GuideInput {
                 anchor: stroke_pose(k + 2).pos + side,
                 on: true,
@@ -280,6 +349,40 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         end.max,
         fl.brush.contacts(),
     );
+    // The pen's kinematics, as a tick on a physical pen runs them: the pose from the sensors'
+    // readings (`Pen::joints`, `Pen::forward`) and the torques for a force (`J^T F`), over
+    // the drag.
+    let mut pose_cost = Stats::default();
+    let mut torque_cost = Stats::default();
+    let f = Vec3::from_f64([0.3, -0.2, 1.5]);
+    for k in 200..300 {
+        let pen = &fl.pen.synth;
+        let Ok(raw) = pen
+            .inverse(&stroke_pose(k))
+            .and_then(|joints| pen.raw_readings(&joints))
+        else {
+            continue;
+        };
+        let a = clk.now();
+        let pose = maobi_fast::pen_pose(pen, core::hint::black_box(&raw));
+        let b = clk.now();
+        if let Ok((_, arm)) = pose {
+            let t = maobi_fast::pen_torques(pen, &arm, core::hint::black_box(f));
+            let c = clk.now();
+            core::hint::black_box(t);
+            pose_cost.add(k, b.wrapping_sub(a).saturating_sub(overhead));
+            torque_cost.add(k, c.wrapping_sub(b).saturating_sub(overhead));
+        }
+    }
+    let _ = writeln!(
+        out,
+        "BENCH kinematics poses={} pose_mean_counts={} pose_max_counts={} torques_mean_counts={} torques_max_counts={}",
+        pose_cost.n,
+        pose_cost.mean(),
+        pose_cost.max,
+        torque_cost.mean(),
+        torque_cost.max,
+    );
     // The scalar operations the model is built from: 100 calls each, counts per 100.
     let x = core::hint::black_box(Fx::from_bits(0x0000_0012_3456_789A)); // about 18.2
     let y = core::hint::black_box(Fx::from_bits(0x0000_0003_0000_0001)); // about 3.0
@@ -299,19 +402,28 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         core::hint::black_box(acc);
         let _ = writeln!(out, "BENCH op={name} counts_per_100={}", b.wrapping_sub(a));
     }
-    // Calibration: 1000 NOPs and the call around them (25 counts at -icount shift=0).
+    // Calibration: CALIBRATION_NOPS NOPs and the call around them (10 counts at -icount
+    // shift=0).
     let a = clk.now();
-    a_thousand_nops();
+    calibration_nops();
     let b = clk.now();
-    let _ = writeln!(out, "BENCH calib_1000_nops_counts={}", b.wrapping_sub(a));
+    let _ = writeln!(
+        out,
+        "BENCH calib_nops={CALIBRATION_NOPS} calib_counts={}",
+        b.wrapping_sub(a)
+    );
     let _ = writeln!(out, "BENCH unit={}", C::UNIT);
 }
 
-/// Exactly 1000 NOPs, plus the call and the return (2 KB of flash). Out of line: inside `run`
-/// a block this long puts its literal pools out of reach of their loads when built for size
-/// ("out of range pc-relative fixup value").
+/// NOPs in [`calibration_nops`]: enough that the counter's resolution (5 instructions at
+/// the default shift) is a small part, few enough to cost little flash (2 bytes each).
+const CALIBRATION_NOPS: u32 = 400;
+
+/// Exactly [`CALIBRATION_NOPS`] NOPs, plus the call and the return. Out of line: inside
+/// `run` a block this long puts its literal pools out of reach of their loads when built for
+/// size ("out of range pc-relative fixup value").
 #[inline(never)]
-fn a_thousand_nops() {
+fn calibration_nops() {
     // SAFETY: only NOPs.
-    unsafe { core::arch::asm!(".rept 1000", "nop", ".endr", options(nomem, nostack)) };
+    unsafe { core::arch::asm!(".rept 400", "nop", ".endr", options(nomem, nostack)) };
 }

@@ -105,6 +105,17 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
                      (their kinematics were not timed):\n{line}"
                 );
             }
+            let ticks = num(&m, "ticks")?;
+            let forces_on = m
+                .get("forces_on")
+                .map_or(Ok(ticks), |_| num(&m, "forces_on"))?;
+            if forces_on < ticks {
+                bail!(
+                    "the forces were off on {} of {ticks} bench ticks (a fault switched them \
+                     off), so the output stage and the torques went uncounted:\n{line}",
+                    ticks - forces_on
+                );
+            }
             r.ticks.push(TickCost {
                 substeps: num(&m, "substeps")?,
                 min: to_instr(num(&m, "min_counts")?),

@@ -238,6 +238,9 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         restart(&mut fl);
         let mut st = Stats::default();
         let mut contact_max = 0;
+        // Ticks that drove the motors: all of them, unless a fault (a sensor jump) switched
+        // the forces off and the rest of the run went uncounted.
+        let mut forces_on = 0u32;
         for k in 1..=STROKE_TICKS {
             fl.pen.feed(&stroke_pose(k));
             let a = clk.now();
@@ -245,10 +248,11 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
             let b = clk.now();
             st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
             contact_max = contact_max.max(fl.brush.contacts());
+            forces_on += u32::from(fl.enabled);
         }
         let _ = writeln!(
             out,
-            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={}",
+            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={} forces_on={forces_on}",
             fl.brush.len(),
             st.n,
             st.min,

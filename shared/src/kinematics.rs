@@ -311,15 +311,14 @@ impl<S: Scalar> Pen<S> {
             s23: twice(h23s * h23c),
             c23: h23c * h23c - h23s * h23s,
         };
-        let about = |axis: usize, angle: S| {
+        let about = |q: Quat<S>, axis: usize, angle: S| {
             let (s, c) = half_angle(angle).sin_cos();
-            (axis, c, s)
+            q.then_about(axis, c, s)
         };
-        let rot = Quat::new(h1c, S::ZERO, S::ZERO, h1s)
-            .then_about(0, h23c, h23s)
-            .then_about_pair(about(2, j.gimbal[0]))
-            .then_about_pair(about(0, j.gimbal[1]))
-            .then_about_pair(about(1, j.gimbal[2]));
+        let rot = Quat::new(h1c, S::ZERO, S::ZERO, h1s).then_about(0, h23c, h23s);
+        let rot = about(rot, 2, j.gimbal[0]);
+        let rot = about(rot, 0, j.gimbal[1]);
+        let rot = about(rot, 1, j.gimbal[2]);
         // The stylus runs from the wrist along the pen's -z axis: the rotation's third column
         // (six products; a general rotation of -z takes fifteen).
         let pos = self.wrist_at(&trig) - rot.z_axis().scale(self.stylus);

@@ -98,10 +98,6 @@ impl<S: Scalar> Quat<S> {
             _ => Quat::new(w * c - z * s, x * c + y * s, y * c - x * s, w * s + z * c),
         }
     }
-    /// [`Self::then_about`] with `(axis, c, s)` as one value.
-    pub fn then_about_pair(self, (axis, c, s): (usize, S, S)) -> Self {
-        self.then_about(axis, c, s)
-    }
     /// Scales to unit length; the identity for a zero quaternion.
     pub fn normalized(self) -> Self {
         let n2 = self.norm2();

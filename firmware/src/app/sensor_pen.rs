@@ -6,8 +6,9 @@
 //! ([`AdcFilter`]: median of three, then a 21 Hz low-pass), debounces the buttons, keeps the
 //! reading for bring-up ([`SensorPen::raw_sensors`], which the force loop hands the link
 //! through [`super::SENSORS`] when asked), and, once the pen has a valid configuration,
-//! turns the readings into joint angles and the ferrule's pose ([`Pen::forward`]). The joint angles of that reading map the force on the hand to joint
-//! torques ([`Pen::torques`], `tau = J^T F`) for the same tick.
+//! turns the readings into joint angles and the ferrule's pose ([`Pen::forward_with_trig`]).
+//! The sines and cosines of that reading's arm angles map the force on the hand to joint
+//! torques ([`Pen::torques_at`], `tau = J^T F`) for the same tick.
 
 use maobi_shared::kinematics::{ArmTrig, EncoderUnwrap, Pen, RawReadings};
 use maobi_shared::pen_io::{AdcFilter, DeviceConfig};
@@ -57,7 +58,7 @@ pub struct SensorPen<J> {
     /// The last reading as the board gave it.
     last: JointReading,
     /// Sines and cosines of the last pose's arm angles, for the torques.
-    arm: Option<ArmTrig<Fx>>,
+    arm_trig: Option<ArmTrig<Fx>>,
 }
 
 impl<J: JointSensors> SensorPen<J> {
@@ -71,7 +72,7 @@ impl<J: JointSensors> SensorPen<J> {
             raw: RawReadings::default(),
             buttons_now: 0,
             last: JointReading::default(),
-            arm: None,
+            arm_trig: None,
         }
     }
 
@@ -105,18 +106,18 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
         let pen = self.pen.as_ref()?;
         match maobi_fast::pen_pose(pen, &self.raw) {
             Ok((pose, arm)) => {
-                self.arm = Some(arm);
+                self.arm_trig = Some(arm);
                 Some(pose)
             }
             Err(_) => {
-                self.arm = None;
+                self.arm_trig = None;
                 None
             }
         }
     }
 
     fn torques_for(&self, f: [Fx; 3]) -> [Fx; 3] {
-        match (&self.pen, &self.arm) {
+        match (&self.pen, &self.arm_trig) {
             (Some(pen), Some(q)) => maobi_fast::pen_torques(pen, q, Vec3::new(f[0], f[1], f[2])),
             _ => [Fx::ZERO; 3],
         }
@@ -131,7 +132,7 @@ impl<J: JointSensors> PoseSource for SensorPen<J> {
             }
             pen
         });
-        self.arm = None;
+        self.arm_trig = None;
     }
 
     /// This tick's reading (read by `next_pose` just before): real sensors, never

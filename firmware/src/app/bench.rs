@@ -14,7 +14,7 @@ use core::fmt::Write;
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
-use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
+use maobi_shared::kinematics::{KinematicsError, Pen, PenConfig, RawReadings};
 
 use super::sensor_pen::SensorPen;
 use super::{CmdQueue, ForceLoop};
@@ -72,20 +72,22 @@ impl ScriptPen {
         let mut synth = Pen::new(PenConfig::OMNI_LIKE).ok()?;
         synth.calibrate(INKWELL);
         Some(ScriptPen {
-            sensed: SensorPen::new(ScriptedSensors::default(), Some(synth.clone())),
+            sensed: fresh_sensors(&synth),
             synth,
             guide: None,
             unreachable: 0,
         })
     }
 
+    /// What the linkage's sensors read with the ferrule at `pose` (inverse kinematics).
+    fn readings_at(&self, pose: &Pose<Fx>) -> Result<RawReadings, KinematicsError> {
+        let joints = self.synth.inverse(pose)?;
+        self.synth.raw_readings(&joints)
+    }
+
     /// The sensors read `pose` on the next tick.
     fn feed(&mut self, pose: &Pose<Fx>) {
-        let raw = self
-            .synth
-            .inverse(pose)
-            .and_then(|joints| self.synth.raw_readings(&joints));
-        match raw {
+        match self.readings_at(pose) {
             Ok(raw) => {
                 self.sensed.sensors_mut().0 = JointReading {
                     // The counters' low 16 bits, as a board reads them.
@@ -100,7 +102,7 @@ impl ScriptPen {
 
     /// A new stroke: the unwrap and the filters start afresh from the next reading.
     fn restart(&mut self) {
-        self.sensed = SensorPen::new(ScriptedSensors::default(), Some(self.synth.clone()));
+        self.sensed = fresh_sensors(&self.synth);
     }
 }
 
@@ -119,6 +121,11 @@ impl PoseSource for ScriptPen {
     fn raw_sensors(&mut self, _tick: u32) -> Option<maobi_shared::protocol::SensorReport> {
         None
     }
+}
+
+/// The sensor path of a board whose linkage is `pen`, before its first reading.
+fn fresh_sensors(pen: &Pen<Fx>) -> SensorPen<ScriptedSensors> {
+    SensorPen::new(ScriptedSensors::default(), Some(pen.clone()))
 }
 
 /// Sensors that read what [`ScriptPen::feed`] put there.
@@ -360,13 +367,10 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     let mut torque_cost = Stats::default();
     let f = Vec3::from_f64([0.3, -0.2, 1.5]);
     for k in 200..300 {
-        let pen = &fl.pen.synth;
-        let Ok(raw) = pen
-            .inverse(&stroke_pose(k))
-            .and_then(|joints| pen.raw_readings(&joints))
-        else {
+        let Ok(raw) = fl.pen.readings_at(&stroke_pose(k)) else {
             continue;
         };
+        let pen = &fl.pen.synth;
         let a = clk.now();
         let pose = maobi_fast::pen_pose(pen, core::hint::black_box(&raw));
         let b = clk.now();

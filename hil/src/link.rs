@@ -535,7 +535,7 @@ pub fn mirror_force_loop(
                 pose: k,
                 force_n: vec3_bits(total + f.force),
                 stored_j,
-                sourced_j: f.source_j,
+                sourced_j: f.source_mj.to_f64() * 1e-3,
                 guide_distance_mm: f.distance_mm.to_f64(),
                 guide_gain: g.guide().gain().to_f64(),
             },

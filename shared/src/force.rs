@@ -48,7 +48,9 @@
 //!
 //! [`OutputStage::apply`] turns the model's force into the command: passivity controller (the
 //! observer of Hannaford & Ryu 2002: the energy the device has put into the hand, and a damping
-//! force that takes back any surplus the next tick), ramp-in after enabling, clamp to the peak
+//! force that takes back any surplus the next tick; the energy is kept in mJ in the model's
+//! scalar, so the 1 kHz loop does no double-precision arithmetic, which the Cortex-M4F has
+//! only as library calls), ramp-in after enabling, clamp to the peak
 //! force and, when the thermal average says so, to the continuous force, a limit on the step
 //! between ticks, and on a fault a ramp-out that bypasses the step limit and reaches zero within
 //! the ramp-out time.
@@ -470,9 +472,14 @@ pub struct OutputStage<S> {
     gain: S,
     last: Vec3<S>,
     thermal: S,
-    /// Energy the device has absorbed from the hand so far (J); negative means it has put
-    /// energy in.
-    absorbed: f64,
+    /// Energy the device has absorbed from the hand so far (mJ, N mm); negative means it has
+    /// put energy in. The resolution of [`crate::Fx`] (2^-32 mJ) makes each tick's rounding
+    /// about 2e-13 J: a day at 1 kHz sums below 2e-5 J, and the range (2^31 mJ, 2 MJ) far
+    /// exceeds anything a pen absorbs.
+    absorbed_mj: S,
+    /// The passivity damper's largest coefficient (N s/m, i.e. N per mm/tick): the one that
+    /// reaches the peak force at 1 mm/s.
+    damper_max: S,
     passivity_control: bool,
 }
 
@@ -499,7 +506,8 @@ impl<S: Scalar> OutputStage<S> {
             gain: S::ZERO,
             last: Vec3::ZERO,
             thermal: S::ZERO,
-            absorbed: 0.0,
+            absorbed_mj: S::ZERO,
+            damper_max: S::from_f64(limits.peak_n as f64 / 1e-3),
             passivity_control: true,
         })
     }
@@ -531,7 +539,7 @@ impl<S: Scalar> OutputStage<S> {
     }
     /// Energy the device has absorbed from the hand (J; negative: it has given energy).
     pub fn absorbed_energy(&self) -> f64 {
-        self.absorbed
+        self.absorbed_mj.to_f64() * 1e-3
     }
     pub fn last_command(&self) -> Vec3<S> {
         self.last
@@ -552,22 +560,22 @@ impl<S: Scalar> OutputStage<S> {
     /// The command for this tick. `hand_step` is the hand's displacement since the last tick
     /// (mm, i.e. its velocity in m/s), over which the last command was applied.
     pub fn apply(&mut self, wanted: Vec3<S>, hand_step: Vec3<S>) -> Vec3<S> {
-        self.apply_with_source(wanted, hand_step, 0.0)
+        self.apply_with_source(wanted, hand_step, S::ZERO)
     }
 
     /// As [`OutputStage::apply`], for a force that includes an intended source of energy:
-    /// `source_j`, what a guide's moving point supplied this tick
-    /// ([`crate::guide::GuideForce::source_j`]), is credited to the passivity observer so
+    /// `source_mj`, what a guide's moving point supplied this tick (mJ,
+    /// [`crate::guide::GuideForce::source_mj`]), is credited to the passivity observer so
     /// the controller does not take back energy that was meant to lead the hand.
     pub fn apply_with_source(
         &mut self,
         wanted: Vec3<S>,
         hand_step: Vec3<S>,
-        source_j: f64,
+        source_mj: S,
     ) -> Vec3<S> {
-        // Passivity observer: the work the last command did on the hand.
-        let work = self.last.dot(hand_step).to_f64() * 1e-3;
-        self.absorbed += source_j - work;
+        // Passivity observer: the work the last command did on the hand (N x mm = mJ).
+        let work_mj = self.last.dot(hand_step);
+        self.absorbed_mj += source_mj - work_mj;
 
         let holding = self.fault || !self.enabled;
         if holding {
@@ -586,11 +594,19 @@ impl<S: Scalar> OutputStage<S> {
         let mut target = wanted;
         // Passivity controller: if the device has put net energy into the hand, add a damper
         // that takes it back over this tick: F = -a v with a |v|^2 T = surplus.
-        if self.passivity_control && self.absorbed < 0.0 {
-            let v2 = hand_step.norm2().to_f64();
-            if v2 > 1e-12 {
-                let a = (-self.absorbed / (v2 * TICK_S)).min(self.limits.peak_n as f64 / 1e-3);
-                target -= hand_step.scale(S::from_f64(a));
+        // With v in mm per tick (m/s) and T = 1 ms, a = surplus_J / (|v|^2 T) is the surplus
+        // in mJ over |v|^2, at most `damper_max` (the test keeps the quotient in range when
+        // |v| is tiny).
+        if self.passivity_control && self.absorbed_mj < S::ZERO {
+            let v2 = hand_step.norm2();
+            if v2 > S::ZERO {
+                let surplus_mj = -self.absorbed_mj;
+                let a = if surplus_mj < self.damper_max * v2 {
+                    surplus_mj.div(v2)
+                } else {
+                    self.damper_max
+                };
+                target -= hand_step.scale(a);
             }
         }
         target = target.scale(self.gain);

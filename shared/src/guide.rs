@@ -17,8 +17,10 @@
 //! A spring to a *moving* anchor is meant to put energy into the hand: that is what leading
 //! means. The energy comes from the anchor's motion (the stroke's playback) and, during a
 //! fade-in, from the gain rising on a stretched spring. [`Guide::tick`] reports both as
-//! [`GuideForce::source_j`]: the work the anchor does on the coupling this tick,
-//! `F . (a_k - a_{k-1})`, plus `dg * k |a - x|^2 / 2`. The output stage's passivity observer
+//! [`GuideForce::source_mj`]: the work the anchor does on the coupling this tick,
+//! `F . (a_k - a_{k-1})`, plus `dg * k |a - x|^2 / 2`, in mJ (N mm: forces in N, positions in
+//! mm), in the model's scalar, so that the device's 1 kHz loop does no double-precision
+//! arithmetic (the Cortex-M4F has none: each operation is a library call). The output stage's passivity observer
 //! is credited with it ([`OutputStage::apply_with_source`]), so it only takes back energy the
 //! sampled loop *creates*, and the passivity audit (`tests/guide.rs`) checks the same balance:
 //! the energy delivered to the hand over any window never exceeds what the hand put in, plus
@@ -94,8 +96,8 @@ pub struct GuideForce<S> {
     pub force: Vec3<S>,
     /// How far the stylus is from the moving point (mm).
     pub distance_mm: S,
-    /// Energy the moving point and the fade supplied this tick (J; may be negative).
-    pub source_j: f64,
+    /// Energy the moving point and the fade supplied this tick (mJ; may be negative).
+    pub source_mj: S,
 }
 
 /// The spring-damper coupling to the moving point, with its fade.
@@ -106,6 +108,10 @@ pub struct Guide<S> {
     k: S,
     b: S,
     max: S,
+    /// Where the spring's force reaches `max` (mm; zero without a spring), and the energy it
+    /// holds there at full gain (mJ): the kink of [`Guide::potential_mj`].
+    clamp_mm: S,
+    clamp_mj: S,
     fade_step: S,
     gain: S,
     on: bool,
@@ -118,11 +124,22 @@ impl<S: Scalar> Guide<S> {
     pub fn new(params: GuideParams) -> Result<Self, LimitError> {
         params.validate()?;
         let fade = params.fade_s as f64;
+        let (k_n_per_mm, f_max) = (
+            params.stiffness_n_per_m as f64 * 1e-3,
+            params.max_force_n as f64,
+        );
+        let clamp_mm = if k_n_per_mm > 0.0 {
+            f_max / k_n_per_mm
+        } else {
+            0.0
+        };
         Ok(Guide {
             params,
-            k: S::from_f64(params.stiffness_n_per_m as f64 * 1e-3),
+            k: S::from_f64(k_n_per_mm),
             b: S::from_f32(params.damping_ns_per_m),
             max: S::from_f32(params.max_force_n),
+            clamp_mm: S::from_f64(clamp_mm),
+            clamp_mj: S::from_f64(0.5 * k_n_per_mm * clamp_mm * clamp_mm),
             fade_step: S::from_f64(if fade > 0.0 {
                 (TICK_S / fade).min(1.0)
             } else {
@@ -177,9 +194,9 @@ impl<S: Scalar> Guide<S> {
         let d2 = d.norm2();
         let distance_mm = d2.sqrt();
         // The anchor's work on the coupling over the last tick, with the force held then.
-        let mut source_j = match self.last_anchor {
-            Some(_) => self.last_force.dot(anchor_step).to_f64() * 1e-3,
-            None => 0.0,
+        let mut source_mj = match self.last_anchor {
+            Some(_) => self.last_force.dot(anchor_step),
+            None => S::ZERO,
         };
         let old = self.gain;
         self.gain = if self.on {
@@ -188,7 +205,7 @@ impl<S: Scalar> Guide<S> {
             (self.gain - self.fade_step).max(S::ZERO)
         };
         // A rising gain stretches the spring's energy with no work from anyone: a source.
-        source_j += (self.gain - old).to_f64() * self.potential(distance_mm.to_f64());
+        source_mj += (self.gain - old) * self.potential_mj(distance_mm);
         let force = if self.gain > S::ZERO {
             let raw = d.scale(self.k) + (anchor_step - hand_step).scale(self.b);
             clamp_norm(raw, self.max).scale(self.gain)
@@ -200,30 +217,25 @@ impl<S: Scalar> Guide<S> {
         GuideForce {
             force,
             distance_mm,
-            source_j,
+            source_mj,
         }
     }
 
     /// Energy the coupling's spring holds now (J): part of the stored energy in an audit.
     pub fn stored_energy(&self, anchor: Vec3<S>, hand: Vec3<S>) -> f64 {
-        let d = (anchor - hand).norm2().to_f64().sqrt();
-        self.gain.to_f64() * self.potential(d)
+        let d = (anchor - hand).norm2().sqrt();
+        (self.gain * self.potential_mj(d)).to_f64() * 1e-3
     }
 
-    /// The potential of the saturating spring at `d_mm` at full gain (J): `k d^2 / 2` up to
-    /// the clamp at `d0 = F_max / k`, then growing by `F_max` per metre.
-    fn potential(&self, d_mm: f64) -> f64 {
-        let k = self.params.stiffness_n_per_m as f64;
-        let f_max = self.params.max_force_n as f64;
-        let d = d_mm * 1e-3;
-        if k <= 0.0 {
-            return 0.0;
-        }
-        let d0 = f_max / k;
-        if d <= d0 {
-            0.5 * k * d * d
+    /// The potential of the saturating spring at `d_mm` at full gain (mJ): `k d^2 / 2` up to
+    /// the clamp at `d0 = F_max / k`, then growing by `F_max` per mm.
+    fn potential_mj(&self, d_mm: S) -> S {
+        if self.k <= S::ZERO {
+            S::ZERO
+        } else if d_mm <= self.clamp_mm {
+            (self.k * d_mm * d_mm).halve()
         } else {
-            0.5 * k * d0 * d0 + f_max * (d - d0)
+            self.clamp_mj + self.max * (d_mm - self.clamp_mm)
         }
     }
 }
@@ -301,7 +313,7 @@ impl<S: Scalar> GuideStream<S> {
         GuideForce {
             force: self.last,
             distance_mm: S::ZERO,
-            source_j: 0.0,
+            source_mj: S::ZERO,
         }
     }
 
@@ -341,7 +353,7 @@ impl<S: Scalar> GuideStream<S> {
             _ => GuideForce {
                 force: Vec3::ZERO,
                 distance_mm: S::ZERO,
-                source_j: 0.0,
+                source_mj: S::ZERO,
             },
         };
         self.last = f.force;
@@ -416,7 +428,7 @@ mod tests {
         assert!((f.distance_mm - 5.0).abs() < 1e-12);
         // Moving the anchor 1 mm further along the pull does 0.5 N x 1 mm of work.
         let f2 = g.tick(Vec3::new(0.0, 6.0, 0.0), Vec3::new(0.0, 1.0, 0.0), z, z);
-        assert!((f2.source_j - 0.5e-3).abs() < 1e-12, "{}", f2.source_j);
+        assert!((f2.source_mj - 0.5).abs() < 1e-9, "{}", f2.source_mj);
     }
 
     #[test]
@@ -483,7 +495,7 @@ mod tests {
             for _ in 0..2 * GUIDE_TIMEOUT_TICKS {
                 let held = h.hold();
                 assert_eq!(held.force, b.force);
-                assert_eq!(held.source_j, 0.0);
+                assert_eq!(held.source_mj, Fx::ZERO);
             }
         }
         assert_eq!(g.guide().gain(), h.guide().gain());

@@ -179,6 +179,49 @@ fn output_stage_states() {
     assert!(s.apply(f, Vec3::ZERO).z.to_f64() > 0.0);
 }
 
+/// The command after the passivity controller's ticks (see the test below), and the energy
+/// the observer holds then (J).
+fn passivity_run<S: Scalar>(step_mm: f64) -> (f64, f64) {
+    let mut s = OutputStage::<S>::new(PHANTOM_OMNI).unwrap();
+    s.enable();
+    let f = Vec3::<S>::from_f64([0.5, 0.0, 0.0]);
+    // Ramped in with the hand still: no work done, 0.5 N held.
+    for _ in 0..1000 {
+        s.apply(f, Vec3::ZERO);
+    }
+    assert!((s.last_command().x.to_f64() - 0.5).abs() < 1e-9);
+    assert_eq!(s.absorbed_energy(), 0.0);
+    let c = s.apply(f, Vec3::<S>::from_f64([step_mm, 0.0, 0.0]));
+    (c.x.to_f64(), s.absorbed_energy())
+}
+
+#[test]
+fn the_passivity_controller_takes_back_what_the_device_put_in() {
+    // The hand moves 0.1 mm along the 0.5 N it was held with: the device did 0.05 mJ of
+    // work on it. The damper that takes that back within the tick is a = 0.05 mJ / (0.1
+    // mm/tick)^2 = 5 N s/m, i.e. -0.5 N: the target falls to zero and the step limit (0.2
+    // N, an f32: 0.2 + 3e-9) leaves 0.3 N. Fixed point (energy in mJ, Fx) and f64 agree.
+    for (x, absorbed) in [passivity_run::<Fx>(0.1), passivity_run::<f64>(0.1)] {
+        assert!((x - 0.3).abs() < 1e-8, "command {x}");
+        assert!((absorbed + 0.05e-3).abs() < 1e-12, "absorbed {absorbed}");
+    }
+    // A slow hand (1e-4 mm/tick): surplus / v^2 is 5e6 N s/m, the damper takes its largest
+    // coefficient (peak / 1 mm/s: 0.33 N at this speed) and the quotient never overflows.
+    for (x, _) in [passivity_run::<Fx>(1e-4), passivity_run::<f64>(1e-4)] {
+        assert!((x - 0.3).abs() < 1e-6, "command {x}");
+    }
+    // Without the controller the model's force goes through unchanged.
+    let mut s = OutputStage::<Fx>::new(PHANTOM_OMNI).unwrap();
+    s.set_passivity_control(false);
+    s.enable();
+    let f = Vec3::<Fx>::from_f64([0.5, 0.0, 0.0]);
+    for _ in 0..1000 {
+        s.apply(f, Vec3::ZERO);
+    }
+    let c = s.apply(f, Vec3::<Fx>::from_f64([0.1, 0.0, 0.0]));
+    assert!((c.x.to_f64() - 0.5).abs() < 1e-9);
+}
+
 #[test]
 fn bad_force_parameters_are_rejected() {
     let mut p = DEFAULT_FORCES;

@@ -109,8 +109,8 @@ fn run(
         brush.tick(Pose::new(p, rot));
         let forces = model.tick(&brush, p);
         let g = guide.tick(anchor, anchor - last_anchor, p, p - last_hand);
-        let c = stage.apply_with_source(forces.total + g.force, p - last_hand, g.source_j);
-        sourced += g.source_j;
+        let c = stage.apply_with_source(forces.total + g.force, p - last_hand, g.source_mj);
+        sourced += g.source_mj.to_f64() * 1e-3;
         last_hand = p;
         last_anchor = anchor;
         cmd = c.to_f64();

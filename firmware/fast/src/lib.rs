@@ -55,9 +55,9 @@ pub fn output_stage_apply(
     out: &mut OutputStage<Fx>,
     wanted: Vec3<Fx>,
     hand_step: Vec3<Fx>,
-    source_j: f64,
+    source_mj: Fx,
 ) -> Vec3<Fx> {
-    out.apply_with_source(wanted, hand_step, source_j)
+    out.apply_with_source(wanted, hand_step, source_mj)
 }
 
 /// `Pen::joints` and `Pen::forward_with_trig`: the ferrule's pose from raw readings, with

@@ -57,10 +57,10 @@ impl HandForces {
         };
         self.last_hand = Some(hand);
         let model = maobi_fast::force_model_tick(&mut self.model, brush, hand).total;
-        let source_j = if faulted {
+        let source_mj = if faulted {
             self.guide.cut();
             self.wanted = model;
-            0.0
+            Fx::ZERO
         } else {
             let g = if fresh {
                 self.guide.tick(guide, hand, step)
@@ -68,7 +68,7 @@ impl HandForces {
                 self.guide.hold()
             };
             self.wanted = model + g.force;
-            g.source_j
+            g.source_mj
         };
         if allowed {
             if self.out.faulted() {
@@ -78,7 +78,7 @@ impl HandForces {
         } else {
             self.out.fault();
         }
-        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step, source_j);
+        let c = maobi_fast::output_stage_apply(&mut self.out, self.wanted, step, source_mj);
         if allowed {
             [c.x, c.y, c.z]
         } else {

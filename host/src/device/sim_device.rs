@@ -110,7 +110,7 @@ impl GuideMirror {
             return GuideForce {
                 force: Vec3::ZERO,
                 distance_mm: Fx::ZERO,
-                source_j: 0.0,
+                source_mj: Fx::ZERO,
             };
         }
         self.stream.tick(sample, hand, hand_step)
@@ -159,7 +159,7 @@ impl Model {
             .tick(sample, pose.pos, step, !self.faults.is_empty());
         self.force = self
             .stage
-            .apply_with_source(f.total + g.force, step, g.source_j);
+            .apply_with_source(f.total + g.force, step, g.source_mj);
         self.last_pos = pose.pos;
         self.tick = self.tick.wrapping_add(1);
         self.pose_seq = seq;

@@ -264,8 +264,8 @@ impl SimCore {
         let step: Vec3<Fx> = (pose.pos - last).cast();
         let guide = self.guide_tick(target.pos, step);
         let (wanted, source) = match &guide {
-            Some((g, _)) => (forces.total + g.force, g.source_j),
-            None => (forces.total, 0.0),
+            Some((g, _)) => (forces.total + g.force, g.source_mj),
+            None => (forces.total, Fx::ZERO),
         };
         let command = self.stage.apply_with_source(wanted, step, source);
         self.tick += 1;

@@ -469,7 +469,7 @@ impl ServoCore {
             GuideForce {
                 force: Vec3::ZERO,
                 distance_mm: Fx::ZERO,
-                source_j: 0.0,
+                source_mj: Fx::ZERO,
             }
         };
         self.guide_frame = match self.guide.anchor() {
@@ -538,7 +538,7 @@ impl ServoCore {
         let g = self.guide_tick(pose.pos, step);
         self.command = self
             .stage
-            .apply_with_source(f.total + g.force, step, g.source_j);
+            .apply_with_source(f.total + g.force, step, g.source_mj);
         self.last_pos = pose.pos;
         self.device_force()
     }

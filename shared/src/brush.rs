@@ -865,7 +865,7 @@ impl<S: Scalar> Brush<S> {
             // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined; keep the old
             // long axis, made perpendicular to the segment, and rebuild the short one.
             let min_cross = self.d.tiny;
-            match la.normalized_or_none(min_cross) {
+            match la.normalized_or_none_coef(min_cross) {
                 Some(la) => {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
@@ -913,7 +913,10 @@ impl<S: Scalar> Brush<S> {
             let rl = (goal.mul_coef(rate) + rl.mul_coef(S::ONE - rate))
                 .clamp(rest, self.d.max_radius[i]);
             layer.long_radius = rl;
-            layer.short_radius = self.d.rest_area[i].div(rl);
+            // rl is at least the rest radius (a fraction of a mm or more) and the area a few
+            // mm^2 at most: the reciprocal's product is within a few units of the last place
+            // of the quotient, for about 1,500 instructions less a tick on the Cortex-M4.
+            layer.short_radius = self.d.rest_area[i] * rl.recip();
         }
     }
 }

@@ -544,6 +544,15 @@ pub trait Scalar:
     fn to_f64(self) -> f64;
     /// Division; see the module docs for the fixed-point behaviour at zero.
     fn div(self, rhs: Self) -> Self;
+    /// `1 / self`, for `self` within a few orders of magnitude of one (the reciprocal then
+    /// has as many significant bits as the format gives it). `a * b.recip()` is within a few
+    /// units in the last place of `a.div(b)` for `|a|` up to a few units, and in fixed point
+    /// costs one multiply instead of [`Scalar::div`]'s three and a residual (about 100
+    /// instructions fewer on the Cortex-M4). Zero gives the largest value.
+    #[inline]
+    fn recip(self) -> Self {
+        Self::ONE.div(self)
+    }
     /// Square root; 0 for negative input.
     fn sqrt(self) -> Self;
     /// `1 / sqrt(self)`; the largest value for zero or negative input. One call replaces a
@@ -724,7 +733,7 @@ fn sqrt_f32(x: f32) -> f32 {
 /// `y (2 - b y)` (relative error about 1e-14; identical on every IEEE target). Replaces a
 /// 128-bit software division (about 2,400 instructions on the Cortex-M4).
 #[inline]
-fn recip(b: Fx) -> Fx {
+fn recip_nonzero(b: Fx) -> Fx {
     let est = 1.0 / to_f32_fast(b);
     let y = from_f32_fast(est);
     let two = Fx(FxRaw::from_bits(2 << 32));
@@ -929,6 +938,14 @@ impl Scalar for Fx {
         )))
     }
     #[inline]
+    fn recip(self) -> Self {
+        if self.0 == FxRaw::ZERO {
+            Fx::MAX
+        } else {
+            recip_nonzero(self)
+        }
+    }
+    #[inline]
     fn div(self, rhs: Self) -> Self {
         if rhs.0 == FxRaw::ZERO {
             if self.0 > FxRaw::ZERO {
@@ -941,7 +958,7 @@ impl Scalar for Fx {
         } else {
             // Quotient from the reciprocal, then one residual correction so that large
             // divisors (whose reciprocals have few significant bits) lose nothing.
-            let r = recip(rhs);
+            let r = recip_nonzero(rhs);
             let q = self * r;
             q + (self - rhs * q) * r
         }

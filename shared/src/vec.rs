@@ -230,3 +230,46 @@ impl<S: Scalar> Vec2<S> {
         (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scalar::Fx;
+
+    /// The coefficient forms give the plain forms' bits, for the unit vectors the surface
+    /// feeds them (and the fallback when a component is not a coefficient).
+    #[test]
+    fn coefficient_forms_are_the_plain_ones() {
+        let mut x: u64 = 0x0DDB_1A5E_5BAD_5EED;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let tiny = Fx::from_f64(1e-6);
+        let mut unit = || loop {
+            let v = Vec3::<Fx>::from_f64([next(), next(), next()]);
+            if let Some(u) = v.normalized_or_none(tiny) {
+                return u;
+            }
+        };
+        for _ in 0..20_000 {
+            let (a, b) = (unit(), unit());
+            assert_eq!(a.cross_coef(b), a.cross(b));
+            assert_eq!(a.dot_coef(b), a.dot(b));
+            let la = a.cross_coef(b);
+            assert_eq!(
+                la.normalized_or_none_coef(tiny),
+                la.normalized_or_none(tiny)
+            );
+        }
+        // Components of one or more in magnitude take the plain products.
+        let big = Vec3::<Fx>::from_f64([3.0, -4.0, 0.5]);
+        assert_eq!(
+            big.normalized_or_none_coef(tiny),
+            big.normalized_or_none(tiny)
+        );
+        assert_eq!(Vec3::<Fx>::ZERO.normalized_or_none_coef(tiny), None);
+    }
+}

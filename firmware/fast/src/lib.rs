@@ -2,11 +2,12 @@
 //!
 //! The brush, the force model and the pen's kinematics are generic over the scalar, and a
 //! generic function is compiled in the crate that instantiates it. These non-generic entry
-//! points instantiate the hot code in this crate, so that a profile can build it for speed
-//! while the rest of the image is built for size (`pen-fast` in `firmware/Cargo.toml`: the
-//! pen's image at `opt-level = "z"`, this crate at 3); `#[inline(never)]` keeps link-time
-//! optimisation from pulling them back into the size-optimised callers. Under `release`
-//! (QEMU) and `pen` everything is built alike and this crate changes nothing.
+//! points instantiate the hot code in this crate, so that it is built for speed while the
+//! rest of the image is built for size (`firmware/Cargo.toml`: both images, `release` for
+//! QEMU and `pen` for the Black Pill, at `opt-level = "z"`, this crate at 3);
+//! `#[inline(never)]` keeps link-time optimisation from pulling them back into the
+//! size-optimised callers. `brush_reset` is here too: the force loop resets the brush within
+//! a tick (a re-anchor, new parameters), so it must be as quick as the tick it shares.
 #![no_std]
 
 use maobi_shared::force::{ForceModel, Forces, OutputStage};

@@ -113,7 +113,6 @@ struct Derived<S> {
     /// 1 - 1 / (1 + h C_f / m): the share of in-plane velocity the paper's drag takes.
     drag_loss: S,
     segment: S,
-    segment_f64: f64,
     compression_ratio: S,
     plasticity: S,
     spread_rate: S,
@@ -349,7 +348,7 @@ impl<S: Scalar> Brush<S> {
     }
     /// Rest segment length L (mm).
     pub fn segment_mm(&self) -> f64 {
-        self.d.segment_f64
+        self.d.segment.to_f64()
     }
     /// Whether the implicit solve is exact (stiff parameters) rather than Jacobi iterations.
     pub fn solves_exactly(&self) -> bool {
@@ -365,7 +364,7 @@ impl<S: Scalar> Brush<S> {
     /// paper's reaction, so its vertical part is the normal force the brush presses with.
     pub fn handle_reaction(&self) -> [f64; 3] {
         let p = &self.params;
-        let h = p.substep_s();
+        let h = p.substep_s() as f64;
         let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
         let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
         let mut f = [0.0; 3];
@@ -375,7 +374,7 @@ impl<S: Scalar> Brush<S> {
             let dv = (self.vel[1] - self.vel[0]).to_f64();
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             if len > 1e-9 {
-                let mut s = ks * (len - self.d.segment_f64) / len;
+                let mut s = ks * (len - self.segment_mm()) / len;
                 if s < 0.0 {
                     s *= p.compression_ratio as f64;
                 }
@@ -1134,34 +1133,46 @@ impl<S: Scalar> RotMat<S> {
     }
 }
 
-/// `1 - (1 - rate)^(reference / actual)`: a per-step rate stated at 25 kHz, at another rate.
-fn per_substep_rate(rate: f64, substep_hz: f64) -> f64 {
+/// `1 - (1 - rate)^(reference / actual)`: a per-step rate stated at 25 kHz, at another rate,
+/// as `-expm1(steps ln(1 - rate))` so that a small rate keeps its significant bits (`1 -
+/// rate` in single precision would round a rate of 1e-4 by 0.06%).
+fn per_substep_rate(rate: f32, substep_hz: f32) -> f32 {
     if rate <= 0.0 {
         return 0.0;
     }
-    let steps = REFERENCE_SUBSTEP_HZ as f64 / substep_hz;
-    1.0 - libm::pow(1.0 - rate, steps)
+    if rate >= 1.0 {
+        return 1.0;
+    }
+    let steps = REFERENCE_SUBSTEP_HZ as f32 / substep_hz;
+    -libm::expm1f(steps * libm::log1pf(-rate))
 }
 
+/// The per-substep coefficients, in single precision like the parameters they come from
+/// (see [`BrushParams::substep_s`]): the pen derives them with its FPU's hardware operations
+/// on every parameter change, and they are the same bits on the host. Single precision's
+/// relative 6e-8 is far below anything physical in a stiffness or a mass.
 fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let n = p.layers as usize;
     let h = p.substep_s();
-    let m = p.mass_g as f64 * 1e-3 / (n as f64 - 1.0);
-    let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
-    let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
-    let row = |neighbours: f64, tied: bool| {
+    let m = p.mass_g * 1e-3 / (n as f32 - 1.0);
+    let (ks, kd) = (p.axial_stiffness, p.axial_damping);
+    let (kt, kdt) = (p.tie_stiffness, p.tie_damping);
+    // Each row's Jacobi coefficient, c_j, as computed: the largest picks the solve.
+    let mut worst_c_j = 0.0f32;
+    let mut row = |neighbours: f32, tied: bool| {
         let t = if tied { 1.0 } else { 0.0 };
         let w = m + h * h * (neighbours * ks + t * kt) + h * (neighbours * kd + t * kdt);
         let c_k = h * h * ks / w;
         let c_d = h * kd / w;
         let c_t = h * h * kt / w;
         let c_dt = h * kdt / w;
+        worst_c_j = worst_c_j.max(c_k + c_d);
         Row {
-            c_k: S::from_f64(c_k),
-            c_j: S::from_f64(c_k + c_d),
-            c_t: S::from_f64(c_t * t),
-            c_tv: S::from_f64((c_t + c_dt) * t),
-            c_f: S::from_f64(h * h * 1e3 / w),
+            c_k: S::from_f32(c_k),
+            c_j: S::from_f32(c_k + c_d),
+            c_t: S::from_f32(c_t * t),
+            c_tv: S::from_f32((c_t + c_dt) * t),
+            c_f: S::from_f32(h * h * 1e3 / w),
         }
     };
     let mut rest_radius = [S::ZERO; MAX_LAYERS];
@@ -1171,55 +1182,49 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let mut layer_frac = [S::ZERO; MAX_LAYERS];
     for i in 0..n {
         let r = p.rest_radius_mm(i);
-        rest_radius[i] = S::from_f64(r);
+        rest_radius[i] = S::from_f32(r);
         rest_area[i] = rest_radius[i] * rest_radius[i];
-        max_radius[i] = S::from_f64(r * p.spread_max as f64);
-        skel_weight[i] = S::from_f64(if n > 2 {
-            i as f64 / (n as f64 - 2.0)
+        max_radius[i] = S::from_f32(r * p.spread_max);
+        skel_weight[i] = S::from_f32(if n > 2 {
+            i as f32 / (n as f32 - 2.0)
         } else {
             0.0
         });
-        layer_frac[i] = S::from_f64(i as f64 / (n as f64 - 1.0));
+        layer_frac[i] = S::from_f32(i as f32 / (n as f32 - 1.0));
     }
     let rows = [
         [row(2.0, false), row(2.0, true)],
         [row(1.0, false), row(1.0, true)],
     ];
-    let worst_c_j = rows
-        .iter()
-        .flatten()
-        .map(|r| r.c_j.to_f64())
-        .fold(0.0, f64::max);
     Derived {
-        exact_solve: worst_c_j > JACOBI_LIMIT,
+        exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
         n,
         k: p.ring_nodes as usize,
         iterations: p.jacobi_iterations as usize,
         substeps: p.substeps_per_tick as usize,
         rows,
-        drag_loss: S::from_f64(1.0 - 1.0 / (1.0 + h * p.paper_drag as f64 / m)),
-        segment: S::from_f64(p.segment_mm()),
-        segment_f64: p.segment_mm(),
+        drag_loss: S::from_f32(1.0 - 1.0 / (1.0 + h * p.paper_drag / m)),
+        segment: S::from_f32(p.segment_mm()),
         compression_ratio: S::from_f32(p.compression_ratio),
-        plasticity: S::from_f64(per_substep_rate(p.plasticity as f64, TICK_HZ as f64)),
-        spread_rate: S::from_f64(per_substep_rate(p.spread_rate as f64, TICK_HZ as f64)),
-        spread_tf: S::from_f64(p.spread_tf as f64),
+        plasticity: S::from_f32(per_substep_rate(p.plasticity, TICK_HZ as f32)),
+        spread_rate: S::from_f32(per_substep_rate(p.spread_rate, TICK_HZ as f32)),
+        spread_tf: S::from_f32(p.spread_tf),
         rest_radius,
         rest_area,
         max_radius,
         skel_weight,
         layer_frac,
-        contact_tol: S::from_f64(CONTACT_TOLERANCE_MM),
-        inv_tie_ramp: S::from_f64(1.0 / TIE_RAMP_MM),
-        tie_clear: S::from_f64(2.0 * TIE_RAMP_MM),
-        inv_substeps: S::from_f64(1.0 / p.substeps_per_tick as f64),
-        tiny: S::from_f64(1e-6),
-        tiny2: S::from_f64(1e-12),
+        contact_tol: S::from_f32(CONTACT_TOLERANCE_MM as f32),
+        inv_tie_ramp: S::from_f32((1.0 / TIE_RAMP_MM) as f32),
+        tie_clear: S::from_f32((2.0 * TIE_RAMP_MM) as f32),
+        inv_substeps: S::from_f32(1.0 / p.substeps_per_tick as f32),
+        tiny: S::from_f32(1e-6),
+        tiny2: S::from_f32(1e-12),
     }
 }
 
 /// Rate conversion is exposed for tests and documentation.
-pub fn rate_at(rate_at_25khz: f64, substep_hz: f64) -> f64 {
+pub fn rate_at(rate_at_25khz: f32, substep_hz: f32) -> f32 {
     per_substep_rate(rate_at_25khz, substep_hz)
 }
 
@@ -1229,9 +1234,18 @@ mod tests {
 
     #[test]
     fn rates_convert_between_substep_rates() {
-        assert!((rate_at(0.01, 25_000.0) - 0.01).abs() < 1e-12);
+        // Within a few units of single precision's last place (6e-8 relative).
+        let close = |a: f32, b: f64| (a as f64 - b).abs() < 2e-7 * b;
+        assert!(close(rate_at(0.01, 25_000.0), 0.01));
         // Half the rate: two reference steps per substep.
-        assert!((rate_at(0.01, 12_500.0) - (1.0 - 0.99f64 * 0.99)).abs() < 1e-12);
+        assert!(close(rate_at(0.01, 12_500.0), 1.0 - 0.99f64 * 0.99));
+        // A small rate keeps its significant bits; 1 kHz is 25 reference steps.
+        assert!(close(
+            rate_at(1e-5, 1_000.0),
+            1.0 - (1.0 - 1e-5f64).powi(25)
+        ));
+        assert_eq!(rate_at(0.0, 1_000.0), 0.0);
+        assert_eq!(rate_at(1.0, 1_000.0), 1.0);
     }
 
     /// The segment lengths the surface update leaves for the next substep's springs change

@@ -26,7 +26,7 @@ impl Energy {
 pub fn energy<S: Scalar>(b: &Brush<S>) -> Energy {
     let p = b.params();
     let n = b.len();
-    let h = p.substep_s();
+    let h = p.substep_s() as f64;
     let m = p.mass_g as f64 * 1e-3 / (n as f64 - 1.0);
     let ks = p.axial_stiffness as f64;
     let kt = p.tie_stiffness as f64;

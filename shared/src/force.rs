@@ -133,7 +133,11 @@ impl fmt::Display for LimitError {
 #[cfg(feature = "std")]
 impl std::error::Error for LimitError {}
 
-fn check(name: &'static str, value: f32, min: f32, max: f32) -> Result<(), LimitError> {
+/// Whether `value` is finite and within `[min, max]`, else the error naming it. Out of line:
+/// the configurations call it for every field, and one copy of the test and the error's
+/// construction is smaller than one per field (about 1.2 KB of the pen's flash).
+#[inline(never)]
+pub(crate) fn check(name: &'static str, value: f32, min: f32, max: f32) -> Result<(), LimitError> {
     if value.is_finite() && value >= min && value <= max {
         Ok(())
     } else {
@@ -318,18 +322,21 @@ impl<S: Scalar> ForceModel<S> {
 
     fn derive(&mut self) {
         let p = &self.params;
-        self.k_c = S::from_f64(p.constraint_stiffness as f64 * 1e-3);
-        self.b_c = S::from_f64(p.constraint_damping as f64);
-        self.gravity = S::from_f64(-(p.gravity_weight as f64) * p.brush_mass_g as f64 * 1e-3 * G);
-        self.w_n = S::from_f64(p.normal_weight as f64);
-        // First-order low-pass by the matched pole: alpha = 1 - exp(-2 pi f T).
-        let x = -2.0 * core::f64::consts::PI * p.normal_cutoff_hz as f64 * TICK_S;
-        self.normal_alpha = S::from_f64(1.0 - libm::exp(x));
-        self.w_f = S::from_f64(p.friction_weight as f64);
-        self.m_i = S::from_f64(p.inertia_mass_g as f64 * 1e-3);
-        self.m_mp = S::from_f64(p.inertia_per_contact_g as f64 * 1e-3);
-        self.k_i = S::from_f64(p.inertia_stiffness as f64 * 1e-3);
-        self.b_i = S::from_f64(p.inertia_damping as f64);
+        // In single precision, like the parameters: the pen derives these with its FPU, where
+        // `f64` would be software (see `BrushParams::substep_s`).
+        self.k_c = S::from_f32(p.constraint_stiffness * 1e-3);
+        self.b_c = S::from_f32(p.constraint_damping);
+        self.gravity = S::from_f32(-p.gravity_weight * p.brush_mass_g * 1e-3 * G as f32);
+        self.w_n = S::from_f32(p.normal_weight);
+        // First-order low-pass by the matched pole: alpha = 1 - exp(-2 pi f T) (as -expm1, so
+        // a low cutoff keeps its significant bits).
+        let x = -2.0 * core::f32::consts::PI * p.normal_cutoff_hz * TICK_S as f32;
+        self.normal_alpha = S::from_f32(-libm::expm1f(x));
+        self.w_f = S::from_f32(p.friction_weight);
+        self.m_i = S::from_f32(p.inertia_mass_g * 1e-3);
+        self.m_mp = S::from_f32(p.inertia_per_contact_g * 1e-3);
+        self.k_i = S::from_f32(p.inertia_stiffness * 1e-3);
+        self.b_i = S::from_f32(p.inertia_damping);
         if self.point_mass == S::ZERO {
             self.point_mass = self.m_i;
         }
@@ -393,7 +400,7 @@ impl<S: Scalar> ForceModel<S> {
             lowest = lowest.min(s.z);
         }
         let depth = if lowest < S::ZERO { -lowest } else { S::ZERO };
-        let extent = (skel[0].z - lowest).max(S::from_f64(1e-3));
+        let extent = (skel[0].z - lowest).max(S::from_f32(1e-3));
         let target = if depth > S::ZERO {
             self.w_n * depth.div(extent)
         } else {
@@ -419,7 +426,7 @@ impl<S: Scalar> ForceModel<S> {
             let pull = (hand - self.point).xy().scale(self.k_i)
                 + (v - self.point_vel).xy().scale(self.b_i);
             inertia = -pull.scale(engage);
-            let dt_over_m = S::from_f64(TICK_S).div(mass);
+            let dt_over_m = S::from_f32(TICK_S as f32).div(mass);
             self.point_vel += pull.scale(dt_over_m);
             self.point += self.point_vel; // 1 m/s = 1 mm per tick
             self.point.z = hand.z;
@@ -488,7 +495,7 @@ impl<S: Scalar> OutputStage<S> {
         limits.validate()?;
         let step = |s: f32| {
             if s > 0.0 {
-                S::from_f64((TICK_S / s as f64).min(1.0))
+                S::from_f32((TICK_S as f32 / s).min(1.0))
             } else {
                 S::ONE
             }
@@ -497,7 +504,7 @@ impl<S: Scalar> OutputStage<S> {
             limits,
             peak: S::from_f32(limits.peak_n),
             continuous: S::from_f32(limits.continuous_n),
-            thermal_alpha: S::from_f64(1.0 - libm::exp(-TICK_S / limits.thermal_time_s as f64)),
+            thermal_alpha: S::from_f32(-libm::expm1f(-(TICK_S as f32) / limits.thermal_time_s)),
             max_step: S::from_f32(limits.max_step_n),
             ramp_in_step: step(limits.ramp_in_s),
             ramp_out_step: step(limits.ramp_out_s),
@@ -507,7 +514,7 @@ impl<S: Scalar> OutputStage<S> {
             last: Vec3::ZERO,
             thermal: S::ZERO,
             absorbed_mj: S::ZERO,
-            damper_max: S::from_f64(limits.peak_n as f64 / 1e-3),
+            damper_max: S::from_f32(limits.peak_n * 1e3),
             passivity_control: true,
         })
     }

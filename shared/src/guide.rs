@@ -123,11 +123,9 @@ pub struct Guide<S> {
 impl<S: Scalar> Guide<S> {
     pub fn new(params: GuideParams) -> Result<Self, LimitError> {
         params.validate()?;
-        let fade = params.fade_s as f64;
-        let (k_n_per_mm, f_max) = (
-            params.stiffness_n_per_m as f64 * 1e-3,
-            params.max_force_n as f64,
-        );
+        // Single precision, like the parameters (the pen has no double-precision hardware).
+        let fade = params.fade_s;
+        let (k_n_per_mm, f_max) = (params.stiffness_n_per_m * 1e-3, params.max_force_n);
         let clamp_mm = if k_n_per_mm > 0.0 {
             f_max / k_n_per_mm
         } else {
@@ -135,13 +133,13 @@ impl<S: Scalar> Guide<S> {
         };
         Ok(Guide {
             params,
-            k: S::from_f64(k_n_per_mm),
+            k: S::from_f32(k_n_per_mm),
             b: S::from_f32(params.damping_ns_per_m),
             max: S::from_f32(params.max_force_n),
-            clamp_mm: S::from_f64(clamp_mm),
-            clamp_mj: S::from_f64(0.5 * k_n_per_mm * clamp_mm * clamp_mm),
-            fade_step: S::from_f64(if fade > 0.0 {
-                (TICK_S / fade).min(1.0)
+            clamp_mm: S::from_f32(clamp_mm),
+            clamp_mj: S::from_f32(0.5 * k_n_per_mm * clamp_mm * clamp_mm),
+            fade_step: S::from_f32(if fade > 0.0 {
+                (TICK_S as f32 / fade).min(1.0)
             } else {
                 1.0
             }),
@@ -423,12 +421,13 @@ mod tests {
         g.start();
         let z = Vec3::ZERO;
         let f = g.tick(Vec3::new(0.0, 5.0, 0.0), z, z, z);
-        // 100 N/m over 5 mm.
-        assert!((f.force.y - 0.5).abs() < 1e-12 && f.force.x == 0.0);
+        // 100 N/m over 5 mm (the stiffness in N/mm is derived in single precision: 0.1 to
+        // within 1.5e-9).
+        assert!((f.force.y - 0.5).abs() < 1e-7 && f.force.x == 0.0);
         assert!((f.distance_mm - 5.0).abs() < 1e-12);
         // Moving the anchor 1 mm further along the pull does 0.5 N x 1 mm of work.
         let f2 = g.tick(Vec3::new(0.0, 6.0, 0.0), Vec3::new(0.0, 1.0, 0.0), z, z);
-        assert!((f2.source_mj - 0.5).abs() < 1e-9, "{}", f2.source_mj);
+        assert!((f2.source_mj - 0.5).abs() < 1e-7, "{}", f2.source_mj);
     }
 
     #[test]

@@ -30,7 +30,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::force::LimitError;
+use crate::force::{check, LimitError};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
@@ -93,18 +93,6 @@ impl PenConfig {
     };
 
     pub fn validate(&self) -> Result<(), LimitError> {
-        let check = |name, v: f32, lo, hi| {
-            if v.is_finite() && v >= lo && v <= hi {
-                Ok(())
-            } else {
-                Err(LimitError {
-                    name,
-                    value: v,
-                    min: lo,
-                    max: hi,
-                })
-            }
-        };
         check("upper_arm_mm", self.upper_arm_mm, 10.0, 1000.0)?;
         check("forearm_mm", self.forearm_mm, 10.0, 1000.0)?;
         check("stylus_mm", self.stylus_mm, 0.0, 300.0)?;
@@ -217,28 +205,30 @@ pub struct Pen<S> {
 impl<S: Scalar> Pen<S> {
     pub fn new(cfg: PenConfig) -> Result<Self, LimitError> {
         cfg.validate()?;
-        let tau = core::f64::consts::TAU;
+        // Single precision, like the configuration (the pen has no double-precision
+        // hardware): a count's angle to 6e-8 relative, far finer than the format keeps it.
+        let tau = core::f32::consts::TAU;
         Ok(Pen {
             cfg,
             zero: None,
             l1: S::from_f32(cfg.upper_arm_mm),
             l2: S::from_f32(cfg.forearm_mm),
-            base: Vec3::from_f64(cfg.base_mm.map(|v| v as f64)),
+            base: Vec3::new(
+                S::from_f32(cfg.base_mm[0]),
+                S::from_f32(cfg.base_mm[1]),
+                S::from_f32(cfg.base_mm[2]),
+            ),
             rad_per_count: [0, 1, 2].map(|j| {
-                S::from_f64(
-                    cfg.encoder_sign[j] as f64 * tau
-                        / (cfg.counts_per_rev[j] as f64 * cfg.ratio[j] as f64),
+                S::from_f32(
+                    cfg.encoder_sign[j] as f32 * tau
+                        / (cfg.counts_per_rev[j] as f32 * cfg.ratio[j]),
                 )
             }),
-            rad_per_code: [0, 1, 2].map(|j| {
-                S::from_f64(cfg.gimbal_sign[j] as f64 * cfg.gimbal_rad_per_code[j] as f64)
-            }),
+            rad_per_code: [0, 1, 2]
+                .map(|j| S::from_f32(cfg.gimbal_sign[j] as f32 * cfg.gimbal_rad_per_code[j])),
             // Joint torque at full command: ratio * k_t * I_max (N m).
-            torque_per_command: [0, 1, 2].map(|j| {
-                S::from_f64(
-                    cfg.ratio[j] as f64 * cfg.torque_constant[j] as f64 * cfg.max_current[j] as f64,
-                )
-            }),
+            torque_per_command: [0, 1, 2]
+                .map(|j| S::from_f32(cfg.ratio[j] * cfg.torque_constant[j] * cfg.max_current[j])),
             inkwell: Joints {
                 arm: cfg.inkwell_joints.map(S::from_f32),
                 gimbal: cfg.inkwell_gimbal.map(S::from_f32),

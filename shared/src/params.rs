@@ -310,25 +310,28 @@ impl BrushParams {
         Ok(())
     }
 
+    // The derived quantities are `f32`, like the parameters: the pen derives them (on every
+    // parameter change) with its single-precision FPU, where `f64` would be software, and
+    // the host derives the same bits (IEEE single precision is the same on every target).
+
     /// Substep length in seconds.
-    pub fn substep_s(&self) -> f64 {
-        1.0 / (TICK_HZ as f64 * self.substeps_per_tick as f64)
+    pub fn substep_s(&self) -> f32 {
+        1.0 / (TICK_HZ as f32 * self.substeps_per_tick as f32)
     }
 
     /// Resting length of one spine segment (mm).
-    pub fn segment_mm(&self) -> f64 {
-        self.length_mm as f64 / (self.layers as f64 - 1.0)
+    pub fn segment_mm(&self) -> f32 {
+        self.length_mm / (self.layers as f32 - 1.0)
     }
 
     /// Long-axis radius RL_initial,i of layer i at rest: swells by `belly` and tapers to the
     /// tip radius. `t = i / (N-1)` runs from the ferrule (0) to the tip (1).
-    pub fn rest_radius_mm(&self, i: usize) -> f64 {
-        let t = i as f64 / (self.layers as f64 - 1.0);
-        let r0 = self.radius_mm as f64;
-        let rt = self.tip_radius_mm as f64;
+    pub fn rest_radius_mm(&self, i: usize) -> f32 {
+        let t = i as f32 / (self.layers as f32 - 1.0);
+        let (r0, rt) = (self.radius_mm, self.tip_radius_mm);
         // Swells by (1 + b t) below the ferrule, tapers as (1 - t^2) to the tip: the "belly"
         // of a calligraphy brush sits about a third of the way down for b around 0.5.
-        rt + (r0 - rt) * (1.0 + self.belly as f64 * t) * (1.0 - t * t)
+        rt + (r0 - rt) * (1.0 + self.belly * t) * (1.0 - t * t)
     }
 }
 

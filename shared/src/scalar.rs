@@ -792,6 +792,51 @@ fn half(x: Fx) -> Fx {
     Fx(FxRaw::from_bits(x.0.to_bits() >> 1))
 }
 
+/// An `f32`'s bits to `I32F32` bits: `v * 2^32` rounded to nearest with ties away from zero,
+/// saturated to `i64`, NaN to zero (what `from_f64` does to the widened value). The value is
+/// `m 2^(e - 150)` with the 24-bit significand `m`, so the scaled one is `m 2^(e - 118)`: a
+/// left shift (saturating from 2^63 up), or a right shift that adds half of the last place
+/// dropped first.
+const fn f32_bits_to_raw(bits: u32) -> i64 {
+    let negative = bits >> 31 != 0;
+    let biased = ((bits >> 23) & 0xff) as i32;
+    let frac = (bits & 0x7f_ffff) as u64;
+    if biased == 0xff {
+        return if frac != 0 {
+            0
+        } else if negative {
+            i64::MIN
+        } else {
+            i64::MAX
+        };
+    }
+    // Subnormals have no implicit bit and the exponent of the smallest normals.
+    let (m, e) = if biased == 0 {
+        (frac, 1)
+    } else {
+        (frac | 0x80_0000, biased)
+    };
+    let shift = e - 118;
+    let magnitude = if shift >= 40 {
+        // m >= 2^23 here: at least 2^63, beyond the format.
+        return if negative { i64::MIN } else { i64::MAX };
+    } else if shift >= 0 {
+        m << shift
+    } else if shift > -40 {
+        let k = -shift as u32;
+        (m + (1 << (k - 1))) >> k
+    } else {
+        // Below 2^-40 of a unit in the last place: rounds to zero.
+        0
+    };
+    // magnitude < 2^63: the negation cannot overflow.
+    if negative {
+        -(magnitude as i64)
+    } else {
+        magnitude as i64
+    }
+}
+
 /// `Fx` to `f32`, rounded to nearest (exact integer-to-float conversion, then a power of two).
 #[inline]
 fn to_f32_fast(x: Fx) -> f32 {
@@ -868,6 +913,19 @@ impl Scalar for Fx {
     const ZERO: Self = Fx(FxRaw::ZERO);
     const ONE: Self = Fx(FxRaw::ONE);
     const NAME: &'static str = "fixed";
+    /// The same value as `from_f64(v as f64)` (rounded to nearest, ties away from zero,
+    /// saturated, NaN zero), from the float's bits: no `f64` arithmetic, which the
+    /// Cortex-M4F does in software (the parameters and configuration the pen converts are
+    /// `f32`). `from_f32_is_from_f64_of_the_widened_value` tests every exponent.
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        Fx::from_bits(f32_bits_to_raw(v.to_bits()))
+    }
+    /// Rounded to nearest once ([`to_f32_fast`]), without the `f64` in between.
+    #[inline]
+    fn to_f32(self) -> f32 {
+        to_f32_fast(self)
+    }
     /// Rounds to nearest (ties away from zero) and saturates; NaN becomes zero. Rust's
     /// float-to-int `as` cast is defined to saturate and to map NaN to 0 on every target.
     #[inline]
@@ -1204,6 +1262,46 @@ mod tests {
             let (a, b) = (next() >> (next() & 63), next() >> (next() & 63));
             assert_eq!(mul_floor_partial(a, b), want(a, b), "{a} * {b}");
         }
+    }
+
+    #[test]
+    fn from_f32_is_from_f64_of_the_widened_value() {
+        let mut x: u64 = 0x3C6E_F372_FE94_F82B;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let check = |bits: u32| {
+            let v = f32::from_bits(bits);
+            assert_eq!(Fx::from_f32(v), Fx::from_f64(v as f64), "{v:e} ({bits:#x})");
+        };
+        // Every exponent and sign, with the significands at the ends, at the rounding
+        // boundaries (the last kept bit, exactly half, half plus and minus one) and random.
+        for sign in [0u32, 1 << 31] {
+            for biased in 0..=255u32 {
+                let base = sign | biased << 23;
+                for frac in [
+                    0, 1, 2, 0x40_0000, 0x3f_ffff, 0x40_0001, 0x7f_ffff, 0x7f_fffe,
+                ] {
+                    check(base | frac);
+                }
+                for k in 0..23 {
+                    for frac in [1u32 << k, (1 << k) - 1, (1 << k) + 1, (3 << k) & 0x7f_ffff] {
+                        check(base | (frac & 0x7f_ffff));
+                    }
+                }
+                for _ in 0..2_000 {
+                    check(base | (next() as u32 & 0x7f_ffff));
+                }
+            }
+        }
+        // The format's ends: 2^31 saturates, the largest f32 below it does not.
+        assert_eq!(Fx::from_f32(2_147_483_648.0), Fx::MAX);
+        assert_eq!(Fx::from_f32(-2_147_483_648.0), Fx::MIN);
+        assert_eq!(Fx::from_f32(f32::NAN), Fx::ZERO);
+        assert_eq!(Fx::from_f32(0.5).to_bits(), 1 << 31);
     }
 
     #[test]

@@ -4,7 +4,7 @@ use maobi_shared::kinematics::{
     EncoderUnwrap, Joints, KinematicsError, Pen, PenConfig, RawReadings,
 };
 use maobi_shared::{Fx, Scalar, Vec3};
-use std::f64::consts::{FRAC_PI_2, PI};
+use std::f64::consts::FRAC_PI_2;
 
 fn pen<S: Scalar>() -> Pen<S> {
     Pen::new(PenConfig::OMNI_LIKE).unwrap()
@@ -137,7 +137,8 @@ fn encoder_counts_wrap_and_signs_are_honoured() {
         "calibration pose reads the inkwell angles"
     );
     // One joint revolution of counts turns joint 0 by 2 pi; flipping its sign reverses it.
-    let rad_per_count = 2.0 * PI / (2048.0 * 13.2f32 as f64);
+    // (The scale is derived in single precision, like the configuration, in this order.)
+    let rad_per_count = (core::f32::consts::TAU / (2048.0 * 13.2f32)) as f64;
     let mut moved = zero;
     moved.encoders[0] += 5000;
     let q = p.joints(&moved).unwrap().arm[0];
@@ -156,7 +157,8 @@ fn encoder_counts_wrap_and_signs_are_honoured() {
 #[test]
 fn motor_commands_follow_ratio_torque_constant_and_clamp() {
     let p = pen::<f64>();
-    let full = 13.2f32 as f64 * 0.025f32 as f64 * 2.0; // N m at the joint for full current
+    // N m at the joint for full current, derived in single precision like the configuration.
+    let full = (13.2f32 * 0.025f32 * 2.0f32) as f64;
     let c = p.motor_commands(&[full / 2.0, -full / 4.0, 3.0 * full]);
     assert!(close(c, [0.5, -0.25, 1.0], 1e-12), "{c:?}");
     let mut cfg = PenConfig::OMNI_LIKE;

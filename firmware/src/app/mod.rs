@@ -69,7 +69,7 @@ pub mod fault {
 
 /// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
 /// moves 0.5 mm per tick.
-pub const SENSOR_JUMP_MM: f64 = 10.0;
+pub const SENSOR_JUMP_MM: usize = 10;
 /// The link is declared silent after this many ticks without a valid frame (100 ms of
 /// model time).
 pub const LINK_TIMEOUT_TICKS: u32 = 100;
@@ -421,7 +421,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             addr_of_mut!((*p).forces).write(forces);
             addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
             addr_of_mut!((*p).enabled).write(false);
-            addr_of_mut!((*p).jump2).write(Fx::from_f64(SENSOR_JUMP_MM * SENSOR_JUMP_MM));
+            addr_of_mut!((*p).jump2).write(Fx::from_usize(SENSOR_JUMP_MM * SENSOR_JUMP_MM));
             addr_of_mut!((*p).nudge).write(None);
         }
         // The list above is complete: this pattern names every field (no `..`), so a field

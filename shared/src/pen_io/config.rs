@@ -33,7 +33,7 @@
 //! and an older image is reported as [`ConfigError::UnsupportedVersion`]: the pen starts safe
 //! (no force) and the builder writes the configuration again.
 
-use core::fmt::{self, Write};
+use core::fmt;
 
 use heapless::String;
 use serde::{Deserialize, Serialize};
@@ -127,12 +127,17 @@ pub struct InvalidField {
 
 impl InvalidField {
     fn new(prefix: &str, channel: Option<usize>, e: LimitError) -> Self {
+        // "{prefix}[{j}].{name}" or "{prefix}{name}", pushed piece by piece rather than with
+        // `write!`, so that the pen's image carries no `core::fmt` machinery for it. A piece
+        // that does not fit in FIELD_LEN is left out (none is: the longest name is 27 bytes).
         let mut field = String::new();
-        // A name longer than FIELD_LEN is cut (none is: the longest is 27 bytes).
-        let _ = match channel {
-            Some(j) => write!(field, "{prefix}[{j}].{}", e.name),
-            None => write!(field, "{prefix}{}", e.name),
-        };
+        let _ = field.push_str(prefix);
+        if let Some(j) = channel {
+            let _ = field.push('[');
+            push_decimal(&mut field, j);
+            let _ = field.push_str("].");
+        }
+        let _ = field.push_str(e.name);
         InvalidField {
             field,
             value: e.value,
@@ -140,6 +145,15 @@ impl InvalidField {
             max: e.max,
         }
     }
+}
+
+/// `n` in decimal at the end of `s` (digits that do not fit are left out): the leading
+/// digits first, by recursion (at most 20 deep).
+fn push_decimal(s: &mut String<FIELD_LEN>, n: usize) {
+    if n >= 10 {
+        push_decimal(s, n / 10);
+    }
+    let _ = s.push(char::from(b'0' + (n % 10) as u8));
 }
 
 impl fmt::Display for InvalidField {
@@ -390,4 +404,30 @@ pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
 /// All erased flash (`0xFF`) or all zero (RAM where nothing was loaded).
 fn is_blank(bytes: &[u8]) -> bool {
     bytes.iter().all(|&b| b == 0xFF) || bytes.iter().all(|&b| b == 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn field_names_carry_the_channel_in_decimal() {
+        let e = LimitError {
+            name: "pwm_hz",
+            value: 1.0,
+            min: 2.0,
+            max: 3.0,
+        };
+        for (channel, name) in [
+            (Some(0), "drive[0].pwm_hz"),
+            (Some(12), "drive[12].pwm_hz"),
+            (Some(305), "drive[305].pwm_hz"),
+            (None, "drivepwm_hz"),
+        ] {
+            assert_eq!(InvalidField::new("drive", channel, e).field.as_str(), name);
+        }
+        let mut s = String::<FIELD_LEN>::new();
+        push_decimal(&mut s, 4_294_967_295);
+        assert_eq!(s.as_str(), "4294967295");
+    }
 }

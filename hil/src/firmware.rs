@@ -156,6 +156,34 @@ pub struct Size {
 }
 
 impl Size {
+    /// The budget: 128 KiB of flash, 32 KiB of static RAM (the targets for both
+    /// images; the chips have more).
+    pub const FLASH_BUDGET: u64 = 128 * 1024;
+    pub const STATIC_RAM_BUDGET: u64 = 32 * 1024;
+
+    /// What exceeds the budget, if anything.
+    pub fn over_budget(&self) -> Option<String> {
+        let over: Vec<String> = [
+            ("flash", self.flash, Self::FLASH_BUDGET),
+            ("static RAM", self.static_ram, Self::STATIC_RAM_BUDGET),
+        ]
+        .into_iter()
+        .filter(|&(_, have, budget)| have > budget)
+        .map(|(what, have, budget)| {
+            format!("{what} {have} bytes is {} over {budget}", have - budget)
+        })
+        .collect();
+        (!over.is_empty()).then(|| over.join("; "))
+    }
+
+    /// `hil size --check`: an error naming what exceeds the budget (when `enforce`).
+    pub fn check(&self, enforce: bool) -> Result<()> {
+        match self.over_budget() {
+            Some(why) if enforce => bail!("over budget: {why}"),
+            _ => Ok(()),
+        }
+    }
+
     /// The `hil size` report: flash and static RAM against the budgets, and the RAM a chip
     /// needs with the stack reserve ([`Board::STACK_RESERVE`]).
     pub fn report(&self) -> String {
@@ -212,4 +240,35 @@ pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
         }
     }
     Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_budget_check_names_what_is_over() {
+        let at = Size {
+            flash: Size::FLASH_BUDGET,
+            static_ram: Size::STATIC_RAM_BUDGET,
+        };
+        assert_eq!(at.over_budget(), None);
+        assert!(at.check(true).is_ok());
+        let over = Size {
+            flash: Size::FLASH_BUDGET + 1,
+            static_ram: Size::STATIC_RAM_BUDGET + 12,
+        };
+        let why = over.over_budget().unwrap();
+        assert!(why.contains("flash 131073 bytes is 1 over 131072"), "{why}");
+        assert!(
+            why.contains("static RAM 32780 bytes is 12 over 32768"),
+            "{why}"
+        );
+        assert!(
+            over.check(false).is_ok(),
+            "reported, not enforced, without --check"
+        );
+        let e = over.check(true).unwrap_err().to_string();
+        assert!(e.starts_with("over budget: flash"), "{e}");
+    }
 }

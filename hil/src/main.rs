@@ -48,6 +48,10 @@ enum Cmd {
         /// stack reserve to the RAM).
         #[arg(long, value_enum, default_value_t = firmware::Board::Qemu)]
         board: firmware::Board,
+        /// Fail (exit status 1) when the image exceeds the budget (CI keeps both images
+        /// within it).
+        #[arg(long)]
+        check: bool,
     },
     /// Boots the firmware and runs the bench stroke through the real force loop.
     Selftest {
@@ -149,13 +153,14 @@ fn main() -> Result<()> {
     }
     if let Cmd::Size {
         board: board @ firmware::Board::Blackpill,
+        check,
     } = cli.cmd
     {
         let elf = firmware::board_image(board, cli.elf.as_deref(), cli.no_build)?;
         let s = firmware::size(&elf, board.ram_start())?;
         println!("image: {}", elf.display());
         println!("{}", s.report());
-        return Ok(());
+        return s.check(check);
     }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
     match cli.cmd {
@@ -172,10 +177,11 @@ fn main() -> Result<()> {
             let r = bench::run(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));
         }
-        Cmd::Size { .. } => {
+        Cmd::Size { check, .. } => {
             let s = firmware::size(&elf, firmware::Board::Qemu.ram_start())?;
             println!("image: {}", elf.display());
             println!("{}", s.report());
+            s.check(check)?;
         }
         Cmd::Selftest { ticks } => {
             println!("{}", selftest::selftest(&elf, ticks, timeout)?);

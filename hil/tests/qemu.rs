@@ -132,17 +132,14 @@ fn panic_hardfault_and_stall_turn_motors_off_and_exit_nonzero() {
     }
 }
 
-/// The hard limits are the STM32F411's (512 KiB flash, 128 KiB RAM, of which a quarter is
-/// kept for the stack); the tighter targets (128 KiB / 32 KiB) are reported by `hil size`
-/// rather than enforced, so that growth of the shared crates is seen, not a broken build.
+/// The targets, 128 KiB of flash and 32 KiB of static RAM, which both images meet
+/// (the Black Pill's is checked by `.ci/run`, `hil size --board blackpill --check`): growth
+/// past them fails here, to be seen and answered, not found later. (The chips have more:
+/// 512 KiB of flash, 128 KiB of RAM.)
 #[test]
-fn image_fits_the_microcontroller() {
+fn image_fits_the_budget() {
     let Some(elf) = image() else { return };
     let s = firmware::size(&elf, 0x2000_0000).unwrap();
-    println!(
-        "flash={} (target 131072) static_ram={} (target 32768)",
-        s.flash, s.static_ram
-    );
-    assert!(s.flash <= 512 * 1024, "{s:?}");
-    assert!(s.static_ram <= 96 * 1024, "{s:?}");
+    println!("{}", s.report());
+    assert_eq!(s.over_budget(), None, "{s:?}");
 }

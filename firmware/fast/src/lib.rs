@@ -4,7 +4,7 @@
 //! generic function is compiled in the crate that instantiates it. These non-generic entry
 //! points instantiate the hot code in this crate, so that it is built for speed while the
 //! rest of the image is built for size (`firmware/Cargo.toml`: both images, `release` for
-//! QEMU and `pen` for the Black Pill, at `opt-level = "z"`, this crate at 3);
+//! QEMU and `pen` for the Black Pill, at `opt-level = "z"`, this crate at 2);
 //! `#[inline(never)]` keeps link-time optimisation from pulling them back into the
 //! size-optimised callers. `brush_reset` is here too: the force loop resets the brush within
 //! a tick (a re-anchor, new parameters), so it must be as quick as the tick it shares.

@@ -265,7 +265,7 @@ fn start() -> (
     };
 
     // The brush starts at rest wherever the first sensor pose puts it.
-    let start = Pose::new(Vec3::from_f64([0.0, 0.0, 44.0]), Quat::IDENTITY);
+    let start = Pose::new(Vec3::new(Fx::ZERO, Fx::ZERO, Fx::from_usize(44)), Quat::IDENTITY);
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
     // SAFETY: `main` runs once; the queue is split here and never touched otherwise.
     let (cmd_tx, cmd_rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
@@ -417,7 +417,12 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     motors::motors_off();
     led_on();
-    defmt::error!("FATAL panic: {}; motors off", defmt::Display2Format(info));
+    // The location and, when it has no arguments, the message, as defmt strings: formatting
+    // the message with `core::fmt` would bring its machinery into the image (about 1 KB)
+    // for a path that runs at most once. A message with arguments shows its location only.
+    let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
+    let message = info.message().as_str().unwrap_or("(a message with arguments)");
+    defmt::error!("FATAL panic at {=str}:{=u32}: {=str}; motors off", file, line, message);
     // With a debugger attached (probe-rs run), stop here so it shows where; without one the
     // watchdog resets the chip and the next boot reports it.
     // SAFETY: reads the debug halting control register.

@@ -102,7 +102,8 @@ struct Row<S> {
 /// [`Brush::set_params`], never on the substep path.
 #[derive(Copy, Clone, Debug)]
 struct Derived<S> {
-    n: usize,
+    /// Layers (masses): read through [`Derived::n`].
+    layers: usize,
     k: usize,
     iterations: usize,
     substeps: usize,
@@ -135,6 +136,17 @@ struct Derived<S> {
     /// Below this length a direction is treated as undefined (mm).
     tiny: S,
     tiny2: S,
+}
+
+impl<S> Derived<S> {
+    /// The number of layers, which validation keeps within `3..=MAX_LAYERS`: clamped here
+    /// as well, so that the compiler knows every `[..n]`, `[1..n]` and `[n - 1]` of the
+    /// model's `MAX_LAYERS` arrays is in bounds and leaves out the panicking checks (the
+    /// force path must not hold any; the clamp is two instructions).
+    #[inline(always)]
+    fn n(&self) -> usize {
+        self.layers.clamp(2, MAX_LAYERS)
+    }
 }
 
 /// The state of one layer's surface ellipse (Liang 3.2).
@@ -252,9 +264,9 @@ impl<S: Scalar> Brush<S> {
         self.handle = pose;
         self.skel_dir = [-Vec3::Z; MAX_LAYERS];
         let offsets = self.skeleton_offsets();
-        place_skeleton(pose, &offsets, &mut self.skel[..self.d.n]);
+        place_skeleton(pose, &offsets, &mut self.skel[..self.d.n()]);
         self.skel_vel = [Vec3::ZERO; MAX_LAYERS];
-        let n = self.d.n;
+        let n = self.d.n();
         for i in 0..n {
             self.spine[i] = self.skel[i];
             self.vel[i] = Vec3::ZERO;
@@ -308,33 +320,33 @@ impl<S: Scalar> Brush<S> {
 
     /// Number of layers N.
     pub fn len(&self) -> usize {
-        self.d.n
+        self.d.n()
     }
     pub fn is_empty(&self) -> bool {
-        self.d.n == 0
+        self.d.n() == 0
     }
     pub fn handle(&self) -> Pose<S> {
         self.handle
     }
     pub fn spine(&self) -> &[Vec3<S>] {
-        &self.spine[..self.d.n]
+        &self.spine[..self.d.n()]
     }
     /// Displacement of each mass in the last substep (mm).
     pub fn velocities(&self) -> &[Vec3<S>] {
-        &self.vel[..self.d.n]
+        &self.vel[..self.d.n()]
     }
     pub fn skeleton(&self) -> &[Vec3<S>] {
-        &self.skel[..self.d.n]
+        &self.skel[..self.d.n()]
     }
     /// Skeleton segment directions in the handle frame.
     pub fn skeleton_directions(&self) -> &[Vec3<S>] {
-        &self.skel_dir[..self.d.n - 1]
+        &self.skel_dir[..self.d.n() - 1]
     }
     pub fn layers(&self) -> &[Layer<S>] {
-        &self.layers[..self.d.n]
+        &self.layers[..self.d.n()]
     }
     pub fn in_contact(&self) -> &[bool] {
-        &self.contact[..self.d.n]
+        &self.contact[..self.d.n()]
     }
     /// Masses lying on the paper.
     pub fn contacts(&self) -> usize {
@@ -368,7 +380,7 @@ impl<S: Scalar> Brush<S> {
         let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
         let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
         let mut f = [0.0; 3];
-        let n = self.d.n;
+        let n = self.d.n();
         if n > 1 {
             let d = (self.spine[1] - self.spine[0]).to_f64();
             let dv = (self.vel[1] - self.vel[0]).to_f64();
@@ -402,7 +414,7 @@ impl<S: Scalar> Brush<S> {
     /// Wets every layer to `wetness` (dipping the brush in ink).
     pub fn dip(&mut self, wetness: S) {
         let w = wetness.clamp(S::ZERO, S::ONE);
-        for l in self.layers[..self.d.n].iter_mut() {
+        for l in self.layers[..self.d.n()].iter_mut() {
             l.wetness = w;
         }
     }
@@ -426,14 +438,14 @@ impl<S: Scalar> Brush<S> {
             // the device's at 25 substeps. (The last substep places the nodes again, in
             // place: at one substep per tick, the board's rate, that is the only placement.)
             let mut end = [Vec3::<S>::ZERO; MAX_LAYERS];
-            place_skeleton(target, &offsets, &mut end[..self.d.n]);
+            place_skeleton(target, &offsets, &mut end[..self.d.n()]);
             let mut step = [Vec3::<S>::ZERO; MAX_LAYERS];
             for ((st, e), now) in step.iter_mut().zip(&end).zip(&self.skel) {
                 *st = (*e - *now).scale_coef(self.d.inv_substeps);
             }
             for _ in 1..n {
                 self.substep_by(|b| {
-                    let n = b.d.n;
+                    let n = b.d.n();
                     for ((node, vel), st) in b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
                     {
                         *node += *st;
@@ -481,7 +493,7 @@ impl<S: Scalar> Brush<S> {
     /// their displacement.
     fn place_at(&mut self, pose: Pose<S>, offsets: &Offsets<S>) {
         self.handle = pose;
-        let n = self.d.n;
+        let n = self.d.n();
         // The new nodes go into the displacement slots first, then swap in: no copy of the
         // whole skeleton on the 1 kHz path.
         place_skeleton(pose, offsets, &mut self.skel_vel[..n]);
@@ -499,7 +511,7 @@ impl<S: Scalar> Brush<S> {
     /// model is worth more flash than a call costs (one per substep).
     #[inline(never)]
     fn dynamics(&mut self, old_ferrule: Vec3<S>, old_ferrule_vel: Vec3<S>) {
-        let n = self.d.n;
+        let n = self.d.n();
         // The ferrule moves rigidly: its velocity change is prescribed.
         self.spine[0] = self.skel[0];
         self.vel[0] = self.skel[0] - old_ferrule;
@@ -647,7 +659,7 @@ impl<S: Scalar> Brush<S> {
         p: &mut [S; FLAT],
         mul: impl Fn(S, S) -> S + Copy,
     ) {
-        let n = self.d.n;
+        let n = self.d.n();
         for (i, (pi, (v, s))) in p[3..3 * (n - 1)]
             .chunks_exact_mut(3)
             .zip(self.vel[..n].windows(3).zip(seg[1..n].windows(2)))
@@ -666,7 +678,7 @@ impl<S: Scalar> Brush<S> {
     /// since the tie is weighted on the right-hand side, not at all: they are computed once
     /// per parameter change.
     fn solve_exact(&self, p: &mut [S; FLAT], du0: Vec3<S>) {
-        let n = self.d.n;
+        let n = self.d.n();
         // The pivots: set by `prepare_pivots` with the parameters (the rows do not depend on
         // contact: the tie is weighted in the right-hand side).
         let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
@@ -698,7 +710,7 @@ impl<S: Scalar> Brush<S> {
     /// computed where the parameters change (fifteen divisions, which would otherwise land
     /// on the next force-loop tick).
     fn prepare_pivots(&mut self) {
-        let n = self.d.n;
+        let n = self.d.n();
         let mut prev_cp = S::ZERO;
         for i in 1..n {
             let c = self.d.rows[usize::from(i == n - 1)][1].c_j;
@@ -714,7 +726,7 @@ impl<S: Scalar> Brush<S> {
     /// ([`Self::seg_len2`]): squared length, and its `rsqrt` when positive (both users test
     /// their own threshold on the same numbers, so they get exactly what they would compute).
     fn measure_segments(&mut self) {
-        for i in 1..self.d.n {
+        for i in 1..self.d.n() {
             (self.seg_len2[i], self.seg_rsqrt[i]) = measure(self.spine[i] - self.spine[i - 1]);
         }
         self.segments_cached = true;
@@ -729,7 +741,7 @@ impl<S: Scalar> Brush<S> {
 
     fn project_onto_paper(&mut self) {
         let tol = self.d.contact_tol;
-        for i in 1..self.d.n {
+        for i in 1..self.d.n() {
             let s = &mut self.spine[i];
             let u = &mut self.vel[i];
             if s.z < S::ZERO {
@@ -749,7 +761,7 @@ impl<S: Scalar> Brush<S> {
     /// translates them: node i then costs one rotation, not a rotation and a serial chain of
     /// sums, and the nodes are independent of each other.
     fn skeleton_offsets(&self) -> Offsets<S> {
-        let n = self.d.n;
+        let n = self.d.n();
         let mut out = [[S::ZERO; MAX_LAYERS]; 3];
         let [ox, oy, oz] = &mut out;
         let mut acc = Vec3::ZERO;
@@ -773,7 +785,7 @@ impl<S: Scalar> Brush<S> {
 
     /// Bends the skeleton toward the spine's tip direction (eqs. 3-1..3-4).
     fn plastic_flow(&mut self) {
-        let n = self.d.n;
+        let n = self.d.n();
         let tip = self.spine[n - 1] - self.spine[n - 2];
         let Some(goal) = tip.normalized_or_none(self.d.tiny) else {
             return;
@@ -798,7 +810,7 @@ impl<S: Scalar> Brush<S> {
 
     /// Surface ellipses (eqs. 3-7..3-20).
     fn update_surface(&mut self) {
-        let n = self.d.n;
+        let n = self.d.n();
         let normal = Vec3::<S>::Z;
         // The handle's x, y and -z axes are columns of its rotation matrix: one matrix for
         // the three, instead of three quaternion rotations of basis vectors.
@@ -966,14 +978,19 @@ fn jacobi_with<S: Scalar>(
     du: &mut [S; FLAT],
     mul: impl Fn(S, S) -> S,
 ) {
-    // Components of the interior masses 1..n-1, and of the tip.
-    let (lo, tip) = (3, 3 * (n - 1));
+    // Components of the interior masses 1..n-1 (from LO), and of the tip.
+    const LO: usize = 3;
+    let tip = 3 * (n - 1);
     let sweep = |src: &[S; FLAT], dst: &mut [S; FLAT]| {
-        for (((o, pk), left), right) in dst[lo..tip]
+        // `n` clamped as `Derived::n` does, here inside the closure (compiled on its own, it
+        // sees only the captured value), so that the compiler sees every range below within
+        // FLAT and leaves out the panicking checks.
+        let tip = tip.clamp(LO, FLAT - 3);
+        for (((o, pk), left), right) in dst[LO..tip]
             .iter_mut()
-            .zip(&p[lo..tip])
-            .zip(&src[lo - 3..tip - 3])
-            .zip(&src[lo + 3..tip + 3])
+            .zip(&p[LO..tip])
+            .zip(&src[LO - 3..tip - 3])
+            .zip(&src[LO + 3..tip + 3])
         {
             *o = *pk + mul(*left + *right, c);
         }
@@ -1152,7 +1169,8 @@ fn per_substep_rate(rate: f32, substep_hz: f32) -> f32 {
 /// on every parameter change, and they are the same bits on the host. Single precision's
 /// relative 6e-8 is far below anything physical in a stiffness or a mass.
 fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
-    let n = p.layers as usize;
+    // Validated to 3..=MAX_LAYERS; clamped as `Derived::n` reads it.
+    let n = (p.layers as usize).clamp(2, MAX_LAYERS);
     let h = p.substep_s();
     let m = p.mass_g * 1e-3 / (n as f32 - 1.0);
     let (ks, kd) = (p.axial_stiffness, p.axial_damping);
@@ -1198,7 +1216,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     ];
     Derived {
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
-        n,
+        layers: n,
         k: p.ring_nodes as usize,
         iterations: p.jacobi_iterations as usize,
         substeps: p.substeps_per_tick as usize,

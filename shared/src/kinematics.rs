@@ -218,17 +218,19 @@ impl<S: Scalar> Pen<S> {
                 S::from_f32(cfg.base_mm[1]),
                 S::from_f32(cfg.base_mm[2]),
             ),
-            rad_per_count: [0, 1, 2].map(|j| {
+            rad_per_count: core::array::from_fn(|j| {
                 S::from_f32(
                     cfg.encoder_sign[j] as f32 * tau
                         / (cfg.counts_per_rev[j] as f32 * cfg.ratio[j]),
                 )
             }),
-            rad_per_code: [0, 1, 2]
-                .map(|j| S::from_f32(cfg.gimbal_sign[j] as f32 * cfg.gimbal_rad_per_code[j])),
+            rad_per_code: core::array::from_fn(|j| {
+                S::from_f32(cfg.gimbal_sign[j] as f32 * cfg.gimbal_rad_per_code[j])
+            }),
             // Joint torque at full command: ratio * k_t * I_max (N m).
-            torque_per_command: [0, 1, 2]
-                .map(|j| S::from_f32(cfg.ratio[j] * cfg.torque_constant[j] * cfg.max_current[j])),
+            torque_per_command: core::array::from_fn(|j| {
+                S::from_f32(cfg.ratio[j] * cfg.torque_constant[j] * cfg.max_current[j])
+            }),
             inkwell: Joints {
                 arm: cfg.inkwell_joints.map(S::from_f32),
                 gimbal: cfg.inkwell_gimbal.map(S::from_f32),
@@ -252,12 +254,14 @@ impl<S: Scalar> Pen<S> {
     /// Joint angles from raw readings.
     pub fn joints(&self, raw: &RawReadings) -> Result<Joints<S>, KinematicsError> {
         let zero = self.zero.ok_or(KinematicsError::NotCalibrated)?;
-        let arm = [0, 1, 2].map(|j| {
+        // `from_fn` hands each closure an index the compiler knows is below 3: no bounds
+        // checks on the force path.
+        let arm = core::array::from_fn(|j| {
             // Counts since calibration as a scalar: exact for any realistic travel.
             let d = S::from_i64(raw.encoders[j].wrapping_sub(zero.encoders[j]));
             self.inkwell.arm[j] + d * self.rad_per_count[j]
         });
-        let gimbal = [0, 1, 2].map(|j| {
+        let gimbal = core::array::from_fn(|j| {
             // In i64: two codes a whole i32 range apart do not overflow.
             let d = S::from_i64(i64::from(raw.gimbal[j]) - i64::from(zero.gimbal[j]));
             self.inkwell.gimbal[j] + d * self.rad_per_code[j]
@@ -434,7 +438,7 @@ impl<S: Scalar> Pen<S> {
     /// Motor commands in [-1, 1] (full current) for joint torques `tau` (N m): through the
     /// ratio and the torque constant, clamped.
     pub fn motor_commands(&self, tau: &[S; 3]) -> [S; 3] {
-        [0, 1, 2].map(|j| {
+        core::array::from_fn(|j| {
             let c = tau[j].div(self.torque_per_command[j]);
             let c = if self.cfg.motor_sign[j] < 0 { -c } else { c };
             c.clamp(-S::ONE, S::ONE)

@@ -6,6 +6,7 @@
 //! * [`bench`]: the firmware's own instruction count of one force-loop tick.
 //! * [`link`]: the host end of the wire protocol: handshake, pose streaming paced by the
 //!   device's states, bit-exact comparison with the host simulation.
+//! * [`panics`]: the index panics the force loop can reach, read from the image's machine code.
 //! * [`run`]: `hil run`: a pose file through the device (QEMU or a serial port), with checks.
 //! * [`serial`]: backend `serial`, the same link over a serial port.
 //! * [`probe_rs`]: backend `probe-rs`, the firmware flashed onto a board with the `probe-rs`
@@ -15,6 +16,7 @@
 pub mod bench;
 pub mod firmware;
 pub mod link;
+pub mod panics;
 pub mod probe_rs;
 pub mod qemu;
 pub mod run;

@@ -132,6 +132,31 @@ fn panic_hardfault_and_stall_turn_motors_off_and_exit_nonzero() {
     }
 }
 
+/// The force loop holds no panicking index: no index or range check the compiler could not
+/// prove is reachable from the interrupt handler that runs the tick, in the QEMU image
+/// (`DefaultHandler`, which dispatches TIMER0 to the tick and the UART's and the timer
+/// driver's interrupts) and in the Black Pill's when it has been built (`TIM1_BRK_TIM9`;
+/// CI builds it before these tests). A failure names the functions.
+#[test]
+fn the_force_path_holds_no_index_panic() {
+    let Some(elf) = image() else { return };
+    let mut images = vec![(elf, "DefaultHandler")];
+    let pen = firmware::board_elf(firmware::Board::Blackpill);
+    if pen.exists() {
+        images.push((pen, "TIM1_BRK_TIM9"));
+    }
+    for (elf, root) in images {
+        let (calls, visited) = hil::panics::reachable_index_panics(&elf, root).unwrap();
+        println!(
+            "{}: {visited} functions reachable from {root}",
+            elf.display()
+        );
+        // The walk reached the brush, the force model and the kinematics.
+        assert!(visited > 20, "{visited}");
+        assert!(calls.is_empty(), "{}: {calls:#?}", elf.display());
+    }
+}
+
 /// The targets, 128 KiB of flash and 32 KiB of static RAM, which both images meet
 /// (the Black Pill's is checked by `.ci/run`, `hil size --board blackpill --check`): growth
 /// past them fails here, to be seen and answered, not found later. (The chips have more:

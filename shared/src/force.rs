@@ -135,7 +135,7 @@ impl std::error::Error for LimitError {}
 
 /// Whether `value` is finite and within `[min, max]`, else the error naming it. Out of line:
 /// the configurations call it for every field, and one copy of the test and the error's
-/// construction is smaller than one per field (about 1.2 KB of the pen's flash).
+/// construction is smaller than one per field (890 bytes of the pen's flash).
 #[inline(never)]
 pub(crate) fn check(name: &'static str, value: f32, min: f32, max: f32) -> Result<(), LimitError> {
     if value.is_finite() && value >= min && value <= max {
@@ -602,8 +602,8 @@ impl<S: Scalar> OutputStage<S> {
         // Passivity controller: if the device has put net energy into the hand, add a damper
         // that takes it back over this tick: F = -a v with a |v|^2 T = surplus.
         // With v in mm per tick (m/s) and T = 1 ms, a = surplus_J / (|v|^2 T) is the surplus
-        // in mJ over |v|^2, at most `damper_max` (the test keeps the quotient in range when
-        // |v| is tiny).
+        // in mJ over |v|^2, at most `damper_max` (the comparison before the division keeps the
+        // quotient in range when |v| is tiny).
         if self.passivity_control && self.absorbed_mj < S::ZERO {
             let v2 = hand_step.norm2();
             if v2 > S::ZERO {

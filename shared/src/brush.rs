@@ -1184,10 +1184,11 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         let c_d = h * kd / w;
         let c_t = h * h * kt / w;
         let c_dt = h * kdt / w;
-        worst_c_j = worst_c_j.max(c_k + c_d);
+        let c_j = c_k + c_d;
+        worst_c_j = worst_c_j.max(c_j);
         Row {
             c_k: S::from_f32(c_k),
-            c_j: S::from_f32(c_k + c_d),
+            c_j: S::from_f32(c_j),
             c_t: S::from_f32(c_t * t),
             c_tv: S::from_f32((c_t + c_dt) * t),
             c_f: S::from_f32(h * h * 1e3 / w),

@@ -122,12 +122,7 @@ impl<S: Scalar> Vec3<S> {
     /// (a direction that is not defined).
     #[inline]
     pub fn normalized_or_none(self, min_len: S) -> Option<Self> {
-        let n2 = self.norm2();
-        if n2 > min_len * min_len {
-            Some(self.normalized_by(n2, n2.rsqrt()))
-        } else {
-            None
-        }
+        self.normalized_if_longer(self.norm2(), min_len)
     }
     /// [`Self::normalized_or_none`] for a vector whose components are below one in
     /// magnitude, such as the cross product of two unit vectors: the squared length from
@@ -135,7 +130,11 @@ impl<S: Scalar> Vec3<S> {
     /// cheaper in fixed point.
     #[inline]
     pub fn normalized_or_none_coef(self, min_len: S) -> Option<Self> {
-        let n2 = self.dot_coef(self);
+        self.normalized_if_longer(self.dot_coef(self), min_len)
+    }
+    /// The two above, given the squared length `n2` however it was formed.
+    #[inline]
+    fn normalized_if_longer(self, n2: S, min_len: S) -> Option<Self> {
         if n2 > min_len * min_len {
             Some(self.normalized_by(n2, n2.rsqrt()))
         } else {

@@ -64,6 +64,7 @@ use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBS
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
+use crate::wide::{InteriorRows, Segments};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -530,6 +531,22 @@ impl<S: Scalar> Brush<S> {
         // Segments 2.. have not moved since the surface update measured them (if it did).
         let first_cached = if self.segments_cached { 2 } else { usize::MAX };
         self.segments_cached = false;
+        // With none cached, the host's wide form measures them four at a time where it
+        // applies (see `wide`), the same values: bit j is set for a segment it did.
+        let done = if first_cached == usize::MAX {
+            S::segments_wide(&mut Segments {
+                n,
+                spine: &self.spine,
+                len2: &mut self.seg_len2,
+                rsqrt: &mut self.seg_rsqrt,
+                seg: &mut seg,
+                segment: d.segment,
+                compression_ratio: d.compression_ratio,
+                tiny2: d.tiny2,
+            })
+        } else {
+            0
+        };
         // The others start their inverse square root from the segment's last one, which is
         // kept for the next substep.
         for (j, ((f, pair), (len2, r))) in (1..).zip(
@@ -539,6 +556,9 @@ impl<S: Scalar> Brush<S> {
                     .zip(&mut self.seg_rsqrt[1..n]),
             ),
         ) {
+            if done >> j & 1 != 0 {
+                continue;
+            }
             let v = pair[1] - pair[0];
             if j < first_cached {
                 (*len2, *r) = measure_near(v, *r);
@@ -564,7 +584,19 @@ impl<S: Scalar> Brush<S> {
             .iter()
             .all(|c| c.is_coef())
         {
-            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
+            let rows = InteriorRows {
+                n,
+                seg: &seg,
+                vel: &self.vel,
+                spine: &self.spine,
+                skel: &self.skel,
+                skel_vel: &self.skel_vel,
+                ties: &ties,
+                coefs: [inner.c_k, inner.c_j, inner.c_t, inner.c_tv],
+            };
+            if !S::interior_rows_wide(&rows, &mut p) {
+                self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
+            }
         } else {
             self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
         }
@@ -961,7 +993,10 @@ fn jacobi<S: Scalar>(
     // The two coefficients are the same for every sweep: tested once (the presets' are in
     // (-1, 1)), not on each of the sweeps' products; the same values either way.
     if c.is_coef() && c_tip.is_coef() {
-        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_tested_coef);
+        // The host's wide form where it applies (see `wide`), the same values.
+        if !S::jacobi_wide(p, (c, c_tip), n, iterations, du) {
+            jacobi_with(p, c, c_tip, n, iterations, du, S::mul_tested_coef);
+        }
     } else {
         jacobi_with(p, c, c_tip, n, iterations, du, S::mul_coef);
     }
@@ -1267,6 +1302,58 @@ mod tests {
         assert_eq!(rate_at(1.0, 1_000.0), 1.0);
     }
 
+    /// Tick k of a stroke tilted 15 degrees: pressed down over 100 ticks, drawn along x,
+    /// lifted from tick 250.
+    fn pressed_stroke<S: Scalar>(k: u32) -> Pose<S> {
+        let z = if k < 100 {
+            44.0 - 0.12 * k as f64
+        } else {
+            32.0
+        };
+        let x = if k < 100 { 0.0 } else { 0.2 * (k - 100) as f64 };
+        let z = if k > 250 {
+            z + 0.1 * (k - 250) as f64
+        } else {
+            z
+        };
+        Pose::new(
+            Vec3::<S>::from_f64([x, 0.0, z]),
+            Quat::from_f64([0.991_444_861_373_810_4, 0.0, 0.130_526_192_220_051_6, 0.0]),
+        )
+    }
+
+    /// The host's wide (AVX2) kernels give the scalar loops' bits over whole strokes, at the
+    /// board's rate (one substep: exact solve) and the reference rate (Jacobi sweeps).
+    #[test]
+    fn wide_kernels_change_no_bit() {
+        use crate::scalar::Fx;
+        use crate::wide;
+        for substeps in [1.0, 25.0] {
+            let mut wide_run = Brush::<Fx>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
+            wide_run
+                .set_param(ParamId::SubstepsPerTick, substeps)
+                .unwrap();
+            let mut scalar_run = wide_run.clone();
+            let mut touched = 0;
+            for k in 1..=300 {
+                // Only this test switches them; others run either way with the same results.
+                wide::set_enabled(false);
+                scalar_run.tick(pressed_stroke(k));
+                wide::set_enabled(true);
+                wide_run.tick(pressed_stroke(k));
+                touched = touched.max(wide_run.contacts());
+                assert_eq!(wide_run.spine, scalar_run.spine, "{substeps} tick {k}");
+                assert_eq!(wide_run.vel, scalar_run.vel, "{substeps} tick {k}");
+                assert_eq!(wide_run.layers, scalar_run.layers, "{substeps} tick {k}");
+            }
+            assert!(touched > 0, "{touched}");
+        }
+        if !wide::active() {
+            extern crate std;
+            std::println!("no AVX2 on this CPU: the scalar loops were compared with themselves");
+        }
+    }
+
     /// The segment lengths the surface update leaves for the next substep's springs change
     /// nothing: a brush that never uses them (the cache dropped before every tick) ends a
     /// pressed, dragged and lifted stroke with the same bits, at one substep per tick and
@@ -1274,23 +1361,7 @@ mod tests {
     #[test]
     fn cached_segment_lengths_change_no_bit() {
         fn run<S: Scalar>(substeps: f32) {
-            let pose = |k: u32| {
-                let z = if k < 100 {
-                    44.0 - 0.12 * k as f64
-                } else {
-                    32.0
-                };
-                let x = if k < 100 { 0.0 } else { 0.2 * (k - 100) as f64 };
-                let z = if k > 250 {
-                    z + 0.1 * (k - 250) as f64
-                } else {
-                    z
-                };
-                Pose::new(
-                    Vec3::<S>::from_f64([x, 0.0, z]),
-                    Quat::from_f64([0.991_444_861_373_810_4, 0.0, 0.130_526_192_220_051_6, 0.0]),
-                )
-            };
+            let pose = pressed_stroke::<S>;
             let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
             cached
                 .set_param(ParamId::SubstepsPerTick, substeps)

@@ -593,6 +593,40 @@ pub trait Scalar:
     fn mul_tested_coef(self, c: Self) -> Self {
         self * c
     }
+    /// The brush's Jacobi sweeps (see `brush::jacobi`) at once, for coefficients whose
+    /// [`Scalar::is_coef`] holds: writes `du` and returns true where the implementation has a
+    /// wide form that applies (the fixed-point one on x86-64 hosts with AVX2, see `wide`);
+    /// returns false where not (then the brush runs its own sweeps).
+    #[doc(hidden)]
+    #[inline]
+    fn jacobi_wide(
+        p: &[Self],
+        coefs: (Self, Self),
+        n: usize,
+        iterations: usize,
+        du: &mut [Self],
+    ) -> bool {
+        let _ = (p, coefs, n, iterations, du);
+        false
+    }
+    /// Measures the brush's spine segments and writes their spring terms (see
+    /// [`crate::wide::Segments`]) where the implementation has a wide form that applies, and
+    /// returns the segments done as bits (bit j: segment j); 0 where it has none.
+    #[doc(hidden)]
+    #[inline]
+    fn segments_wide(segments: &mut crate::wide::Segments<'_, Self>) -> u32 {
+        let _ = segments;
+        0
+    }
+    /// Writes the brush's interior right-hand sides (see [`crate::wide::InteriorRows`]) into
+    /// `p` at once and returns true where the implementation has a wide form that applies;
+    /// returns false, having written nothing, where not (then the brush runs its own loop).
+    #[doc(hidden)]
+    #[inline]
+    fn interior_rows_wide(rows: &crate::wide::InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
+        let _ = (rows, p);
+        false
+    }
     /// Sine and cosine of an angle in radians.
     fn sin_cos(self) -> (Self, Self);
     /// Angle of the point (x, y) = (`x`, `self`) in (-pi, pi]; 0 for (0, 0).
@@ -989,6 +1023,24 @@ impl Scalar for Fx {
         let bits = self.0.to_bits();
         let high = (bits >> 32) as i32;
         high == 0 || (high == -1 && bits as u32 != 0)
+    }
+    #[inline]
+    fn jacobi_wide(
+        p: &[Self],
+        coefs: (Self, Self),
+        n: usize,
+        iterations: usize,
+        du: &mut [Self],
+    ) -> bool {
+        crate::wide::jacobi(p, coefs, n, iterations, du)
+    }
+    #[inline]
+    fn interior_rows_wide(rows: &crate::wide::InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
+        crate::wide::interior_rows(rows, p)
+    }
+    #[inline]
+    fn segments_wide(segments: &mut crate::wide::Segments<'_, Self>) -> u32 {
+        crate::wide::segments(segments)
     }
     #[inline]
     fn mul_tested_coef(self, c: Self) -> Self {

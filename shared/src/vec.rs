@@ -4,7 +4,11 @@ use crate::scalar::Scalar;
 use core::ops::{Add, AddAssign, Mul, Neg, Sub, SubAssign};
 
 /// A 3-vector. Model coordinates: millimetres, paper plane z = 0, +z up.
+///
+/// `repr(C)`: a slice of them is the components in order, which the host's wide kernels
+/// (`wide`) read as one flat array.
 #[derive(Copy, Clone, Debug, PartialEq, Default)]
+#[repr(C)]
 pub struct Vec3<S> {
     pub x: S,
     pub y: S,

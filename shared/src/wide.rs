@@ -1,0 +1,939 @@
+//! Wide forms of the brush's flat fixed-point loops for x86-64 hosts: four `I32F32` entries per
+//! AVX2 instruction instead of one, giving the scalar loops' bits.
+//!
+//! Why only here: the device computes one entry at a time (the Cortex-M4 has no wide integer
+//! unit that would help), and the host's simulation must give the device's bits, so the host
+//! cannot change the arithmetic, only how many entries it does at once. Three loops took
+//! three quarters of the host's fixed-point substep (callgrind, `shared/examples/tick_cost`):
+//! the segment springs (a root and a spring term per segment), the right-hand sides of the
+//! interior rows (about 57 instructions an entry) and the Jacobi sweeps (about 14 an entry).
+//! Here they run four segments or entries at a time: [`segments`], [`interior_rows`] and
+//! [`jacobi`], reached through the hidden `Scalar` hooks that only `Fx` implements.
+//! The rest of the substep (integration, the tip's row, the ties) stays scalar: wide forms of
+//! the integration and of the skeleton's stepping were measured slower than the loops they
+//! replaced (their range checks cost what they saved).
+//!
+//! Exactness:
+//! * **Products.** The coefficient product `floor(x c / 2^32)` for `0 <= c < 2^32` raw is
+//!   `xh c + floor(xl c / 2^32)` with `x = xh 2^32 + xl` (`xh` signed, `xl` unsigned), the
+//!   identity the device's own coefficient product uses: `vpmuludq` gives `xl c`, and `xh c`
+//!   is `vpmuldq` when `c < 2^31` (a signed word), else `vpmuludq` less `c 2^32` where `xh`
+//!   is negative.
+//! * **Saturation.** Each kernel first bounds its inputs (the spine within +-2^45 mm-units
+//!   for the segments, every input within +-2^58 for the right-hand sides, the right-hand
+//!   sides within +-2^60 and the coefficients at most 3/8 for the Jacobi sweeps: each
+//!   kernel's comment has the arithmetic), within which none of its sums can overflow, so
+//!   the saturating and the wrapping sums agree. Where a bound fails, the scalar loop runs
+//!   instead and saturates exactly as on the device.
+//!
+//! The tests below compare each kernel with its scalar loop over random inputs, saturation
+//! included; `brush`'s `wide_kernels_change_no_bit` runs whole strokes both ways. CPUs
+//! without AVX2 (detected at run time, once) and every other target run the scalar loops;
+//! [`set_enabled`] switches the wide forms off to measure or compare them.
+#![allow(unsafe_code)]
+
+use crate::scalar::{Fx, Scalar};
+use crate::vec::Vec3;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Lets the wide forms run where the CPU has them (the default), or not: the results are the
+/// same bits either way, so this only changes the speed (for benchmarks and tests).
+pub fn set_enabled(on: bool) {
+    ENABLED.store(on, Ordering::Relaxed);
+}
+
+/// Whether the wide forms run on this machine: enabled and the CPU has AVX2.
+pub fn active() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        ENABLED.load(Ordering::Relaxed) && x86::avx2()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The brush's Jacobi solve (`brush::jacobi`): from `du = p`, `iterations` sweeps of
+/// `du_e = p_e + c (du_{e-3} + du_{e+3})` over the interior masses' entries `3..3(n-1)` and
+/// `du_e = p_e + c_tip du_{e-3}` over the tip's three, entries `0..3` (the ferrule's) held at
+/// `p`'s; saturating sums, coefficient products, each sweep reading only the one before. Writes
+/// `du[..3n]` and returns true, or returns false where the wide form does not apply (then
+/// `du` holds unspecified values and the caller runs its own sweeps).
+#[inline]
+pub(crate) fn jacobi(
+    p: &[Fx],
+    (c, c_tip): (Fx, Fx),
+    n: usize,
+    iterations: usize,
+    du: &mut [Fx],
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if is_small_coef(c) && is_small_coef(c_tip) && active() {
+        return x86::jacobi(p, (c, c_tip), n, iterations, du);
+    }
+    let _ = (p, c, c_tip, n, iterations, du);
+    false
+}
+
+/// `0 <= c < 1/2`: a coefficient the wide product takes as one signed word.
+#[allow(dead_code)]
+fn is_small_coef(c: Fx) -> bool {
+    (0..1 << 31).contains(&c.to_bits())
+}
+
+/// What the right-hand side of the interior rows (masses `1..n-1`) reads, as `Brush` holds it:
+/// `p_i = c_k (f_{i+1} - f_i) + c_j ((u_{i-1} - u_i) + (u_{i+1} - u_i))
+///  + w_i (c_t (VS_i - S_i) + c_tv (VU_i - u_i))`,
+/// the tie term only where `w_i > 0` and its product only where `w_i < 1`.
+pub struct InteriorRows<'a, S> {
+    /// The masses (`n <= MAX_LAYERS`).
+    pub n: usize,
+    /// The spring term of segment j (between masses j-1 and j) at j, for j up to n.
+    pub seg: &'a [Vec3<S>],
+    pub vel: &'a [Vec3<S>],
+    pub spine: &'a [Vec3<S>],
+    pub skel: &'a [Vec3<S>],
+    pub skel_vel: &'a [Vec3<S>],
+    /// The tie weight of each mass.
+    pub ties: &'a [S],
+    /// The interior row's c_k, c_j, c_t and c_tv, each with [`Scalar::is_coef`].
+    pub coefs: [S; 4],
+}
+
+/// Writes [`InteriorRows`]' right-hand sides into `p` (flattened: mass i at `3i..3i+3`) and
+/// returns true, or returns false having written nothing where the wide form does not apply
+/// (then the caller runs its scalar loop).
+pub(crate) fn interior_rows(rows: &InteriorRows<'_, Fx>, p: &mut [Fx]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if rows.coefs.iter().all(|c| is_small_coef(*c)) && active() {
+        return x86::interior_rows(rows, p);
+    }
+    let _ = (rows, p);
+    false
+}
+
+/// [`InteriorRows`]' arrays as flat arrays of components (entry `3i + axis` of mass i).
+#[allow(dead_code)]
+#[derive(Copy, Clone)]
+struct FlatRows<'a> {
+    f: &'a [Fx],
+    v: &'a [Fx],
+    x: &'a [Fx],
+    k: &'a [Fx],
+    kv: &'a [Fx],
+}
+
+#[allow(dead_code)]
+impl<'a> FlatRows<'a> {
+    fn of(rows: &InteriorRows<'a, Fx>) -> Self {
+        FlatRows {
+            f: flat(rows.seg),
+            v: flat(rows.vel),
+            x: flat(rows.spine),
+            k: flat(rows.skel),
+            kv: flat(rows.skel_vel),
+        }
+    }
+
+    /// Entry `e` of the right-hand sides for a mass of tie weight `w`: the scalar form the
+    /// wide one must equal, the same operations in the same order as `Brush`'s rows.
+    fn entry(&self, w: Fx, c: [Fx; 4], e: usize) -> Fx {
+        let [c_k, c_j, c_t, c_tv] = c;
+        let (f, v) = (self.f, self.v);
+        let ve = v[e];
+        let rel = (v[e - 3] - ve) + (v[e + 3] - ve);
+        let mut pi = (f[e + 3] - f[e]).mul_tested_coef(c_k) + rel.mul_tested_coef(c_j);
+        if w > Fx::ZERO {
+            let tie = (self.k[e] - self.x[e]).mul_tested_coef(c_t)
+                + (self.kv[e] - ve).mul_tested_coef(c_tv);
+            pi += if w < Fx::ONE {
+                tie.mul_tested_coef(w)
+            } else {
+                tie
+            };
+        }
+        pi
+    }
+}
+
+/// What the spine's segment springs read and write, as `Brush` holds them: for each segment
+/// j in `1..n` (between masses j-1 and j), `d = S_j - S_{j-1}`, its squared length and
+/// inverse length (the Newton step from the last one, see [`Scalar::rsqrt_near`]), and the
+/// spring term `(1 - L r) d`, the strain times the compression ratio where negative, zero
+/// for a segment no longer than `tiny`.
+pub struct Segments<'a, S> {
+    pub n: usize,
+    pub spine: &'a [Vec3<S>],
+    pub len2: &'a mut [S],
+    /// The last inverse lengths in, the new ones out.
+    pub rsqrt: &'a mut [S],
+    /// The spring terms, at j.
+    pub seg: &'a mut [Vec3<S>],
+    /// The rest length L.
+    pub segment: S,
+    pub compression_ratio: S,
+    pub tiny2: S,
+}
+
+/// Measures [`Segments`] and writes their spring terms where the wide form applies, and
+/// returns the segments it did as bits (bit j for segment j); the caller does the others
+/// (whose inverse lengths are left as they were) with its scalar code.
+pub(crate) fn segments(s: &mut Segments<'_, Fx>) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if active() {
+        return x86::segments(s);
+    }
+    let _ = s;
+    0
+}
+
+/// The components of `v` in order: `Vec3` is `repr(C)` over three scalars.
+#[allow(dead_code)]
+fn flat(v: &[Vec3<Fx>]) -> &[Fx] {
+    // SAFETY: `Vec3<Fx>` is `repr(C)` with three `Fx` fields and no padding (all three have
+    // one size and alignment), so `v` is `3 v.len()` consecutive `Fx`, borrowed as long as `v`.
+    unsafe { core::slice::from_raw_parts(v.as_ptr().cast::<Fx>(), 3 * v.len()) }
+}
+
+/// [`flat`] for writing.
+#[allow(dead_code)]
+fn flat_mut(v: &mut [Vec3<Fx>]) -> &mut [Fx] {
+    // SAFETY: as for `flat`; the borrow is exclusive as `v`'s was.
+    unsafe { core::slice::from_raw_parts_mut(v.as_mut_ptr().cast::<Fx>(), 3 * v.len()) }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::{flat, flat_mut, FlatRows, InteriorRows, Segments};
+    use crate::params::MAX_LAYERS;
+    use crate::scalar::{Fx, Scalar};
+    use core::arch::x86_64::*;
+    use core::sync::atomic::{AtomicU8, Ordering};
+
+    /// Run-time AVX2 detection, cached: 0 not yet asked, 1 absent, 2 present.
+    pub(super) fn avx2() -> bool {
+        static STATE: AtomicU8 = AtomicU8::new(0);
+        match STATE.load(Ordering::Relaxed) {
+            1 => false,
+            2 => true,
+            _ => {
+                let present = detect_avx2();
+                STATE.store(if present { 2 } else { 1 }, Ordering::Relaxed);
+                present
+            }
+        }
+    }
+
+    /// AVX2 in the CPU (CPUID leaf 7) and its registers saved by the operating system (XCR0's
+    /// SSE and AVX state bits, readable once CPUID reports OSXSAVE).
+    fn detect_avx2() -> bool {
+        let leaf1 = __cpuid(1);
+        let (osxsave, avx) = (leaf1.ecx & 1 << 27 != 0, leaf1.ecx & 1 << 28 != 0);
+        if !(osxsave && avx) || __cpuid(0).eax < 7 {
+            return false;
+        }
+        let avx2 = __cpuid_count(7, 0).ebx & 1 << 5 != 0;
+        // SAFETY: CPUID reports OSXSAVE, so XGETBV may be executed.
+        let xcr0 = unsafe { xgetbv0() };
+        avx2 && xcr0 & 0b110 == 0b110
+    }
+
+    #[target_feature(enable = "xsave")]
+    unsafe fn xgetbv0() -> u64 {
+        _xgetbv(0)
+    }
+
+    /// Four entries of a slice from `i` (`i + 4 <= s.len()`, checked by the callers).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn load(s: &[Fx], i: usize) -> __m256i {
+        _mm256_loadu_si256(s.as_ptr().add(i).cast::<__m256i>())
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn store(s: &mut [Fx], i: usize, v: __m256i) {
+        _mm256_storeu_si256(s.as_mut_ptr().add(i).cast::<__m256i>(), v)
+    }
+
+    /// `floor(x c / 2^32)` for `0 <= c < 2^31` in every lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul_small_coef(x: __m256i, c: __m256i) -> __m256i {
+        // vpmuldq reads each lane's low word as signed (xh after the shift), vpmuludq as
+        // unsigned (xl).
+        let high = _mm256_mul_epi32(_mm256_srli_epi64::<32>(x), c);
+        let low = _mm256_srli_epi64::<32>(_mm256_mul_epu32(x, c));
+        _mm256_add_epi64(high, low)
+    }
+
+    /// `floor(x c / 2^32)` for `0 <= c < 2^32` in every lane.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul_coef(x: __m256i, c: __m256i) -> __m256i {
+        // xh taken unsigned is xh + 2^32 where x < 0: take c 2^32 back there.
+        let negative = _mm256_cmpgt_epi64(_mm256_setzero_si256(), x);
+        let high = _mm256_sub_epi64(
+            _mm256_mul_epu32(_mm256_srli_epi64::<32>(x), c),
+            _mm256_and_si256(negative, _mm256_slli_epi64::<32>(c)),
+        );
+        let low = _mm256_srli_epi64::<32>(_mm256_mul_epu32(x, c));
+        _mm256_add_epi64(high, low)
+    }
+
+    /// [`super::jacobi`] with AVX2 present and both coefficients below 1/2.
+    pub(super) fn jacobi(
+        p: &[Fx],
+        coefs: (Fx, Fx),
+        n: usize,
+        iterations: usize,
+        du: &mut [Fx],
+    ) -> bool {
+        // At least four interior entries (n >= 4) for the overlapping last vector, and one
+        // entry after the tip's three in every array (n < MAX_LAYERS), which the tip's vector
+        // writes and no sweep reads.
+        if !(4..MAX_LAYERS).contains(&n) || p.len() < 3 * n + 1 || du.len() < 3 * n + 1 {
+            return false;
+        }
+        let (p, du) = (&p[..3 * n + 1], &mut du[..3 * n + 1]);
+        let mut other = [Fx::ZERO; 3 * MAX_LAYERS];
+        let other = &mut other[..3 * n + 1];
+        other[..3].copy_from_slice(&p[..3]);
+        du[..3].copy_from_slice(&p[..3]);
+        if iterations == 0 {
+            du.copy_from_slice(p);
+            return true;
+        }
+        // SAFETY: AVX2 and the coefficients checked by the caller; the three arrays hold
+        // 3n + 1 entries with 4 <= n, so every vector a sweep touches is inside them.
+        unsafe { jacobi_avx2(p, coefs, iterations, du, other) }
+    }
+
+    /// The sweeps, alternating between `du` and `other` so that the last writes `du`; false
+    /// (before any sweep) if an entry of `p` is beyond +-2^60 or a coefficient above 3/8.
+    ///
+    /// Within those no sum of any sweep can overflow, so the sweeps need no check: with
+    /// `P = max |p| < 2^60` and `D_k` the largest entry after sweep k, `D_0 = P` and
+    /// `D_k <= P + 2c D_(k-1) + 1` (the floor of the product adds at most one unit), so every
+    /// `D_k <= (P + 1) / (1 - 2c) <= 4 (P + 1) < 2^62` for `2c <= 3/4`: the neighbours' sum
+    /// is below 2^63, and so is `p` plus its product. The Jacobi solve runs only for `c_j`
+    /// up to `JACOBI_LIMIT` (1/4).
+    /// Safety: AVX2 present; `p`, `du` and `other` hold `3n + 1` entries with `n >= 4`; both
+    /// coefficients non-negative; entries 0..3 of `du` and `other` are `p`'s.
+    #[target_feature(enable = "avx2")]
+    unsafe fn jacobi_avx2(
+        p: &[Fx],
+        (c, c_tip): (Fx, Fx),
+        iterations: usize,
+        du: &mut [Fx],
+        other: &mut [Fx],
+    ) -> bool {
+        const THREE_EIGHTHS: i64 = 3 << 29;
+        if c.to_bits() > THREE_EIGHTHS || c_tip.to_bits() > THREE_EIGHTHS {
+            return false;
+        }
+        // The entries that count, `..3n` (the last one is the unused entry after the tip):
+        // p + 2^60 below 2^61 (unsigned) exactly when -2^60 <= p < 2^60.
+        let (counted, bias) = (p.len() - 1, _mm256_set1_epi64x(1 << 60));
+        let mut range = _mm256_setzero_si256();
+        let mut next = 0;
+        while next < counted {
+            let e = next.min(counted - 4);
+            next = e + 4;
+            range = _mm256_or_si256(range, _mm256_add_epi64(load(p, e), bias));
+        }
+        if _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 61) - 1))) == 0 {
+            return false;
+        }
+        let coefs = (
+            _mm256_set1_epi64x(c.to_bits()),
+            _mm256_set1_epi64x(c_tip.to_bits()),
+        );
+        let tip = p.len() - 4;
+        if iterations % 2 == 1 {
+            sweep(p, du, p, coefs, tip);
+        } else {
+            sweep(p, other, p, coefs, tip);
+        }
+        let mut left = iterations - 1;
+        if left % 2 == 1 {
+            sweep(other, du, p, coefs, tip);
+            left -= 1;
+        }
+        while left >= 2 {
+            sweep(du, other, p, coefs, tip);
+            sweep(other, du, p, coefs, tip);
+            left -= 2;
+        }
+        true
+    }
+
+    /// One sweep from `src` into `dst` (`src` may be `p`): the interior entries four at a
+    /// time (the last four end at the tip, overlapping the previous ones: the same values
+    /// written again), then the tip's three and the unused entry after them, which no sweep
+    /// reads. Safety: as [`jacobi_avx2`] once it has checked `p` and the coefficients, with
+    /// `tip = 3(n - 1)`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn sweep(
+        src: &[Fx],
+        dst: &mut [Fx],
+        p: &[Fx],
+        (c, c_tip): (__m256i, __m256i),
+        tip: usize,
+    ) {
+        let mut next = 3;
+        while next < tip {
+            let e = next.min(tip - 4);
+            next = e + 4;
+            let s = _mm256_add_epi64(load(src, e - 3), load(src, e + 3));
+            store(dst, e, _mm256_add_epi64(load(p, e), mul_small_coef(s, c)));
+        }
+        let m = mul_small_coef(load(src, tip - 3), c_tip);
+        store(dst, tip, _mm256_add_epi64(load(p, tip), m));
+    }
+
+    /// [`super::segments`] with AVX2 present.
+    pub(super) fn segments(s: &mut Segments<'_, Fx>) -> u32 {
+        let n = s.n;
+        // At least four segments (n >= 5) for the overlapping last vector; the compression
+        // ratio a coefficient of either sign's product below (its only use is on a negative
+        // strain: [0, 1)).
+        let fits = (5..=MAX_LAYERS).contains(&n)
+            && s.spine.len() >= n
+            && s.len2.len() >= n
+            && s.rsqrt.len() >= n
+            && s.seg.len() >= n
+            && (0..1 << 32).contains(&s.compression_ratio.to_bits());
+        if !fits {
+            return 0;
+        }
+        // The roots the Newton steps start from, as they were: the blocks overlap, and each
+        // stores its new ones.
+        let mut near = [Fx::ZERO; MAX_LAYERS];
+        near[..n].copy_from_slice(&s.rsqrt[..n]);
+        // SAFETY: AVX2 checked by the caller; 5 <= n <= MAX_LAYERS and every array holds n
+        // entries, which is all the kernel reads (its gathers index the spine's first 3n
+        // components) and writes.
+        unsafe { segments_avx2(s, &near) }
+    }
+
+    /// `floor(x x / 2^32)` for `|x| < 2^46`: the square from `|x|`'s words, `a = ah 2^32 +
+    /// al`: `ah^2 2^32 + 2 ah al + floor(al^2 / 2^32)`, exact (the first two are integers).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn square(x: __m256i) -> __m256i {
+        let negative = _mm256_cmpgt_epi64(_mm256_setzero_si256(), x);
+        let a = _mm256_blendv_epi8(x, _mm256_sub_epi64(_mm256_setzero_si256(), x), negative);
+        let ah = _mm256_srli_epi64::<32>(a);
+        let hh = _mm256_slli_epi64::<32>(_mm256_mul_epu32(ah, ah));
+        let hl = _mm256_slli_epi64::<1>(_mm256_mul_epu32(ah, a));
+        let ll = _mm256_srli_epi64::<32>(_mm256_mul_epu32(a, a));
+        _mm256_add_epi64(_mm256_add_epi64(hh, hl), ll)
+    }
+
+    /// `floor(x c / 2^32)` for `-2^32 < c < 2^32` in every lane: with `c = cl - s 2^32` (`cl`
+    /// its low word, `s` 1 where negative), `floor(x cl / 2^32) - s x`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul_signed_coef(x: __m256i, c: __m256i) -> __m256i {
+        let low_word = _mm256_set1_epi64x(0xffff_ffff);
+        let product = mul_coef(x, _mm256_and_si256(c, low_word));
+        let c_negative = _mm256_cmpgt_epi64(_mm256_setzero_si256(), c);
+        _mm256_sub_epi64(product, _mm256_and_si256(c_negative, x))
+    }
+
+    /// Four segments at a time from segment 1 (the last four end at n - 1, overlapping the
+    /// previous ones: the same values again); the segments done as bits. Nothing is written
+    /// (and 0 returned) if a spine coordinate is beyond +-2^45 (then the squares could
+    /// saturate). Where a segment is not done its root is left as it was, and its length and
+    /// spring term hold unspecified values for the caller to replace.
+    /// Safety: AVX2 present; `5 <= n <= MAX_LAYERS`; `s`'s arrays hold n entries; `near`
+    /// holds the roots `s.rsqrt` had.
+    #[target_feature(enable = "avx2")]
+    unsafe fn segments_avx2(s: &mut Segments<'_, Fx>, near: &[Fx; MAX_LAYERS]) -> u32 {
+        let n = s.n;
+        let coordinates = flat(s.spine);
+        let zero = _mm256_setzero_si256();
+        let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
+        let three = _mm256_set1_epi64x(3 << 32);
+        let band = _mm256_set1_epi64x(1 << 16);
+        let segment = _mm256_set1_epi64x(s.segment.to_bits());
+        let ratio = _mm256_set1_epi64x(s.compression_ratio.to_bits());
+        let tiny2 = _mm256_set1_epi64x(s.tiny2.to_bits());
+        // x + 2^45 is below 2^46 (unsigned) exactly when -2^45 <= x < 2^45; or-ed over
+        // every coordinate, the same holds of all of them.
+        let bias = _mm256_set1_epi64x(1 << 45);
+        let mut range = zero;
+        let mut next = 0;
+        while next < 3 * n {
+            let i = next.min(3 * n - 4);
+            next = i + 4;
+            range = _mm256_or_si256(range, _mm256_add_epi64(load(coordinates, i), bias));
+        }
+        if _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 46) - 1))) == 0 {
+            return 0;
+        }
+        let mut done = 0u32;
+        let mut next = 1;
+        while next < n {
+            let j = next.min(n - 4);
+            next = j + 4;
+            // The four segments' differences as the spine holds them, x y z x, y z x y,
+            // z x y z (masses j.. less masses j-1..), then sorted into x, y and z.
+            let [a, b, c] = [0, 4, 8].map(|o| {
+                let at = 3 * j + o;
+                _mm256_sub_epi64(load(coordinates, at), load(coordinates, at - 3))
+            });
+            let d = [
+                // x0 . . .  from a, x3 (lane 1) from c, x2 (lane 2) from b, x1 (lane 3) from a.
+                _mm256_permute4x64_epi64::<0b01_10_11_00>(_mm256_blend_epi32::<0b0000_1100>(
+                    _mm256_blend_epi32::<0b0011_0000>(a, b),
+                    c,
+                )),
+                // y1 (lane 0) and y2 (lane 3) from b, y0 (lane 1) from a, y3 (lane 2) from c.
+                _mm256_permute4x64_epi64::<0b10_11_00_01>(_mm256_blend_epi32::<0b0011_0000>(
+                    _mm256_blend_epi32::<0b1100_0011>(a, b),
+                    c,
+                )),
+                // z2 (lane 0) and z3 (lane 3) from c, z1 (lane 1) from b, z0 (lane 2) from a.
+                _mm256_permute4x64_epi64::<0b11_00_01_10>(_mm256_blend_epi32::<0b1100_0011>(
+                    _mm256_blend_epi32::<0b0000_1100>(a, b),
+                    c,
+                )),
+            ];
+            let len2 = _mm256_add_epi64(_mm256_add_epi64(square(d[0]), square(d[1])), square(d[2]));
+            // The Newton step from the last root (`rsqrt_near`), where it applies: len2 > 1,
+            // 0 < near < 1 and the guess within 2^-16 (len2 near^2, both products floor'd).
+            let near = load(near, j);
+            let e = mul_coef(mul_coef(len2, near), near);
+            let off = _mm256_sub_epi64(e, one);
+            let stepped = [
+                _mm256_cmpgt_epi64(len2, one),
+                _mm256_cmpgt_epi64(near, zero),
+                _mm256_cmpgt_epi64(one, near),
+                _mm256_cmpgt_epi64(off, _mm256_sub_epi64(zero, band)),
+                _mm256_cmpgt_epi64(band, off),
+            ]
+            .iter()
+            .fold(_mm256_set1_epi64x(-1), |m, c| _mm256_and_si256(m, *c));
+            // 3 - e is about 2 and the product positive: the halving is a logical shift.
+            let r = _mm256_srli_epi64::<1>(mul_coef(_mm256_sub_epi64(three, e), near));
+            let empty = _mm256_cmpeq_epi64(len2, zero);
+            let r = _mm256_andnot_si256(empty, r);
+            let mut ok = _mm256_or_si256(stepped, empty);
+            // The spring: strain 1 - L r (L r a coefficient product: r < 1), times the ratio
+            // where negative; the term is d times the strain, d itself for a strain of one.
+            let springy = _mm256_cmpgt_epi64(len2, tiny2);
+            let strain = _mm256_sub_epi64(one, mul_coef(segment, r));
+            let compressed = _mm256_cmpgt_epi64(zero, strain);
+            let strain = _mm256_blendv_epi8(strain, mul_signed_coef(strain, ratio), compressed);
+            let unit = _mm256_cmpeq_epi64(strain, one);
+            // A strain at or below -1 is not a coefficient: the scalar code's full product.
+            let too_short = _mm256_cmpgt_epi64(_mm256_set1_epi64x(-(1 << 32) + 1), strain);
+            let r_not_coef = _mm256_cmpgt_epi64(r, _mm256_set1_epi64x((1 << 32) - 1));
+            let scalar_only = _mm256_and_si256(springy, _mm256_or_si256(too_short, r_not_coef));
+            ok = _mm256_andnot_si256(scalar_only, ok);
+            let f = d.map(|dk| {
+                let fk = _mm256_blendv_epi8(mul_signed_coef(dk, strain), dk, unit);
+                _mm256_and_si256(fk, springy)
+            });
+            // The four segments' terms as Vec3s, x y z x, y z x y, z x y z.
+            let [x, y, z] = f;
+            let out = [
+                (
+                    _mm256_permute4x64_epi64::<0x40>(x),
+                    _mm256_permute4x64_epi64::<0x00>(y),
+                ),
+                (
+                    _mm256_permute4x64_epi64::<0x81>(y),
+                    _mm256_permute4x64_epi64::<0x04>(z),
+                ),
+                (
+                    _mm256_permute4x64_epi64::<0xc2>(z),
+                    _mm256_permute4x64_epi64::<0x0c>(x),
+                ),
+            ];
+            let third = [
+                _mm256_permute4x64_epi64::<0x00>(z),
+                _mm256_permute4x64_epi64::<0x20>(x),
+                _mm256_permute4x64_epi64::<0x30>(y),
+            ];
+            let seg = flat_mut(s.seg);
+            // Lane 0 and 3 from the first, lane 1 (32-bit words 2, 3) from the second, lane 2
+            // (words 4, 5) from the third.
+            for (k, ((a, b), c)) in out.into_iter().zip(third).enumerate() {
+                let v =
+                    _mm256_blend_epi32::<0b0011_0000>(_mm256_blend_epi32::<0b0000_1100>(a, b), c);
+                store(seg, 3 * j + 4 * k, v);
+            }
+            store(s.len2, j, len2);
+            store(s.rsqrt, j, _mm256_blendv_epi8(near, r, ok));
+            done |= (_mm256_movemask_pd(_mm256_castsi256_pd(ok)) as u32) << j;
+        }
+        done
+    }
+
+    /// [`super::interior_rows`] with AVX2 present and the coefficients below 1/2.
+    pub(super) fn interior_rows(rows: &InteriorRows<'_, Fx>, p: &mut [Fx]) -> bool {
+        let n = rows.n;
+        let a = FlatRows::of(rows);
+        // Entries 3..3(n-1) are written; they read up to 3n of f and v, 3(n-1) of the rest.
+        let fits = (3..=MAX_LAYERS).contains(&n)
+            && a.f.len() >= 3 * n
+            && a.v.len() >= 3 * n
+            && [a.x.len(), a.k.len(), a.kv.len(), p.len()]
+                .iter()
+                .all(|&l| l >= 3 * (n - 1))
+            && rows.ties.len() >= n - 1;
+        if !fits {
+            return false;
+        }
+        let end = 3 * (n - 1);
+        let c = rows.coefs;
+        if end < 3 + 4 {
+            // Three layers: one interior mass, three entries.
+            for (e, pe) in p.iter_mut().enumerate().take(end).skip(3) {
+                *pe = a.entry(rows.ties[e / 3], c, e);
+            }
+            return true;
+        }
+        // SAFETY: AVX2 checked by the caller; every index the kernel reads or writes is within
+        // the lengths checked above, and `end` is at least 7.
+        unsafe { interior_rows_avx2(&a, rows.ties, c, p, end) }
+    }
+
+    /// The entries `3..end` four at a time (the last four end at `end`, overlapping the
+    /// previous ones: the same values written again); false if an input was beyond +-2^58
+    /// (then `p` holds unspecified values).
+    /// Safety: AVX2 present; `end >= 7`; `a.f`, `a.v` hold `end + 3` entries, the other
+    /// arrays and `p` `end`, `ties` `end / 3`; every coefficient in `[0, 2^31)`.
+    #[target_feature(enable = "avx2")]
+    unsafe fn interior_rows_avx2(
+        a: &FlatRows<'_>,
+        ties: &[Fx],
+        c: [Fx; 4],
+        p: &mut [Fx],
+        end: usize,
+    ) -> bool {
+        let [c_k, c_j, c_t, c_tv] = c.map(|c| _mm256_set1_epi64x(c.to_bits()));
+        let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
+        // x + 2^58 is below 2^59 (unsigned) exactly when -2^58 <= x < 2^58; or-ed over every
+        // input, the same holds of all of them.
+        let bias = _mm256_set1_epi64x(1 << 58);
+        let mut range = _mm256_setzero_si256();
+        let FlatRows { f, v, x, k, kv } = *a;
+        let mut next = 3;
+        while next < end {
+            let e = next.min(end - 4);
+            next = e + 4;
+            let (f0, f1) = (load(f, e), load(f, e + 3));
+            let (vl, ve, vr) = (load(v, e - 3), load(v, e), load(v, e + 3));
+            let (xe, ke, kve) = (load(x, e), load(k, e), load(kv, e));
+            for input in [f0, f1, vl, ve, vr, xe, ke, kve] {
+                range = _mm256_or_si256(range, _mm256_add_epi64(input, bias));
+            }
+            let spring = _mm256_sub_epi64(f1, f0);
+            let rel = _mm256_add_epi64(_mm256_sub_epi64(vl, ve), _mm256_sub_epi64(vr, ve));
+            let pi = _mm256_add_epi64(mul_small_coef(spring, c_k), mul_small_coef(rel, c_j));
+            let tie = _mm256_add_epi64(
+                mul_small_coef(_mm256_sub_epi64(ke, xe), c_t),
+                mul_small_coef(_mm256_sub_epi64(kve, ve), c_tv),
+            );
+            // The tie weight of each entry's mass: the four entries from e belong to masses
+            // e / 3 and the next, in a pattern that repeats with e % 3.
+            let m = _mm256_castsi128_si256(_mm_loadu_si128(ties.as_ptr().add(e / 3).cast()));
+            let we = match e % 3 {
+                0 => _mm256_permute4x64_epi64::<0b01_00_00_00>(m),
+                1 => _mm256_permute4x64_epi64::<0b01_01_00_00>(m),
+                _ => _mm256_permute4x64_epi64::<0b01_01_01_00>(m),
+            };
+            // Weight one: the tie itself; below one (zero included), its product.
+            let weighted = _mm256_blendv_epi8(mul_coef(tie, we), tie, _mm256_cmpeq_epi64(we, one));
+            store(p, e, _mm256_add_epi64(pi, weighted));
+        }
+        let beyond = _mm256_set1_epi64x(!((1 << 59) - 1));
+        _mm256_testz_si256(range, beyond) == 1
+    }
+}
+
+/// The kernels against their scalar forms, called directly (not through [`set_enabled`],
+/// which another test switches).
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::{format, vec, vec::Vec};
+
+    /// xorshift64*: a fixed stream of test operands.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+        /// Mostly model-sized values (within +-2^40 raw, 256 mm), some anywhere in i64.
+        fn value(&mut self) -> Fx {
+            let r = self.next();
+            Fx::from_bits(match r % 16 {
+                0 => self.next() as i64,
+                1 => i64::MAX - (self.next() % 8) as i64,
+                2 => i64::MIN + (self.next() % 8) as i64,
+                _ => (self.next() as i64) >> 24,
+            })
+        }
+        fn coef(&mut self) -> Fx {
+            Fx::from_bits((self.next() % (1 << 31)) as i64)
+        }
+    }
+
+    /// The sweeps as `brush::jacobi` states them, one entry at a time.
+    fn jacobi_reference(p: &[Fx], (c, c_tip): (Fx, Fx), n: usize, iterations: usize) -> Vec<Fx> {
+        let mut du = p[..3 * n].to_vec();
+        for _ in 0..iterations {
+            let src = du.clone();
+            for e in 3..3 * (n - 1) {
+                du[e] = p[e] + (src[e - 3] + src[e + 3]).mul_tested_coef(c);
+            }
+            for e in 3 * (n - 1)..3 * n {
+                du[e] = p[e] + src[e - 3].mul_tested_coef(c_tip);
+            }
+        }
+        du
+    }
+
+    #[test]
+    fn wide_jacobi_is_the_sweeps() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let (mut saturated, mut wide_runs) = (0, 0);
+        for round in 0..20_000 {
+            let n = 4 + round % (N - 3);
+            let iterations = round % 7;
+            // One round in four with values anywhere, so sums saturate.
+            let p: Vec<Fx> = (0..3 * N)
+                .map(|_| {
+                    if round % 4 == 0 {
+                        rng.value()
+                    } else {
+                        Fx::from_bits((rng.next() as i64) >> 20)
+                    }
+                })
+                .collect();
+            // The Jacobi solve's coefficients are at most 1/4; now and then above the 3/8
+            // the wide form takes.
+            let mut coef = || match rng.next() % 8 {
+                0 => rng.coef(),
+                _ => Fx::from_bits((rng.next() % ((1 << 30) + 1)) as i64),
+            };
+            let coefs = (coef(), coef());
+            let want = jacobi_reference(&p, coefs, n, iterations);
+            saturated += want
+                .iter()
+                .filter(|o| **o == Fx::MAX || **o == Fx::MIN)
+                .count();
+            let mut du = vec![Fx::ZERO; 3 * N];
+            if x86::jacobi(&p, coefs, n, iterations, &mut du) {
+                wide_runs += 1;
+                assert_eq!(du[..3 * n], want[..], "round {round}, n {n}");
+            }
+        }
+        // At the edge of both bounds: neighbours' sums that saturate after a few sweeps
+        // with coefficients near 1/2 (which the wide form declines), none with 3/8.
+        let p = vec![Fx::from_bits((1 << 60) - 1); 3 * N];
+        for (c, declined) in [(Fx::from_f64(0.49), true), (Fx::from_f64(0.375), false)] {
+            let want = jacobi_reference(&p, (c, c), 20, 12);
+            let mut du = vec![Fx::ZERO; 3 * N];
+            if x86::jacobi(&p, (c, c), 20, 12, &mut du) {
+                assert_eq!(du[..60], want[..], "{c:?}");
+            }
+            assert_eq!(!x86::jacobi(&p, (c, c), 20, 12, &mut du), declined, "{c:?}");
+        }
+        // The streams reach the saturating cases the wide form leaves to the scalar sweeps,
+        // and the wide form ran on most of the others.
+        assert!(saturated > 1000, "{saturated}");
+        assert!(wide_runs > 12_000, "{wide_runs}");
+    }
+
+    /// One segment as `Brush` measures it: length, root (the Newton step from `near`) and
+    /// spring term, from the public scalar operations.
+    fn segment_reference(d: Vec3<Fx>, near: Fx, s: &Segments<'_, Fx>) -> (Fx, Fx, Vec3<Fx>) {
+        let len2 = d.norm2();
+        let r = if len2 > Fx::ZERO {
+            len2.rsqrt_near(near)
+        } else {
+            Fx::ZERO
+        };
+        let f = if len2 > s.tiny2 {
+            let strain = Fx::ONE - s.segment.mul_coef(r);
+            let strain = if strain < Fx::ZERO {
+                strain.mul_coef(s.compression_ratio)
+            } else {
+                strain
+            };
+            d.scale_coef(strain)
+        } else {
+            Vec3::ZERO
+        };
+        (len2, r, f)
+    }
+
+    #[test]
+    fn wide_segments_are_the_scalar_ones() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x5851_f42d_4c95_7f2d);
+        let mm = |v: f64| Fx::from_f64(v);
+        let (mut done_total, mut left_total, mut compressed) = (0, 0, 0);
+        for round in 0..20_000 {
+            let n = 5 + round % (N - 4);
+            let segment = mm(1.5 + (rng.next() % 4000) as f64 * 1e-3);
+            // Masses along a wobbly line: segments near the rest length, some stretched, some
+            // compressed below half of it, some of zero length, now and then one far away.
+            let mut spine = vec![Vec3::<Fx>::ZERO; N];
+            let mut at = Vec3::new(mm(10.0), mm(-5.0), mm(30.0));
+            for m in spine.iter_mut().take(n) {
+                *m = at;
+                let step = match rng.next() % 10 {
+                    0 => 0.0,
+                    1 => 0.2,
+                    2 | 3 => 0.7,
+                    4 => 1.7,
+                    _ => 1.0,
+                } * segment.to_f64();
+                let (a, b) = (
+                    (rng.next() % 1000) as f64 * 1e-3,
+                    (rng.next() % 1000) as f64 * 1e-3,
+                );
+                at += Vec3::from_f64([step * a, step * b, -step * (1.0 - a * a).sqrt()]);
+                if round % 50 == 0 && rng.next().is_multiple_of(8) {
+                    at.x = Fx::from_bits(rng.value().to_bits() >> 2);
+                }
+            }
+            // Last roots: the segment's own (the Newton step applies), a stale one, zero.
+            let near: Vec<Fx> = (0..N)
+                .map(|j| match rng.next() % 4 {
+                    0 => Fx::ZERO,
+                    1 => Fx::from_bits((rng.next() % (1 << 32)) as i64),
+                    _ if j >= 1 && j < n => {
+                        let d = spine[j] - spine[j - 1];
+                        let len2 = d.norm2();
+                        if len2 > Fx::ZERO {
+                            len2.rsqrt()
+                        } else {
+                            Fx::ZERO
+                        }
+                    }
+                    _ => Fx::ZERO,
+                })
+                .collect();
+            let (mut len2, mut rsqrt) = (vec![Fx::ZERO; N], near.clone());
+            let mut seg = vec![Vec3::<Fx>::ZERO; N + 1];
+            let mut s = Segments {
+                n,
+                spine: &spine,
+                len2: &mut len2,
+                rsqrt: &mut rsqrt,
+                seg: &mut seg,
+                segment,
+                compression_ratio: mm([0.0, 0.1, 0.5, 0.999][round % 4]),
+                tiny2: mm(1e-12),
+            };
+            let done = x86::segments(&mut s);
+            for j in 1..n {
+                let want = segment_reference(spine[j] - spine[j - 1], near[j], &s);
+                if done >> j & 1 != 0 {
+                    done_total += 1;
+                    compressed += (want.2.dot(spine[j] - spine[j - 1]) < Fx::ZERO) as u32;
+                    assert_eq!(
+                        (s.len2[j], s.rsqrt[j], s.seg[j]),
+                        want,
+                        "round {round} j {j}"
+                    );
+                } else {
+                    left_total += 1;
+                    // Left for the scalar code with its last root as it was.
+                    assert_eq!(s.rsqrt[j], near[j], "round {round} j {j}");
+                }
+            }
+            assert_eq!(done & !((1 << n) - 2), 0, "only segments 1..n: {done:b}");
+        }
+        // Both kinds occur often: done wide, and left (stale or no roots, segments under
+        // 1 mm, far masses).
+        let counts = format!("{done_total} done, {left_total} left");
+        assert!(done_total > 100_000 && left_total > 100_000, "{counts}");
+        assert!(compressed > 10_000, "{compressed}");
+    }
+
+    #[test]
+    fn wide_interior_rows_are_the_scalar_entries() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+        let mut wide_runs = 0;
+        for round in 0..5_000 {
+            let n = 3 + round % (N - 2);
+            let mut vecs = || -> Vec<Vec3<Fx>> {
+                (0..N + 1)
+                    .map(|_| {
+                        // Some rounds all model-sized, so the wide form runs on them.
+                        let mut c = || {
+                            if round % 3 == 0 {
+                                rng.value()
+                            } else {
+                                Fx::from_bits((rng.next() as i64) >> 24)
+                            }
+                        };
+                        Vec3::new(c(), c(), c())
+                    })
+                    .collect()
+            };
+            let (seg, vel, spine, skel, skel_vel) = (vecs(), vecs(), vecs(), vecs(), vecs());
+            let ties: Vec<Fx> = (0..N)
+                .map(|_| match rng.next() % 4 {
+                    0 => Fx::ZERO,
+                    1 => Fx::ONE,
+                    _ => Fx::from_bits((rng.next() % (1 << 32)) as i64),
+                })
+                .collect();
+            let coefs = [rng.coef(), rng.coef(), rng.coef(), rng.coef()];
+            let rows = InteriorRows {
+                n,
+                seg: &seg,
+                vel: &vel,
+                spine: &spine,
+                skel: &skel,
+                skel_vel: &skel_vel,
+                ties: &ties,
+                coefs,
+            };
+            let mut p = [Fx::ZERO; 3 * N];
+            if !x86::interior_rows(&rows, &mut p) {
+                continue;
+            }
+            wide_runs += 1;
+            let a = FlatRows::of(&rows);
+            for e in 3..3 * (n - 1) {
+                let want = a.entry(ties[e / 3], coefs, e);
+                assert_eq!(p[e], want, "round {round}, n {n}, entry {e}");
+            }
+        }
+        // Two rounds in three are model-sized; of the others most fall back.
+        assert!(wide_runs > 3_000, "{wide_runs}");
+    }
+}

@@ -7,8 +7,8 @@
 //! three quarters of the host's fixed-point substep (callgrind, `shared/examples/tick_cost`):
 //! the segment springs (a root and a spring term per segment), the right-hand sides of the
 //! interior rows (about 57 instructions an entry) and the Jacobi sweeps (about 14 an entry).
-//! Here they run four segments or entries at a time: [`segments`], [`interior_rows`] and
-//! [`jacobi`], reached through the hidden `Scalar` hooks that only `Fx` implements.
+//! Here they run four segments or entries at a time: `segments`, `interior_rows` and
+//! `jacobi`, reached through the hidden `Scalar` hooks that only `Fx` implements.
 //! The rest of the substep (integration, the tip's row, the ties) stays scalar: wide forms of
 //! the integration and of the skeleton's stepping were measured slower than the loops they
 //! replaced (their range checks cost what they saved).

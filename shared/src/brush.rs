@@ -444,13 +444,19 @@ impl<S: Scalar> Brush<S> {
             for ((st, e), now) in step.iter_mut().zip(&end).zip(&self.skel) {
                 *st = (*e - *now).scale_coef(self.d.inv_substeps);
             }
+            // Whether the host's wide form may take the steps (see `wide`): once a tick.
+            let wide = S::node_steps_fit(&self.skel[..self.d.n()], &step[..self.d.n()], n);
             for _ in 1..n {
                 self.substep_by(|b| {
                     let n = b.d.n();
-                    for ((node, vel), st) in b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
+                    if !(wide && S::step_nodes_wide(&mut b.skel[..n], &mut b.skel_vel[..n], &step))
                     {
-                        *node += *st;
-                        *vel = *st;
+                        for ((node, vel), st) in
+                            b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
+                        {
+                            *node += *st;
+                            *vel = *st;
+                        }
                     }
                     // The orientation stays the tick's start until its last substep.
                     b.handle.pos = b.skel[0];
@@ -884,11 +890,18 @@ impl<S: Scalar> Brush<S> {
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         let mut prev_dir = Vec3::<S>::ZERO;
+        // The host's wide form measures the segments four at a time first, where it applies
+        // (see `wide`): bit i is set for a segment it did, with the same values.
+        let measured = S::measure_wide(n, &self.spine, &mut self.seg_len2, &mut self.seg_rsqrt);
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
             // Kept for the next substep's springs too (as `measure_segments` does, inline
             // here so the loop reads each segment once).
-            let (len2, r) = measure(v);
+            let (len2, r) = if measured >> i & 1 != 0 {
+                (self.seg_len2[i], self.seg_rsqrt[i])
+            } else {
+                measure(v)
+            };
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
             let dir = if len2 > min_len2 {
@@ -1065,6 +1078,10 @@ fn jacobi_with<S: Scalar>(
 /// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
 fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
+    // Four nodes at a time in the host's wide form where it applies (see `wide`).
+    if S::place_nodes_wide(pose.pos, offsets, &m, out) {
+        return;
+    }
     // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
     // nine entries tested once for all nodes rather than on each product.
     if m.iter().flatten().all(|c| c.is_coef()) {

@@ -618,6 +618,57 @@ pub trait Scalar:
         let _ = segments;
         0
     }
+    /// The skeleton's nodes `pos + m offset_i` into `out` where the implementation has a
+    /// wide form that applies (see [`crate::wide`]); false, having written nothing, where not.
+    #[doc(hidden)]
+    #[inline]
+    fn place_nodes_wide(
+        pos: crate::vec::Vec3<Self>,
+        offsets: &[[Self; crate::params::MAX_LAYERS]; 3],
+        m: &[[Self; 3]; 3],
+        out: &mut [crate::vec::Vec3<Self>],
+    ) -> bool {
+        let _ = (pos, offsets, m, out);
+        false
+    }
+    /// Whether `substeps` straight-line steps of each node by `step` (a tick's) may be taken
+    /// by [`Scalar::step_nodes_wide`]: false where the implementation has no wide form.
+    #[doc(hidden)]
+    #[inline]
+    fn node_steps_fit(
+        nodes: &[crate::vec::Vec3<Self>],
+        step: &[crate::vec::Vec3<Self>],
+        substeps: usize,
+    ) -> bool {
+        let _ = (nodes, step, substeps);
+        false
+    }
+    /// One of those steps, `node += step`, `vel = step`, where [`Scalar::node_steps_fit`]
+    /// said so at the tick's start; false, having changed nothing, where not done.
+    #[doc(hidden)]
+    #[inline]
+    fn step_nodes_wide(
+        nodes: &mut [crate::vec::Vec3<Self>],
+        vel: &mut [crate::vec::Vec3<Self>],
+        step: &[crate::vec::Vec3<Self>],
+    ) -> bool {
+        let _ = (nodes, vel, step);
+        false
+    }
+    /// Each spine segment j in `1..n`: its squared length and [`Scalar::rsqrt`] into `len2[j]`
+    /// and `rsqrt[j]` where the implementation has a wide form that applies (see
+    /// [`crate::wide`]); the segments done as bits (bit j), 0 where none.
+    #[doc(hidden)]
+    #[inline]
+    fn measure_wide(
+        n: usize,
+        spine: &[crate::vec::Vec3<Self>],
+        len2: &mut [Self],
+        rsqrt: &mut [Self],
+    ) -> u32 {
+        let _ = (n, spine, len2, rsqrt);
+        0
+    }
     /// Writes the brush's interior right-hand sides (see [`crate::wide::InteriorRows`]) into
     /// `p` at once and returns true where the implementation has a wide form that applies;
     /// returns false, having written nothing, where not (then the brush runs its own loop).
@@ -1041,6 +1092,40 @@ impl Scalar for Fx {
     #[inline]
     fn segments_wide(segments: &mut crate::wide::Segments<'_, Self>) -> u32 {
         crate::wide::segments(segments)
+    }
+    #[inline]
+    fn measure_wide(
+        n: usize,
+        spine: &[crate::vec::Vec3<Self>],
+        len2: &mut [Self],
+        rsqrt: &mut [Self],
+    ) -> u32 {
+        crate::wide::measure(n, spine, len2, rsqrt)
+    }
+    #[inline]
+    fn node_steps_fit(
+        nodes: &[crate::vec::Vec3<Self>],
+        step: &[crate::vec::Vec3<Self>],
+        substeps: usize,
+    ) -> bool {
+        crate::wide::node_steps_fit(nodes, step, substeps)
+    }
+    #[inline]
+    fn step_nodes_wide(
+        nodes: &mut [crate::vec::Vec3<Self>],
+        vel: &mut [crate::vec::Vec3<Self>],
+        step: &[crate::vec::Vec3<Self>],
+    ) -> bool {
+        crate::wide::step_nodes(nodes, vel, step)
+    }
+    #[inline]
+    fn place_nodes_wide(
+        pos: crate::vec::Vec3<Self>,
+        offsets: &[[Self; crate::params::MAX_LAYERS]; 3],
+        m: &[[Self; 3]; 3],
+        out: &mut [crate::vec::Vec3<Self>],
+    ) -> bool {
+        crate::wide::place_nodes(pos, offsets, m, out)
     }
     #[inline]
     fn mul_tested_coef(self, c: Self) -> Self {

@@ -7,11 +7,15 @@
 //! three quarters of the host's fixed-point substep (callgrind, `shared/examples/tick_cost`):
 //! the segment springs (a root and a spring term per segment), the right-hand sides of the
 //! interior rows (about 57 instructions an entry) and the Jacobi sweeps (about 14 an entry).
-//! Here they run four segments or entries at a time: `segments`, `interior_rows` and
-//! `jacobi`, reached through the hidden `Scalar` hooks that only `Fx` implements.
-//! The rest of the substep (integration, the tip's row, the ties) stays scalar: wide forms of
-//! the integration and of the skeleton's stepping were measured slower than the loops they
-//! replaced (their range checks cost what they saved).
+//! Here they run four segments or entries at a time (`segments`, `interior_rows`, `jacobi`),
+//! and so do three smaller pieces of the tick: the surface update's segment roots (`measure`:
+//! the float estimate of `Scalar::rsqrt` and its Newton step, four at once, where one at a
+//! time waited on a square root and a division), the skeleton's placement (`place_nodes`)
+//! and its straight-line steps (`step_nodes`, with their range shown once a tick by
+//! `node_steps_fit`). The brush reaches them through hidden `Scalar` hooks that only `Fx`
+//! implements. The rest of the substep (integration, the tip's row, the ties) stays scalar:
+//! a wide integration was measured slower than the loop it replaced (its range checks and
+//! per-mass weights cost what it saved).
 //!
 //! Exactness:
 //! * **Products.** The coefficient product `floor(x c / 2^32)` for `0 <= c < 2^32` raw is
@@ -19,12 +23,15 @@
 //!   identity the device's own coefficient product uses: `vpmuludq` gives `xl c`, and `xh c`
 //!   is `vpmuldq` when `c < 2^31` (a signed word), else `vpmuludq` less `c 2^32` where `xh`
 //!   is negative.
-//! * **Saturation.** Each kernel first bounds its inputs (the spine within +-2^45 mm-units
-//!   for the segments, every input within +-2^58 for the right-hand sides, the right-hand
-//!   sides within +-2^60 and the coefficients at most 3/8 for the Jacobi sweeps: each
-//!   kernel's comment has the arithmetic), within which none of its sums can overflow, so
-//!   the saturating and the wrapping sums agree. Where a bound fails, the scalar loop runs
-//!   instead and saturates exactly as on the device.
+//! * **Saturation.** Each kernel first bounds its inputs (for example the spine within
+//!   +-2^45 raw for the segments, every input within +-2^58 for the right-hand sides, the
+//!   right-hand sides within +-2^60 and the coefficients at most 3/8 for the Jacobi sweeps:
+//!   each kernel's comment has the arithmetic), within which none of its sums can overflow,
+//!   so the saturating and the wrapping sums agree. Where a bound fails, the scalar loop
+//!   runs instead and saturates exactly as on the device.
+//! * **Floats.** `measure` converts with the same IEEE single-precision operations as
+//!   `Scalar::rsqrt` (integer to `f32` through an exact `f64`, square root, division,
+//!   truncation back through another exact `f64`), so its estimates are the same bits.
 //!
 //! The tests below compare each kernel with its scalar loop over random inputs, saturation
 //! included; `brush`'s `wide_kernels_change_no_bit` runs whole strokes both ways. CPUs
@@ -190,6 +197,68 @@ pub(crate) fn segments(s: &mut Segments<'_, Fx>) -> u32 {
     0
 }
 
+/// `pos + m offset_i` for each node i of `out` (the skeleton placed by a rotation `m` whose
+/// entries are coefficients, [`Scalar::is_coef`]), where the wide form applies; false, having
+/// written nothing, where not.
+pub(crate) fn place_nodes(
+    pos: Vec3<Fx>,
+    offsets: &[[Fx; crate::params::MAX_LAYERS]; 3],
+    m: &[[Fx; 3]; 3],
+    out: &mut [Vec3<Fx>],
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if active() {
+        return x86::place_nodes(pos, offsets, m, out);
+    }
+    let _ = (pos, offsets, m, out);
+    false
+}
+
+/// Whether `substeps` steps `node += step` from `nodes` (a tick's straight-line node paths)
+/// cannot overflow, so that [`step_nodes`] may take them with wrapping sums: every node
+/// within +-2^61, every step within +-2^54 and at most 128 substeps keep every node within
+/// +-2^62. False where the wide form does not run.
+pub(crate) fn node_steps_fit(nodes: &[Vec3<Fx>], step: &[Vec3<Fx>], substeps: usize) -> bool {
+    let within = |v: &[Vec3<Fx>], bound: i64| {
+        flat(v)
+            .iter()
+            .all(|c| (-bound..bound).contains(&c.to_bits()))
+    };
+    active()
+        && substeps <= 128
+        && nodes.len() >= 2
+        && step.len() >= nodes.len()
+        && within(nodes, 1 << 61)
+        && within(&step[..nodes.len()], 1 << 54)
+}
+
+/// `node += step`, `vel = step` for every node of `nodes` (and as many of `vel`, `step`),
+/// after [`node_steps_fit`] held at the tick's start; false, having changed nothing, where
+/// the wide form does not run.
+pub(crate) fn step_nodes(nodes: &mut [Vec3<Fx>], vel: &mut [Vec3<Fx>], step: &[Vec3<Fx>]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if active() && nodes.len() >= 2 && vel.len() >= nodes.len() && step.len() >= nodes.len() {
+        let n = nodes.len();
+        // SAFETY: AVX2 found by `active`; three slices of 3n >= 6 entries each.
+        unsafe { x86::step_nodes_avx2(flat_mut(nodes), flat_mut(&mut vel[..n]), flat(&step[..n])) };
+        return true;
+    }
+    let _ = (nodes, vel, step);
+    false
+}
+
+/// Each spine segment j in `1..n`: its squared length into `len2[j]` and `len2.rsqrt()`
+/// ([`Scalar::rsqrt`], the same bits) into `rsqrt[j]`, where the wide form applies; the
+/// segments done as bits (bit j), the others left as they were for the caller to measure.
+pub(crate) fn measure(n: usize, spine: &[Vec3<Fx>], len2: &mut [Fx], rsqrt: &mut [Fx]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if active() {
+        return x86::measure(n, spine, len2, rsqrt);
+    }
+    let _ = (n, spine, len2, rsqrt);
+    0
+}
+
 /// The components of `v` in order: `Vec3` is `repr(C)` over three scalars.
 #[allow(dead_code)]
 fn flat(v: &[Vec3<Fx>]) -> &[Fx] {
@@ -210,6 +279,7 @@ mod x86 {
     use super::{flat, flat_mut, FlatRows, InteriorRows, Segments};
     use crate::params::MAX_LAYERS;
     use crate::scalar::{Fx, Scalar};
+    use crate::vec::Vec3;
     use core::arch::x86_64::*;
     use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -266,6 +336,16 @@ mod x86 {
         // vpmuldq reads each lane's low word as signed (xh after the shift), vpmuludq as
         // unsigned (xl).
         let high = _mm256_mul_epi32(_mm256_srli_epi64::<32>(x), c);
+        let low = _mm256_srli_epi64::<32>(_mm256_mul_epu32(x, c));
+        _mm256_add_epi64(high, low)
+    }
+
+    /// `floor(x c / 2^32)` for `x >= 0` and `0 <= c < 2^32` in every lane: [`mul_coef`]
+    /// without its correction for a negative `x`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul_nonnegative(x: __m256i, c: __m256i) -> __m256i {
+        let high = _mm256_mul_epu32(_mm256_srli_epi64::<32>(x), c);
         let low = _mm256_srli_epi64::<32>(_mm256_mul_epu32(x, c));
         _mm256_add_epi64(high, low)
     }
@@ -421,6 +501,260 @@ mod x86 {
         unsafe { segments_avx2(s, &near) }
     }
 
+    /// Four Vec3s given as their x, y and z lanes, stored as the spine holds them (x y z x,
+    /// y z x y, z x y z) at `out[at..at + 12]`. Safety: AVX2 present; `at + 12 <= out.len()`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn store_vec3s(out: &mut [Fx], at: usize, [x, y, z]: [__m256i; 3]) {
+        // Each vector: its lanes 0 and 3 from the first permutation, lane 1 (32-bit words 2,
+        // 3) from the second, lane 2 (words 4, 5) from the third.
+        let parts = [
+            [
+                _mm256_permute4x64_epi64::<0x40>(x),
+                _mm256_permute4x64_epi64::<0x00>(y),
+                _mm256_permute4x64_epi64::<0x00>(z),
+            ],
+            [
+                _mm256_permute4x64_epi64::<0x81>(y),
+                _mm256_permute4x64_epi64::<0x04>(z),
+                _mm256_permute4x64_epi64::<0x20>(x),
+            ],
+            [
+                _mm256_permute4x64_epi64::<0xc2>(z),
+                _mm256_permute4x64_epi64::<0x0c>(x),
+                _mm256_permute4x64_epi64::<0x30>(y),
+            ],
+        ];
+        for (k, [a, b, c]) in parts.into_iter().enumerate() {
+            let v = _mm256_blend_epi32::<0b0011_0000>(_mm256_blend_epi32::<0b0000_1100>(a, b), c);
+            store(out, at + 4 * k, v);
+        }
+    }
+
+    /// [`super::place_nodes`] with AVX2 present.
+    pub(super) fn place_nodes(
+        pos: Vec3<Fx>,
+        offsets: &[[Fx; MAX_LAYERS]; 3],
+        m: &[[Fx; 3]; 3],
+        out: &mut [Vec3<Fx>],
+    ) -> bool {
+        let n = out.len();
+        let in_range = |v: Fx| (-(1 << 61)..1 << 61).contains(&v.to_bits());
+        let coef = |c: &Fx| (-(1 << 32)..=1 << 32).contains(&c.to_bits());
+        let fits = (4..=MAX_LAYERS).contains(&n)
+            && [pos.x, pos.y, pos.z].into_iter().all(in_range)
+            && m.iter().flatten().all(coef);
+        // SAFETY: AVX2 checked by the caller; 4 <= n <= MAX_LAYERS, within the offsets and
+        // `out`, all the kernel reads and writes.
+        fits && unsafe { place_nodes_avx2(pos, offsets, m, flat_mut(out)) }
+    }
+
+    /// Four nodes at a time (the last four end at n, overlapping the previous ones: the
+    /// same values again); false, having written nothing, if an offset is beyond +-2^59
+    /// (within, with the position within +-2^61 and every entry of `m` a coefficient, no sum
+    /// can overflow: three products below 2^59 each, plus the position, stay below 2^62).
+    /// Safety: AVX2 present; `out` holds `n` Vec3s with `4 <= n <= MAX_LAYERS`; every
+    /// entry of `m` within [-1, 1].
+    #[target_feature(enable = "avx2")]
+    unsafe fn place_nodes_avx2(
+        pos: Vec3<Fx>,
+        offsets: &[[Fx; MAX_LAYERS]; 3],
+        m: &[[Fx; 3]; 3],
+        out: &mut [Fx],
+    ) -> bool {
+        let n = out.len() / 3;
+        let bias = _mm256_set1_epi64x(1 << 59);
+        let mut range = _mm256_setzero_si256();
+        let mut next = 0;
+        while next < n {
+            let j = next.min(n - 4);
+            next = j + 4;
+            for o in offsets {
+                range = _mm256_or_si256(range, _mm256_add_epi64(load(o, j), bias));
+            }
+        }
+        if _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 60) - 1))) == 0 {
+            return false;
+        }
+        // An entry of one (or minus one) is not a coefficient: its product is the offset
+        // itself (or its negation, exact within the bound), as the scalar product gives.
+        let zero = _mm256_setzero_si256();
+        let (mut c, mut one, mut minus_one) = ([[zero; 3]; 3], [[zero; 3]; 3], [[zero; 3]; 3]);
+        for r in 0..3 {
+            for k in 0..3 {
+                let bits = m[r][k].to_bits();
+                c[r][k] = _mm256_set1_epi64x(bits);
+                one[r][k] = _mm256_set1_epi64x(-i64::from(bits == 1 << 32));
+                minus_one[r][k] = _mm256_set1_epi64x(-i64::from(bits == -(1 << 32)));
+            }
+        }
+        let pos = [pos.x, pos.y, pos.z];
+        let mut next = 0;
+        while next < n {
+            let j = next.min(n - 4);
+            next = j + 4;
+            let offset = [
+                load(&offsets[0], j),
+                load(&offsets[1], j),
+                load(&offsets[2], j),
+            ];
+            // pos + (x m0 + y m1 + z m2) per axis, the scalar sums' order.
+            let mut nodes = [zero; 3];
+            for r in 0..3 {
+                let mut terms = [zero; 3];
+                for k in 0..3 {
+                    let v = offset[k];
+                    let unit = _mm256_blendv_epi8(v, _mm256_sub_epi64(zero, v), minus_one[r][k]);
+                    let either = _mm256_or_si256(one[r][k], minus_one[r][k]);
+                    terms[k] = _mm256_blendv_epi8(mul_signed_coef(v, c[r][k]), unit, either);
+                }
+                let sum = _mm256_add_epi64(_mm256_add_epi64(terms[0], terms[1]), terms[2]);
+                nodes[r] = _mm256_add_epi64(_mm256_set1_epi64x(pos[r].to_bits()), sum);
+            }
+            store_vec3s(out, 3 * j, nodes);
+        }
+        true
+    }
+
+    /// All entries four at a time: the last four (ending at the end) computed first and
+    /// stored last, over the same values. Wrapping sums: the caller has shown they cannot
+    /// overflow ([`super::node_steps_fit`]). Safety: AVX2 present; `vel` and `step` at least
+    /// as long as `nodes`, which holds at least 4 entries.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn step_nodes_avx2(nodes: &mut [Fx], vel: &mut [Fx], step: &[Fx]) {
+        let last = nodes.len() - 4;
+        let node_last = _mm256_add_epi64(load(nodes, last), load(step, last));
+        let mut e = 0;
+        while e < last {
+            let st = load(step, e);
+            store(nodes, e, _mm256_add_epi64(load(nodes, e), st));
+            store(vel, e, st);
+            e += 4;
+        }
+        store(nodes, last, node_last);
+        store(vel, last, load(step, last));
+    }
+
+    /// Segments j..j+4 of a spine given as its flat coordinates (masses j.. less masses
+    /// j-1..): their x, y and z lanes and squared lengths (`Vec3::norm2`, exact for
+    /// coordinates within +-2^45, which the callers check). Safety: AVX2 present; `j >= 1`
+    /// and masses up to j+3 in `coordinates`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn segment_vectors(coordinates: &[Fx], j: usize) -> ([__m256i; 3], __m256i) {
+        // The differences as the spine holds them, x y z x, y z x y, z x y z, then sorted
+        // into x, y and z.
+        let [a, b, c] = [0, 4, 8].map(|o| {
+            let at = 3 * j + o;
+            _mm256_sub_epi64(load(coordinates, at), load(coordinates, at - 3))
+        });
+        let d = [
+            // x0 . . .  from a, x3 (lane 1) from c, x2 (lane 2) from b, x1 (lane 3) from a.
+            _mm256_permute4x64_epi64::<0b01_10_11_00>(_mm256_blend_epi32::<0b0000_1100>(
+                _mm256_blend_epi32::<0b0011_0000>(a, b),
+                c,
+            )),
+            // y1 (lane 0) and y2 (lane 3) from b, y0 (lane 1) from a, y3 (lane 2) from c.
+            _mm256_permute4x64_epi64::<0b10_11_00_01>(_mm256_blend_epi32::<0b0011_0000>(
+                _mm256_blend_epi32::<0b1100_0011>(a, b),
+                c,
+            )),
+            // z2 (lane 0) and z3 (lane 3) from c, z1 (lane 1) from b, z0 (lane 2) from a.
+            _mm256_permute4x64_epi64::<0b11_00_01_10>(_mm256_blend_epi32::<0b1100_0011>(
+                _mm256_blend_epi32::<0b0000_1100>(a, b),
+                c,
+            )),
+        ];
+        let len2 = _mm256_add_epi64(_mm256_add_epi64(square(d[0]), square(d[1])), square(d[2]));
+        (d, len2)
+    }
+
+    /// The spine's coordinates all within +-2^45 (then differences, squares and their sums
+    /// cannot overflow). Safety: AVX2 present; at least 4 coordinates.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn spine_in_range(coordinates: &[Fx]) -> bool {
+        // x + 2^45 is below 2^46 (unsigned) exactly when -2^45 <= x < 2^45; or-ed over
+        // every coordinate, the same holds of all of them.
+        let (bias, end) = (_mm256_set1_epi64x(1 << 45), coordinates.len());
+        let mut range = _mm256_setzero_si256();
+        let mut next = 0;
+        while next < end {
+            let i = next.min(end - 4);
+            next = i + 4;
+            range = _mm256_or_si256(range, _mm256_add_epi64(load(coordinates, i), bias));
+        }
+        _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 46) - 1))) == 1
+    }
+
+    /// [`super::measure`] with AVX2 present.
+    pub(super) fn measure(n: usize, spine: &[Vec3<Fx>], len2: &mut [Fx], rsqrt: &mut [Fx]) -> u32 {
+        let fits = (5..=MAX_LAYERS).contains(&n)
+            && spine.len() >= n
+            && len2.len() >= n
+            && rsqrt.len() >= n;
+        // SAFETY: AVX2 checked by the caller; 5 <= n <= MAX_LAYERS and the arrays hold n
+        // entries, all the kernel reads and writes.
+        if !fits || !unsafe { spine_in_range(flat(&spine[..n])) } {
+            return 0;
+        }
+        unsafe { measure_avx2(flat(&spine[..n]), len2, rsqrt) }
+    }
+
+    /// Four segments at a time from segment 1 (the last four end at n - 1, overlapping the
+    /// previous ones: the same values again). `Scalar::rsqrt`'s float estimate, lane by
+    /// lane with the same IEEE operations (the integer to `f32` conversion through an exact
+    /// `f64`, the truncation back through another), then its Newton step for `len2 > 1`.
+    /// Where a segment is not done (len2 at most one, or beyond 2^52 raw) nothing of it is
+    /// written. Safety: AVX2 present; the spine's coordinates within +-2^45; `len2` and
+    /// `rsqrt` hold the spine's n masses, `5 <= n`.
+    #[target_feature(enable = "avx2")]
+    unsafe fn measure_avx2(coordinates: &[Fx], len2_out: &mut [Fx], rsqrt_out: &mut [Fx]) -> u32 {
+        let n = coordinates.len() / 3;
+        let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
+        let three = _mm256_set1_epi64x(3 << 32);
+        // 2^52 as f64 bits: or-ed into a value below 2^52 it makes the f64 2^52 + value.
+        let magic = _mm256_set1_epi64x(0x4330_0000_0000_0000);
+        let magic_f = _mm256_castsi256_pd(magic);
+        let limit = _mm256_set1_epi64x(1 << 52);
+        let mut done = 0u32;
+        let mut next = 1;
+        while next < n {
+            let j = next.min(n - 4);
+            next = j + 4;
+            let (_, len2) = segment_vectors(coordinates, j);
+            // len2 as f32, rounded once: exactly as f64 (below 2^52), then to f32.
+            let exact = _mm256_sub_pd(_mm256_castsi256_pd(_mm256_or_si256(len2, magic)), magic_f);
+            let x = _mm_mul_ps(_mm256_cvtpd_ps(exact), _mm_set1_ps(1.0 / 4_294_967_296.0));
+            let est = _mm_div_ps(_mm_set1_ps(1.0), _mm_sqrt_ps(x));
+            // (est 2^32) as i64: truncated toward zero, below 2^52 (est below 2^20 for len2
+            // above one), back through an exact f64.
+            let scaled = _mm256_cvtps_pd(_mm_mul_ps(est, _mm_set1_ps(4_294_967_296.0)));
+            let whole = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(scaled);
+            let y = _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(whole, magic_f)), magic);
+            // x > 1: y < 1 is the coefficient, x y^2 as (x y) y; then y (3 - x y^2) / 2.
+            let u = mul_nonnegative(mul_nonnegative(len2, y), y);
+            let t = _mm256_sub_epi64(three, u);
+            let r = _mm256_srli_epi64::<1>(mul_nonnegative(t, y));
+            let ok = _mm256_and_si256(
+                _mm256_and_si256(
+                    _mm256_cmpgt_epi64(len2, one),
+                    _mm256_cmpgt_epi64(limit, len2),
+                ),
+                _mm256_and_si256(
+                    _mm256_cmpgt_epi64(one, y),
+                    _mm256_cmpgt_epi64(t, _mm256_set1_epi64x(-1)),
+                ),
+            );
+            let lanes = _mm256_movemask_pd(_mm256_castsi256_pd(ok)) as u32;
+            // Only what is done is written: the others keep their values for the caller.
+            store(len2_out, j, _mm256_blendv_epi8(load(len2_out, j), len2, ok));
+            store(rsqrt_out, j, _mm256_blendv_epi8(load(rsqrt_out, j), r, ok));
+            done |= lanes << j;
+        }
+        done
+    }
+
     /// `floor(x x / 2^32)` for `|x| < 2^46`: the square from `|x|`'s words, `a = ah 2^32 +
     /// al`: `ah^2 2^32 + 2 ah al + floor(al^2 / 2^32)`, exact (the first two are integers).
     #[inline]
@@ -464,17 +798,7 @@ mod x86 {
         let segment = _mm256_set1_epi64x(s.segment.to_bits());
         let ratio = _mm256_set1_epi64x(s.compression_ratio.to_bits());
         let tiny2 = _mm256_set1_epi64x(s.tiny2.to_bits());
-        // x + 2^45 is below 2^46 (unsigned) exactly when -2^45 <= x < 2^45; or-ed over
-        // every coordinate, the same holds of all of them.
-        let bias = _mm256_set1_epi64x(1 << 45);
-        let mut range = zero;
-        let mut next = 0;
-        while next < 3 * n {
-            let i = next.min(3 * n - 4);
-            next = i + 4;
-            range = _mm256_or_si256(range, _mm256_add_epi64(load(coordinates, i), bias));
-        }
-        if _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 46) - 1))) == 0 {
+        if !spine_in_range(&coordinates[..3 * n]) {
             return 0;
         }
         let mut done = 0u32;
@@ -482,34 +806,11 @@ mod x86 {
         while next < n {
             let j = next.min(n - 4);
             next = j + 4;
-            // The four segments' differences as the spine holds them, x y z x, y z x y,
-            // z x y z (masses j.. less masses j-1..), then sorted into x, y and z.
-            let [a, b, c] = [0, 4, 8].map(|o| {
-                let at = 3 * j + o;
-                _mm256_sub_epi64(load(coordinates, at), load(coordinates, at - 3))
-            });
-            let d = [
-                // x0 . . .  from a, x3 (lane 1) from c, x2 (lane 2) from b, x1 (lane 3) from a.
-                _mm256_permute4x64_epi64::<0b01_10_11_00>(_mm256_blend_epi32::<0b0000_1100>(
-                    _mm256_blend_epi32::<0b0011_0000>(a, b),
-                    c,
-                )),
-                // y1 (lane 0) and y2 (lane 3) from b, y0 (lane 1) from a, y3 (lane 2) from c.
-                _mm256_permute4x64_epi64::<0b10_11_00_01>(_mm256_blend_epi32::<0b0011_0000>(
-                    _mm256_blend_epi32::<0b1100_0011>(a, b),
-                    c,
-                )),
-                // z2 (lane 0) and z3 (lane 3) from c, z1 (lane 1) from b, z0 (lane 2) from a.
-                _mm256_permute4x64_epi64::<0b11_00_01_10>(_mm256_blend_epi32::<0b1100_0011>(
-                    _mm256_blend_epi32::<0b0000_1100>(a, b),
-                    c,
-                )),
-            ];
-            let len2 = _mm256_add_epi64(_mm256_add_epi64(square(d[0]), square(d[1])), square(d[2]));
+            let (d, len2) = segment_vectors(coordinates, j);
             // The Newton step from the last root (`rsqrt_near`), where it applies: len2 > 1,
             // 0 < near < 1 and the guess within 2^-16 (len2 near^2, both products floor'd).
             let near = load(near, j);
-            let e = mul_coef(mul_coef(len2, near), near);
+            let e = mul_nonnegative(mul_nonnegative(len2, near), near);
             let off = _mm256_sub_epi64(e, one);
             let stepped = [
                 _mm256_cmpgt_epi64(len2, one),
@@ -521,14 +822,14 @@ mod x86 {
             .iter()
             .fold(_mm256_set1_epi64x(-1), |m, c| _mm256_and_si256(m, *c));
             // 3 - e is about 2 and the product positive: the halving is a logical shift.
-            let r = _mm256_srli_epi64::<1>(mul_coef(_mm256_sub_epi64(three, e), near));
+            let r = _mm256_srli_epi64::<1>(mul_nonnegative(_mm256_sub_epi64(three, e), near));
             let empty = _mm256_cmpeq_epi64(len2, zero);
             let r = _mm256_andnot_si256(empty, r);
             let mut ok = _mm256_or_si256(stepped, empty);
             // The spring: strain 1 - L r (L r a coefficient product: r < 1), times the ratio
             // where negative; the term is d times the strain, d itself for a strain of one.
             let springy = _mm256_cmpgt_epi64(len2, tiny2);
-            let strain = _mm256_sub_epi64(one, mul_coef(segment, r));
+            let strain = _mm256_sub_epi64(one, mul_nonnegative(segment, r));
             let compressed = _mm256_cmpgt_epi64(zero, strain);
             let strain = _mm256_blendv_epi8(strain, mul_signed_coef(strain, ratio), compressed);
             let unit = _mm256_cmpeq_epi64(strain, one);
@@ -541,35 +842,7 @@ mod x86 {
                 let fk = _mm256_blendv_epi8(mul_signed_coef(dk, strain), dk, unit);
                 _mm256_and_si256(fk, springy)
             });
-            // The four segments' terms as Vec3s, x y z x, y z x y, z x y z.
-            let [x, y, z] = f;
-            let out = [
-                (
-                    _mm256_permute4x64_epi64::<0x40>(x),
-                    _mm256_permute4x64_epi64::<0x00>(y),
-                ),
-                (
-                    _mm256_permute4x64_epi64::<0x81>(y),
-                    _mm256_permute4x64_epi64::<0x04>(z),
-                ),
-                (
-                    _mm256_permute4x64_epi64::<0xc2>(z),
-                    _mm256_permute4x64_epi64::<0x0c>(x),
-                ),
-            ];
-            let third = [
-                _mm256_permute4x64_epi64::<0x00>(z),
-                _mm256_permute4x64_epi64::<0x20>(x),
-                _mm256_permute4x64_epi64::<0x30>(y),
-            ];
-            let seg = flat_mut(s.seg);
-            // Lane 0 and 3 from the first, lane 1 (32-bit words 2, 3) from the second, lane 2
-            // (words 4, 5) from the third.
-            for (k, ((a, b), c)) in out.into_iter().zip(third).enumerate() {
-                let v =
-                    _mm256_blend_epi32::<0b0011_0000>(_mm256_blend_epi32::<0b0000_1100>(a, b), c);
-                store(seg, 3 * j + 4 * k, v);
-            }
+            store_vec3s(flat_mut(s.seg), 3 * j, f);
             store(s.len2, j, len2);
             store(s.rsqrt, j, _mm256_blendv_epi8(near, r, ok));
             done |= (_mm256_movemask_pd(_mm256_castsi256_pd(ok)) as u32) << j;
@@ -875,6 +1148,106 @@ mod tests {
         let counts = format!("{done_total} done, {left_total} left");
         assert!(done_total > 100_000 && left_total > 100_000, "{counts}");
         assert!(compressed > 10_000, "{compressed}");
+    }
+
+    #[test]
+    fn wide_placed_nodes_are_the_scalar_ones() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x1405_7b7e_f767_814f);
+        let mut wide_runs = 0;
+        for round in 0..20_000 {
+            let n = 4 + round % (N - 3);
+            let mut value = || {
+                if round % 5 == 0 {
+                    rng.value()
+                } else {
+                    Fx::from_bits((rng.next() as i64) >> 20)
+                }
+            };
+            let offsets: [[Fx; N]; 3] = core::array::from_fn(|_| core::array::from_fn(|_| value()));
+            let pos = Vec3::new(value(), value(), value());
+            // Rotation-like entries: coefficients of either sign, now and then exactly zero.
+            let m: [[Fx; 3]; 3] = core::array::from_fn(|_| {
+                core::array::from_fn(|_| match rng.next() % 8 {
+                    0 => Fx::ZERO,
+                    1 => Fx::ONE,
+                    2 => -Fx::ONE,
+                    _ => Fx::from_bits((rng.next() % (1 << 33)) as i64 - (1 << 32) + 1),
+                })
+            });
+            let mut out = vec![Vec3::<Fx>::ZERO; n];
+            if !x86::place_nodes(pos, &offsets, &m, &mut out) {
+                continue;
+            }
+            wide_runs += 1;
+            for (i, node) in out.iter().enumerate() {
+                let [x, y, z] = [0, 1, 2].map(|k| offsets[k][i]);
+                let axis = |row: &[Fx; 3], p: Fx| {
+                    p + (x.mul_coef(row[0]) + y.mul_coef(row[1]) + z.mul_coef(row[2]))
+                };
+                let want = Vec3::new(axis(&m[0], pos.x), axis(&m[1], pos.y), axis(&m[2], pos.z));
+                assert_eq!(*node, want, "round {round}, node {i} of {n}");
+            }
+        }
+        // Four rounds in five model-sized: the wide form ran on them.
+        assert!(wide_runs > 15_000, "{wide_runs}");
+    }
+
+    #[test]
+    fn wide_measures_are_the_scalar_ones() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x94d0_49bb_1331_11eb);
+        let (mut done_total, mut left_total) = (0, 0);
+        for round in 0..20_000 {
+            let n = 5 + round % (N - 4);
+            // Segments from zero length through under a millimetre (left to the scalar root)
+            // to about a metre, now and then one too long to convert exactly.
+            let mut spine = vec![Vec3::<Fx>::ZERO; N];
+            let mut at = Vec3::<Fx>::ZERO;
+            for m in spine.iter_mut().take(n) {
+                *m = at;
+                let scale = match rng.next() % 8 {
+                    0 => 0.0,
+                    1 => 0.3,
+                    2 => 300.0,
+                    // Roots whose f32 estimate, scaled, has a fraction to truncate.
+                    3 => 1000.0,
+                    4 if round % 16 == 0 => 2e6,
+                    _ => 3.0,
+                };
+                let mut c = || (rng.next() % 2001) as f64 * 1e-3 - 1.0;
+                at += Vec3::from_f64([scale * c(), scale * c(), scale * c()]);
+            }
+            let marker = Fx::from_bits(-12345);
+            let (mut len2, mut rsqrt) = (vec![marker; N], vec![marker; N]);
+            let done = x86::measure(n, &spine, &mut len2, &mut rsqrt);
+            for j in 1..n {
+                let d = spine[j] - spine[j - 1];
+                let want = d.norm2();
+                if done >> j & 1 != 0 {
+                    done_total += 1;
+                    assert_eq!(
+                        (len2[j], rsqrt[j]),
+                        (want, want.rsqrt()),
+                        "round {round} j {j}"
+                    );
+                } else {
+                    left_total += 1;
+                    assert_eq!((len2[j], rsqrt[j]), (marker, marker), "round {round} j {j}");
+                }
+            }
+            assert_eq!(done & !((1 << n) - 2), 0, "only segments 1..n: {done:b}");
+        }
+        let counts = format!("{done_total} done, {left_total} left");
+        assert!(done_total > 150_000 && left_total > 20_000, "{counts}");
     }
 
     #[test]

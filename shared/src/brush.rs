@@ -1138,7 +1138,7 @@ fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
 
 /// [`measure`] with the segment's last `rsqrt` as the guess for [`Scalar::rsqrt_near`].
 #[inline]
-fn measure_near<S: Scalar>(v: Vec3<S>, last: S) -> (S, S) {
+pub(crate) fn measure_near<S: Scalar>(v: Vec3<S>, last: S) -> (S, S) {
     let len2 = v.norm2();
     let r = if len2 > S::ZERO {
         len2.rsqrt_near(last)
@@ -1152,13 +1152,30 @@ fn measure_near<S: Scalar>(v: Vec3<S>, last: S) -> (S, S) {
 /// |d|^2` and, if `len2 > tiny2`, `inv_len = len2.rsqrt()`.
 #[inline]
 fn spring_with<S: Scalar>(dv: &Derived<S>, d: Vec3<S>, len2: S, inv_len: S) -> Vec3<S> {
-    if len2 > dv.tiny2 {
+    spring_term(
+        d,
+        len2,
+        inv_len,
+        (dv.segment, dv.compression_ratio, dv.tiny2),
+    )
+}
+
+/// [`spring_with`] with the rest length, compression ratio and `tiny2` given: also the
+/// reference the host's wide form of the springs is tested against (`wide`).
+#[inline]
+pub(crate) fn spring_term<S: Scalar>(
+    d: Vec3<S>,
+    len2: S,
+    inv_len: S,
+    (segment, compression_ratio, tiny2): (S, S, S),
+) -> Vec3<S> {
+    if len2 > tiny2 {
         // 1/|d| is below one for segments longer than 1 mm: the coefficient.
-        let strain = S::ONE - dv.segment.mul_coef(inv_len);
+        let strain = S::ONE - segment.mul_coef(inv_len);
         // Negative strain: the segment is compressed and the hairs buckle.
         // A compression ratio is in [0, 1], and so is a stretched segment's strain.
         let strain = if strain < S::ZERO {
-            strain.mul_coef(dv.compression_ratio)
+            strain.mul_coef(compression_ratio)
         } else {
             strain
         };

@@ -1037,27 +1037,12 @@ mod tests {
         assert!(wide_runs > 12_000, "{wide_runs}");
     }
 
-    /// One segment as `Brush` measures it: length, root (the Newton step from `near`) and
-    /// spring term, from the public scalar operations.
+    /// One segment as `Brush` measures it, with its own functions: length, root (the
+    /// Newton step from `near`) and spring term.
     fn segment_reference(d: Vec3<Fx>, near: Fx, s: &Segments<'_, Fx>) -> (Fx, Fx, Vec3<Fx>) {
-        let len2 = d.norm2();
-        let r = if len2 > Fx::ZERO {
-            len2.rsqrt_near(near)
-        } else {
-            Fx::ZERO
-        };
-        let f = if len2 > s.tiny2 {
-            let strain = Fx::ONE - s.segment.mul_coef(r);
-            let strain = if strain < Fx::ZERO {
-                strain.mul_coef(s.compression_ratio)
-            } else {
-                strain
-            };
-            d.scale_coef(strain)
-        } else {
-            Vec3::ZERO
-        };
-        (len2, r, f)
+        let (len2, r) = crate::brush::measure_near(d, near);
+        let constants = (s.segment, s.compression_ratio, s.tiny2);
+        (len2, r, crate::brush::spring_term(d, len2, r, constants))
     }
 
     #[test]

@@ -39,7 +39,10 @@
 //! [`set_enabled`] switches the wide forms off to measure or compare them.
 #![allow(unsafe_code)]
 
-use crate::scalar::{Fx, Scalar};
+use crate::scalar::Fx;
+// The scalar forms the kernels are tested against, and the documentation's links.
+#[cfg(target_arch = "x86_64")]
+use crate::scalar::Scalar;
 use crate::vec::Vec3;
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -86,7 +89,7 @@ pub(crate) fn jacobi(
 }
 
 /// `0 <= c < 1/2`: a coefficient the wide product takes as one signed word.
-#[allow(dead_code)]
+#[cfg(target_arch = "x86_64")]
 fn is_small_coef(c: Fx) -> bool {
     (0..1 << 31).contains(&c.to_bits())
 }
@@ -123,7 +126,7 @@ pub(crate) fn interior_rows(rows: &InteriorRows<'_, Fx>, p: &mut [Fx]) -> bool {
 }
 
 /// [`InteriorRows`]' arrays as flat arrays of components (entry `3i + axis` of mass i).
-#[allow(dead_code)]
+#[cfg(target_arch = "x86_64")]
 #[derive(Copy, Clone)]
 struct FlatRows<'a> {
     f: &'a [Fx],
@@ -133,7 +136,7 @@ struct FlatRows<'a> {
     kv: &'a [Fx],
 }
 
-#[allow(dead_code)]
+#[cfg(target_arch = "x86_64")]
 impl<'a> FlatRows<'a> {
     fn of(rows: &InteriorRows<'a, Fx>) -> Self {
         FlatRows {
@@ -260,7 +263,6 @@ pub(crate) fn measure(n: usize, spine: &[Vec3<Fx>], len2: &mut [Fx], rsqrt: &mut
 }
 
 /// The components of `v` in order: `Vec3` is `repr(C)` over three scalars.
-#[allow(dead_code)]
 fn flat(v: &[Vec3<Fx>]) -> &[Fx] {
     // SAFETY: `Vec3<Fx>` is `repr(C)` with three `Fx` fields and no padding (all three have
     // one size and alignment), so `v` is `3 v.len()` consecutive `Fx`, borrowed as long as `v`.
@@ -268,7 +270,7 @@ fn flat(v: &[Vec3<Fx>]) -> &[Fx] {
 }
 
 /// [`flat`] for writing.
-#[allow(dead_code)]
+#[cfg(target_arch = "x86_64")]
 fn flat_mut(v: &mut [Vec3<Fx>]) -> &mut [Fx] {
     // SAFETY: as for `flat`; the borrow is exclusive as `v`'s was.
     unsafe { core::slice::from_raw_parts_mut(v.as_mut_ptr().cast::<Fx>(), 3 * v.len()) }

@@ -616,18 +616,13 @@ impl<S: Scalar> Brush<S> {
         ) + self.tip_load.scale_coef(tip.c_f);
         p[3 * last..3 * n].copy_from_slice(&[r.x, r.y, r.z]);
 
-        // The exact solve turns p into du in place; Jacobi sweeps need a second array. (A
-        // zeroed array is about 300 instructions of clearing on the Cortex-M4, and the force
-        // loop's one-substep tick runs the exact solve.)
-        let mut du_jacobi;
-        let du = if d.exact_solve {
+        // Both solves turn p into du in place.
+        if d.exact_solve {
             self.solve_exact(&mut p, du0);
-            &p
         } else {
-            du_jacobi = [S::ZERO; FLAT];
-            jacobi(&p, inner.c_j, tip.c_j, n, d.iterations, &mut du_jacobi);
-            &du_jacobi
-        };
+            jacobi(&mut p, inner.c_j, tip.c_j, n, d.iterations);
+        }
+        let du = &p;
 
         // Integrate, paper drag, projection (Fig. 4-5), all per mass.
         let drag_loss = self.d.drag_loss;
@@ -985,54 +980,47 @@ type Offsets<S> = [[S; MAX_LAYERS]; 3];
 const FLAT: usize = 3 * MAX_LAYERS;
 
 /// `iterations` Jacobi sweeps of eq. 2.33, `du_i <- p_i + c_j,i (du_{i-1} + du_{i+1})`, from
-/// `du = p`, with the ferrule's prescribed `du_0` and `du_n = 0` beyond the tip, into `du`.
-/// `p` and `du` are flattened [`Vec3`] arrays (x_0, y_0, z_0, x_1, ...); entry 0 of `p` holds
-/// `du_0`, which the sweeps read as mass 1's inner neighbour.
+/// `du = p`, with the ferrule's prescribed `du_0` and `du_n = 0` beyond the tip, in place: `p`
+/// becomes `du`. `p` is a flattened [`Vec3`] array (x_0, y_0, z_0, x_1, ...); its entry 0
+/// holds `du_0`, which the sweeps read as mass 1's inner neighbour.
 ///
 /// The sweeps run over the three components as one flat array: an interior row multiplies
 /// all three components of both neighbours by the same `c_j`, so component k of mass i reads
 /// entries `3i + k - 3` and `3i + k + 3`, one stride for the whole chain. That loop has no
-/// per-mass branch or struct shuffling, and for the float types it vectorises. The two
-/// buffers swap roles between sweeps instead of being copied. Each entry is computed with the
-/// same operations in the same order as per [`Vec3`], so the results are the same bits.
-fn jacobi<S: Scalar>(
-    p: &[S; FLAT],
-    c: S,
-    c_tip: S,
-    n: usize,
-    iterations: usize,
-    du: &mut [S; FLAT],
-) {
+/// per-mass branch or struct shuffling, and for the float types it vectorises. Each entry is
+/// computed with the same operations in the same order as per [`Vec3`], so the results are
+/// the same bits.
+fn jacobi<S: Scalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
     // The two coefficients are the same for every sweep: tested once (the presets' are in
     // (-1, 1)), not on each of the sweeps' products; the same values either way.
     if c.is_coef() && c_tip.is_coef() {
         // The host's wide form where it applies (see `wide`), the same values.
-        if !S::jacobi_wide(p, (c, c_tip), n, iterations, du) {
-            jacobi_with(p, c, c_tip, n, iterations, du, S::mul_tested_coef);
+        if !S::jacobi_wide(p, (c, c_tip), n, iterations) {
+            jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
         }
     } else {
-        jacobi_with(p, c, c_tip, n, iterations, du, S::mul_coef);
+        jacobi_with(p, c, c_tip, n, iterations, S::mul_coef);
     }
 }
 
 /// [`jacobi`] with the product by a coefficient `mul`.
 #[inline(always)]
 fn jacobi_with<S: Scalar>(
-    p: &[S; FLAT],
+    p: &mut [S; FLAT],
     c: S,
     c_tip: S,
     n: usize,
     iterations: usize,
-    du: &mut [S; FLAT],
-    mul: impl Fn(S, S) -> S,
+    mul: impl Fn(S, S) -> S + Copy,
 ) {
-    // Components of the interior masses 1..n-1 (from LO), and of the tip.
+    // Components of the interior masses 1..n-1 (from LO), and of the tip. `n` clamped as
+    // `Derived::n` does, so that the compiler sees every range below within FLAT and leaves
+    // out the panicking checks.
     const LO: usize = 3;
-    let tip = 3 * (n - 1);
-    let sweep = |src: &[S; FLAT], dst: &mut [S; FLAT]| {
-        // `n` clamped as `Derived::n` does, here inside the closure (compiled on its own, it
-        // sees only the captured value), so that the compiler sees every range below within
-        // FLAT and leaves out the panicking checks.
+    let tip = (3 * n.max(1) - 3).clamp(LO, FLAT - 3);
+    // A sweep from `src` into `dst`, which starts as p's entries (`dst_e = p_e + product`).
+    let sweep = |src: &[S; FLAT], p: &[S; FLAT], dst: &mut [S; FLAT]| {
+        // Clamped again inside (compiled on its own, a closure sees only the captured value).
         let tip = tip.clamp(LO, FLAT - 3);
         for (((o, pk), left), right) in dst[LO..tip]
             .iter_mut()
@@ -1050,27 +1038,41 @@ fn jacobi_with<S: Scalar>(
             *o = *pk + mul(*left, c_tip);
         }
     };
-    // The first sweep reads p itself (du starts at p); the buffers alternate so that the last
-    // sweep writes `du`, and nothing is copied.
-    let mut other = [S::ZERO; FLAT];
-    other[..3].copy_from_slice(&p[..3]);
-    du[..3].copy_from_slice(&p[..3]);
-    let mut left = iterations;
-    if left == 0 {
+    // The last sweep, into p itself: each entry reads its own p_e just before it is
+    // replaced, and its neighbours from `src`.
+    let last_sweep = |src: &[S; FLAT], p: &mut [S; FLAT]| {
+        let tip = tip.clamp(LO, FLAT - 3);
+        for ((o, left), right) in p[LO..tip]
+            .iter_mut()
+            .zip(&src[LO - 3..tip - 3])
+            .zip(&src[LO + 3..tip + 3])
+        {
+            *o += mul(*left + *right, c);
+        }
+        for (o, left) in p[tip..tip + 3].iter_mut().zip(&src[tip - 3..tip]) {
+            *o += mul(*left, c_tip);
+        }
+    };
+    if iterations == 0 {
         // (Not a valid parameter; kept total.) No sweep: du = p.
-        *du = *p;
-    } else if left % 2 == 1 {
-        sweep(p, du);
-        left -= 1;
-    } else {
-        sweep(p, &mut other);
-        sweep(&other, du);
-        left -= 2;
+        return;
     }
-    while left >= 2 {
-        sweep(du, &mut other);
-        sweep(&other, du);
-        left -= 2;
+    // The first sweep reads p itself (du starts at p), the middle ones alternate between two
+    // buffers, the last writes p: nothing is copied. Entries 0..3 (the ferrule's du_0) are
+    // p's in every buffer.
+    let (mut a, mut b) = ([S::ZERO; FLAT], [S::ZERO; FLAT]);
+    a[..3].copy_from_slice(&p[..3]);
+    b[..3].copy_from_slice(&p[..3]);
+    let (mut src, mut dst) = (&mut a, &mut b);
+    sweep(p, p, src);
+    for _ in 2..iterations {
+        sweep(src, p, dst);
+        core::mem::swap(&mut src, &mut dst);
+    }
+    if iterations == 1 {
+        *p = *src;
+    } else {
+        last_sweep(src, p);
     }
 }
 
@@ -1126,7 +1128,7 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
 /// A segment's squared length and, when positive, its `rsqrt` (else zero): see
 /// [`Brush::measure_segments`].
 #[inline]
-fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
+pub(crate) fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
     let len2 = v.norm2();
     let r = if len2 > S::ZERO {
         len2.rsqrt()

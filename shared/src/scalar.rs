@@ -594,19 +594,14 @@ pub trait Scalar:
         self * c
     }
     /// The brush's Jacobi sweeps (see `brush::jacobi`) at once, for coefficients whose
-    /// [`Scalar::is_coef`] holds: writes `du` and returns true where the implementation has a
-    /// wide form that applies (the fixed-point one on x86-64 hosts with AVX2, see `wide`);
-    /// returns false where not (then the brush runs its own sweeps).
+    /// [`Scalar::is_coef`] holds: turns `p` into `du` in place and returns true where the
+    /// implementation has a wide form that applies (the fixed-point one on x86-64 hosts with
+    /// AVX2, see `wide`); returns false, with `p` unchanged, where not (then the brush runs
+    /// its own sweeps).
     #[doc(hidden)]
     #[inline]
-    fn jacobi_wide(
-        p: &[Self],
-        coefs: (Self, Self),
-        n: usize,
-        iterations: usize,
-        du: &mut [Self],
-    ) -> bool {
-        let _ = (p, coefs, n, iterations, du);
+    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
+        let _ = (p, coefs, n, iterations);
         false
     }
     /// Measures the brush's spine segments and writes their spring terms (see
@@ -1076,14 +1071,8 @@ impl Scalar for Fx {
         high == 0 || (high == -1 && bits as u32 != 0)
     }
     #[inline]
-    fn jacobi_wide(
-        p: &[Self],
-        coefs: (Self, Self),
-        n: usize,
-        iterations: usize,
-        du: &mut [Self],
-    ) -> bool {
-        crate::wide::jacobi(p, coefs, n, iterations, du)
+    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
+        crate::wide::jacobi(p, coefs, n, iterations)
     }
     #[inline]
     fn interior_rows_wide(rows: &crate::wide::InteriorRows<'_, Self>, p: &mut [Self]) -> bool {

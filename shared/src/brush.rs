@@ -64,7 +64,7 @@ use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBS
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
-use crate::wide::{InteriorRows, Segments};
+use crate::wide::{Integration, InteriorRows, Segments};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -624,36 +624,31 @@ impl<S: Scalar> Brush<S> {
         }
         let du = &p;
 
-        // Integrate, paper drag, projection (Fig. 4-5), all per mass.
+        // Integrate, paper drag, projection (Fig. 4-5), all per mass: masses 1..from in the
+        // host's wide form where it applies (see `wide`), the same values, the rest here.
         let drag_loss = self.d.drag_loss;
         let tol = self.d.contact_tol;
-        for ((((x, u), du), w), touching) in self.spine[1..n]
+        let from = S::integrate_wide(&mut Integration {
+            n,
+            spine: &mut self.spine,
+            vel: &mut self.vel,
+            contact: &mut self.contact,
+            du,
+            ties: &ties,
+            drag_loss,
+            contact_tol: tol,
+        })
+        .max(1)
+        .min(n);
+        for ((((x, u), du), w), touching) in self.spine[from..n]
             .iter_mut()
-            .zip(&mut self.vel[1..n])
-            .zip(du[3..3 * n].chunks_exact(3))
-            .zip(&ties[1..n])
-            .zip(&mut self.contact[1..n])
+            .zip(&mut self.vel[from..n])
+            .zip(du[3 * from..3 * n].chunks_exact(3))
+            .zip(&ties[from..n])
+            .zip(&mut self.contact[from..n])
         {
-            let mut v = *u + Vec3::new(du[0], du[1], du[2]);
-            // Drag in proportion to how much the mass is lying on the paper.
-            let on_paper = S::ONE - *w;
-            if on_paper > S::ZERO {
-                // drag_loss and on_paper are in [0, 1], so keep is too.
-                let keep = S::ONE - on_paper.mul_coef(drag_loss);
-                v.x = v.x.mul_coef(keep);
-                v.y = v.y.mul_coef(keep);
-            }
-            let mut s = *x + v;
-            // A mass below the paper is put back onto it with its downward velocity removed.
-            if s.z < S::ZERO {
-                s.z = S::ZERO;
-                if v.z < S::ZERO {
-                    v.z = S::ZERO;
-                }
-            }
-            *u = v;
-            *x = s;
-            *touching = s.z <= tol;
+            let du = Vec3::new(du[0], du[1], du[2]);
+            *touching = integrate_mass(x, u, du, *w, drag_loss, tol);
         }
     }
 
@@ -1123,6 +1118,41 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
     } else {
         (z * d.inv_tie_ramp).clamp(S::ZERO, S::ONE)
     }
+}
+
+/// One mass's integration, paper drag and projection (Fig. 4-5): velocity `u` plus its
+/// change `du`, dragged in proportion to how much the mass lies on the paper (tie weight
+/// `w`), added to the position `x`; whether the mass then touches the paper (z at most
+/// `tol`). Also the reference the host's wide form is tested against (`wide`).
+#[inline(always)]
+pub(crate) fn integrate_mass<S: Scalar>(
+    x: &mut Vec3<S>,
+    u: &mut Vec3<S>,
+    du: Vec3<S>,
+    w: S,
+    drag_loss: S,
+    tol: S,
+) -> bool {
+    let mut v = *u + du;
+    // Drag in proportion to how much the mass is lying on the paper.
+    let on_paper = S::ONE - w;
+    if on_paper > S::ZERO {
+        // drag_loss and on_paper are in [0, 1], so keep is too.
+        let keep = S::ONE - on_paper.mul_coef(drag_loss);
+        v.x = v.x.mul_coef(keep);
+        v.y = v.y.mul_coef(keep);
+    }
+    let mut s = *x + v;
+    // A mass below the paper is put back onto it with its downward velocity removed.
+    if s.z < S::ZERO {
+        s.z = S::ZERO;
+        if v.z < S::ZERO {
+            v.z = S::ZERO;
+        }
+    }
+    *u = v;
+    *x = s;
+    s.z <= tol
 }
 
 /// A segment's squared length and, when positive, its `rsqrt` (else zero): see

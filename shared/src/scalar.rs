@@ -613,6 +613,15 @@ pub trait Scalar:
         let _ = segments;
         0
     }
+    /// The substep's integration, paper drag and projection of masses `1..k` (see
+    /// [`crate::wide::Integration`]) where the implementation has a wide form that applies;
+    /// returns `k`, the first mass left for the brush's own loop (1 where it has none).
+    #[doc(hidden)]
+    #[inline]
+    fn integrate_wide(integration: &mut crate::wide::Integration<'_, Self>) -> usize {
+        let _ = integration;
+        1
+    }
     /// The skeleton's nodes `pos + m offset_i` into `out` where the implementation has a
     /// wide form that applies (see [`crate::wide`]); false, having written nothing, where not.
     #[doc(hidden)]
@@ -1081,6 +1090,10 @@ impl Scalar for Fx {
     #[inline]
     fn segments_wide(segments: &mut crate::wide::Segments<'_, Self>) -> u32 {
         crate::wide::segments(segments)
+    }
+    #[inline]
+    fn integrate_wide(integration: &mut crate::wide::Integration<'_, Self>) -> usize {
+        crate::wide::integrate(integration)
     }
     #[inline]
     fn measure_wide(

@@ -8,14 +8,15 @@
 //! the segment springs (a root and a spring term per segment), the right-hand sides of the
 //! interior rows (about 57 instructions an entry) and the Jacobi sweeps (about 14 an entry).
 //! Here they run four segments or entries at a time (`segments`, `interior_rows`, `jacobi`),
-//! and so do three smaller pieces of the tick: the surface update's segment roots (`measure`:
-//! the float estimate of `Scalar::rsqrt` and its Newton step, four at once, where one at a
-//! time waited on a square root and a division), the skeleton's placement (`place_nodes`)
-//! and its straight-line steps (`step_nodes`, with their range shown once a tick by
-//! `node_steps_fit`). The brush reaches them through hidden `Scalar` hooks that only `Fx`
-//! implements. The rest of the substep (integration, the tip's row, the ties) stays scalar:
-//! a wide integration was measured slower than the loop it replaced (its range checks and
-//! per-mass weights cost what it saved).
+//! and so do smaller pieces of the tick: the surface update's segment roots (`measure`: the
+//! float estimate of `Scalar::rsqrt` and its Newton step, four at once, where one at a time
+//! waited on a square root and a division; the segment kernel takes the same path where its
+//! Newton guess is off), the skeleton's placement (`place_nodes`) and its straight-line steps
+//! (`step_nodes`, with their range shown once a tick by `node_steps_fit`), and the
+//! integration (`integrate`: one mass per vector, its three components at once, which
+//! replaces the scalar loop's nine checked sums and branches by one range test). The brush
+//! reaches them through hidden `Scalar` hooks that only `Fx` implements. The tip's row and the
+//! ties stay scalar.
 //!
 //! Exactness:
 //! * **Products.** The coefficient product `floor(x c / 2^32)` for `0 <= c < 2^32` raw is
@@ -194,6 +195,36 @@ pub(crate) fn segments(s: &mut Segments<'_, Fx>) -> u32 {
     0
 }
 
+/// What the substep's last step reads and writes, as `Brush` holds it: for each mass i in
+/// `1..n`, `v = u_i + du_i`; where the mass lies on the paper (tie weight `w_i < 1`) its x and
+/// y scaled by `keep = 1 - (1 - w_i) drag_loss`; `S_i + v`, put back onto the paper (z = 0,
+/// a downward v.z removed) where below it; then `S_i`, `u_i` and the contact flag (z at most
+/// `contact_tol`) stored.
+pub struct Integration<'a, S> {
+    pub n: usize,
+    pub spine: &'a mut [Vec3<S>],
+    pub vel: &'a mut [Vec3<S>],
+    pub contact: &'a mut [bool],
+    /// The velocity changes, flattened (mass i at `3i..3i+3`).
+    pub du: &'a [S],
+    /// The tie weight of each mass.
+    pub ties: &'a [S],
+    pub drag_loss: S,
+    pub contact_tol: S,
+}
+
+/// Integrates masses `1..k` of [`Integration`] where the wide form applies and returns `k`,
+/// the first mass left for the caller's scalar loop (1 where none was done, `n` where all
+/// were).
+pub(crate) fn integrate(s: &mut Integration<'_, Fx>) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if active() {
+        return x86::integrate(s);
+    }
+    let _ = s;
+    1
+}
+
 /// `pos + m offset_i` for each node i of `out` (the skeleton placed by a rotation `m` whose
 /// entries are coefficients, [`Scalar::is_coef`]), where the wide form applies; false, having
 /// written nothing, where not.
@@ -272,7 +303,7 @@ fn flat_mut(v: &mut [Vec3<Fx>]) -> &mut [Fx] {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{flat, flat_mut, FlatRows, InteriorRows, Segments};
+    use super::{flat, flat_mut, FlatRows, Integration, InteriorRows, Segments};
     use crate::params::MAX_LAYERS;
     use crate::scalar::{Fx, Scalar};
     use crate::vec::Vec3;
@@ -887,6 +918,93 @@ mod x86 {
         done
     }
 
+    /// [`super::integrate`] with AVX2 present.
+    pub(super) fn integrate(s: &mut Integration<'_, Fx>) -> usize {
+        let n = s.n;
+        if n < 2
+            || [s.spine.len(), s.vel.len(), s.contact.len(), s.ties.len()]
+                .iter()
+                .any(|&l| l < n)
+            || s.du.len() < 3 * n
+        {
+            return 1;
+        }
+        // Each mass's three entries are read as four (the fourth is the next mass's x, or
+        // whatever follows the last one): the masses whose four stay inside all three arrays.
+        let room = (3 * s.spine.len()).min(3 * s.vel.len()).min(s.du.len());
+        let end = n.min((room - 1) / 3);
+        if end < 2 {
+            return 1;
+        }
+        // SAFETY: AVX2 checked by the caller; entries 3i..3i+4 of the three arrays exist for
+        // every mass i below `end`, and `contact`, `ties` hold n >= end entries.
+        unsafe { integrate_avx2(s, end) }
+    }
+
+    /// Masses `1..end` one at a time, their x, y and z in three lanes of one vector: stops at
+    /// (and returns) the first mass with an entry of its position, velocity or velocity
+    /// change beyond +-2^61, or a drag factor outside [0, 1], having written nothing of it.
+    /// Within those the sums cannot overflow (|u + du| < 2^62, |S + v| < 2^63), so wrapping
+    /// and saturating sums agree, and `keep` is a coefficient of the lanes' product (or one,
+    /// which leaves v as it is: the scalar full product by one is exact).
+    /// Each mass's components are stored as two and one (its loads are of four, the
+    /// next mass's x included, which must not be stored over before that mass reads it).
+    /// Safety: AVX2 present; `2 <= end <= n`; entries `3i..3i+4` of the flattened spine,
+    /// velocities and `du` exist for every `i < end`.
+    #[target_feature(enable = "avx2")]
+    unsafe fn integrate_avx2(s: &mut Integration<'_, Fx>, end: usize) -> usize {
+        let x_at = s.spine.as_mut_ptr().cast::<Fx>();
+        let u_at = s.vel.as_mut_ptr().cast::<Fx>();
+        let du = s.du.as_ptr();
+        let at = |p: *const Fx, i: usize| _mm256_loadu_si256(p.add(3 * i).cast::<__m256i>());
+        let bias = _mm256_set1_epi64x(1 << 61);
+        // Lanes 0..3 (x, y, z) beyond +-2^61: x + 2^61 at or above 2^62 (unsigned).
+        let beyond = _mm256_setr_epi64x(!((1 << 62) - 1), !((1 << 62) - 1), !((1 << 62) - 1), 0);
+        let z_lane = _mm256_setr_epi64x(0, 0, -1, 0);
+        for i in 1..end {
+            let (u, d, x) = (at(u_at, i), at(du, i), at(x_at, i));
+            let range = _mm256_or_si256(
+                _mm256_or_si256(_mm256_add_epi64(u, bias), _mm256_add_epi64(d, bias)),
+                _mm256_add_epi64(x, bias),
+            );
+            if _mm256_testz_si256(range, beyond) == 0 {
+                return i;
+            }
+            let mut v = _mm256_add_epi64(u, d);
+            // Drag in proportion to how much the mass is lying on the paper.
+            let on_paper = Fx::ONE - *s.ties.get_unchecked(i);
+            if on_paper > Fx::ZERO {
+                let keep = Fx::ONE - on_paper.mul_coef(s.drag_loss);
+                if keep != Fx::ONE {
+                    if !(Fx::ZERO..Fx::ONE).contains(&keep) {
+                        return i;
+                    }
+                    let scaled = mul_coef(v, _mm256_set1_epi64x(keep.to_bits()));
+                    v = _mm256_blend_epi32::<0b0000_1111>(v, scaled);
+                }
+            }
+            let mut p = _mm256_add_epi64(x, v);
+            // Below the paper: put back onto it, a downward velocity removed.
+            let below = _mm256_and_si256(_mm256_cmpgt_epi64(_mm256_setzero_si256(), p), z_lane);
+            p = _mm256_andnot_si256(below, p);
+            v = _mm256_andnot_si256(
+                _mm256_and_si256(below, _mm256_cmpgt_epi64(_mm256_setzero_si256(), v)),
+                v,
+            );
+            let (v_hi, p_hi) = (
+                _mm256_extracti128_si256::<1>(v),
+                _mm256_extracti128_si256::<1>(p),
+            );
+            _mm_storeu_si128(u_at.add(3 * i).cast(), _mm256_castsi256_si128(v));
+            _mm_storel_epi64(u_at.add(3 * i + 2).cast(), v_hi);
+            _mm_storeu_si128(x_at.add(3 * i).cast(), _mm256_castsi256_si128(p));
+            _mm_storel_epi64(x_at.add(3 * i + 2).cast(), p_hi);
+            let z = Fx::from_bits(_mm_cvtsi128_si64(p_hi));
+            *s.contact.get_unchecked_mut(i) = z <= s.contact_tol;
+        }
+        end
+    }
+
     /// [`super::interior_rows`] with AVX2 present and the coefficients below 1/2.
     pub(super) fn interior_rows(rows: &InteriorRows<'_, Fx>, p: &mut [Fx]) -> bool {
         let n = rows.n;
@@ -1281,6 +1399,108 @@ mod tests {
         }
         let counts = format!("{done_total} done, {left_total} left");
         assert!(done_total > 150_000 && left_total > 20_000, "{counts}");
+    }
+
+    #[test]
+    fn wide_integration_is_the_scalar_one() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x2f6b_1d9e_83a4_c5f7);
+        let (mut wide_masses, mut stopped, mut dragged, mut projected) = (0, 0, 0, 0);
+        for round in 0..20_000 {
+            let n = 2 + round % (N - 1);
+            // Arrays of exactly n masses now and then (the last masses' four-entry loads
+            // would leave them: left to the scalar loop), else of MAX_LAYERS as in `Brush`.
+            let len = if round % 5 == 0 { n } else { N };
+            let vec3 = |rng: &mut Rng, wild: bool| {
+                let mut c = || {
+                    if wild {
+                        rng.value()
+                    } else {
+                        Fx::from_bits((rng.next() as i64) >> 26)
+                    }
+                };
+                Vec3::new(c(), c(), c())
+            };
+            let wild = round % 8 == 0;
+            let spine: Vec<Vec3<Fx>> = (0..len).map(|_| vec3(&mut rng, wild)).collect();
+            let vel: Vec<Vec3<Fx>> = (0..len).map(|_| vec3(&mut rng, wild)).collect();
+            let du: Vec<Fx> = (0..3 * len).map(|_| vec3(&mut rng, wild).x).collect();
+            // Tie weights: clear of the paper, lying on it, in between.
+            let ties: Vec<Fx> = (0..len)
+                .map(|_| match rng.next() % 3 {
+                    0 => Fx::ONE,
+                    1 => Fx::ZERO,
+                    _ => Fx::from_bits((rng.next() % (1 << 32)) as i64),
+                })
+                .collect();
+            // Beyond [0, 1] (which the parameters reject) too: a drag factor outside it.
+            let drag_loss = [
+                Fx::ZERO,
+                Fx::ONE,
+                Fx::from_f64(0.3),
+                rng.coef(),
+                Fx::from_f64(1.7),
+                Fx::from_f64(-0.4),
+            ][round % 6];
+            let tol = Fx::from_bits((rng.next() % (1 << 24)) as i64);
+            let (mut want_x, mut want_u) = (spine.clone(), vel.clone());
+            let mut want_contact = vec![false; len];
+            for i in 1..n {
+                let d = Vec3::new(du[3 * i], du[3 * i + 1], du[3 * i + 2]);
+                want_contact[i] = crate::brush::integrate_mass(
+                    &mut want_x[i],
+                    &mut want_u[i],
+                    d,
+                    ties[i],
+                    drag_loss,
+                    tol,
+                );
+            }
+            let (mut x, mut u, mut contact) = (spine.clone(), vel.clone(), vec![false; len]);
+            let from = x86::integrate(&mut Integration {
+                n,
+                spine: &mut x,
+                vel: &mut u,
+                contact: &mut contact,
+                du: &du,
+                ties: &ties,
+                drag_loss,
+                contact_tol: tol,
+            });
+            assert!((1..=n).contains(&from), "round {round}: {from}");
+            wide_masses += from - 1;
+            stopped += (from < n) as u32;
+            for i in 1..from {
+                let at = format!("round {round} mass {i}");
+                assert_eq!(
+                    (x[i], u[i], contact[i]),
+                    (want_x[i], want_u[i], want_contact[i]),
+                    "{at}"
+                );
+                dragged += (ties[i] < Fx::ONE && drag_loss > Fx::ZERO) as u32;
+                projected += (spine[i].z + vel[i].z + du[3 * i + 2] < Fx::ZERO) as u32;
+            }
+            // Nothing of the masses left to the scalar loop was written, nor beyond n.
+            let left = from.max(1)..len;
+            assert_eq!(
+                (&x[left.clone()], &u[left.clone()]),
+                (&spine[left.clone()], &vel[left.clone()]),
+                "round {round}"
+            );
+            assert!(contact[left].iter().all(|c| !c), "round {round}");
+        }
+        // The wide form took most masses, stopped at the wild ones, and both drag and the
+        // projection onto the paper ran in it.
+        let counts = format!(
+            "{wide_masses} wide, {stopped} stops, {dragged} dragged, {projected} projected"
+        );
+        std::println!("{counts}");
+        assert!(wide_masses > 100_000 && stopped > 1_000, "{counts}");
+        assert!(dragged > 50_000 && projected > 50_000, "{counts}");
     }
 
     #[test]

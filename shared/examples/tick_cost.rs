@@ -6,8 +6,8 @@
 //!
 //! `valgrind --tool=callgrind target/release/examples/tick_cost fixed 1000`, then
 //! `callgrind_annotate --auto=yes callgrind.out.<pid>` for the per-line picture (the substep is
-//! inlined into `Brush::tick`). With `DUMP=1` it prints the final spine and layer radii, to
-//! compare two builds' results.
+//! inlined into `Brush::tick`). With `DUMP=1` it prints the final spine, layer radii and
+//! axes, to compare two builds' results; with `SCALAR=1` the host's wide kernels are off.
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 use std::hint::black_box;
 
@@ -35,6 +35,7 @@ fn run<S: Scalar>(ticks: usize) {
         }
         for l in b.layers() {
             println!("{:?} {:?}", l.long_radius.to_f64(), l.short_radius.to_f64());
+            println!("{:?} {:?}", l.long_axis.to_f64(), l.short_axis.to_f64());
         }
     }
     black_box(b.spine());
@@ -48,6 +49,10 @@ fn run<S: Scalar>(ticks: usize) {
 }
 
 fn main() {
+    // The host's wide kernels off (the scalar loops, the same bits): to compare the two.
+    if std::env::var_os("SCALAR").is_some() {
+        maobi_shared::wide::set_enabled(false);
+    }
     let args: Vec<String> = std::env::args().collect();
     let ticks = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(2000);
     match args.get(1).map(String::as_str) {

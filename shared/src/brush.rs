@@ -64,7 +64,7 @@ use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBS
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
-use crate::wide::{Integration, InteriorRows, Segments};
+use crate::wide::{Integration, InteriorRows, LayerAxes, Segments};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -883,6 +883,21 @@ impl<S: Scalar> Brush<S> {
         // The host's wide form measures the segments four at a time first, where it applies
         // (see `wide`): bit i is set for a segment it did, with the same values.
         let measured = S::measure_wide(n, &self.spine, &mut self.seg_len2, &mut self.seg_rsqrt);
+        // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined (see below).
+        let min_cross = self.d.tiny;
+        // The host's wide form also sets the layers' axes four at a time where it applies
+        // (see `wide`), from the short axes of step 1: bit i is set for a layer it did, with
+        // the same values (each layer's axes read only its own short axis and segment).
+        let axes_done = S::layer_axes_wide(&mut LayerAxes {
+            n,
+            spine: &self.spine,
+            len2: &self.seg_len2,
+            rsqrt: &self.seg_rsqrt,
+            measured,
+            layers: &mut self.layers,
+            min_len2,
+            min_cross,
+        });
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
             // Kept for the next substep's springs too (as `measure_segments` does, inline
@@ -904,13 +919,12 @@ impl<S: Scalar> Brush<S> {
                 tilt_sum += tilt[i - 1];
             }
             prev_dir = dir;
+            if axes_done >> i & 1 != 0 {
+                continue;
+            }
             let layer = &mut self.layers[i];
-            let sa = layer.short_axis;
             // Unit vectors: coefficient products (the same values), here and below.
-            let la = sa.cross_coef(dir);
-            // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined; keep the old
-            // long axis, made perpendicular to the segment, and rebuild the short one.
-            let min_cross = self.d.tiny;
+            let la = layer.short_axis.cross_coef(dir);
             match la.normalized_or_none_coef(min_cross) {
                 Some(la) => {
                     layer.long_axis = la;
@@ -918,6 +932,8 @@ impl<S: Scalar> Brush<S> {
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
                     layer.short_axis = dir.cross_coef(la);
                 }
+                // The ellipse plane undefined: keep the old long axis, made perpendicular to
+                // the segment, and rebuild the short one.
                 None => {
                     let old = layer.long_axis;
                     let la = old - dir.scale(old.dot(dir));

@@ -613,6 +613,15 @@ pub trait Scalar:
         let _ = segments;
         0
     }
+    /// The surface update's layer axes (see [`crate::wide::LayerAxes`]) where the
+    /// implementation has a wide form that applies; the layers done as bits (bit i: layer
+    /// i), 0 where it has none.
+    #[doc(hidden)]
+    #[inline]
+    fn layer_axes_wide(axes: &mut crate::wide::LayerAxes<'_, Self>) -> u32 {
+        let _ = axes;
+        0
+    }
     /// The substep's integration, paper drag and projection of masses `1..k` (see
     /// [`crate::wide::Integration`]) where the implementation has a wide form that applies;
     /// returns `k`, the first mass left for the brush's own loop (1 where it has none).
@@ -1094,6 +1103,10 @@ impl Scalar for Fx {
     #[inline]
     fn integrate_wide(integration: &mut crate::wide::Integration<'_, Self>) -> usize {
         crate::wide::integrate(integration)
+    }
+    #[inline]
+    fn layer_axes_wide(axes: &mut crate::wide::LayerAxes<'_, Self>) -> u32 {
+        crate::wide::layer_axes(axes)
     }
     #[inline]
     fn measure_wide(

@@ -225,6 +225,36 @@ pub(crate) fn integrate(s: &mut Integration<'_, Fx>) -> usize {
     1
 }
 
+/// What the surface update's layer axes read and write, as `Brush` holds them: for each
+/// layer i in `1..n` whose segment (masses i-1 and i) has its squared length and inverse
+/// length measured in `len2`, `rsqrt` (bit i of `measured`) and is longer than
+/// `sqrt(min_len2)`, its direction `dir` (the segment normalised), then
+/// the surface update's axes from its short axis `sa`: the long axis `LA = sa x dir`
+/// normalised (`Vec3::normalized_or_none_coef(min_cross)`, where `|sa x dir|` is above
+/// `min_cross`) and the short axis `dir x LA`, as `Vec3::cross_coef` forms them.
+pub struct LayerAxes<'a, S> {
+    pub n: usize,
+    pub spine: &'a [Vec3<S>],
+    pub len2: &'a [S],
+    pub rsqrt: &'a [S],
+    pub measured: u32,
+    /// Their short axes in (step 1's), both axes out.
+    pub layers: &'a mut [crate::brush::Layer<S>],
+    pub min_len2: S,
+    pub min_cross: S,
+}
+
+/// Sets [`LayerAxes`]' axes where the wide form applies and returns the layers it did as
+/// bits (bit i for layer i); the others are left as they were for the caller.
+pub(crate) fn layer_axes(a: &mut LayerAxes<'_, Fx>) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if active() {
+        return x86::layer_axes(a);
+    }
+    let _ = a;
+    0
+}
+
 /// `pos + m offset_i` for each node i of `out` (the skeleton placed by a rotation `m` whose
 /// entries are coefficients, [`Scalar::is_coef`]), where the wide form applies; false, having
 /// written nothing, where not.
@@ -303,7 +333,8 @@ fn flat_mut(v: &mut [Vec3<Fx>]) -> &mut [Fx] {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{flat, flat_mut, FlatRows, Integration, InteriorRows, Segments};
+    use super::{flat, flat_mut, FlatRows, Integration, InteriorRows, LayerAxes, Segments};
+    use crate::brush::Layer;
     use crate::params::MAX_LAYERS;
     use crate::scalar::{Fx, Scalar};
     use crate::vec::Vec3;
@@ -1005,6 +1036,244 @@ mod x86 {
         end
     }
 
+    /// [`super::layer_axes`] with AVX2 present.
+    pub(super) fn layer_axes(a: &mut LayerAxes<'_, Fx>) -> u32 {
+        let n = a.n;
+        let fits = (5..=MAX_LAYERS).contains(&n)
+            && [a.spine.len(), a.len2.len(), a.rsqrt.len(), a.layers.len()]
+                .iter()
+                .all(|&l| l >= n);
+        // SAFETY: AVX2 checked by the caller; 5 <= n <= MAX_LAYERS and every array holds n
+        // entries, all the kernel reads and writes.
+        if !fits || !unsafe { spine_in_range(flat(&a.spine[..n])) } {
+            return 0;
+        }
+        unsafe { layer_axes_avx2(a) }
+    }
+
+    /// `-2 <= x < 2` in every lane, as a mask: the factors [`mul_factor`] takes.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn factor_mask(x: __m256i) -> __m256i {
+        _mm256_andnot_si256(
+            _mm256_or_si256(
+                _mm256_cmpgt_epi64(_mm256_set1_epi64x(-(1 << 33)), x),
+                _mm256_cmpgt_epi64(x, _mm256_set1_epi64x((1 << 33) - 1)),
+            ),
+            _mm256_set1_epi64x(-1),
+        )
+    }
+
+    /// `floor(a c / 2^32)` for `-2 <= c < 2` in every lane and `|a| < 2^61`: the value of
+    /// the coefficient product where `|c| < 1` and of the full product (unsaturated) where
+    /// not, such as a unit vector's component of one or a hair above. With `c = s 2^32 + cl`
+    /// (`s` in -2..=1, `cl` its low word), `floor(a cl / 2^32) + s a`.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn mul_factor(a: __m256i, c: __m256i) -> __m256i {
+        let low = mul_coef(a, _mm256_and_si256(c, _mm256_set1_epi64x(0xffff_ffff)));
+        let zero = _mm256_setzero_si256();
+        let plus = _mm256_cmpgt_epi64(c, _mm256_set1_epi64x((1 << 32) - 1));
+        let minus = _mm256_cmpgt_epi64(zero, c);
+        let minus_two = _mm256_cmpgt_epi64(_mm256_set1_epi64x(-(1 << 32)), c);
+        let whole = _mm256_sub_epi64(
+            _mm256_and_si256(plus, a),
+            _mm256_add_epi64(_mm256_and_si256(minus, a), _mm256_and_si256(minus_two, a)),
+        );
+        _mm256_add_epi64(low, whole)
+    }
+
+    /// `floor(a b / 2^32)` for `0 <= a, b < 2^46` in every lane (the full product, exact:
+    /// with `a = ah 2^32 + al`, `ah bh 2^32 + ah bl + al bh + floor(al bl / 2^32)`, each
+    /// term below 2^60).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn mul_small_nonnegative(a: __m256i, b: __m256i) -> __m256i {
+        let (ah, bh) = (_mm256_srli_epi64::<32>(a), _mm256_srli_epi64::<32>(b));
+        let hh = _mm256_slli_epi64::<32>(_mm256_mul_epu32(ah, bh));
+        let cross = _mm256_add_epi64(_mm256_mul_epu32(ah, b), _mm256_mul_epu32(a, bh));
+        let ll = _mm256_srli_epi64::<32>(_mm256_mul_epu32(a, b));
+        _mm256_add_epi64(_mm256_add_epi64(hh, cross), ll)
+    }
+
+    /// `Scalar::rsqrt`'s float estimate of `x` (`x` below 2^52, so exactly an `f64`): the
+    /// same IEEE operations, lane by lane (the conversion to `f32` rounded once, the
+    /// truncation of `est 2^32` back through an exact `f64`, which needs it below 2^52).
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn rsqrt_estimate(x: __m256i) -> __m256i {
+        // 2^52 as f64 bits: or-ed into a value below 2^52 it makes the f64 2^52 + value.
+        let magic = _mm256_set1_epi64x(0x4330_0000_0000_0000);
+        let magic_f = _mm256_castsi256_pd(magic);
+        let exact = _mm256_sub_pd(_mm256_castsi256_pd(_mm256_or_si256(x, magic)), magic_f);
+        let xf = _mm_mul_ps(_mm256_cvtpd_ps(exact), _mm_set1_ps(1.0 / 4_294_967_296.0));
+        let est = _mm_div_ps(_mm_set1_ps(1.0), _mm_sqrt_ps(xf));
+        let scaled = _mm256_cvtps_pd(_mm_mul_ps(est, _mm_set1_ps(4_294_967_296.0)));
+        let whole = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(scaled);
+        _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(whole, magic_f)), magic)
+    }
+
+    /// `Scalar::rsqrt` of four `0 < x <= 1`, and the lanes where it is that: the estimate
+    /// `y >= 1`, then `u = (y y) x` (`y y` the full product, `x` its coefficient, or `y y`
+    /// itself for `x` of one) and `(3 - u) y / 2` (the full product: `y` is no
+    /// coefficient). A lane is not done where `y` is 2^46 raw or more or `3 - u` negative.
+    /// Safety: AVX2 present.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn rsqrt_at_most_one(x: __m256i) -> (__m256i, __m256i) {
+        let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
+        let y = rsqrt_estimate(x);
+        let yy = square(y);
+        let u = _mm256_blendv_epi8(mul_nonnegative(yy, x), yy, _mm256_cmpeq_epi64(x, one));
+        let t = _mm256_sub_epi64(_mm256_set1_epi64x(3 << 32), u);
+        let r = _mm256_srli_epi64::<1>(mul_small_nonnegative(t, y));
+        let ok = _mm256_and_si256(
+            _mm256_cmpgt_epi64(_mm256_set1_epi64x(1 << 46), y),
+            _mm256_cmpgt_epi64(t, _mm256_set1_epi64x(-1)),
+        );
+        (r, ok)
+    }
+
+    /// The x, y and z of a vector of four layers' short axes from `at`. Safety: layers
+    /// `at..at + 4` exist.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn short_axes(layers: &[Layer<Fx>], at: usize) -> [__m256i; 3] {
+        let l = |k: usize| layers.get_unchecked(at + k).short_axis;
+        let lanes = |f: fn(Vec3<Fx>) -> Fx| {
+            _mm256_setr_epi64x(
+                f(l(0)).to_bits(),
+                f(l(1)).to_bits(),
+                f(l(2)).to_bits(),
+                f(l(3)).to_bits(),
+            )
+        };
+        [lanes(|v| v.x), lanes(|v| v.y), lanes(|v| v.z)]
+    }
+
+    /// `a x b` for `b`'s components within [-2, 2), lanes as x, y and z: `Vec3::cross_coef`
+    /// (and `Vec3::cross`, the same values, where a component is no coefficient, such as a
+    /// unit vector's +-1); `a`'s within +-2^40, so no product or difference saturates.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn cross_coef([ax, ay, az]: [__m256i; 3], [bx, by, bz]: [__m256i; 3]) -> [__m256i; 3] {
+        let m = |a, c| mul_factor(a, c);
+        [
+            _mm256_sub_epi64(m(ay, bz), m(az, by)),
+            _mm256_sub_epi64(m(az, bx), m(ax, bz)),
+            _mm256_sub_epi64(m(ax, by), m(ay, bx)),
+        ]
+    }
+
+    /// Four layers at a time from layer 1 (the last four end at n - 1, overlapping the ones
+    /// before: their short axes are read before any is replaced, and the same values are
+    /// written again). A layer is done only where every step takes the path the scalar code
+    /// takes with the same products: the segment measured and longer than one and than
+    /// `sqrt(min_len2)` (so `dir` is the segment times its root below one), `dir`, the old
+    /// short axis's cross product with it and the normalised long axis coefficients, the old
+    /// short axis within +-2^40, `|LA|^2` above `min_cross^2` with its root done by
+    /// [`rsqrt_above_one`] or [`rsqrt_at_most_one`] (a root below one where the square is
+    /// above one). Nothing of a layer not done is written. Safety: AVX2 present; the spine's
+    /// coordinates within +-2^45; `5 <= n` and every array holds n entries.
+    #[target_feature(enable = "avx2")]
+    unsafe fn layer_axes_avx2(a: &mut LayerAxes<'_, Fx>) -> u32 {
+        let n = a.n;
+        let coordinates = flat(a.spine);
+        let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
+        let zero = _mm256_setzero_si256();
+        let min_len2 = _mm256_set1_epi64x(a.min_len2.to_bits());
+        // `Vec3::normalized_or_none_coef`'s threshold, formed as it forms it.
+        let min_cross2 = _mm256_set1_epi64x((a.min_cross * a.min_cross).to_bits());
+        let lane_bits = _mm256_setr_epi64x(1, 2, 4, 8);
+        let sa_bias = _mm256_set1_epi64x(1 << 40);
+        let sa_beyond = _mm256_set1_epi64x(!((1 << 41) - 1));
+        let tail = n - 4;
+        let tail_sa = short_axes(a.layers, tail);
+        let mut done = 0u32;
+        let mut next = 1;
+        while next < n {
+            let j = next.min(tail);
+            next = j + 4;
+            let (d, _) = segment_vectors(coordinates, j);
+            let (len2, r) = (load(a.len2, j), load(a.rsqrt, j));
+            let bits = _mm256_set1_epi64x(i64::from((a.measured >> j) as u8 & 0xf));
+            let measured = _mm256_cmpeq_epi64(_mm256_and_si256(bits, lane_bits), lane_bits);
+            let mut ok = [
+                measured,
+                _mm256_cmpgt_epi64(len2, min_len2),
+                _mm256_cmpgt_epi64(len2, one),
+                _mm256_cmpgt_epi64(r, _mm256_set1_epi64x(-1)),
+                _mm256_cmpgt_epi64(one, r),
+            ]
+            .iter()
+            .fold(_mm256_set1_epi64x(-1), |m, c| _mm256_and_si256(m, *c));
+            // The direction: the segment times its root, a coefficient below one.
+            let dir = d.map(|dk| mul_coef(dk, r));
+            let sa = if j == tail {
+                tail_sa
+            } else {
+                short_axes(a.layers, j)
+            };
+            let sa_range = sa.iter().fold(zero, |m, c| {
+                _mm256_or_si256(m, _mm256_add_epi64(*c, sa_bias))
+            });
+            ok = _mm256_and_si256(
+                ok,
+                _mm256_cmpeq_epi64(_mm256_and_si256(sa_range, sa_beyond), zero),
+            );
+            for c in dir {
+                ok = _mm256_and_si256(ok, factor_mask(c));
+            }
+            let la = cross_coef(sa, dir);
+            // |LA|^2: the squares floor(x^2 / 2^32), exact for |x| below 2^42 (sa within
+            // +-2^40, dir within [-2, 2)), whether the scalar code takes them as coefficient
+            // products or full ones; then its root.
+            let n2 = _mm256_add_epi64(
+                _mm256_add_epi64(square(la[0]), square(la[1])),
+                square(la[2]),
+            );
+            ok = _mm256_and_si256(ok, _mm256_cmpgt_epi64(n2, min_cross2));
+            let above = _mm256_cmpgt_epi64(n2, one);
+            let (r_above, ok_above) = rsqrt_above_one(n2);
+            let (r_below, ok_below) = rsqrt_at_most_one(n2);
+            let root = _mm256_blendv_epi8(r_below, r_above, above);
+            ok = _mm256_and_si256(ok, _mm256_blendv_epi8(ok_below, ok_above, above));
+            // Normalised: LA times a root below one (a square above one), else the root times
+            // LA's components as the factors (about one at most for a square up to one).
+            ok = _mm256_andnot_si256(
+                _mm256_and_si256(
+                    above,
+                    _mm256_cmpgt_epi64(root, _mm256_set1_epi64x((1 << 32) - 1)),
+                ),
+                ok,
+            );
+            for c in la {
+                ok = _mm256_and_si256(ok, _mm256_or_si256(above, factor_mask(c)));
+            }
+            let unit =
+                la.map(|c| _mm256_blendv_epi8(mul_factor(root, c), mul_coef(c, root), above));
+            for c in unit {
+                ok = _mm256_and_si256(ok, factor_mask(c));
+            }
+            let short = cross_coef(dir, unit);
+            let lanes = _mm256_movemask_pd(_mm256_castsi256_pd(ok)) as u32;
+            if lanes != 0 {
+                let mut out = [[0i64; 4]; 6];
+                for (o, v) in out.iter_mut().zip(unit.iter().chain(&short)) {
+                    _mm256_storeu_si256(o.as_mut_ptr().cast(), *v);
+                }
+                for k in (0..4).filter(|k| lanes >> k & 1 != 0) {
+                    let c = |axis: usize| Fx::from_bits(out[axis][k]);
+                    let layer = a.layers.get_unchecked_mut(j + k);
+                    layer.long_axis = Vec3::new(c(0), c(1), c(2));
+                    layer.short_axis = Vec3::new(c(3), c(4), c(5));
+                }
+            }
+            done |= lanes << j;
+        }
+        done
+    }
+
     /// [`super::interior_rows`] with AVX2 present and the coefficients below 1/2.
     pub(super) fn interior_rows(rows: &InteriorRows<'_, Fx>, p: &mut [Fx]) -> bool {
         let n = rows.n;
@@ -1094,6 +1363,7 @@ mod x86 {
 mod tests {
     extern crate std;
     use super::*;
+    use core::arch::x86_64::*;
     use std::{format, vec, vec::Vec};
 
     /// xorshift64*: a fixed stream of test operands.
@@ -1501,6 +1771,168 @@ mod tests {
         std::println!("{counts}");
         assert!(wide_masses > 100_000 && stopped > 1_000, "{counts}");
         assert!(dragged > 50_000 && projected > 50_000, "{counts}");
+    }
+
+    #[test]
+    fn wide_factor_products_are_the_full_ones() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        let mut rng = Rng(0x1b87_3593_cc9e_2d51);
+        let edges = [
+            -(1 << 33),
+            -(1 << 32) - 1,
+            -(1 << 32),
+            -1,
+            0,
+            1,
+            (1 << 32) - 1,
+            1 << 32,
+            (1 << 33) - 1,
+        ];
+        for round in 0..50_000 {
+            let a: [i64; 4] = core::array::from_fn(|_| (rng.next() as i64) >> 3);
+            let c: [i64; 4] = core::array::from_fn(|k| match rng.next() % 4 {
+                0 => edges[(round + k) % edges.len()],
+                _ => (rng.next() % (1 << 34)) as i64 - (1 << 33),
+            });
+            let mut got = [0i64; 4];
+            // SAFETY: AVX2 checked above; four lanes in and out.
+            unsafe {
+                let v = x86::mul_factor(
+                    _mm256_loadu_si256(a.as_ptr().cast()),
+                    _mm256_loadu_si256(c.as_ptr().cast()),
+                );
+                _mm256_storeu_si256(got.as_mut_ptr().cast(), v);
+            }
+            for k in 0..4 {
+                let want = Fx::from_bits(a[k]) * Fx::from_bits(c[k]);
+                assert_eq!(got[k], want.to_bits(), "{} x {}", a[k], c[k]);
+            }
+        }
+    }
+
+    #[test]
+    fn wide_layer_axes_are_the_scalar_ones() {
+        if !x86::avx2() {
+            std::println!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        use crate::brush::Layer;
+        const N: usize = crate::params::MAX_LAYERS;
+        let mut rng = Rng(0x7a3c_55e1_09b4_d2f3);
+        let mm = |v: f64| Fx::from_f64(v);
+        let (mut done_total, mut left_total, mut axis_aligned) = (0, 0, 0);
+        for round in 0..20_000 {
+            let n = 5 + round % (N - 4);
+            // A spine hanging down, bent now and then, with segments along the axes (a
+            // brush at rest), of zero length and under 1 mm among them.
+            let mut spine = vec![Vec3::<Fx>::ZERO; N];
+            let mut at = Vec3::new(mm(3.0), mm(-2.0), mm(40.0));
+            for m in spine.iter_mut().take(n) {
+                *m = at;
+                let step = match rng.next() % 12 {
+                    // Length two: the root one half exactly, the direction a unit axis.
+                    0 => Vec3::from_f64([0.0, 0.0, -2.0]),
+                    1 => Vec3::from_f64([2.0, 0.0, 0.0]),
+                    2 => Vec3::ZERO,
+                    3 => Vec3::from_f64([0.3, 0.2, -0.4]),
+                    _ => {
+                        let (a, b) = (
+                            (rng.next() % 2000) as f64 * 1e-3 - 1.0,
+                            (rng.next() % 2000) as f64 * 1e-3 - 1.0,
+                        );
+                        Vec3::from_f64([a, b, -2.0])
+                    }
+                };
+                at += step;
+            }
+            // Short axes: unit vectors along the axes, random ones (the handle's blend),
+            // some parallel to a segment (no plane), now and then a wild value.
+            let mut layers = vec![
+                Layer {
+                    short_axis: Vec3::ZERO,
+                    long_axis: Vec3::from_f64([0.0, 1.0, 0.0]),
+                    long_radius: Fx::ZERO,
+                    short_radius: Fx::ZERO,
+                    wetness: Fx::ZERO,
+                };
+                N
+            ];
+            for (i, l) in layers.iter_mut().enumerate() {
+                l.short_axis = match rng.next() % 8 {
+                    0 => Vec3::from_f64([1.0, 0.0, 0.0]),
+                    1 => Vec3::from_f64([0.0, -1.0, 0.0]),
+                    2 if i >= 1 && i < n => spine[i] - spine[i - 1],
+                    3 if round % 20 == 0 => Vec3::new(rng.value(), rng.value(), rng.value()),
+                    _ => {
+                        let t = (rng.next() % 6283) as f64 * 1e-3;
+                        Vec3::from_f64([t.cos(), t.sin(), 0.1 * (t * 3.0).sin()])
+                            .normalized_or_none(Fx::from_bits(1))
+                            .unwrap_or(Vec3::ZERO)
+                    }
+                };
+            }
+            let (mut len2, mut rsqrt) = (vec![Fx::ZERO; N], vec![Fx::ZERO; N]);
+            let mut measured = 0u32;
+            for j in 1..n {
+                (len2[j], rsqrt[j]) = crate::brush::measure(spine[j] - spine[j - 1]);
+                // Now and then a segment left unmeasured (its values stale).
+                if !rng.next().is_multiple_of(16) {
+                    measured |= 1 << j;
+                } else {
+                    (len2[j], rsqrt[j]) = (Fx::ONE, Fx::ONE);
+                }
+            }
+            let tiny = [mm(1e-3), mm(0.05), Fx::from_bits(3)][round % 3];
+            let min_len2 = tiny * tiny;
+            let before = layers.clone();
+            let done = x86::layer_axes(&mut LayerAxes {
+                n,
+                spine: &spine,
+                len2: &len2,
+                rsqrt: &rsqrt,
+                measured,
+                layers: &mut layers,
+                min_len2,
+                min_cross: tiny,
+            });
+            assert_eq!(
+                done & !((1 << n) - 2) & !measured,
+                0,
+                "round {round}: {done:b}"
+            );
+            for i in 1..n {
+                let at = format!("round {round} layer {i}");
+                if done >> i & 1 == 0 {
+                    left_total += 1;
+                    assert_eq!(layers[i], before[i], "{at}: not done, changed");
+                    continue;
+                }
+                done_total += 1;
+                let v = spine[i] - spine[i - 1];
+                assert!(len2[i] > min_len2, "{at}");
+                let dir = v.normalized_by(len2[i], rsqrt[i]);
+                // The surface update's steps 2-3, with the functions it calls.
+                let la = before[i].short_axis.cross_coef(dir);
+                let la = la
+                    .normalized_or_none_coef(tiny)
+                    .expect("a layer done has a plane");
+                let want = (la, dir.cross_coef(la));
+                assert_eq!((layers[i].long_axis, layers[i].short_axis), want, "{at}");
+                let whole = |v: Vec3<Fx>| [v.x, v.y, v.z].iter().any(|c| c.abs() >= Fx::ONE);
+                axis_aligned += (whole(dir) || whole(want.0)) as u32;
+            }
+            assert_eq!(layers[n..], before[n..], "round {round}: beyond n");
+        }
+        // Done wide most of the time, axis-aligned directions and axes (no coefficients,
+        // the scalar code's full products) included; left: unmeasured, short or
+        // coincident segments, no plane, wild short axes.
+        let counts = format!("{done_total} done ({axis_aligned} axis-aligned), {left_total} left");
+        std::println!("{counts}");
+        assert!(done_total > 150_000 && axis_aligned > 20_000, "{counts}");
+        assert!(left_total > 20_000, "{counts}");
     }
 
     #[test]

@@ -809,19 +809,9 @@ mod x86 {
     unsafe fn rsqrt_above_one(len2: __m256i) -> (__m256i, __m256i) {
         let one = _mm256_set1_epi64x(Fx::ONE.to_bits());
         let three = _mm256_set1_epi64x(3 << 32);
-        // 2^52 as f64 bits: or-ed into a value below 2^52 it makes the f64 2^52 + value.
-        let magic = _mm256_set1_epi64x(0x4330_0000_0000_0000);
-        let magic_f = _mm256_castsi256_pd(magic);
         let limit = _mm256_set1_epi64x(1 << 52);
-        // len2 as f32, rounded once: exactly as f64 (below 2^52), then to f32.
-        let exact = _mm256_sub_pd(_mm256_castsi256_pd(_mm256_or_si256(len2, magic)), magic_f);
-        let x = _mm_mul_ps(_mm256_cvtpd_ps(exact), _mm_set1_ps(1.0 / 4_294_967_296.0));
-        let est = _mm_div_ps(_mm_set1_ps(1.0), _mm_sqrt_ps(x));
-        // (est 2^32) as i64: truncated toward zero, below 2^52 (est below 2^20 for len2
-        // above one), back through an exact f64.
-        let scaled = _mm256_cvtps_pd(_mm_mul_ps(est, _mm_set1_ps(4_294_967_296.0)));
-        let whole = _mm256_round_pd::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(scaled);
-        let y = _mm256_sub_epi64(_mm256_castpd_si256(_mm256_add_pd(whole, magic_f)), magic);
+        // The estimate is below 2^20 for len2 above one, so 2^32 times it below 2^52.
+        let y = rsqrt_estimate(len2);
         // x > 1: y < 1 is the coefficient, x y^2 as (x y) y; then y (3 - x y^2) / 2.
         let u = mul_nonnegative(mul_nonnegative(len2, y), y);
         let t = _mm256_sub_epi64(three, u);

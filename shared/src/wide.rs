@@ -461,17 +461,8 @@ mod x86 {
         if c.to_bits() > THREE_EIGHTHS || c_tip.to_bits() > THREE_EIGHTHS {
             return false;
         }
-        // The entries that count, `..3n` (the last one is the unused entry after the tip):
-        // p + 2^60 below 2^61 (unsigned) exactly when -2^60 <= p < 2^60.
-        let (counted, bias) = (p.len() - 1, _mm256_set1_epi64x(1 << 60));
-        let mut range = _mm256_setzero_si256();
-        let mut next = 0;
-        while next < counted {
-            let e = next.min(counted - 4);
-            next = e + 4;
-            range = _mm256_or_si256(range, _mm256_add_epi64(load(p, e), bias));
-        }
-        if _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 61) - 1))) == 0 {
+        // The entries that count, `..3n` (the last one is the unused entry after the tip).
+        if !all_within::<60>(&p[..p.len() - 1]) {
             return false;
         }
         let coefs = (
@@ -743,22 +734,30 @@ mod x86 {
         (d, len2)
     }
 
-    /// The spine's coordinates all within +-2^45 (then differences, squares and their sums
-    /// cannot overflow). Safety: AVX2 present; at least 4 coordinates.
+    /// Every entry of `s` within `+-2^BITS` (`-2^BITS <= x < 2^BITS`). Safety: AVX2 present;
+    /// at least 4 entries.
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn spine_in_range(coordinates: &[Fx]) -> bool {
-        // x + 2^45 is below 2^46 (unsigned) exactly when -2^45 <= x < 2^45; or-ed over
-        // every coordinate, the same holds of all of them.
-        let (bias, end) = (_mm256_set1_epi64x(1 << 45), coordinates.len());
+    unsafe fn all_within<const BITS: u32>(s: &[Fx]) -> bool {
+        // x + 2^BITS is below 2^(BITS + 1) (unsigned) exactly when x is within; or-ed over
+        // every entry, the same holds of all of them.
+        let (bias, end) = (_mm256_set1_epi64x(1 << BITS), s.len());
         let mut range = _mm256_setzero_si256();
         let mut next = 0;
         while next < end {
             let i = next.min(end - 4);
             next = i + 4;
-            range = _mm256_or_si256(range, _mm256_add_epi64(load(coordinates, i), bias));
+            range = _mm256_or_si256(range, _mm256_add_epi64(load(s, i), bias));
         }
-        _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << 46) - 1))) == 1
+        _mm256_testz_si256(range, _mm256_set1_epi64x(!((1 << (BITS + 1)) - 1))) == 1
+    }
+
+    /// The spine's coordinates all within +-2^45 (then differences, squares and their sums
+    /// cannot overflow). Safety: AVX2 present; at least 4 coordinates.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn spine_in_range(coordinates: &[Fx]) -> bool {
+        all_within::<45>(coordinates)
     }
 
     /// [`super::measure`] with AVX2 present.

@@ -236,9 +236,10 @@ pub struct GuiArgs {
     /// The device: `sim` (the built-in simulator), `tcp:HOST:PORT` (the QEMU board, `maobi
     /// sim-device`, `maobi bridge`), `serial:PATH` (the pen) or `phantom` (a Phantom Omni /
     /// Geomagic Touch through libHD; falls back to the simulator if it cannot be used);
-    /// connects at start.
-    #[arg(long, value_name = "DEVICE", default_value = "sim")]
-    pub device: GuiDeviceArg,
+    /// connects at start. Default: the built-in simulator (the device chooser then holds the
+    /// device used last, one click away).
+    #[arg(long, value_name = "DEVICE")]
+    pub device: Option<GuiDeviceArg>,
     /// With `--device phantom`: OpenHaptics' libHD.so (default: $MAOBI_HD_LIB, then the
     /// usual install paths).
     #[arg(long, value_name = "PATH")]
@@ -253,15 +254,29 @@ pub struct GuiArgs {
     /// built-in simulator going on from where it ended.
     #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "replay")]
     pub session: Option<PathBuf>,
-    /// Brush preset.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    /// Brush preset (default: the one used last, else `large`).
+    #[arg(long, value_name = "NAME", value_parser = parse_brush)]
+    pub brush: Option<BrushChoice>,
     /// Paper size: a square of this many millimetres centred on the origin.
     #[arg(long, value_name = "MM", default_value = "200", value_parser = parse_px_per_mm)]
     pub paper_mm: f64,
     /// Paper resolution (the default paper is 2000 x 2000 px).
     #[arg(long, value_name = "N", default_value = "10", value_parser = parse_px_per_mm)]
     pub px_per_mm: f64,
+    /// A pen tablet drives the brush: its evdev node (`/dev/input/eventN`, Linux; the app's
+    /// "Find tablets" lists them) or a recording made with `evemu-record`, replayed along the
+    /// model's clock. Pressure presses the brush, tilt tilts it.
+    #[arg(long, value_name = "DEVICE|REC.evemu")]
+    pub tablet: Option<PathBuf>,
+    /// The tablet's pressure curve: depth = ((p - threshold) / (1 - threshold))^EXP of the
+    /// full press (0.2 to 5; above 1 makes light pressure lighter; default: as last set,
+    /// else 1).
+    #[arg(long, value_name = "EXP")]
+    pub pressure_curve: Option<f32>,
+    /// Tablet pressure below this fraction presses nothing (0 to 0.5; default: as last set,
+    /// else 0.02).
+    #[arg(long, value_name = "P")]
+    pub pressure_threshold: Option<f32>,
 }
 
 /// A brush preset chosen on the command line.
@@ -348,9 +363,20 @@ pub struct RenderArgs {
     pub output: PathBuf,
 }
 
+/// Diagnostics go through `log`, at the level RUST_LOG asks for (`RUST_LOG=debug`, or per
+/// module, `RUST_LOG=maobi::device=trace`); without it, warnings and errors only. Results and
+/// progress lines are the commands' output, not diagnostics, and are printed whatever the level.
+pub fn init_logging() {
+    let env = env_logger::Env::default().default_filter_or("warn");
+    // A second call (tests calling `main` twice) keeps the first logger.
+    let _ = env_logger::Builder::from_env(env).try_init();
+}
+
 /// Parses the command line, runs the command, prints errors; the process's exit code.
 pub fn main() -> ExitCode {
+    init_logging();
     let cli = Cli::parse();
+    log::debug!("{cli:?}");
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -393,22 +419,41 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
-    let (device, phantom) = match a.device {
-        GuiDeviceArg::Choice(c) => (c, None),
-        GuiDeviceArg::Phantom => (
+    let defaults = crate::gui::GuiOptions::default();
+    let (device, phantom) = match a.device.clone() {
+        None => (crate::gui::DeviceChoice::Sim, None),
+        Some(GuiDeviceArg::Choice(c)) => (c, None),
+        Some(GuiDeviceArg::Phantom) => (
             crate::gui::DeviceChoice::Sim,
             Some(crate::gui::PhantomChoice { hd_lib: a.hd_lib }),
         ),
     };
+    let curve = match (a.pressure_curve, a.pressure_threshold) {
+        (None, None) => None,
+        (e, t) => Some((
+            e.unwrap_or(defaults.pressure_curve.0),
+            t.unwrap_or(defaults.pressure_curve.1),
+        )),
+    };
     crate::gui::GuiOptions {
         device,
         phantom,
-        brush: a.brush.name,
+        brush: a
+            .brush
+            .as_ref()
+            .map_or(defaults.brush.clone(), |b| b.name.clone()),
         replay: a.replay,
         screenshot: a.screenshot,
         session: a.session,
         paper_mm: a.paper_mm,
         px_per_mm: a.px_per_mm,
+        tablet: a.tablet,
+        pressure_curve: curve.unwrap_or(defaults.pressure_curve),
+        given: crate::gui::Given {
+            device: a.device.is_some(),
+            brush: a.brush.is_some(),
+            tablet: curve.is_some(),
+        },
     }
 }
 
@@ -738,7 +783,9 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     }
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let params = a.brush.params;
+    log::debug!("the {} brush: {params:?}", a.brush.name);
     let frame = paper_frame(&track, &params, a.px_per_mm)?;
+    log::debug!("paper: {frame:?}");
     let (canvas, stats): (_, RenderStats) = match a.scalar {
         ScalarKind::Fixed => render::<Fx>(params, &track, frame)?,
         ScalarKind::F32 => render::<f32>(params, &track, frame)?,
@@ -764,11 +811,20 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
 
 /// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly one).
 fn load_track(poses: Option<&Path>, stroke: Option<&Path>) -> anyhow::Result<PoseTrack> {
-    match (poses, stroke) {
-        (Some(p), None) => Ok(PoseTrack::from_path(p)?),
-        (None, Some(s)) => Character::from_path(s)?.track(&s.display().to_string()),
+    let track = match (poses, stroke) {
+        (Some(p), None) => PoseTrack::from_path(p)?,
+        (None, Some(s)) => Character::from_path(s)?.track(&s.display().to_string())?,
         _ => anyhow::bail!("give exactly one of --poses and --stroke"),
-    }
+    };
+    log::debug!(
+        "{}: {} ticks from t = {} s",
+        poses
+            .or(stroke)
+            .map_or(String::new(), |p| p.display().to_string()),
+        track.ticks(),
+        track.start()
+    );
+    Ok(track)
 }
 
 #[derive(Debug, Subcommand)]

@@ -22,4 +22,5 @@ pub mod raster;
 pub mod render;
 pub mod sim;
 pub mod strokes;
+pub mod tablet;
 pub mod trace;

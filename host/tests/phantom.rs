@@ -555,7 +555,7 @@ fn the_top_level_device_flag_accepts_phantom() {
     ])
     .expect("parses");
     assert!(cli.command.is_none());
-    assert_eq!(cli.gui.device, maobi::cli::GuiDeviceArg::Phantom);
+    assert_eq!(cli.gui.device, Some(maobi::cli::GuiDeviceArg::Phantom));
     assert_eq!(cli.gui.hd_lib.as_deref(), Some(Path::new("/x/libHD.so")));
     assert!(maobi::cli::Cli::try_parse_from(["maobi", "--device", "phantom", "trace"]).is_err());
 }

@@ -15,6 +15,7 @@ use maobi_shared::{presets, ParamId};
 use super::brush_view::{self, Orbit};
 use super::canvas::PaperView;
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
+use super::files::{FileKind, Recent, Settings};
 use super::session::{CanvasOp, InkLog, Rerender, Session};
 use super::sim::{SimClock, SimDevice};
 use super::timeline::{Timeline, TimelineAction};
@@ -23,6 +24,7 @@ use crate::device::{serial_ports, Endpoint, PortInfo};
 use crate::poses::PoseTrack;
 use crate::raster::Frame;
 use crate::render::write_png;
+use crate::tablet::{PressureCurve, Tablet, TabletInfo, TabletStatus};
 
 /// Seconds of history in the live plots.
 const PLOT_SECONDS: f64 = 5.0;
@@ -38,6 +40,13 @@ pub struct Automation {
     pub screenshot: Option<PathBuf>,
     /// Open this session at start (the screenshot waits for its re-render).
     pub session: Option<PathBuf>,
+}
+
+impl Automation {
+    /// Something at start drives the app (a replay, a screenshot, a session).
+    pub fn is_active(&self) -> bool {
+        self.replay.is_some() || self.screenshot.is_some() || self.session.is_some()
+    }
 }
 
 /// How the run ended, for the process's exit code and the summary on stderr.
@@ -119,6 +128,18 @@ pub struct MaobiApp {
     pen_down: bool,
     /// Pen pressure in [0, 1] from a touch/pen device, when it reports one.
     pressure: Option<f32>,
+    /// A pen tablet in use (its pressure and tilt drive the hand), what it last reported,
+    /// and the curve from its pressure to the brush's depth.
+    tablet: Option<Tablet>,
+    tablet_status: Option<TabletStatus>,
+    pressure_curve: PressureCurve,
+    /// Pen tablets found on this machine, and the path in the chooser's field.
+    tablets: Vec<TabletInfo>,
+    tablet_path: String,
+    /// Model ticks the device delivered this UI frame: the clock a tablet recording plays on.
+    frame_ticks: usize,
+    /// Files recently opened and saved, per kind.
+    recent: Recent,
     /// Live plot data: [t s, value].
     normal_n: VecDeque<[f64; 2]>,
     depth_mm: VecDeque<[f64; 2]>,
@@ -177,7 +198,7 @@ type RerenderSlot = Arc<Mutex<Option<anyhow::Result<Rerender>>>>;
 type ProbeResults = Vec<(String, Result<String, String>)>;
 
 /// The kinds of device the chooser offers.
-#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum DeviceKind {
     Sim,
     Tcp,
@@ -232,6 +253,13 @@ impl MaobiApp {
             press_mm: (len * 0.25).clamp(1.0, 20.0),
             pen_down: false,
             pressure: None,
+            tablet: None,
+            tablet_status: None,
+            pressure_curve: PressureCurve::default(),
+            tablets: Vec::new(),
+            tablet_path: String::new(),
+            frame_ticks: 0,
+            recent: Recent::default(),
             normal_n: VecDeque::new(),
             depth_mm: VecDeque::new(),
             tick_period_ms: VecDeque::new(),
@@ -580,6 +608,7 @@ impl MaobiApp {
         let mut frames = std::mem::take(&mut self.scratch);
         frames.clear();
         self.device.poll(&mut frames);
+        self.frame_ticks = frames.len();
         let was_replaying = self.status.replaying;
         self.status = self.device.status();
         let t_now = self.started.elapsed().as_secs_f64();
@@ -933,6 +962,8 @@ impl MaobiApp {
         ui.horizontal_wrapped(|ui| {
             self.device_chooser(ui);
             ui.separator();
+            self.tablet_chooser(ui);
+            ui.separator();
             if self.status.connected {
                 if ui.button("Disconnect").clicked() {
                     self.device.disconnect();
@@ -1019,15 +1050,23 @@ impl MaobiApp {
             }
         });
         ui.horizontal_wrapped(|ui| {
+            self.recent_menu(ui);
+            ui.separator();
             let l = ui.label("PNG file");
             ui.add(egui::TextEdit::singleline(&mut self.save_path).desired_width(180.0))
                 .labelled_by(l.id);
             if ui.button("Save PNG").clicked() {
                 let path = PathBuf::from(&self.save_path);
-                self.message = Some(match write_png(self.paper.canvas(), &path) {
-                    Ok(()) => (format!("saved {}", path.display()), false),
-                    Err(e) => (format!("{e:#}"), true),
-                });
+                self.file_action(FileKind::Png, &path, &ui.ctx().clone());
+            }
+            if ui
+                .button("…")
+                .on_hover_text("Choose where to save the PNG")
+                .clicked()
+            {
+                if let Some(p) = FileKind::Png.pick_save(&self.save_path) {
+                    self.file_action(FileKind::Png, &p, &ui.ctx().clone());
+                }
             }
             ui.separator();
             let l = ui.label("pose recording");
@@ -1041,9 +1080,21 @@ impl MaobiApp {
                         Err(e) => (format!("{e:#}"), true),
                     });
                 }
-            } else if ui.button("Record poses").clicked() {
-                let p = PathBuf::from(&self.record_path);
-                self.start_recording(&p);
+            } else {
+                if ui.button("Record poses").clicked() {
+                    let p = PathBuf::from(&self.record_path);
+                    self.start_recording(&p);
+                }
+                if ui
+                    .button("…")
+                    .on_hover_text("Choose where to record the poses")
+                    .clicked()
+                {
+                    if let Some(p) = FileKind::Poses.pick_save(&self.record_path) {
+                        self.record_path = p.display().to_string();
+                        self.start_recording(&p);
+                    }
+                }
             }
             ui.separator();
             let l = ui.label("pose file");
@@ -1053,11 +1104,13 @@ impl MaobiApp {
                 if ui.button("Stop replay").clicked() {
                     let _ = self.device.send(DeviceCommand::StopReplay);
                 }
-            } else if ui.button("Replay").clicked() {
-                let p = PathBuf::from(&self.replay_path);
-                if let Err(e) = self.start_replay(&p) {
-                    self.message = Some((format!("cannot replay: {e:#}"), true));
+            } else {
+                if ui.button("Replay").clicked() {
+                    let p = PathBuf::from(&self.replay_path);
+                    self.file_action(FileKind::Poses, &p, &ui.ctx().clone());
                 }
+                let current = self.replay_path.clone();
+                self.browse_open(ui, FileKind::Poses, &current);
             }
             ui.separator();
             let l = ui.label("session file");
@@ -1069,10 +1122,17 @@ impl MaobiApp {
                 .clicked()
             {
                 let p = PathBuf::from(&self.session_path);
-                self.message = Some(match self.save_session(&p) {
-                    Ok(t) => (format!("saved the session ({t} ticks) to {}", p.display()), false),
-                    Err(e) => (format!("cannot save the session: {e:#}"), true),
-                });
+                self.save_session_reporting(&p);
+            }
+            if ui
+                .button("…")
+                .on_hover_text("Choose where to save the session")
+                .clicked()
+            {
+                if let Some(p) = FileKind::Session.pick_save(&self.session_path) {
+                    self.session_path = p.display().to_string();
+                    self.save_session_reporting(&p);
+                }
             }
             if self.opening.is_some() {
                 ui.spinner();
@@ -1082,8 +1142,11 @@ impl MaobiApp {
                 .clicked()
             {
                 let p = PathBuf::from(&self.session_path);
-                let ctx = ui.ctx().clone();
-                self.open_session(&p, Some(&ctx));
+                self.file_action(FileKind::Session, &p, &ui.ctx().clone());
+            }
+            if self.opening.is_none() {
+                let current = self.session_path.clone();
+                self.browse_open(ui, FileKind::Session, &current);
             }
         });
         if let Some((m, err)) = &self.message {
@@ -1228,6 +1291,22 @@ impl MaobiApp {
                     if s.replaying { "  REPLAY" } else { "" }
                 ));
             }
+            if let Some(t) = &self.tablet_status {
+                ui.separator();
+                let r = t.reading;
+                ui.label(format!(
+                    "{}: {}  pressure {:.2}  tilt ({:.0}, {:.0})°",
+                    t.name,
+                    match (r.in_range, r.touching) {
+                        (false, _) => "out of range",
+                        (true, false) => "hovering",
+                        (true, true) => "touching",
+                    },
+                    r.pressure,
+                    r.tilt_x_deg,
+                    r.tilt_y_deg
+                ));
+            }
             ui.separator();
             ui.label(format!(
                 "canvas {}x{}  upload {} px  undo {}",
@@ -1280,8 +1359,10 @@ impl MaobiApp {
         }
     }
 
-    /// Keys and pointer to the hand: pointer x/y on the paper, press with the primary button
-    /// (depth from pen pressure when reported, else W/S or the wheel), tilt with the arrows.
+    /// Keys, pointer and tablet to the hand: pointer x/y on the paper; press with the primary
+    /// button (depth from pen pressure when reported, else W/S or the wheel), tilt with the
+    /// arrows. A pen tablet in range takes over the press (its tip and pressure, through the
+    /// pressure curve) and the tilt (its own, when it reports one).
     fn hand_input(&mut self, ctx: &egui::Context, over_paper: super::canvas::PaperPointer) {
         if !ctx.egui_wants_keyboard_input() {
             ctx.input(|i| {
@@ -1312,8 +1393,6 @@ impl MaobiApp {
             });
         }
         let len = self.status.params.length_mm as f64;
-        self.hand.tilt_x_deg = self.hand.tilt_x_deg.clamp(-45.0, 45.0);
-        self.hand.tilt_y_deg = self.hand.tilt_y_deg.clamp(-45.0, 45.0);
         self.pressure = ctx.input(|i| {
             i.events.iter().rev().find_map(|e| match e {
                 egui::Event::Touch {
@@ -1337,15 +1416,307 @@ impl MaobiApp {
             self.hand.y = mm[1];
         }
         self.press_mm = self.press_mm.clamp(0.0, len * 0.8);
-        self.pen_down = over_paper.pressed;
-        let depth = match (self.pen_down, self.pressure) {
-            (true, Some(p)) => self.press_mm * (p as f64 * 1.5).min(1.5),
-            (true, None) => self.press_mm,
-            (false, _) => -HOVER_MM,
+        let pen = self.poll_tablet();
+        let depth = match pen {
+            Some(pen) => {
+                let tilt = self.tablet_status.as_ref().is_some_and(|s| s.has_tilt);
+                if tilt {
+                    self.hand.tilt_x_deg = pen.tilt_x_deg;
+                    self.hand.tilt_y_deg = pen.tilt_y_deg;
+                }
+                self.pen_down = pen.depth_mm.is_some() && over_paper.mm.is_some();
+                match pen.depth_mm {
+                    Some(d) if self.pen_down => d,
+                    _ => -HOVER_MM,
+                }
+            }
+            None => {
+                self.pen_down = over_paper.pressed;
+                match (self.pen_down, self.pressure) {
+                    (true, Some(p)) => self.press_mm * (p as f64 * 1.5).min(1.5),
+                    (true, None) => self.press_mm,
+                    (false, _) => -HOVER_MM,
+                }
+            }
         };
+        self.hand.tilt_x_deg = self.hand.tilt_x_deg.clamp(-45.0, 45.0);
+        self.hand.tilt_y_deg = self.hand.tilt_y_deg.clamp(-45.0, 45.0);
         self.hand.z = len - depth;
         if !self.status.replaying {
             let _ = self.device.send(DeviceCommand::Hand(self.hand));
+        }
+    }
+
+    /// Saves the session to `p` and says how it went.
+    fn save_session_reporting(&mut self, p: &Path) {
+        self.message = Some(match self.save_session(p) {
+            Ok(t) => {
+                self.recent.add(FileKind::Session, p);
+                (
+                    format!("saved the session ({t} ticks) to {}", p.display()),
+                    false,
+                )
+            }
+            Err(e) => (format!("cannot save the session: {e:#}"), true),
+        });
+    }
+
+    /// Reads the tablet, if one is in use; what its pen does to the hand while it is in range
+    /// and working. A tablet that failed (unplugged) is dropped with its reason shown, and the
+    /// mouse takes over.
+    fn poll_tablet(&mut self) -> Option<crate::tablet::HandFromPen> {
+        let tablet = self.tablet.as_mut()?;
+        let status = tablet.poll(Duration::from_millis(self.frame_ticks as u64));
+        let pen = status.reading.hand(self.pressure_curve, self.press_mm);
+        let usable = status.error.is_none() && status.reading.in_range;
+        if let Some(e) = &status.error {
+            self.message = Some((e.clone(), true));
+            self.tablet = None;
+        }
+        self.tablet_status = Some(status);
+        usable.then_some(pen)
+    }
+
+    /// Uses the pen tablet (or tablet recording) at `path`; an empty path goes back to the
+    /// mouse.
+    pub fn use_tablet(&mut self, path: &Path) -> Result<(), crate::tablet::TabletError> {
+        self.tablet = None;
+        self.tablet_status = None;
+        if path.as_os_str().is_empty() {
+            return Ok(());
+        }
+        self.set_tablet(Tablet::open(path)?);
+        self.tablet_path = path.display().to_string();
+        Ok(())
+    }
+
+    /// Uses a tablet already opened.
+    pub fn set_tablet(&mut self, t: Tablet) {
+        self.tablet_status = None;
+        self.tablet = Some(t);
+    }
+
+    /// The tablet's state as of the last UI frame.
+    pub fn tablet_status(&self) -> Option<&TabletStatus> {
+        self.tablet_status.as_ref()
+    }
+
+    pub fn set_pressure_curve(&mut self, c: PressureCurve) {
+        self.pressure_curve = c;
+    }
+
+    /// Takes what the last run left (see [`Settings`]): the device chooser, the brush's name
+    /// for the next device, the file fields and recent files; the tablet and its curve unless
+    /// the command line chose them (`keep_tablet`). A remembered tablet that is gone is
+    /// reported, not an error.
+    pub fn restore(&mut self, s: &Settings, keep_tablet: bool) {
+        self.device_kind = s.device_kind;
+        self.device_addr = s.device_addr.clone();
+        if presets::by_name(&s.brush).is_some() {
+            self.brush_name = s.brush.clone();
+        }
+        self.save_path = s.png_path.clone();
+        self.record_path = s.record_path.clone();
+        self.replay_path = s.replay_path.clone();
+        self.session_path = s.session_path.clone();
+        self.recent = s.recent.clone();
+        self.recent.prune_missing();
+        if keep_tablet {
+            return;
+        }
+        if let Ok(c) = PressureCurve::new(s.pressure_exponent, s.pressure_threshold) {
+            self.pressure_curve = c;
+        }
+        if let Some(t) = &s.tablet {
+            if let Err(e) = self.use_tablet(t) {
+                self.message = Some((format!("the last tablet: {e}"), true));
+            }
+        }
+    }
+
+    /// What this run leaves for the next.
+    pub fn settings(&self) -> Settings {
+        Settings {
+            device_kind: self.device_kind,
+            device_addr: self.device_addr.clone(),
+            brush: self.status.preset.clone(),
+            tablet: self
+                .tablet
+                .as_ref()
+                .filter(|t| t.is_live())
+                .map(|_| PathBuf::from(&self.tablet_path)),
+            pressure_exponent: self.pressure_curve.exponent,
+            pressure_threshold: self.pressure_curve.threshold,
+            png_path: self.save_path.clone(),
+            record_path: self.record_path.clone(),
+            replay_path: self.replay_path.clone(),
+            session_path: self.session_path.clone(),
+            recent: self.recent.clone(),
+        }
+    }
+
+    /// The recent files of each kind.
+    pub fn recent(&self) -> &Recent {
+        &self.recent
+    }
+
+    /// Runs the action on a file of `kind` that the user picked (a dialog, the recent menu)
+    /// or typed: fills the kind's field and opens, replays or saves, as its button does.
+    pub fn file_action(&mut self, kind: FileKind, path: &Path, ctx: &egui::Context) {
+        let shown = path.display().to_string();
+        match kind {
+            FileKind::Png => {
+                self.save_path = shown;
+                self.message = Some(match write_png(self.paper.canvas(), path) {
+                    Ok(()) => (format!("saved {}", path.display()), false),
+                    Err(e) => (format!("{e:#}"), true),
+                });
+            }
+            FileKind::Poses => {
+                self.replay_path = shown;
+                if let Err(e) = self.start_replay(path) {
+                    self.message = Some((format!("cannot replay: {e:#}"), true));
+                    return;
+                }
+            }
+            FileKind::Session => {
+                self.session_path = shown;
+                self.open_session(path, Some(ctx));
+            }
+            FileKind::Stroke => {
+                self.show_timeline = true;
+                if let Err(e) = self.timeline.open(path) {
+                    self.message = Some((format!("{e:#}"), true));
+                    return;
+                }
+            }
+            FileKind::TabletRecording => {
+                if let Err(e) = self.use_tablet(path) {
+                    self.message = Some((e.to_string(), true));
+                    return;
+                }
+            }
+        }
+        self.recent.add(kind, path);
+    }
+
+    /// A "…" button that asks the platform's dialog for a file of `kind` to open.
+    fn browse_open(&mut self, ui: &mut egui::Ui, kind: FileKind, current: &str) {
+        if ui
+            .button("…")
+            .on_hover_text(format!("Choose a {} to open", kind.label()))
+            .clicked()
+        {
+            if let Some(p) = kind.pick_open(current) {
+                let ctx = ui.ctx().clone();
+                self.file_action(kind, &p, &ctx);
+            }
+        }
+    }
+
+    /// The "Recent" menu: the files of each kind used lately, to open again.
+    fn recent_menu(&mut self, ui: &mut egui::Ui) {
+        let mut picked = None;
+        ui.menu_button("Recent", |ui| {
+            let mut any = false;
+            for kind in [
+                FileKind::Session,
+                FileKind::Stroke,
+                FileKind::Poses,
+                FileKind::TabletRecording,
+            ] {
+                let files: Vec<PathBuf> = self.recent.of(kind).map(Path::to_path_buf).collect();
+                if files.is_empty() {
+                    continue;
+                }
+                any = true;
+                ui.label(RichText::new(kind.label()).strong());
+                for f in files {
+                    if ui.button(f.display().to_string()).clicked() {
+                        picked = Some((kind, f));
+                        ui.close();
+                    }
+                }
+            }
+            if !any {
+                ui.label("nothing yet");
+            }
+        });
+        if let Some((kind, f)) = picked {
+            let ctx = ui.ctx().clone();
+            self.file_action(kind, &f, &ctx);
+        }
+    }
+
+    /// How deep a press goes (mm): the primary button's depth, a tablet's at full pressure.
+    pub fn set_press_mm(&mut self, mm: f64) {
+        self.press_mm = mm;
+    }
+
+    /// The hand the app drives the device with.
+    pub fn hand(&self) -> HandInput {
+        self.hand
+    }
+
+    /// The hand's input: the mouse, or a pen tablet (with its pressure curve).
+    fn tablet_chooser(&mut self, ui: &mut egui::Ui) {
+        let current = match &self.tablet_status {
+            Some(s) if self.tablet.is_some() => s.name.clone(),
+            _ => "mouse / window pen".to_string(),
+        };
+        let mut picked: Option<String> = None;
+        egui::ComboBox::from_label("hand")
+            .selected_text(current)
+            .show_ui(ui, |ui| {
+                if ui
+                    .selectable_label(self.tablet.is_none(), "mouse / window pen")
+                    .clicked()
+                {
+                    picked = Some(String::new());
+                }
+                for t in self.tablets.clone() {
+                    if ui.selectable_label(false, t.label()).clicked() {
+                        picked = Some(t.path.display().to_string());
+                    }
+                }
+            })
+            .response
+            .on_hover_text("Pen tablets: pressure presses the brush, tilt tilts it");
+        if ui
+            .button("Find tablets")
+            .on_hover_text("List the pen tablets this machine has (Linux evdev)")
+            .clicked()
+        {
+            self.tablets = crate::tablet::list();
+            self.message = Some((
+                if self.tablets.is_empty() {
+                    "no pen tablet found (on Linux, is your user in the `input` group?)".into()
+                } else {
+                    format!("{} pen tablet(s) found", self.tablets.len())
+                },
+                self.tablets.is_empty(),
+            ));
+        }
+        if let Some(path) = picked {
+            if let Err(e) = self.use_tablet(Path::new(&path)) {
+                self.message = Some((e.to_string(), true));
+            }
+        }
+        let current = self.tablet_path.clone();
+        self.browse_open(ui, FileKind::TabletRecording, &current);
+        if self.tablet.is_some() {
+            let mut c = self.pressure_curve;
+            ui.add(
+                egui::Slider::new(&mut c.exponent, PressureCurve::EXPONENT)
+                    .logarithmic(true)
+                    .text("pressure curve"),
+            )
+            .on_hover_text("Above 1: light pressure lighter; below 1: heavier");
+            ui.add(
+                egui::Slider::new(&mut c.threshold, PressureCurve::THRESHOLD)
+                    .text("pressure threshold"),
+            );
+            self.pressure_curve = c;
         }
     }
 
@@ -1460,6 +1831,14 @@ impl MaobiApp {
 impl eframe::App for MaobiApp {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.frame_ui(ui);
+    }
+
+    /// Keeps the settings for the next run, except from automated runs (`--replay`,
+    /// `--screenshot`, `--session`), which must not change what a user's next start shows.
+    fn save(&mut self, storage: &mut dyn eframe::Storage) {
+        if !self.automation.is_active() {
+            eframe::set_value(storage, super::files::SETTINGS_KEY, &self.settings());
+        }
     }
 
     fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {

@@ -6,11 +6,13 @@
 //! * [`canvas`]: the paper view (ink, partial texture uploads, zoom, pan, undo).
 //! * [`brush_view`]: the brush in 3D.
 //! * [`app`]: the application and its automation (`--replay`, `--screenshot`).
+//! * [`files`]: file dialogs, recent files and the settings kept between runs.
 
 pub mod app;
 pub mod brush_view;
 pub mod canvas;
 pub mod device;
+pub mod files;
 pub mod fonts;
 pub mod session;
 pub mod sim;
@@ -116,6 +118,22 @@ pub struct GuiOptions {
     /// Paper size (mm, square, centred on the origin) and resolution.
     pub paper_mm: f64,
     pub px_per_mm: f64,
+    /// A pen tablet (evdev node or recording) for the hand.
+    pub tablet: Option<PathBuf>,
+    /// The tablet's pressure curve: exponent and threshold.
+    pub pressure_curve: (f32, f32),
+    /// Which of these the user gave (on the command line): those win over what the last run
+    /// left; the rest start as it left them.
+    pub given: Given,
+}
+
+/// Options the user set for this run, as opposed to defaults.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct Given {
+    pub device: bool,
+    pub brush: bool,
+    /// The tablet or its pressure curve.
+    pub tablet: bool,
 }
 
 impl Default for GuiOptions {
@@ -129,6 +147,9 @@ impl Default for GuiOptions {
             session: None,
             paper_mm: 200.0,
             px_per_mm: 10.0,
+            tablet: None,
+            pressure_curve: (1.0, 0.02),
+            given: Given::default(),
         }
     }
 }
@@ -189,6 +210,14 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
             maobi_shared::presets::NAMES
         )
     })?;
+    let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
+        .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
+    // A tablet that cannot be opened is an error before any window opens.
+    let tablet = opts
+        .tablet
+        .as_deref()
+        .map(crate::tablet::Tablet::open)
+        .transpose()?;
     if !have_display() {
         bail!("no display: neither DISPLAY nor WAYLAND_DISPLAY is set; {HEADLESS_HINT}");
     }
@@ -201,11 +230,19 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         screenshot: opts.screenshot.clone(),
         session: opts.session.clone(),
     };
+    let automated = automation.is_active();
+    let given = Given {
+        tablet: opts.given.tablet || opts.tablet.is_some(),
+        device: opts.given.device || phantom.is_some(),
+        ..opts.given
+    };
     let native = eframe::NativeOptions {
         renderer: eframe::Renderer::Glow,
         viewport: egui::ViewportBuilder::default()
             .with_title("Maobi")
             .with_inner_size([1400.0, 900.0]),
+        // An automated run (CI's screenshots) starts and ends the same everywhere.
+        persist_window: !automated,
         ..Default::default()
     };
     let out2 = outcome.clone();
@@ -213,6 +250,18 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         "maobi",
         native,
         Box::new(move |cc| {
+            let saved: Option<files::Settings> = if automated {
+                None
+            } else {
+                cc.storage
+                    .and_then(|s| eframe::get_value(s, files::SETTINGS_KEY))
+            };
+            let brush = match &saved {
+                Some(s) if !given.brush && maobi_shared::presets::by_name(&s.brush).is_some() => {
+                    s.brush.clone()
+                }
+                _ => brush,
+            };
             let ctx = cc.egui_ctx.clone();
             let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || ctx.request_repaint());
             let device = match &phantom {
@@ -231,6 +280,18 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
             };
             let mut app = MaobiApp::new(device, frame, automation, out2);
             app.set_device_choice(&choice, &brush);
+            if let Some(s) = &saved {
+                app.restore(s, given.tablet);
+                if given.device {
+                    app.set_device_choice(&choice, &brush);
+                }
+            }
+            if saved.is_none() || given.tablet {
+                app.set_pressure_curve(curve);
+            }
+            if let Some(t) = tablet {
+                app.set_tablet(t);
+            }
             if let Some(p) = &phantom {
                 app.choose_phantom(p.hd_lib.as_deref());
             }

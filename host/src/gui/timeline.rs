@@ -21,6 +21,7 @@ use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke as Line, Vec2};
 
 use super::canvas::PaperView;
 use super::device::BrushFrame;
+use super::files::FileKind;
 use crate::poses::PoseTrack;
 use crate::strokes::{rows_to_csv, Character, StrokeFile};
 
@@ -372,6 +373,13 @@ impl Timeline {
     }
 
     /// The panel (below the paper).
+    fn save_reporting(&mut self, p: &Path) {
+        self.message = Some(match self.save(p) {
+            Ok(()) => (format!("saved {}", p.display()), false),
+            Err(e) => (format!("{e:#}"), true),
+        });
+    }
+
     pub fn ui(
         &mut self,
         ui: &mut egui::Ui,
@@ -389,6 +397,17 @@ impl Timeline {
                     self.message = Some((format!("{e:#}"), true));
                 }
             }
+            if ui
+                .button("…")
+                .on_hover_text("Choose a stroke file to open")
+                .clicked()
+            {
+                if let Some(p) = FileKind::Stroke.pick_open(&self.path) {
+                    if let Err(e) = self.open(&p) {
+                        self.message = Some((format!("{e:#}"), true));
+                    }
+                }
+            }
             let save = egui::Button::new(if self.dirty {
                 "Save strokes*"
             } else {
@@ -396,10 +415,16 @@ impl Timeline {
             });
             if ui.add_enabled(self.file.is_some(), save).clicked() {
                 let p = PathBuf::from(self.path.trim());
-                self.message = Some(match self.save(&p) {
-                    Ok(()) => (format!("saved {}", p.display()), false),
-                    Err(e) => (format!("{e:#}"), true),
-                });
+                self.save_reporting(&p);
+            }
+            if ui
+                .add_enabled(self.file.is_some(), egui::Button::new("…"))
+                .on_hover_text("Choose where to save the strokes")
+                .clicked()
+            {
+                if let Some(p) = FileKind::Stroke.pick_save(&self.path) {
+                    self.save_reporting(&p);
+                }
             }
             ui.separator();
             let have = self.character.is_some();

@@ -1,0 +1,178 @@
+//! The app's files: the platform's own file dialogs (through `rfd`: the XDG desktop portal or
+//! zenity on Linux, the system dialogs on Windows and macOS), the recent files of each kind,
+//! and the settings the app keeps between runs.
+//!
+//! The text fields beside each button stay: they are what automation and tests type into,
+//! and what a user without a dialog service (a bare X server, a remote shell) still has.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::app::DeviceKind;
+
+/// The kinds of file the app opens and saves.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FileKind {
+    /// The paper as an image.
+    Png,
+    /// A pose recording or a pose file to replay (`t,x,y,z,qw,qx,qy,qz`).
+    Poses,
+    /// A session (`*.maobi.toml`).
+    Session,
+    /// A keyframed stroke file (TOML).
+    Stroke,
+    /// A tablet recording (`evemu-record`'s format).
+    TabletRecording,
+}
+
+impl FileKind {
+    pub const ALL: [FileKind; 5] = [
+        FileKind::Png,
+        FileKind::Poses,
+        FileKind::Session,
+        FileKind::Stroke,
+        FileKind::TabletRecording,
+    ];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            FileKind::Png => "PNG image",
+            FileKind::Poses => "pose file",
+            FileKind::Session => "session",
+            FileKind::Stroke => "stroke file",
+            FileKind::TabletRecording => "tablet recording",
+        }
+    }
+
+    /// The dialog's filter: its name and extensions.
+    fn filter(self) -> (&'static str, &'static [&'static str]) {
+        match self {
+            FileKind::Png => ("PNG image", &["png"]),
+            FileKind::Poses => ("Pose CSV", &["csv"]),
+            // `*.maobi.toml` is a TOML file to the dialogs, which match the last extension.
+            FileKind::Session => ("Maobi session", &["toml"]),
+            FileKind::Stroke => ("Stroke file", &["toml"]),
+            FileKind::TabletRecording => ("evemu recording", &["evemu", "txt"]),
+        }
+    }
+
+    fn dialog(self, current: &str) -> rfd::FileDialog {
+        let (name, ext) = self.filter();
+        let mut d = rfd::FileDialog::new()
+            .set_title(format!("Maobi: {}", self.label()))
+            .add_filter(name, ext)
+            .add_filter("All files", &["*"]);
+        let current = Path::new(current.trim());
+        let dir = if current.is_dir() {
+            Some(current)
+        } else {
+            current.parent().filter(|p| p.is_dir())
+        };
+        if let Some(dir) = dir {
+            d = d.set_directory(dir);
+        }
+        if let Some(name) = current.file_name() {
+            d = d.set_file_name(name.to_string_lossy());
+        }
+        d
+    }
+
+    /// Asks for a file to open, starting where `current` points; `None` if cancelled or no
+    /// dialog service answered.
+    pub fn pick_open(self, current: &str) -> Option<PathBuf> {
+        self.dialog(current).pick_file()
+    }
+
+    /// Asks where to save, starting from `current`.
+    pub fn pick_save(self, current: &str) -> Option<PathBuf> {
+        self.dialog(current).save_file()
+    }
+}
+
+/// How many recent files of each kind are kept.
+pub const RECENT_PER_KIND: usize = 8;
+
+/// Recently used files, newest first, per kind.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Recent {
+    entries: Vec<(FileKind, PathBuf)>,
+}
+
+impl Recent {
+    /// Puts `path` first among its kind's (once), dropping the oldest past the limit.
+    pub fn add(&mut self, kind: FileKind, path: &Path) {
+        let path = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+        self.entries.retain(|(k, p)| !(*k == kind && *p == path));
+        self.entries.insert(0, (kind, path));
+        let mut seen = 0;
+        self.entries.retain(|(k, _)| {
+            if *k == kind {
+                seen += 1;
+                seen <= RECENT_PER_KIND
+            } else {
+                true
+            }
+        });
+    }
+
+    /// `kind`'s recent files, newest first.
+    pub fn of(&self, kind: FileKind) -> impl Iterator<Item = &Path> {
+        self.entries
+            .iter()
+            .filter(move |(k, _)| *k == kind)
+            .map(|(_, p)| p.as_path())
+    }
+
+    /// Forgets files that are gone (shown greyed out would only invite an error).
+    pub fn prune_missing(&mut self) {
+        self.entries.retain(|(_, p)| p.exists());
+    }
+}
+
+/// What the app remembers between runs (eframe's storage; the window's size and place are
+/// eframe's own). Fields missing from an older file take their defaults; a file that does not
+/// parse at all (edited by hand, say) is ignored and the app starts with the defaults, never
+/// an error at start.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Settings {
+    /// The device chooser's last choice and its address (HOST:PORT, the serial port, libHD's
+    /// path). The app starts on the built-in simulator whatever it was: a force device is
+    /// connected by a click, not by a start.
+    pub device_kind: DeviceKind,
+    pub device_addr: String,
+    /// The brush preset.
+    pub brush: String,
+    /// The pen tablet in use (its evdev node), if any.
+    pub tablet: Option<PathBuf>,
+    pub pressure_exponent: f32,
+    pub pressure_threshold: f32,
+    /// The file fields as last used.
+    pub png_path: String,
+    pub record_path: String,
+    pub replay_path: String,
+    pub session_path: String,
+    pub recent: Recent,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            device_kind: DeviceKind::Sim,
+            device_addr: String::new(),
+            brush: "large".into(),
+            tablet: None,
+            pressure_exponent: 1.0,
+            pressure_threshold: 0.02,
+            png_path: "out/maobi-canvas.png".into(),
+            record_path: "out/maobi-recording.csv".into(),
+            replay_path: "examples/poses/hook.csv".into(),
+            session_path: "out/maobi-session.maobi.toml".into(),
+            recent: Recent::default(),
+        }
+    }
+}
+
+/// The key the settings are stored under in eframe's storage.
+pub const SETTINGS_KEY: &str = "maobi-settings";

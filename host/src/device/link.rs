@@ -639,6 +639,7 @@ pub(crate) fn handshake(
             return Some(Err(HandshakeError::other(e.to_string())));
         }
         if let Some(info) = got {
+            log::debug!("handshake: the device says {info:?}");
             return Some(
                 info.check()
                     .map(|()| info)

@@ -357,7 +357,8 @@ fn serve(
 ) {
     while !stop.load(Ordering::SeqCst) && model.failed().is_none() {
         match listener.accept() {
-            Ok((stream, _)) => {
+            Ok((stream, peer)) => {
+                log::info!("sim-device: client {peer} connected");
                 let setup = || -> std::io::Result<Box<dyn Conn>> {
                     stream.set_nonblocking(false)?;
                     stream.set_nodelay(true)?;
@@ -365,8 +366,12 @@ fn serve(
                     stream.set_write_timeout(Some(Duration::from_millis(500)))?;
                     Ok(Box::new(stream.try_clone()?))
                 };
-                if let Ok(conn) = setup() {
-                    let _ = connection(conn, model, &opts, stop);
+                match setup() {
+                    Ok(conn) => match connection(conn, model, &opts, stop) {
+                        Ok(()) => log::info!("sim-device: client {peer} left"),
+                        Err(e) => log::info!("sim-device: client {peer} dropped: {e}"),
+                    },
+                    Err(e) => log::warn!("sim-device: cannot set up {peer}'s socket: {e}"),
                 }
             }
             Err(e) if e.kind() == ErrorKind::WouldBlock => {

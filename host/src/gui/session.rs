@@ -503,28 +503,37 @@ fn parse_poses(
     ticks: u64,
     header_line: usize,
 ) -> anyhow::Result<Vec<(u64, Pose<f64>)>> {
-    let mut lines = text.lines().enumerate();
-    match lines.next() {
-        Some((_, h)) if h.trim() == POSES_HEADER => {}
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    // The reader counts lines from 1 at the CSV's first; the file's lines start earlier.
+    let file_line =
+        |r: &csv::StringRecord| header_line - 1 + r.position().map_or(1, |p| p.line() as usize);
+    let mut records = rdr.records();
+    match records.next() {
+        Some(Ok(h)) if h.iter().eq(POSES_HEADER.split(',')) => {}
         other => bail!(
             "poses: the header must be `{POSES_HEADER}`, found `{}`",
-            other.map_or("", |(_, h)| h)
+            match other {
+                Some(Ok(h)) => h.iter().collect::<Vec<_>>().join(","),
+                Some(Err(e)) => e.to_string(),
+                None => String::new(),
+            }
         ),
     }
     let mut out = Vec::new();
     let mut last = 0;
-    for (i, line) in lines {
-        let ln = header_line + i;
-        if line.trim().is_empty() {
-            continue;
-        }
-        let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+    for record in records {
+        let cols = record.map_err(|e| anyhow::anyhow!("poses: {e}"))?;
+        let ln = file_line(&cols);
         if cols.len() != 8 {
             bail!("poses, line {ln}: {} columns, expected 8", cols.len());
         }
         let tick: u64 = cols[0]
             .parse()
-            .map_err(|_| anyhow::anyhow!("poses, line {ln}, column tick: `{}`", cols[0]))?;
+            .map_err(|_| anyhow::anyhow!("poses, line {ln}, column tick: `{}`", &cols[0]))?;
         if tick <= last || tick > ticks {
             bail!("poses, line {ln}: tick {tick} not after {last} or past the last tick {ticks}");
         }
@@ -532,7 +541,7 @@ fn parse_poses(
         let mut v = [0.0; 7];
         for (k, name) in ["x", "y", "z", "qw", "qx", "qy", "qz"].iter().enumerate() {
             v[k] = cols[k + 1].parse().map_err(|_| {
-                anyhow::anyhow!("poses, line {ln}, column {name}: `{}`", cols[k + 1])
+                anyhow::anyhow!("poses, line {ln}, column {name}: `{}`", &cols[k + 1])
             })?;
         }
         let p = pose_from(&v).map_err(|e| anyhow::anyhow!("poses, line {ln}: {e}"))?;

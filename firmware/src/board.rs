@@ -58,7 +58,7 @@ pub trait JointSensors {
 /// Where the force loop gets the handle pose each tick.
 ///
 /// A physical pen implements this as [`JointSensors`] plus its forward kinematics; the QEMU
-/// board's virtual pen takes poses the host sent ([`crate::qemu`]).
+/// board's virtual pen takes poses the host sent (`crate::qemu`).
 pub trait PoseSource {
     /// The pose for this tick, or `None` when the source has no new reading (the virtual
     /// pen's queue is empty). The force loop then holds the brush and counts the gap.

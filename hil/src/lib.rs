@@ -3,7 +3,7 @@
 //! * [`qemu`]: starting `qemu-system-arm` (`mps2-an386`) under a deadline, with UART0 on a
 //!   loopback socket when the host needs the link.
 //! * [`firmware`]: building the image (the firmware is its own cargo workspace) and its size.
-//! * [`bench`]: the firmware's own instruction count of one force-loop tick.
+//! * [`bench`](mod@bench): the firmware's own instruction count of one force-loop tick.
 //! * [`link`]: the host end of the wire protocol: handshake, pose streaming paced by the
 //!   device's states, bit-exact comparison with the host simulation.
 //! * [`panics`]: the index panics the force loop can reach, read from the image's machine code.

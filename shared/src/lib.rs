@@ -6,7 +6,7 @@
 //! the same code. `no_std`, no allocator, no panics on the substep path.
 //!
 //! * [`scalar`]: the number types and the fixed-point format's error budget.
-//! * [`vec`], [`quat`]: vectors, unit quaternions, the handle [`Pose`].
+//! * [`vec`](mod@vec), [`quat`]: vectors, unit quaternions, the handle [`Pose`].
 //! * [`params`], [`presets`]: validated run-time parameters and the brush presets.
 //! * [`brush`]: spine dynamics, virtual skeleton, plasticity, surface.
 //! * [`footprint`]: the part of the surface that touches the paper, as convex polygons.

@@ -1019,7 +1019,7 @@ impl Scalar for Fx {
     fn from_f32(v: f32) -> Self {
         Fx::from_bits(f32_bits_to_raw(v.to_bits()))
     }
-    /// Rounded to nearest once ([`to_f32_fast`]), without the `f64` in between.
+    /// Rounded to nearest once (`to_f32_fast`), without the `f64` in between.
     #[inline]
     fn to_f32(self) -> f32 {
         to_f32_fast(self)
@@ -1052,7 +1052,7 @@ impl Scalar for Fx {
             Fx::MAX
         }
     }
-    /// An arithmetic shift: the same bits as `self * 0.5` ([`half`]).
+    /// An arithmetic shift: the same bits as `self * 0.5` (`half`).
     #[inline]
     fn halve(self) -> Self {
         half(self)
@@ -1070,7 +1070,7 @@ impl Scalar for Fx {
             Fx::from_bits(v << 32)
         }
     }
-    /// `self * c` without the overflow test for `|c| < 1` (see [`mul_coef_bits`]).
+    /// `self * c` without the overflow test for `|c| < 1` (see `mul_coef_bits`).
     #[inline]
     fn mul_coef(self, c: Self) -> Self {
         if c.is_coef() {
@@ -1241,7 +1241,7 @@ impl Scalar for Fx {
         self.rsqrt()
     }
     /// The angle reduced to [-pi, pi] (the remainder of 2 pi, skipped when already there),
-    /// then to `r` within pi/4 of the nearest multiple of pi/2, and [`sin_cos_near_zero`]
+    /// then to `r` within pi/4 of the nearest multiple of pi/2, and `sin_cos_near_zero`
     /// of `r`, swapped and negated into the quadrant. About 1e-9 from the exact values.
     ///
     /// It replaced the `cordic` crate's `sin_cos`, which runs its 32 rotations twice (once

@@ -213,9 +213,9 @@ impl<S: Scalar> Brush<S> {
     }
 
     /// [`Self::new`] built where it is to live (a `static`'s storage, say): a brush is
-    /// kilobytes of arrays sized for `MAX_LAYERS`, and `new` returns it through two or three copies on the stack, which a
-    /// microcontroller pays for at boot in stack it must reserve. The same brush, bit for
-    /// bit (test `brush_built_in_place_is_the_same`).
+    /// kilobytes of arrays sized for `MAX_LAYERS`, and `new` returns it through two or three
+    /// copies on the stack, which a microcontroller pays for at boot in stack it must
+    /// reserve. The same brush, bit for bit (test `brush_built_in_place_is_the_same`).
     pub fn new_in(
         slot: &mut MaybeUninit<Self>,
         params: BrushParams,

@@ -37,9 +37,9 @@
 //!   *saturate*; division by zero saturates to the signed maximum (or 0 for 0/0); `sqrt` of a
 //!   negative number returns 0. None of these can panic.
 //!
-//! The cost of 64-bit fixed point on a Cortex-M4 is measured by `hil bench` (docs/figures.md); the whole
-//! model changes format by changing the [`Fx`] alias, and the error analysis above says what a
-//! 32-bit format would have to give up.
+//! The cost of 64-bit fixed point on a Cortex-M4 is measured by `hil bench` (docs/figures.md);
+//! the whole model changes format by changing the [`Fx`] alias, and the error analysis above
+//! says what a 32-bit format would have to give up.
 
 use core::fmt::Debug;
 use core::ops::{Add, AddAssign, Mul, Neg, Sub, SubAssign};
@@ -295,7 +295,8 @@ fn clamp_i128(p: i128) -> i64 {
 ///   both operands split is nine instructions of assembly against eleven, and measured
 ///   a little faster, but LLVM takes an `asm!` block for cheap and inlined and unrolled
 ///   more around it: kilobytes more flash on both images, enough to push the QEMU image
-///   past its 128 KiB budget (docs/firmware-cost.md). It is still checked on the core like the others, as the 32-bit path.
+///   past its 128 KiB budget (docs/firmware-cost.md). It is still checked on the core like
+///   the others, as the 32-bit path.
 ///
 /// No host test can execute the assembly, so the firmware checks it on the device against
 /// the references here: `maobi-fw arith` under QEMU (`hil` test

@@ -705,7 +705,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
 
     /// Encodes `m` into the transmit buffer and returns the frame's length, for
     /// [`Self::send_staged`]. Not async, and the call sites build the message in its argument,
-    /// so a message (as large as the largest, a state frame: about 3 KB) lives on the stack
+    /// so a message (as large as the largest, a state frame: kilobytes) lives on the stack
     /// for this call only, never in the task's future while it waits for room.
     fn stage(&mut self, m: &DeviceMsg) -> usize {
         // SAFETY: only the link task uses the buffer, and not re-entrantly (no await here).

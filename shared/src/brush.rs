@@ -84,7 +84,8 @@ pub const CONTACT_TOLERANCE_MM: f64 = 1e-4;
 /// The thesis unties masses lying on the paper (3.1.2) with a switch. A hair grazing the paper
 /// then falls into a relay oscillation: untied it drifts up, tied it is pulled back into the
 /// paper, projected it is untied again, every few substeps; and the fixed-point and f64 runs
-/// switch in different orders (measured 27 um apart at the tip on the 橫 example). With the
+/// switch in different orders (far apart at the tip on the 橫 example, against a budget of
+/// a few micrometres). With the
 /// tie's weight ramping linearly from 0 on the paper to 1 at this height, and the paper drag
 /// ramping the other way, the model is continuous and the two runs stay together.
 pub const TIE_RAMP_MM: f64 = 0.05;
@@ -212,9 +213,9 @@ impl<S: Scalar> Brush<S> {
     }
 
     /// [`Self::new`] built where it is to live (a `static`'s storage, say): a brush is
-    /// about 6 KB, and `new` returns it through two or three copies on the stack, which a
-    /// microcontroller pays for at boot in stack it must reserve. The same brush, bit for
-    /// bit (test `brush_built_in_place_is_the_same`).
+    /// kilobytes of arrays sized for `MAX_LAYERS`, and `new` returns it through two or three
+    /// copies on the stack, which a microcontroller pays for at boot in stack it must
+    /// reserve. The same brush, bit for bit (test `brush_built_in_place_is_the_same`).
     pub fn new_in(
         slot: &mut MaybeUninit<Self>,
         params: BrushParams,
@@ -875,8 +876,8 @@ impl<S: Scalar> Brush<S> {
         // A segment shorter than `tiny` has no direction (`Vec3::normalized_or_none`'s test).
         let min_len2 = self.d.tiny * self.d.tiny;
         // Each layer's tilt (step 5) is 1 - cos of the angle between its segment and the
-        // next: summed here as each segment follows the last, so no array of segments (a
-        // zeroed array is about 300 instructions on the Cortex-M4, in every tick).
+        // next: summed here as each segment follows the last, so no array of segments (the
+        // pen would pay for zeroing that array in every tick).
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         let mut prev_dir = Vec3::<S>::ZERO;
@@ -977,8 +978,8 @@ impl<S: Scalar> Brush<S> {
             layer.long_radius = rl;
             // rl is at least the rest radius and the area its square: the reciprocal's product
             // is within about r0^2 (1 + 1/r0) units of the format's resolution of the
-            // quotient ([`Scalar::recip`]), a few tens (1e-8 mm), for about 1,400
-            // instructions less a tick on the Cortex-M4 than 15 divisions.
+            // quotient ([`Scalar::recip`]), a few tens (1e-8 mm), for one multiply
+            // a layer where the Cortex-M4's 64-bit division takes three and a residual.
             layer.short_radius = self.d.rest_area[i] * rl.recip();
         }
     }

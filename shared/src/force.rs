@@ -135,7 +135,7 @@ impl std::error::Error for LimitError {}
 
 /// Whether `value` is finite and within `[min, max]`, else the error naming it. Out of line:
 /// the configurations call it for every field, and one copy of the test and the error's
-/// construction is smaller than one per field (890 bytes of the pen's flash).
+/// construction is smaller in the pen's flash than one per field.
 #[inline(never)]
 pub(crate) fn check(name: &'static str, value: f32, min: f32, max: f32) -> Result<(), LimitError> {
     if value.is_finite() && value >= min && value <= max {

@@ -37,9 +37,9 @@
 //!   *saturate*; division by zero saturates to the signed maximum (or 0 for 0/0); `sqrt` of a
 //!   negative number returns 0. None of these can panic.
 //!
-//! The cost of 64-bit fixed point on a Cortex-M4 is measured by the firmware issue; the whole
-//! model changes format by changing the [`Fx`] alias, and the error analysis above says what a
-//! 32-bit format would have to give up.
+//! The cost of 64-bit fixed point on a Cortex-M4 is measured by `hil bench` (docs/figures.md);
+//! the whole model changes format by changing the [`Fx`] alias, and the error analysis above
+//! says what a 32-bit format would have to give up.
 
 use core::fmt::Debug;
 use core::ops::{Add, AddAssign, Mul, Neg, Sub, SubAssign};
@@ -113,8 +113,8 @@ impl Mul for Fx {
 /// `floor(a * b / 2^32)` clamped to `i64`: the saturating `I32F32` product, exactly.
 ///
 /// On 64-bit hosts one 128-bit multiply. On 32-bit targets (the Cortex-M4) a 128-bit multiply
-/// is a library call of about 70 instructions; four 32 x 32 -> 64 partial products (single
-/// `SMULL`/`UMULL`-class instructions) give the same bits in a fraction of that. `mul_paths_agree`
+/// is a library call; four 32 x 32 -> 64 partial products (single
+/// `SMULL`/`UMULL`-class instructions) give the same bits for much less. `mul_paths_agree`
 /// tests the two against each other.
 #[inline]
 fn mul_bits(a: i64, b: i64) -> i64 {
@@ -283,20 +283,20 @@ fn clamp_i128(p: i128) -> i64 {
 /// * **add / subtract.** LLVM tests a 64-bit overflow with two exclusive-ors, a bit clear and
 ///   a branch on the sign after `adds`/`adc`, six instructions for every sum; the hardware
 ///   already has the answer in the V flag of `adcs`/`sbcs`, so the usual path is three
-///   (`adds`, `adcs`, `bvc`), and only an overflow runs the clamp. About 3,800 fewer
-///   instructions per force-loop tick at one substep.
+///   (`adds`, `adcs`, `bvc`), and only an overflow runs the clamp. The force loop
+///   does a great many sums, so the saving shows in every tick.
 /// * **coefficient multiply** `floor(a c / 2^32)` for `|c| < 2^32`: with `c = ch 2^32 + cl`
 ///   (`ch` 0 or -1, `cl` unsigned) and `a = ah 2^32 + al` (`ah` signed), the product is
 ///   `ah cl + hi(al cl) + ch a`. One `umull`, one `umlal` (which takes `ah` unsigned; the
 ///   `ah < 0` correction subtracts `cl` from the high word) and a masked 64-bit subtract of
-///   `a` when `c < 0`: nine instructions, no branch, against about fourteen. About 4,500
-///   fewer per tick.
+///   `a` when `c < 0`: nine instructions, no branch, against about fourteen.
 /// * **multiply** `floor(a b / 2^32)`, saturating, stays the compiler's
 ///   (`mul_floor_partial`): the same identity as the coefficient product's with
 ///   both operands split is nine instructions of assembly against eleven, and measured
-///   1,000 fewer per 1-substep tick, but LLVM takes an `asm!` block for cheap and inlined
-///   and unrolled more around it: 6.5 KB more flash on both images (the QEMU image past
-///   128 KiB). It is still checked on the core like the others, as the 32-bit path.
+///   a little faster, but LLVM takes an `asm!` block for cheap and inlined and unrolled
+///   more around it: kilobytes more flash on both images, enough to push the QEMU image
+///   past its 128 KiB budget (docs/firmware-cost.md). It is still checked on the core like
+///   the others, as the 32-bit path.
 ///
 /// No host test can execute the assembly, so the firmware checks it on the device against
 /// the references here: `maobi-fw arith` under QEMU (`hil` test
@@ -549,7 +549,7 @@ pub trait Scalar:
     /// of the quotient (the test `recip_products_are_within_the_stated_bound_of_the_quotient`),
     /// where [`Scalar::div`] is within one: a few tens of units (1e-8) for the surface's
     /// radii, `r0^2` over a long radius of at least `r0`, for one multiply instead of
-    /// `div`'s three and its residual (about 95 instructions fewer on the Cortex-M4). Zero
+    /// `div`'s three and its residual. Zero
     /// gives the largest value.
     #[inline]
     fn recip(self) -> Self {
@@ -792,7 +792,7 @@ float_scalar!(f32, "f32", sqrt_f32, libm::sincosf, libm::atan2f);
 ///
 /// Every VFP unit has it as one instruction (`vsqrt.f32`; 14 cycles on the Cortex-M4F), and
 /// a hard-float ABI (`eabihf`) means there is one; `core` has no `f32::sqrt` and `libm`
-/// falls back to its software routine on Arm (about 100 instructions). IEEE 754 defines the
+/// falls back to its software routine on Arm (a loop of integer steps). IEEE 754 defines the
 /// square root as correctly rounded, and `libm::sqrtf` is (`libm_sqrtf_is_correctly_rounded`
 /// checks it against the `f64` root), so both give the same bits: the device and the host
 /// simulation stay bit-identical (which the `hil` tests check end to end). The default
@@ -831,7 +831,7 @@ fn sqrt_f32(x: f32) -> f32 {
 
 /// `1 / b` for `b != 0`: an IEEE `f32` estimate refined by one Newton step in fixed point,
 /// `y (2 - b y)` (relative error about 1e-14; identical on every IEEE target). Replaces a
-/// 128-bit software division (about 2,400 instructions on the Cortex-M4).
+/// 128-bit software division (a long library routine on the Cortex-M4).
 #[inline]
 fn recip_nonzero(b: Fx) -> Fx {
     let est = 1.0 / to_f32_fast(b);
@@ -1042,8 +1042,9 @@ impl Scalar for Fx {
         self.0.to_bits() as f64 * (1.0 / 4_294_967_296.0)
     }
     /// The integer shifted into place: the same value as `from_f64(v as f64)` (exact below
-    /// 2^31, saturated above) without the software `f64` conversion (about 500 instructions
-    /// on the Cortex-M4, and `tick` converts a substep index every substep).
+    /// 2^31, saturated above) without the software `f64` conversion (a library call on the
+    /// Cortex-M4, which has no double precision, and `tick` converts a substep index every
+    /// substep).
     #[inline]
     fn from_usize(v: usize) -> Self {
         if v < 1 << 31 {
@@ -1081,7 +1082,7 @@ impl Scalar for Fx {
     }
     /// -2^32 < bits < 2^32: the high word is 0, or -1 with a non-zero low word. Tested on
     /// the 32-bit words (a compare with zero each on the Cortex-M4) rather than as one
-    /// 64-bit range comparison, which took about twice the instructions there.
+    /// 64-bit range comparison, which took more instructions there.
     #[inline]
     fn is_coef(self) -> bool {
         let bits = self.0.to_bits();
@@ -1224,10 +1225,10 @@ impl Scalar for Fx {
     /// `rsqrt_near_is_rsqrt_to_the_format_resolution`: within one unit in the last place of
     /// `rsqrt`), and both products are coefficient products: three of them, no float
     /// conversions, no hardware root and division. Anything else, a guess too far off
-    /// included, takes `rsqrt` after the test (about 25 instructions more on the Cortex-M4).
-    /// The springs' roots take this path (the host's fixed tick 15.4 → 13.3 us; on the
-    /// device the mean 25-substep tick 485,405 → 468,085 instructions, its worst, where
-    /// most guesses miss, 490,995 → 501,360).
+    /// included, takes `rsqrt` after the test (the test's cost on top).
+    /// The springs' roots take this path: their last root is usually close, so the mean
+    /// tick gets cheaper on the host and on the pen, while the worst tick, where most
+    /// guesses miss, pays the test on top of `rsqrt`.
     #[inline]
     fn rsqrt_near(self, near: Self) -> Self {
         if self.0 > FxRaw::ONE && near.0 > FxRaw::ZERO && near.0 < FxRaw::ONE {
@@ -1245,8 +1246,8 @@ impl Scalar for Fx {
     /// of `r`, swapped and negated into the quadrant. About 1e-9 from the exact values.
     ///
     /// It replaced the `cordic` crate's `sin_cos`, which runs its 32 rotations twice (once
-    /// for the gain) and divides in 64 bits: about 4,300 instructions a call on the
-    /// Cortex-M4, eleven calls in the kinematics of every force-loop tick.
+    /// for the gain) and divides in 64 bits: many times this series' cost on the Cortex-M4, and the
+    /// kinematics take sines and cosines in every force-loop tick.
     fn sin_cos(self) -> (Self, Self) {
         let (pi, half_pi, quarter_pi) = (FxRaw::PI, FxRaw::FRAC_PI_2, FxRaw::FRAC_PI_4);
         let mut a = self.0;

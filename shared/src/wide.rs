@@ -4,9 +4,9 @@
 //! Why only here: the device computes one entry at a time (the Cortex-M4 has no wide integer
 //! unit that would help), and the host's simulation must give the device's bits, so the host
 //! cannot change the arithmetic, only how many entries it does at once. Three loops took
-//! three quarters of the host's fixed-point substep (callgrind, `shared/examples/tick_cost`):
-//! the segment springs (a root and a spring term per segment), the right-hand sides of the
-//! interior rows (about 57 instructions an entry) and the Jacobi sweeps (about 14 an entry).
+//! most of the host's fixed-point substep (callgrind, `shared/examples/tick_cost`): the
+//! segment springs (a root and a spring term per segment), the right-hand sides of the
+//! interior rows and the Jacobi sweeps.
 //! Here they run four segments or entries at a time (`segments`, `interior_rows`, `jacobi`),
 //! and so do smaller pieces of the tick: the surface update's segment roots (`measure`: the
 //! float estimate of `Scalar::rsqrt` and its Newton step, four at once, where one at a time

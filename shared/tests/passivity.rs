@@ -36,9 +36,9 @@ const TICKS: usize = 1_000_000;
 /// (no step above the limit) is tested in `tests/forces.rs`.
 const AUDIT_FROM: usize = 600;
 /// Largest energy the audit lets the device create over any window (J): about a 0.2 N force
-/// over 10 mm. Measured: 0.67 mJ (small) and 1.12 mJ (large) over 10^6 ticks, each inside one
-/// ~50 ms bump, where the zero-order hold and the step limit make any sampled haptic loop
-/// slightly active; over the run the device absorbs 0.9-1.6 J net.
+/// over 10 mm. What the audit measures (printed with `--nocapture`, docs/figures.md) sits
+/// inside one bump of a few tens of ms, where the zero-order hold and the step limit make any
+/// sampled haptic loop slightly active; over the run the device absorbs energy net.
 const TOLERANCE_J: f64 = 2e-3;
 
 struct Audit {

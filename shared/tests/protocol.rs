@@ -538,7 +538,7 @@ fn state_frame_size_and_link_share() {
             }
         }
     }
-    // Measured 852 (at rest) and 926 bytes (pressed): under a kilobyte, an eighth of the link.
+    // Under a kilobyte, an eighth of the link (the sizes themselves: docs/figures.md).
     assert!(large < 1024, "large state frame {large} bytes");
     assert!(large as f64 * STATE_HZ / LINK_BYTES_PER_S < 0.125);
     let p = HostMsg::Pose(PoseSample::new(

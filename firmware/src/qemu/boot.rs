@@ -105,7 +105,7 @@ fn main() -> ! {
     }
     // Everything built at boot is built in `start`'s frame, which is gone before the executor
     // runs: `main` never returns, so what its own frame held would sit under the tasks' and
-    // the interrupts' stack for good (the brush and the force loop: 12 KB of it).
+    // the interrupts' stack for good (the brush and the force loop are kilobytes each).
     let (parts, tick_us, link_cfg) = start();
 
     crate::executor::run(move |spawner: Spawner| {

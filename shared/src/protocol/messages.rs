@@ -23,7 +23,8 @@ pub const HOST_MSG_MAX: usize = 512;
 /// Largest decoded device-to-host frame. A [`BrushState`] of [`crate::params::MAX_LAYERS`]
 /// layers with every value at its longest varint (10 bytes per fixed-point value) is a
 /// 3786-byte frame (test `largest_messages_fit_their_bounds`), so any brush state the model
-/// can reach fits in one frame; the large preset's is 0.85-0.93 KB.
+/// can reach fits in one frame; the large preset's stay under a kilobyte (test
+/// `state_frame_size_and_link_share`).
 pub const DEVICE_MSG_MAX: usize = 4096;
 
 /// At most this many [`HostMsg::Pose`] samples a host keeps in flight: sent, but not yet

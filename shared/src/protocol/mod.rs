@@ -105,23 +105,21 @@
 //!   or a distance under 4 mm, 6 for canvas coordinates.
 //! * **Differences for positions in [`BrushState`]**: each spine mass relative to the previous
 //!   one (the first to the handle), each skeleton node relative to its spine mass. Short
-//!   distances are shorter varints (the large brush at rest at (150, 120) mm: 852 bytes
-//!   instead of 1212 with absolute positions); wrapping differences of the raw bits are
+//!   distances are shorter varints (the large brush's state frame is about a third
+//!   shorter than with absolute positions); wrapping differences of the raw bits are
 //!   exact.
 //! * **`f32` for parameters and force limits**: that is how [`crate::BrushParams`] stores them.
 //! * **Flags** ([`Capabilities`], [`Faults`], [`Buttons`]): integers that keep bits a newer
 //!   peer defines.
 //!
-//! ## Sizes (test `state_frame_size_and_link_share`)
+//! ## Sizes
 //!
-//! | frame | bytes on the wire | at its rate, share of a 1 MB/s USB full-speed CDC link |
-//! |---|---|---|
-//! | state, large preset (16 layers), at rest / pressed and dragged | 852 / 926 | 10.2% / 11.1% at 120 Hz |
-//! | state, small preset (12 layers), at rest / pressed and dragged | 642 / 702 | 7.7% / 8.4% at 120 Hz |
-//! | state, 24 layers, every value at its longest varint | 3786 | (the bound: [`DEVICE_MSG_MAX`]) |
-//! | pose sample | 43 | 4.3% at 1 kHz |
-//! | guide sample (worst case 45) | 31 | 3.1% at 1 kHz (while guiding) |
-//! | longest host message: `SetConfig`, every varint at its longest | 267 decoded | (the bound: [`HOST_MSG_MAX`]) |
+//! The bytes each frame takes on the wire, and its share of a 1 MB/s USB full-speed CDC
+//! link at its rate, are in docs/figures.md (tests `state_frame_size_and_link_share` and
+//! `largest_messages_fit_their_bounds` print and bound them). A state of the large preset
+//! stays under a kilobyte, an eighth of the link at 120 Hz (asserted); a state of
+//! [`crate::params::MAX_LAYERS`] layers with every value at its longest varint, and the
+//! longest host message, fit [`DEVICE_MSG_MAX`] and [`HOST_MSG_MAX`] (asserted).
 //!
 //! A 512-byte frame limit would not hold one exact state of the large brush (every
 //! fixed-point value costs 5-6 bytes: 32 fraction bits of live data), hence the per-direction

@@ -648,7 +648,7 @@ fn largest_messages_fit_their_bounds() {
     let set = HostMsg::SetConfig(longest_config());
     let payload = postcard::to_slice(&set, &mut buf).unwrap().len();
     assert_eq!(payload, 1 + maobi_shared::pen_io::CONFIG_PAYLOAD_MAX);
-    assert_eq!(2 + payload + CRC_LEN, 267);
+    assert_eq!(2 + payload + CRC_LEN, 287);
     assert!(2 + payload + CRC_LEN <= HOST_MSG_MAX);
     // The device's longest config reply and sensor report fit too.
     for m in [

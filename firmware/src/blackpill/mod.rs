@@ -37,7 +37,7 @@ use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, pac, peripherals};
 use embassy_time::{Duration, Ticker};
-use maobi_shared::pen_io::DriveConfig;
+use maobi_shared::pen_io::{flash_acr, DriveConfig};
 use maobi_shared::protocol::Capabilities;
 use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
@@ -54,10 +54,12 @@ pub const TICK_US: u32 = 1000;
 /// the pins [`main`] hands to the drivers (the table in firmware/README.md).
 pub mod pins {
     use embassy_stm32::pac::gpio::Gpio;
-    use embassy_stm32::pac::{GPIOA, GPIOB};
+    use embassy_stm32::pac::GPIOB;
 
-    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PA4.
-    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOA, 4)];
+    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PB2, a pin
+    /// with no peripheral function on this chip (PA4, its earlier pin, is the chip select of
+    /// the Black Pill's optional SPI-flash footprint).
+    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOB, 2)];
     /// IN1, IN2 of motors 1 (PB12, PB13), 2 (PB14, PB15), 3 (PB8, PB9).
     pub const DIR: [[(Gpio, usize); 2]; 3] = [
         [(GPIOB, 12), (GPIOB, 13)],
@@ -71,6 +73,23 @@ pub mod pins {
 /// Lights the fault LED from any context (PC13 low).
 pub fn led_on() {
     pac::GPIOC.bsrr().write(|w| w.set_br(pins::LED, true));
+}
+
+/// Puts the fault LED out from any context (PC13 high).
+fn led_off() {
+    pac::GPIOC.bsrr().write(|w| w.set_bs(pins::LED, true));
+}
+
+/// Prefetch and both flash caches on, the caches reset first
+/// ([`maobi_shared::pen_io::flash_acr::cache_restart`], tested on the host): at boot, after
+/// embassy's clock setup turned them off, and after every flash write or erase
+/// ([`config::PausingFlash`]), which may leave the data cache holding what the flash held
+/// before.
+pub fn restart_flash_caches() {
+    let acr = pac::FLASH.acr();
+    for v in flash_acr::cache_restart(acr.read().0) {
+        acr.write_value(pac::flash::regs::Acr(v));
+    }
 }
 
 bind_interrupts!(struct Irqs {
@@ -183,6 +202,9 @@ fn start() -> (
         config.rcc.apb2_pre = APBPrescaler::DIV1;
     }
     let p = embassy_stm32::init(config);
+    // embassy's clock setup wrote the flash latency alone, which turned prefetch and the
+    // caches off: on again before anything is timed.
+    restart_flash_caches();
     let reset_by_watchdog = pac::RCC.csr().read().wdgrstf();
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
     watchdog::freeze_in_debug();
@@ -190,7 +212,7 @@ fn start() -> (
     // The motor bridges first, off: standby low, inputs low, duty zero.
     let stby = [
         Output::new(p.PB10, Level::Low, Speed::Low),
-        Output::new(p.PA4, Level::Low, Speed::Low),
+        Output::new(p.PB2, Level::Low, Speed::Low),
     ];
     let dir = [
         [
@@ -211,7 +233,7 @@ fn start() -> (
     // The configuration log (sectors 6 and 7). The link task loads and decodes the newest image when it
     // starts and puts it in force (`app::Command::Configure`); until then the pen has no
     // kinematics, `app::CONFIG_OK` is off and the motors stay off.
-    let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
+    let mut store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
 
     let drive = [DriveConfig::DEFAULT; 3];
     let mut pwm = SimplePwm::new(
@@ -233,6 +255,7 @@ fn start() -> (
         c.set_duty_cycle(0);
         c.enable();
     }
+    motors::stop_in_debug();
     let motors = motors::PenMotors {
         pwm,
         dir,
@@ -272,6 +295,10 @@ fn start() -> (
 
     let mut iwdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
     iwdg.unleash();
+    // Another firmware's data in the configuration sectors (a new board's demo) is erased
+    // now, with the motors off and nothing timed yet, rather than on the first save, while
+    // the host waits. Once the watchdog runs: the erase stretches it.
+    store.reclaim();
     // Built in its static, not on the stack (`ForceLoop::new_in`).
     // SAFETY: once, and TIM9's interrupt is not enabled yet.
     let built = unsafe {
@@ -391,13 +418,45 @@ async fn led_task(mut led: Output<'static>) {
     }
 }
 
-/// A boot failure: motors off, LED on, log, halt (the watchdog is not running yet).
+/// The fault LED's pattern after a fatal boot error, in steps of [`FATAL_STEP_MS`]: three
+/// short flashes and a pause, unlike every pattern of [`led_task`].
+const FATAL_BLINK: [(bool, u32); 6] = [
+    (true, 15),
+    (false, 15),
+    (true, 15),
+    (false, 15),
+    (true, 15),
+    (false, 120),
+];
+/// Well inside the watchdog's timeout, which the loop feeds between steps.
+const FATAL_STEP_MS: u32 = 10;
+
+/// A boot failure, for good: the motors off, the LED blinking [`FATAL_BLINK`] and the
+/// reason in the defmt log again on every round (a probe attached later still sees it),
+/// until the power goes.
+///
+/// The watchdog is already running when the boot can fail and the IWDG cannot be stopped
+/// once started. Left alone, it would reset the chip within its timeout, the boot would fail
+/// the same way, and the chip would loop through resets, each boot reporting a watchdog
+/// reset (a stalled force loop) that never happened. So this loop feeds it: with the
+/// interrupts off nothing else runs, so there is no force loop whose stall the feeding could
+/// hide, and the motors are switched off again on every round.
 fn fatal(what: &str) -> ! {
-    motors::motors_off();
-    led_on();
-    defmt::error!("FATAL {}", what);
+    cortex_m::interrupt::disable();
     loop {
-        cortex_m::asm::wfi();
+        motors::motors_off();
+        defmt::error!("FATAL {=str}; motors off, halted (power-cycle to retry)", what);
+        for (on, steps) in FATAL_BLINK {
+            if on {
+                led_on();
+            } else {
+                led_off();
+            }
+            for _ in 0..steps {
+                watchdog::feed_now();
+                cortex_m::asm::delay(SYSCLK_HZ / 1000 * FATAL_STEP_MS);
+            }
+        }
     }
 }
 

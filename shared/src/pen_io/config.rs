@@ -553,7 +553,7 @@ pub fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
     }
     let payload = body.get(IMAGE_HEADER_LEN..).ok_or(ConfigError::Truncated)?;
     let decoded = if version == 1 {
-        postcard::take_from_bytes::<v1::DeviceConfig>(payload).map(|(c, rest)| (c.into(), rest))
+        v1::take(payload)
     } else {
         postcard::take_from_bytes::<DeviceConfig>(payload)
     };
@@ -563,8 +563,11 @@ pub fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
     }
 }
 
-/// Format 1's layout, read to migrate it.
+/// Format 1's layout, read to migrate it: the parts format 2 kept, each with its own
+/// deserializer (the one format 2's uses too, so the pen's image carries little for this),
+/// and the drive channels without their winding resistance.
 mod v1 {
+    use postcard::take_from_bytes;
     use serde::Deserialize;
 
     use crate::force::DeviceLimits;
@@ -572,43 +575,39 @@ mod v1 {
     use crate::pen_io::drive::ZeroPolicy;
 
     #[derive(Deserialize)]
-    pub struct DriveConfig {
+    struct DriveConfig {
         pwm_hz: u32,
         deadband: f32,
         max_duty: f32,
         zero: ZeroPolicy,
     }
 
-    #[derive(Deserialize)]
-    pub struct DeviceConfig {
-        pen: PenConfig,
-        drive: [DriveConfig; 3],
-        limits: DeviceLimits,
-        calibration: Option<RawReadings>,
-    }
-
-    impl From<DeviceConfig> for super::DeviceConfig {
-        fn from(old: DeviceConfig) -> Self {
-            // Zero: not measured. Validation refuses it, by name, until the builder writes
-            // the configuration again with the real values.
-            let drive = old.drive.map(|d| super::DriveConfig {
-                pwm_hz: d.pwm_hz,
-                deadband: d.deadband,
-                max_duty: d.max_duty,
-                zero: d.zero,
-                winding_ohm: 0.0,
-            });
-            super::DeviceConfig {
-                pen: old.pen,
-                drive,
-                power: super::PowerConfig {
-                    supply_v: 0.0,
-                    driver_current_a: 0.0,
-                },
-                limits: old.limits,
-                calibration: old.calibration,
-            }
-        }
+    /// The configuration a format-1 payload holds, with the winding resistances and the
+    /// power at zero: not measured. Validation refuses it, by name, until the builder
+    /// writes the configuration again with the real values.
+    pub fn take(payload: &[u8]) -> postcard::Result<(super::DeviceConfig, &[u8])> {
+        let (pen, rest) = take_from_bytes::<PenConfig>(payload)?;
+        let (drive, rest) = take_from_bytes::<[DriveConfig; 3]>(rest)?;
+        let (limits, rest) = take_from_bytes::<DeviceLimits>(rest)?;
+        let (calibration, rest) = take_from_bytes::<Option<RawReadings>>(rest)?;
+        let drive = drive.map(|d| super::DriveConfig {
+            pwm_hz: d.pwm_hz,
+            deadband: d.deadband,
+            max_duty: d.max_duty,
+            zero: d.zero,
+            winding_ohm: 0.0,
+        });
+        let cfg = super::DeviceConfig {
+            pen,
+            drive,
+            power: super::PowerConfig {
+                supply_v: 0.0,
+                driver_current_a: 0.0,
+            },
+            limits,
+            calibration,
+        };
+        Ok((cfg, rest))
     }
 }
 

@@ -16,7 +16,7 @@ fn drive(zero: ZeroPolicy) -> DriveConfig {
         deadband: 0.05,
         max_duty: 0.9,
         zero,
-        winding_ohm: 2.2,
+        winding_mohm: 2200,
     }
 }
 
@@ -154,8 +154,9 @@ fn drive_config_validation_and_period() {
     assert_eq!(bad(|d| d.deadband = 0.51), "deadband");
     assert_eq!(bad(|d| d.max_duty = 1.01), "max_duty");
     assert_eq!(bad(|d| d.max_duty = 0.06), "max_duty"); // not 0.05 above the deadband
-    assert_eq!(bad(|d| d.winding_ohm = 0.0), "winding_ohm");
-    assert_eq!(bad(|d| d.winding_ohm = f32::INFINITY), "winding_ohm");
+    assert_eq!(bad(|d| d.winding_mohm = 0), "winding_mohm");
+    assert_eq!(bad(|d| d.winding_mohm = 99), "winding_mohm");
+    assert_eq!(DriveConfig::DEFAULT.winding_ohm(), 2.2);
     assert_eq!(DriveConfig::DEFAULT.period_counts(100_000_000), Some(4000));
     let fast = DriveConfig {
         pwm_hz: 100_000,
@@ -364,6 +365,7 @@ fn longest_payload_is_the_bound() {
     c.pen.counts_per_rev = [u32::MAX; 3];
     for d in &mut c.drive {
         d.pwm_hz = u32::MAX;
+        d.winding_mohm = u16::MAX;
     }
     c.calibration = Some(RawReadings {
         encoders: [i64::MIN; 3],
@@ -504,9 +506,9 @@ fn invalid_values_are_named_and_never_written() {
         (|c| c.pen.motor_sign[0] = 0, "pen.motor_sign"),
         (|c| c.drive[2].pwm_hz = 1000, "drive[2].pwm_hz"),
         (|c| c.drive[0].max_duty = 1.5, "drive[0].max_duty"),
-        (|c| c.drive[1].winding_ohm = 0.0, "drive[1].winding_ohm"),
+        (|c| c.drive[1].winding_mohm = 0, "drive[1].winding_mohm"),
         // In range for the bridge, but over the driver's rating for this motor.
-        (|c| c.drive[1].winding_ohm = 0.5, "drive[1].max_duty"),
+        (|c| c.drive[1].winding_mohm = 500, "drive[1].max_duty"),
         (|c| c.power.supply_v = 14.0, "power.supply_v"),
         (
             |c| c.power.driver_current_a = -1.0,
@@ -762,7 +764,7 @@ fn a_configuration_that_would_overload_the_driver_is_refused() {
     assert!(nan.over_current().is_some());
     // encode refuses to write it, decode refuses to load it.
     let mut c = DeviceConfig::DEFAULT;
-    c.drive[0].winding_ohm = 1.0;
+    c.drive[0].winding_mohm = 1000;
     let mut buf = [0u8; CONFIG_IMAGE_MAX];
     assert!(
         matches!(encode(&c, &mut buf), Err(ConfigError::Invalid(f)) if f.field.as_str() == "drive[0].max_duty")
@@ -793,7 +795,7 @@ struct ConfigV1 {
 }
 
 #[test]
-fn a_format_1_image_is_read_and_asks_for_the_new_values() {
+fn a_format_1_image_says_so_and_gives_no_force() {
     let new = calibrated();
     let old = ConfigV1 {
         pen: new.pen,
@@ -808,39 +810,14 @@ fn a_format_1_image_is_read_and_asks_for_the_new_values() {
     };
     let mut pbuf = [0u8; 512];
     let payload = postcard::to_slice(&old, &mut pbuf).unwrap().to_vec();
-    let img = forged(1, &payload);
-    let read = decode_unchecked(&img).expect("format 1 is read");
-    assert_eq!(read.pen, new.pen);
-    assert_eq!(read.limits, new.limits);
-    assert_eq!(read.calibration, new.calibration);
-    for (r, n) in read.drive.iter().zip(&new.drive) {
-        assert_eq!(
-            (r.pwm_hz, r.deadband, r.zero),
-            (n.pwm_hz, n.deadband, n.zero)
-        );
-        assert_eq!((r.max_duty, r.winding_ohm), (0.95, 0.0));
-    }
-    assert_eq!(
-        (read.power.supply_v, read.power.driver_current_a),
-        (0.0, 0.0)
-    );
-    // Not in force until the builder gives the motor's resistance and the supply.
-    let loaded = decode(&img);
+    let loaded = decode(&forged(1, &payload));
+    assert_eq!(loaded, Err(ConfigError::UnsupportedVersion { found: 1 }));
     let state = ConfigState::of(&loaded);
-    assert!(
-        matches!(&state, ConfigState::Corrupt(ConfigError::Invalid(f)) if f.field.as_str() == "drive[0].winding_ohm"),
-        "{state:?}"
-    );
     assert!(!state.allows_forces());
-    // With them (and a duty within the rating) the same configuration is valid.
-    let mut fixed = read;
-    for d in &mut fixed.drive {
-        d.winding_ohm = 2.2;
-        d.max_duty = 0.2;
-    }
-    fixed.power = PowerConfig::DEFAULT;
-    assert_eq!(fixed.validate(), Ok(()));
-    assert_eq!(fixed, calibrated());
+    assert_eq!(
+        state.to_string(),
+        "corrupt: configuration format version 1, this firmware reads 2"
+    );
 }
 
 // ---------------------------------------------------------------------------------------

@@ -90,7 +90,7 @@ pub fn stall_currents(cfg: &DeviceConfig) -> String {
         .map(|d| {
             format!(
                 "{:.2} A",
-                cfg.power.stall_current_a(d.max_duty, d.winding_ohm)
+                cfg.power.stall_current_a(d.max_duty, d.winding_ohm())
             )
         })
         .collect();
@@ -227,7 +227,7 @@ const COMMENTS: &[(&str, &str, &str)] = &[
     (
         "pen",
         "max_current",
-        "motor current at full command (A): the stall current at the duty clamp, power.supply_v x drive.max_duty / drive.winding_ohm",
+        "motor current at full command (A): the stall current at the duty clamp, power.supply_v x drive.max_duty / the winding's resistance",
     ),
     (
         "pen",
@@ -261,7 +261,7 @@ const COMMENTS: &[(&str, &str, &str)] = &[
     (
         "drive",
         "max_duty",
-        "largest duty any command gets (fraction, above the deadband, at most 1, and at most power.driver_current_a x winding_ohm / power.supply_v, so that a stalled motor stays within the driver's rating)",
+        "largest duty any command gets (fraction, above the deadband, at most 1, and at most power.driver_current_a x the winding's resistance / power.supply_v, so that a stalled motor stays within the driver's rating)",
     ),
     (
         "drive",
@@ -270,8 +270,8 @@ const COMMENTS: &[(&str, &str, &str)] = &[
     ),
     (
         "drive",
-        "winding_ohm",
-        "the motor's winding resistance (Ohm): measured across its terminals with the shaft still, or rated voltage / stall current",
+        "winding_mohm",
+        "the motor's winding resistance (milliohms, at least 100): measured across its terminals with the shaft still, or rated voltage / stall current",
     ),
     (
         "power",
@@ -549,7 +549,7 @@ mod tests {
             assert!(said.contains(part), "{part}: {said}");
         }
         // A motor of lower resistance at the default clamp, a supply above the driver's.
-        let bad = text.replacen("winding_ohm = 2.2", "winding_ohm = 1.0", 1);
+        let bad = text.replacen("winding_mohm = 2200", "winding_mohm = 1000", 1);
         assert!(from_toml(&bad)
             .unwrap_err()
             .to_string()

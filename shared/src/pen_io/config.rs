@@ -30,16 +30,15 @@
 //! postcard is already the wire protocol's encoding (the same serde derives serve
 //! [`crate::protocol::HostMsg::SetConfig`]); it is compact and bounded. It has no schema
 //! evolution, so any change to [`DeviceConfig`]'s layout increments [`CONFIG_FORMAT_VERSION`].
-//! [`decode`] reads the older formats it knows and migrates them; an unknown version is
-//! reported as [`ConfigError::UnsupportedVersion`]: the pen starts safe (no force) and the
-//! builder writes the configuration again.
+//! An image of another version is reported as [`ConfigError::UnsupportedVersion`]: the pen
+//! starts safe (no force) and the builder writes the configuration again.
 //!
 //! * 1: the first format.
-//! * 2: each motor's winding resistance ([`DriveConfig::winding_ohm`]) and the motor supply
-//!   and driver rating ([`PowerConfig`]), which bound the duty. A format-1 image is read with
-//!   these at zero, "not measured": it decodes, and validation then names the first of them
-//!   ([`ConfigError::Invalid`], `drive[0].winding_ohm`), so that no configuration reaches
-//!   the motors without the bound on their current.
+//! * 2: each motor's winding resistance ([`DriveConfig::winding_mohm`]) and the motor supply
+//!   and driver rating ([`PowerConfig`]), which bound the duty. A format-1 image is not
+//!   migrated: it lacks exactly what bounds the motor current, so no migration could put
+//!   it in force without the builder's values (and reading it cost the pen's image more
+//!   flash than its budget had left); the handshake says "format version 1".
 
 use core::fmt;
 
@@ -61,10 +60,10 @@ pub const IMAGE_HEADER_LEN: usize = 8;
 const CRC_LEN: usize = 4;
 /// Longest postcard encoding of a [`DeviceConfig`]: 30 `f32` and 9 `i8` in the pen
 /// (120 + 9 bytes) and its three `u32` counts (5 bytes each at most); per drive channel a
-/// `u32` (5), three `f32` (12) and the policy (1); the power's two `f32` (8); 7 `f32` limits
+/// `u32` (5), two `f32` (8), the policy (1) and a `u16` (3); the power's two `f32` (8); 7 `f32` limits
 /// (28); the calibration's option tag (1), three `i64` (10 each) and three `i32` (5 each).
 /// Test `longest_payload_is_the_bound` encodes a config with every varint at its longest.
-pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 18 + 8 + 28 + 1 + 30 + 15;
+pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 17 + 8 + 28 + 1 + 30 + 15;
 /// Longest image: header, payload and CRC. A flash page for the image needs this much.
 pub const CONFIG_IMAGE_MAX: usize = IMAGE_HEADER_LEN + CONFIG_PAYLOAD_MAX + CRC_LEN;
 /// Capacity of a field's name in [`InvalidField`] (`"drive[2].max_duty"`).
@@ -137,19 +136,19 @@ impl DeviceConfig {
     }
 
     /// The first channel whose duty clamp lets its motor, stalled, draw more than the
-    /// driver's rating: `power.supply_v * max_duty / winding_ohm > power.driver_current_a`.
+    /// driver's rating: `power.supply_v * max_duty / R > power.driver_current_a`.
     /// A stalled motor is the haptic pen's usual state (the hand holds the stylus against
     /// the force), and with no back-EMF the winding's resistance alone sets the current.
     pub fn over_current(&self) -> Option<OverCurrent> {
         self.drive.iter().enumerate().find_map(|(channel, d)| {
-            let duty_limit = self.power.duty_limit(d.winding_ohm);
+            let duty_limit = self.power.duty_limit(d.winding_ohm());
             // Written so that a NaN anywhere counts as over the limit.
             (!(d.max_duty <= duty_limit)).then_some(OverCurrent {
                 channel,
                 max_duty: d.max_duty,
-                winding_ohm: d.winding_ohm,
+                winding_ohm: d.winding_ohm(),
                 supply_v: self.power.supply_v,
-                stall_a: self.power.stall_current_a(d.max_duty, d.winding_ohm),
+                stall_a: self.power.stall_current_a(d.max_duty, d.winding_ohm()),
                 rating_a: self.power.driver_current_a,
                 duty_limit,
             })
@@ -507,10 +506,8 @@ pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
     Ok(cfg)
 }
 
-/// [`decode`] without the validation: the configuration an intact image holds, an older
-/// format migrated to this one (format 1: the winding resistances and the power at zero,
-/// which [`DeviceConfig::validate`] refuses until the builder gives them).
-pub fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
+/// [`decode`] without the validation: the configuration an intact image holds.
+fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
     let header_part = image.get(..IMAGE_HEADER_LEN).unwrap_or(image);
     if !header_part.is_empty() && header_part.iter().all(|&b| b == 0xFF) {
         return Err(ConfigError::Erased);
@@ -526,7 +523,7 @@ pub fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
         return Err(ConfigError::Truncated);
     }
     let version = u16::from_le_bytes([v0, v1]);
-    if version != CONFIG_FORMAT_VERSION && version != 1 {
+    if version != CONFIG_FORMAT_VERSION {
         return Err(ConfigError::UnsupportedVersion { found: version });
     }
     let len = u16::from_le_bytes([l0, l1]);
@@ -552,62 +549,9 @@ pub fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
         });
     }
     let payload = body.get(IMAGE_HEADER_LEN..).ok_or(ConfigError::Truncated)?;
-    let decoded = if version == 1 {
-        v1::take(payload)
-    } else {
-        postcard::take_from_bytes::<DeviceConfig>(payload)
-    };
-    match decoded {
+    match postcard::take_from_bytes::<DeviceConfig>(payload) {
         Ok((cfg, [])) => Ok(cfg),
         _ => Err(ConfigError::Undecodable),
-    }
-}
-
-/// Format 1's layout, read to migrate it: the parts format 2 kept, each with its own
-/// deserializer (the one format 2's uses too, so the pen's image carries little for this),
-/// and the drive channels without their winding resistance.
-mod v1 {
-    use postcard::take_from_bytes;
-    use serde::Deserialize;
-
-    use crate::force::DeviceLimits;
-    use crate::kinematics::{PenConfig, RawReadings};
-    use crate::pen_io::drive::ZeroPolicy;
-
-    #[derive(Deserialize)]
-    struct DriveConfig {
-        pwm_hz: u32,
-        deadband: f32,
-        max_duty: f32,
-        zero: ZeroPolicy,
-    }
-
-    /// The configuration a format-1 payload holds, with the winding resistances and the
-    /// power at zero: not measured. Validation refuses it, by name, until the builder
-    /// writes the configuration again with the real values.
-    pub fn take(payload: &[u8]) -> postcard::Result<(super::DeviceConfig, &[u8])> {
-        let (pen, rest) = take_from_bytes::<PenConfig>(payload)?;
-        let (drive, rest) = take_from_bytes::<[DriveConfig; 3]>(rest)?;
-        let (limits, rest) = take_from_bytes::<DeviceLimits>(rest)?;
-        let (calibration, rest) = take_from_bytes::<Option<RawReadings>>(rest)?;
-        let drive = drive.map(|d| super::DriveConfig {
-            pwm_hz: d.pwm_hz,
-            deadband: d.deadband,
-            max_duty: d.max_duty,
-            zero: d.zero,
-            winding_ohm: 0.0,
-        });
-        let cfg = super::DeviceConfig {
-            pen,
-            drive,
-            power: super::PowerConfig {
-                supply_v: 0.0,
-                driver_current_a: 0.0,
-            },
-            limits,
-            calibration,
-        };
-        Ok((cfg, rest))
     }
 }
 

@@ -63,9 +63,11 @@ pub struct DriveConfig {
     pub max_duty: f32,
     /// What a zero command does.
     pub zero: ZeroPolicy,
-    /// The motor's winding (terminal) resistance (Ohm): at stall, with no back-EMF, it alone
-    /// sets the current a duty drives (`supply * duty / winding_ohm`). 0.1 ..= 1000.
-    pub winding_ohm: f32,
+    /// The motor's winding (terminal) resistance in milliohms: at stall, with no back-EMF,
+    /// it alone sets the current a duty drives (`supply * duty / R`). At least 100 (0.1 Ohm),
+    /// at most 65,535 (65.5 Ohm). Milliohms in a `u16` rather than ohms in an `f32`: the
+    /// channel's settings keep their size (the firmware holds several copies in RAM).
+    pub winding_mohm: u16,
 }
 
 /// The bridge's inputs for one channel for one tick.
@@ -89,13 +91,11 @@ impl DriveConfig {
         deadband: 0.04,
         max_duty: 0.2,
         zero: ZeroPolicy::Coast,
-        winding_ohm: 2.2,
+        winding_mohm: 2200,
     };
 
-    /// Smallest winding resistance accepted (Ohm).
-    pub const MIN_WINDING_OHM: f32 = 0.1;
-    /// Largest winding resistance accepted (Ohm).
-    pub const MAX_WINDING_OHM: f32 = 1000.0;
+    /// Smallest winding resistance accepted (milliohms).
+    pub const MIN_WINDING_MOHM: u16 = 100;
 
     /// Smallest PWM frequency accepted (Hz): above hearing.
     pub const MIN_PWM_HZ: u32 = 20_000;
@@ -129,11 +129,16 @@ impl DriveConfig {
         // get the same duty.
         check("max_duty", self.max_duty, self.deadband + 0.05, 1.0)?;
         check(
-            "winding_ohm",
-            self.winding_ohm,
-            Self::MIN_WINDING_OHM,
-            Self::MAX_WINDING_OHM,
+            "winding_mohm",
+            f32::from(self.winding_mohm),
+            f32::from(Self::MIN_WINDING_MOHM),
+            f32::from(u16::MAX),
         )
+    }
+
+    /// The winding resistance in ohms.
+    pub fn winding_ohm(&self) -> f32 {
+        f32::from(self.winding_mohm) / 1000.0
     }
 
     /// Timer counts per PWM period for a timer counting at `timer_hz`: `timer_hz / pwm_hz`,

@@ -42,9 +42,9 @@ pub mod flash_acr;
 
 pub use adc::AdcFilter;
 pub use config::{
-    decode, decode_unchecked, encode, ConfigError, ConfigState, DeviceConfig, InvalidField,
-    OverCurrent, PowerConfig, Readiness, ZeroHold, CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX,
-    CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN, IMAGE_HEADER_LEN,
+    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, OverCurrent, PowerConfig,
+    Readiness, ZeroHold, CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX,
+    FIELD_LEN, IMAGE_HEADER_LEN,
 };
 pub use config_log::{ConfigLog, LogError, Region};
 pub use drive::{Direction, DriveConfig, DriveOutput, ZeroPolicy, ZERO_COMMAND};

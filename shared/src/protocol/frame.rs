@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 /// * 3: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
 ///   `SetConfig`, `DeviceMsg::Config` / `Sensors`, `Command::StreamSensors` / `NudgeMotor`,
 ///   four `CommandError`s, `Capabilities::STORED_CONFIG`; host frames up to 512 bytes.
-/// * 4: `DeviceConfig` carries each motor's winding resistance (`DriveConfig::winding_ohm`)
+/// * 4: `DeviceConfig` carries each motor's winding resistance (`DriveConfig::winding_mohm`)
 ///   and the motor supply and driver rating (`DeviceConfig::power`), which bound the duty
 ///   (configuration image format 2).
 pub const PROTOCOL_VERSION: u8 = 4;

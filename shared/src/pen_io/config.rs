@@ -142,8 +142,12 @@ impl DeviceConfig {
     pub fn over_current(&self) -> Option<OverCurrent> {
         self.drive.iter().enumerate().find_map(|(channel, d)| {
             let duty_limit = self.power.duty_limit(d.winding_ohm());
-            // Written so that a NaN anywhere counts as over the limit.
-            (!(d.max_duty <= duty_limit)).then_some(OverCurrent {
+            // A NaN anywhere compares as nothing: over the limit.
+            let within = d
+                .max_duty
+                .partial_cmp(&duty_limit)
+                .is_some_and(core::cmp::Ordering::is_le);
+            (!within).then_some(OverCurrent {
                 channel,
                 max_duty: d.max_duty,
                 winding_ohm: d.winding_ohm(),

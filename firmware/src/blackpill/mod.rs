@@ -92,6 +92,39 @@ pub fn restart_flash_caches() {
     }
 }
 
+/// Why the last run ended, kept across the reset in RAM the startup code leaves alone
+/// (`.uninit`): the fault paths (panic, HardFault) turn the motors off and spin until the
+/// watchdog resets the chip, and without this the next boot could only blame a stalled
+/// force loop. A magic word and the reason; anything else (a power-on's random RAM) is no
+/// reason.
+#[link_section = ".uninit.maobi_reset_reason"]
+static mut RESET_REASON: core::mem::MaybeUninit<[u32; 2]> = core::mem::MaybeUninit::uninit();
+const REASON_MAGIC: u32 = 0x4D42_5252;
+const REASON_PANIC: u32 = 1;
+const REASON_HARDFAULT: u32 = 2;
+
+/// Records why this run is about to end (from a fault path, any context).
+fn keep_reset_reason(reason: u32) {
+    // SAFETY: a plain word pair in RAM, written whole; only the fault paths and `start`
+    // touch it, never at once (the fault paths do not return).
+    unsafe {
+        core::ptr::write_volatile(
+            core::ptr::addr_of_mut!(RESET_REASON).cast::<[u32; 2]>(),
+            [REASON_MAGIC, reason],
+        )
+    }
+}
+
+/// The reason the last run recorded, if any, forgotten once read.
+fn take_reset_reason() -> Option<u32> {
+    let at = core::ptr::addr_of_mut!(RESET_REASON).cast::<[u32; 2]>();
+    // SAFETY: as in `keep_reset_reason`; any bit pattern is a valid `[u32; 2]`.
+    let [magic, reason] = unsafe { core::ptr::read_volatile(at) };
+    // SAFETY: as above.
+    unsafe { core::ptr::write_volatile(at, [0, 0]) };
+    (magic == REASON_MAGIC && matches!(reason, REASON_PANIC | REASON_HARDFAULT)).then_some(reason)
+}
+
 bind_interrupts!(struct Irqs {
     OTG_FS => embassy_stm32::usb::InterruptHandler<peripherals::USB_OTG_FS>;
 });
@@ -320,8 +353,14 @@ fn start() -> (
     // 2 ms of cycles: one tick overruns, the watchdog does not fire.
     fl.set_overrun_burn(2 * SYSCLK_HZ / 1000);
     fl.reanchor();
+    let kept = take_reset_reason();
     if reset_by_watchdog {
-        defmt::error!("reset by the watchdog: the force loop had stopped");
+        // The force loop stopped either way; the log says why, as far as it is known.
+        match kept {
+            Some(REASON_PANIC) => defmt::error!("reset by the watchdog after a panic"),
+            Some(REASON_HARDFAULT) => defmt::error!("reset by the watchdog after a HardFault"),
+            _ => defmt::error!("reset by the watchdog: the force loop had stopped"),
+        }
         app::latch(app::fault::LOOP_STALLED);
     }
 
@@ -464,6 +503,7 @@ fn fatal(what: &str) -> ! {
 unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     motors::motors_off();
     led_on();
+    keep_reset_reason(REASON_HARDFAULT);
     defmt::error!("FATAL HardFault at pc={=u32:#010x}; motors off", ef.pc());
     // Spin: the watchdog resets the chip and the next boot reports it.
     loop {
@@ -476,6 +516,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     motors::motors_off();
     led_on();
+    keep_reset_reason(REASON_PANIC);
     // The location and, when it has no arguments, the message, as defmt strings: formatting
     // the message with `core::fmt` would bring its machinery into the image (with
     // `InvalidField`'s `write!`, 620 bytes)

@@ -72,7 +72,8 @@ pub enum DeviceConfigCmd {
         #[arg(short = 'o', long, value_name = "FILE")]
         output: Option<PathBuf>,
     },
-    /// Check a configuration file without a pen: syntax, unknown keys, every value's range.
+    /// Check a configuration file without a pen: syntax, unknown keys, every value's range,
+    /// each motor's stall current against the driver's rating.
     Check {
         #[arg(value_name = "FILE")]
         file: PathBuf,
@@ -613,7 +614,7 @@ fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
 fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
     use crate::device::bringup::Wire;
     use crate::device::config_file::{
-        changes, load, read_from_pen, to_toml, write_to_pen, Written,
+        changes, load, read_from_pen, stall_currents, to_toml, write_to_pen, Written,
     };
     use maobi_shared::pen_io::DeviceConfig;
 
@@ -664,6 +665,7 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
             for line in diff {
                 println!("  {line}");
             }
+            println!("{}", stall_currents(&cfg));
             Ok(())
         }
         DeviceConfigCmd::Get { pen, output } => {

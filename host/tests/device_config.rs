@@ -160,6 +160,11 @@ fn template_edit_set_get_keeps_the_calibration_and_reads_back() {
     let o = maobi(&["device", "config", "check", file.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("2 value(s) differ"), "{}", text(&o));
+    assert!(
+        text(&o).contains("stall currents at the duty clamps 1.09 A, 1.09 A, 1.09 A"),
+        "{}",
+        text(&o)
+    );
 
     let (addr, pen) = serve(calibrated_pen());
     let o = set(&file, &addr, &[]);
@@ -214,6 +219,17 @@ fn a_bad_file_never_reaches_the_pen() {
             "unknown key `limits.peak`",
         ),
         (good.replace("ratio = [13.2,", "ratio = [\"x\","), "line "),
+        // The old default duty clamp: a stalled motor would draw 5.2 A from a 1.2 A driver.
+        (
+            good.replacen("max_duty = 0.2\n", "max_duty = 0.95\n", 1),
+            "drive[0].max_duty = 0.95 lets the stalled motor draw 5.18 A (12 V x 0.95 / 2.2 Ohm), \
+             more than the driver's rating of 1.2 A (power.driver_current_a); with this motor \
+             and supply, max_duty may be at most 0.22",
+        ),
+        (
+            good.replace("supply_v = 12.0", "supply_v = 24.0"),
+            "power.supply_v: 24 is outside the valid range",
+        ),
     ] {
         std::fs::write(&file, bad).unwrap();
         let o = set(&file, &addr, &[]);

@@ -422,7 +422,7 @@ fn commit_raw(flash: &mut Nor<SECTOR>, slot: usize, bytes: &[u8], seq: u32) {
 fn committed_but_unreadable_images_say_why() {
     let good = image(&config(5));
     let mut other_version = good.clone();
-    other_version[4..6].copy_from_slice(&2u16.to_le_bytes());
+    other_version[4..6].copy_from_slice(&(CONFIG_FORMAT_VERSION + 1).to_le_bytes());
     let n = other_version.len() - 4;
     let crc = crc32(&other_version[..n]);
     other_version[n..].copy_from_slice(&crc.to_le_bytes());
@@ -435,7 +435,9 @@ fn committed_but_unreadable_images_say_why() {
         (
             "other version",
             other_version,
-            ConfigState::Corrupt(ConfigError::UnsupportedVersion { found: 2 }),
+            ConfigState::Corrupt(ConfigError::UnsupportedVersion {
+                found: CONFIG_FORMAT_VERSION + 1,
+            }),
         ),
         (
             "not an image",
@@ -472,6 +474,84 @@ fn flash_without_a_committed_slot_is_missing() {
     log.store(&image(&config(9))).unwrap();
     let mut log = reboot(log, 2);
     assert_eq!(loaded(&mut log), Ok(config(9)));
+}
+
+/// Flash another firmware left behind: pseudo-random bytes in every sector.
+fn foreign(sectors: usize) -> Nor<SECTOR> {
+    let mut flash = Nor::<SECTOR>::erased(sectors);
+    let mut x = 0x9E37_79B9u32;
+    for b in flash.bytes.iter_mut() {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        *b = x as u8;
+    }
+    flash
+}
+
+#[test]
+fn reclaiming_foreign_flash_at_boot_spares_the_first_save_its_erase() {
+    // Without it: the first save pays an erase (the stall on the host's first `set`).
+    let mut log = Log::open(foreign(2), region(2));
+    log.store(&image(&config(1))).unwrap();
+    assert_eq!(log.into_inner().erases, 1);
+    // With it: the erases happen at boot, the first saves erase nothing.
+    let mut log = Log::open(foreign(2), region(2));
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(2));
+    assert_eq!(ConfigState::of(&loaded(&mut log)), ConfigState::Missing);
+    let erased_at_boot = 2;
+    for k in 0..4 {
+        log.store(&image(&config(k))).unwrap();
+    }
+    let mut log = reboot(log, 2);
+    assert_eq!(loaded(&mut log), Ok(config(3)));
+    // Reclaiming again finds the log's own saves and leaves them.
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(0));
+    assert_eq!(loaded(&mut log), Ok(config(3)));
+    assert_eq!(log.into_inner().erases, erased_at_boot);
+}
+
+#[test]
+fn reclaim_keeps_saves_and_blank_flash_and_takes_what_is_not_ours() {
+    // An erased region: nothing to do.
+    let mut log = Log::open(Nor::erased(2), region(2));
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(0));
+    assert_eq!(log.into_inner().erases, 0);
+    // The log's saves, in either sector, and an image of another format version (ours:
+    // reported as such, not erased).
+    for n in [0, 5] {
+        let mut log = Log::open(with_saves(n), region(2));
+        assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(0), "{n}");
+        assert_eq!(loaded(&mut log), Ok(config(n)));
+    }
+    let mut other_version = image(&config(2));
+    other_version[4..6].copy_from_slice(&(CONFIG_FORMAT_VERSION + 1).to_le_bytes());
+    let mut flash = with_saves(1);
+    commit_raw(&mut flash, 2, &other_version, 3);
+    let mut log = Log::open(flash, region(2));
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(0));
+    assert!(matches!(
+        ConfigState::of(&loaded(&mut log)),
+        ConfigState::Corrupt(ConfigError::UnsupportedVersion { .. })
+    ));
+    // A committed slot that is not a configuration image (foreign bytes whose trailer
+    // happens to match): not ours, taken over.
+    let mut flash = foreign(2);
+    commit_raw(&mut flash, 5, b"demo firmware data", 77);
+    let mut log = Log::open(flash, region(2));
+    assert_eq!(log.newest_slot(), Some(5));
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(2));
+    assert_eq!(log.newest_slot(), None);
+    assert_eq!(ConfigState::of(&loaded(&mut log)), ConfigState::Missing);
+    // Only what is not blank is erased: a first save cut short in sector 0.
+    let mut flash = Nor::<SECTOR>::erased(2);
+    flash.bytes[..100].fill(0x42);
+    let mut log = Log::open(flash, region(2));
+    assert_eq!(log.reclaim(&CONFIG_MAGIC), Ok(1));
+    log.store(&image(&config(4))).unwrap();
+    let mut log = reboot(log, 2);
+    assert_eq!(loaded(&mut log), Ok(config(4)));
+    assert_eq!(log.into_inner().erases, 1);
 }
 
 #[test]

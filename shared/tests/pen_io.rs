@@ -16,6 +16,7 @@ fn drive(zero: ZeroPolicy) -> DriveConfig {
         deadband: 0.05,
         max_duty: 0.9,
         zero,
+        winding_mohm: 2200,
     }
 }
 
@@ -112,8 +113,8 @@ fn fixed_point_commands_agree_with_float() {
         );
     }
     // Fx saturates at its extremes: still clamped.
-    assert_eq!(d.output(Fx::from_bits(i64::MAX), PERIOD).duty, 3800);
-    assert_eq!(d.output(Fx::from_bits(i64::MIN), PERIOD).duty, 3800);
+    assert_eq!(d.output(Fx::from_bits(i64::MAX), PERIOD).duty, 800);
+    assert_eq!(d.output(Fx::from_bits(i64::MIN), PERIOD).duty, 800);
 }
 
 #[test]
@@ -153,6 +154,9 @@ fn drive_config_validation_and_period() {
     assert_eq!(bad(|d| d.deadband = 0.51), "deadband");
     assert_eq!(bad(|d| d.max_duty = 1.01), "max_duty");
     assert_eq!(bad(|d| d.max_duty = 0.06), "max_duty"); // not 0.05 above the deadband
+    assert_eq!(bad(|d| d.winding_mohm = 0), "winding_mohm");
+    assert_eq!(bad(|d| d.winding_mohm = 99), "winding_mohm");
+    assert_eq!(DriveConfig::DEFAULT.winding_ohm(), 2.2);
     assert_eq!(DriveConfig::DEFAULT.period_counts(100_000_000), Some(4000));
     let fast = DriveConfig {
         pwm_hz: 100_000,
@@ -361,6 +365,7 @@ fn longest_payload_is_the_bound() {
     c.pen.counts_per_rev = [u32::MAX; 3];
     for d in &mut c.drive {
         d.pwm_hz = u32::MAX;
+        d.winding_mohm = u16::MAX;
     }
     c.calibration = Some(RawReadings {
         encoders: [i64::MIN; 3],
@@ -456,7 +461,7 @@ fn another_version_is_unsupported() {
         decode(&forged(CONFIG_FORMAT_VERSION, &payload)),
         Ok(calibrated())
     );
-    for v in [0u16, 2, 0xFFFF, 0x0100] {
+    for v in [0u16, CONFIG_FORMAT_VERSION + 1, 0xFFFF, 0x0100] {
         assert_eq!(
             decode(&forged(v, &payload)),
             Err(ConfigError::UnsupportedVersion { found: v })
@@ -479,26 +484,36 @@ fn length_beyond_the_bound_and_undecodable_payloads() {
     let payload = postcard::to_slice(&calibrated(), &mut buf)
         .unwrap()
         .to_vec();
+    let v = CONFIG_FORMAT_VERSION;
     assert_eq!(
-        decode(&forged(1, &payload[..payload.len() - 1])),
+        decode(&forged(v, &payload[..payload.len() - 1])),
         Err(ConfigError::Undecodable)
     );
     let mut longer = payload.clone();
     longer.push(0);
-    assert_eq!(decode(&forged(1, &longer)), Err(ConfigError::Undecodable));
+    assert_eq!(decode(&forged(v, &longer)), Err(ConfigError::Undecodable));
     // An empty payload reads as a write that stopped at the length field.
+    assert_eq!(decode(&forged(v, &[])), Err(ConfigError::Truncated));
     assert_eq!(decode(&forged(1, &[])), Err(ConfigError::Truncated));
 }
 
 #[test]
 fn invalid_values_are_named_and_never_written() {
     type Spoil = fn(&mut DeviceConfig);
-    let cases: [(Spoil, &str); 6] = [
+    let cases: [(Spoil, &str); 10] = [
         (|c| c.pen.upper_arm_mm = f32::NAN, "pen.upper_arm_mm"),
         (|c| c.pen.ratio[2] = 0.0, "pen.ratio"),
         (|c| c.pen.motor_sign[0] = 0, "pen.motor_sign"),
         (|c| c.drive[2].pwm_hz = 1000, "drive[2].pwm_hz"),
         (|c| c.drive[0].max_duty = 1.5, "drive[0].max_duty"),
+        (|c| c.drive[1].winding_mohm = 0, "drive[1].winding_mohm"),
+        // In range for the bridge, but over the driver's rating for this motor.
+        (|c| c.drive[1].winding_mohm = 500, "drive[1].max_duty"),
+        (|c| c.power.supply_v = 14.0, "power.supply_v"),
+        (
+            |c| c.power.driver_current_a = -1.0,
+            "power.driver_current_a",
+        ),
         (|c| c.limits.continuous_n = 9.0, "limits.continuous_n"),
     ];
     for (spoil, field) in cases {
@@ -565,7 +580,7 @@ fn config_state_says_what_the_handshake_says() {
     assert!(!ConfigState::Corrupt(ConfigError::Truncated).allows_forces());
     assert_eq!(
         ConfigState::Corrupt(ConfigError::UnsupportedVersion { found: 7 }).to_string(),
-        "corrupt: configuration format version 7, this firmware reads 1"
+        "corrupt: configuration format version 7, this firmware reads 2"
     );
 }
 
@@ -683,5 +698,164 @@ fn forces_wait_for_zeros_that_hold() {
     ];
     for (name, state, cfg, hold, want) in cases {
         assert_eq!(Readiness::of(&state, cfg.as_ref(), hold), want, "{name}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Motor current bounded by the configuration
+
+#[test]
+fn the_duty_limit_comes_from_resistance_supply_and_rating() {
+    let p = PowerConfig::DEFAULT;
+    assert_eq!((p.supply_v, p.driver_current_a), (12.0, 1.2));
+    // 1.2 A x 2.2 Ohm / 12 V.
+    let limit = p.duty_limit(2.2);
+    assert!((limit - 0.22).abs() < 1e-6, "{limit}");
+    // At the limit a stalled motor draws the rating, no more.
+    assert!((p.stall_current_a(limit, 2.2) - 1.2).abs() < 1e-5);
+    // Half the supply, twice the duty; a winding that cannot draw the rating: no limit.
+    let six = PowerConfig { supply_v: 6.0, ..p };
+    assert!((six.duty_limit(2.2) - 0.44).abs() < 1e-6);
+    assert_eq!(p.duty_limit(20.0), 1.0);
+    // A stronger driver allows more.
+    let strong = PowerConfig {
+        driver_current_a: 2.4,
+        ..p
+    };
+    assert!((strong.duty_limit(2.2) - 0.44).abs() < 1e-6);
+}
+
+#[test]
+fn a_configuration_that_would_overload_the_driver_is_refused() {
+    let ok = DeviceConfig::DEFAULT;
+    assert_eq!(ok.validate(), Ok(()));
+    assert_eq!(ok.over_current(), None);
+    // The old default: 95% of 12 V into a 2.2 Ohm winding is about 5.2 A at stall.
+    let mut c = DeviceConfig::DEFAULT;
+    c.drive[2].max_duty = 0.95;
+    let over = c.over_current().expect("over the rating");
+    assert_eq!(over.channel, 2);
+    assert!((over.stall_a - 12.0 * 0.95 / 2.2).abs() < 1e-4, "{over:?}");
+    assert_eq!(over.rating_a, 1.2);
+    assert!((over.duty_limit - 0.22).abs() < 1e-6);
+    let e = c.validate().unwrap_err();
+    assert_eq!(e.field.as_str(), "drive[2].max_duty");
+    assert_eq!((e.value, e.max), (0.95, over.duty_limit));
+    let said = over.to_string();
+    for part in [
+        "drive[2].max_duty = 0.95",
+        "5.18 A",
+        "1.2 A",
+        "at most 0.22",
+    ] {
+        assert!(said.contains(part), "{part}: {said}");
+    }
+    // The suggested duty passes.
+    c.drive[2].max_duty = 0.22;
+    assert_eq!(c.validate(), Ok(()));
+    // Just over it does not; a lower supply makes room again.
+    c.drive[2].max_duty = 0.221;
+    assert!(c.validate().is_err());
+    c.power.supply_v = 9.0;
+    assert_eq!(c.validate(), Ok(()));
+    // A non-finite duty or supply never passes as within the rating.
+    let mut nan = DeviceConfig::DEFAULT;
+    nan.drive[0].max_duty = f32::NAN;
+    assert!(nan.over_current().is_some());
+    // encode refuses to write it, decode refuses to load it.
+    let mut c = DeviceConfig::DEFAULT;
+    c.drive[0].winding_mohm = 1000;
+    let mut buf = [0u8; CONFIG_IMAGE_MAX];
+    assert!(
+        matches!(encode(&c, &mut buf), Err(ConfigError::Invalid(f)) if f.field.as_str() == "drive[0].max_duty")
+    );
+    let mut pbuf = [0u8; 512];
+    let payload = postcard::to_slice(&c, &mut pbuf).unwrap().to_vec();
+    assert!(matches!(
+        decode(&forged(CONFIG_FORMAT_VERSION, &payload)),
+        Err(ConfigError::Invalid(f)) if f.field.as_str() == "drive[0].max_duty"
+    ));
+}
+
+/// Format 1's layout, as the firmware before the winding resistance and power wrote it.
+#[derive(serde::Serialize)]
+struct DriveV1 {
+    pwm_hz: u32,
+    deadband: f32,
+    max_duty: f32,
+    zero: ZeroPolicy,
+}
+
+#[derive(serde::Serialize)]
+struct ConfigV1 {
+    pen: PenConfig,
+    drive: [DriveV1; 3],
+    limits: maobi_shared::force::DeviceLimits,
+    calibration: Option<RawReadings>,
+}
+
+#[test]
+fn a_format_1_image_says_so_and_gives_no_force() {
+    let new = calibrated();
+    let old = ConfigV1 {
+        pen: new.pen,
+        drive: new.drive.map(|d| DriveV1 {
+            pwm_hz: d.pwm_hz,
+            deadband: d.deadband,
+            max_duty: 0.95,
+            zero: d.zero,
+        }),
+        limits: new.limits,
+        calibration: new.calibration,
+    };
+    let mut pbuf = [0u8; 512];
+    let payload = postcard::to_slice(&old, &mut pbuf).unwrap().to_vec();
+    let loaded = decode(&forged(1, &payload));
+    assert_eq!(loaded, Err(ConfigError::UnsupportedVersion { found: 1 }));
+    let state = ConfigState::of(&loaded);
+    assert!(!state.allows_forces());
+    assert_eq!(
+        state.to_string(),
+        "corrupt: configuration format version 1, this firmware reads 2"
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// The flash accelerator (FLASH_ACR)
+
+#[test]
+fn the_flash_caches_restart_with_the_latency_kept() {
+    use maobi_shared::pen_io::flash_acr::*;
+    // What embassy-stm32's clock setup leaves at 96 MHz: three wait states, nothing else.
+    let after_rcc = 3;
+    assert!(!is_accelerated(after_rcc));
+    assert_eq!(
+        cache_restart(after_rcc),
+        [3, 3 | ICRST | DCRST, 3, 3 | PRFTEN | ICEN | DCEN]
+    );
+    assert_eq!(cache_restart(after_rcc)[3], 0x703);
+    // From any state (every latency, every combination of the five bits: at boot, after a
+    // flash write with the caches on, after a reset left held).
+    for latency in 0..=15u32 {
+        for bits in 0..32u32 {
+            let acr = latency | bits << 8;
+            let steps = cache_restart(acr);
+            let mut before = acr;
+            for (k, &v) in steps.iter().enumerate() {
+                assert_eq!(v & LATENCY_MASK, latency, "{acr:#x} step {k}");
+                // A cache is reset only while it is off, and it was off before.
+                if v & ICRST != 0 {
+                    assert_eq!((v | before) & ICEN, 0, "{acr:#x} step {k}");
+                }
+                if v & DCRST != 0 {
+                    assert_eq!((v | before) & DCEN, 0, "{acr:#x} step {k}");
+                }
+                before = v;
+            }
+            // Both caches were reset on the way.
+            assert!(steps.iter().any(|v| v & (ICRST | DCRST) == ICRST | DCRST));
+            assert!(is_accelerated(steps[3]), "{acr:#x}");
+            assert_eq!(steps[3], latency | ACCELERATED);
+        }
     }
 }

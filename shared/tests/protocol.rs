@@ -134,6 +134,7 @@ fn longest_config() -> DeviceConfig {
     c.pen.counts_per_rev = [u32::MAX; 3];
     for d in &mut c.drive {
         d.pwm_hz = u32::MAX;
+        d.winding_mohm = u16::MAX;
     }
     c.calibration = Some(maobi_shared::kinematics::RawReadings {
         encoders: [i64::MIN; 3],
@@ -648,7 +649,7 @@ fn largest_messages_fit_their_bounds() {
     let set = HostMsg::SetConfig(longest_config());
     let payload = postcard::to_slice(&set, &mut buf).unwrap().len();
     assert_eq!(payload, 1 + maobi_shared::pen_io::CONFIG_PAYLOAD_MAX);
-    assert_eq!(2 + payload + CRC_LEN, 267);
+    assert_eq!(2 + payload + CRC_LEN, 284);
     assert!(2 + payload + CRC_LEN <= HOST_MSG_MAX);
     // The device's longest config reply and sensor report fit too.
     for m in [

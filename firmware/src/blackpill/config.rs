@@ -29,7 +29,7 @@
 
 use embassy_stm32::flash::{Blocking, Error as FlashError, Flash};
 use maobi_shared::pen_io::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use maobi_shared::pen_io::{ConfigLog, LogError, Region, CONFIG_IMAGE_MAX};
+use maobi_shared::pen_io::{ConfigLog, LogError, Region, CONFIG_IMAGE_MAX, CONFIG_MAGIC};
 
 use super::watchdog;
 use crate::board::{ConfigStore, StoreError};
@@ -78,12 +78,18 @@ impl NorFlash for PausingFlash {
     const ERASE_SIZE: usize = <Flash<'static, Blocking> as NorFlash>::ERASE_SIZE;
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
-        self.0.blocking_write(offset, bytes)
+        let r = self.0.blocking_write(offset, bytes);
+        // The data cache may still hold these bytes as they read before (the log reads a
+        // slot blank, programs it, then reads it back to verify).
+        super::restart_flash_caches();
+        r
     }
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
         let _long = watchdog::Stretch::begin();
-        self.0.blocking_erase(from, to)
+        let r = self.0.blocking_erase(from, to);
+        super::restart_flash_caches();
+        r
     }
 }
 
@@ -96,6 +102,22 @@ impl FlashConfig {
     pub fn open(flash: Flash<'static, Blocking>) -> Self {
         FlashConfig {
             log: Log::open(PausingFlash(flash), REGION),
+        }
+    }
+
+    /// Erases the sectors if they hold no save of this firmware's but are not blank
+    /// (`ConfigLog::reclaim`: a new board's demo firmware, an interrupted first save), so
+    /// that the first save does not stall on an erase while the host waits for its answer.
+    /// Called at boot with the motors off and the watchdog running (each erase stretches
+    /// it); `probe-rs erase` before the first flash does the same from the host.
+    pub fn reclaim(&mut self) {
+        match self.log.reclaim(&CONFIG_MAGIC) {
+            Ok(0) => {}
+            Ok(n) => defmt::warn!(
+                "configuration sectors held no Maobi configuration but other data: {=u32} erased",
+                n
+            ),
+            Err(_) => defmt::error!("configuration sectors: erasing foreign data failed"),
         }
     }
 }

@@ -37,7 +37,7 @@ use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, pac, peripherals};
 use embassy_time::{Duration, Ticker};
-use maobi_shared::pen_io::DriveConfig;
+use maobi_shared::pen_io::{flash_acr, DriveConfig};
 use maobi_shared::protocol::Capabilities;
 use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
@@ -54,10 +54,12 @@ pub const TICK_US: u32 = 1000;
 /// the pins [`main`] hands to the drivers (the table in firmware/README.md).
 pub mod pins {
     use embassy_stm32::pac::gpio::Gpio;
-    use embassy_stm32::pac::{GPIOA, GPIOB};
+    use embassy_stm32::pac::GPIOB;
 
-    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PA4.
-    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOA, 4)];
+    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PB2, a pin
+    /// with no peripheral function on this chip (PA4, its earlier pin, is the chip select of
+    /// the Black Pill's optional SPI-flash footprint).
+    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOB, 2)];
     /// IN1, IN2 of motors 1 (PB12, PB13), 2 (PB14, PB15), 3 (PB8, PB9).
     pub const DIR: [[(Gpio, usize); 2]; 3] = [
         [(GPIOB, 12), (GPIOB, 13)],
@@ -71,6 +73,56 @@ pub mod pins {
 /// Lights the fault LED from any context (PC13 low).
 pub fn led_on() {
     pac::GPIOC.bsrr().write(|w| w.set_br(pins::LED, true));
+}
+
+/// Puts the fault LED out from any context (PC13 high).
+fn led_off() {
+    pac::GPIOC.bsrr().write(|w| w.set_bs(pins::LED, true));
+}
+
+/// Prefetch and both flash caches on, the caches reset first
+/// ([`maobi_shared::pen_io::flash_acr::cache_restart`], tested on the host): at boot, after
+/// embassy's clock setup turned them off, and after every flash write or erase
+/// ([`config::PausingFlash`]), which may leave the data cache holding what the flash held
+/// before.
+pub fn restart_flash_caches() {
+    let acr = pac::FLASH.acr();
+    for v in flash_acr::cache_restart(acr.read().0) {
+        acr.write_value(pac::flash::regs::Acr(v));
+    }
+}
+
+/// Why the last run ended, kept across the reset in RAM the startup code leaves alone
+/// (`.uninit`): the fault paths (panic, HardFault) turn the motors off and spin until the
+/// watchdog resets the chip, and without this the next boot could only blame a stalled
+/// force loop. A magic word and the reason; anything else (a power-on's random RAM) is no
+/// reason.
+#[link_section = ".uninit.maobi_reset_reason"]
+static mut RESET_REASON: core::mem::MaybeUninit<[u32; 2]> = core::mem::MaybeUninit::uninit();
+const REASON_MAGIC: u32 = 0x4D42_5252;
+const REASON_PANIC: u32 = 1;
+const REASON_HARDFAULT: u32 = 2;
+
+/// Records why this run is about to end (from a fault path, any context).
+fn keep_reset_reason(reason: u32) {
+    // SAFETY: a plain word pair in RAM, written whole; only the fault paths and `start`
+    // touch it, never at once (the fault paths do not return).
+    unsafe {
+        core::ptr::write_volatile(
+            core::ptr::addr_of_mut!(RESET_REASON).cast::<[u32; 2]>(),
+            [REASON_MAGIC, reason],
+        )
+    }
+}
+
+/// The reason the last run recorded, if any, forgotten once read.
+fn take_reset_reason() -> Option<u32> {
+    let at = core::ptr::addr_of_mut!(RESET_REASON).cast::<[u32; 2]>();
+    // SAFETY: as in `keep_reset_reason`; any bit pattern is a valid `[u32; 2]`.
+    let [magic, reason] = unsafe { core::ptr::read_volatile(at) };
+    // SAFETY: as above.
+    unsafe { core::ptr::write_volatile(at, [0, 0]) };
+    (magic == REASON_MAGIC && matches!(reason, REASON_PANIC | REASON_HARDFAULT)).then_some(reason)
 }
 
 bind_interrupts!(struct Irqs {
@@ -183,6 +235,9 @@ fn start() -> (
         config.rcc.apb2_pre = APBPrescaler::DIV1;
     }
     let p = embassy_stm32::init(config);
+    // embassy's clock setup wrote the flash latency alone, which turned prefetch and the
+    // caches off: on again before anything is timed.
+    restart_flash_caches();
     let reset_by_watchdog = pac::RCC.csr().read().wdgrstf();
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
     watchdog::freeze_in_debug();
@@ -190,7 +245,7 @@ fn start() -> (
     // The motor bridges first, off: standby low, inputs low, duty zero.
     let stby = [
         Output::new(p.PB10, Level::Low, Speed::Low),
-        Output::new(p.PA4, Level::Low, Speed::Low),
+        Output::new(p.PB2, Level::Low, Speed::Low),
     ];
     let dir = [
         [
@@ -211,7 +266,7 @@ fn start() -> (
     // The configuration log (sectors 6 and 7). The link task loads and decodes the newest image when it
     // starts and puts it in force (`app::Command::Configure`); until then the pen has no
     // kinematics, `app::CONFIG_OK` is off and the motors stay off.
-    let store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
+    let mut store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
 
     let drive = [DriveConfig::DEFAULT; 3];
     let mut pwm = SimplePwm::new(
@@ -233,6 +288,7 @@ fn start() -> (
         c.set_duty_cycle(0);
         c.enable();
     }
+    motors::stop_in_debug();
     let motors = motors::PenMotors {
         pwm,
         dir,
@@ -272,6 +328,10 @@ fn start() -> (
 
     let mut iwdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
     iwdg.unleash();
+    // Another firmware's data in the configuration sectors (a new board's demo) is erased
+    // now, with the motors off and nothing timed yet, rather than on the first save, while
+    // the host waits. Once the watchdog runs: the erase stretches it.
+    store.reclaim();
     // Built in its static, not on the stack (`ForceLoop::new_in`).
     // SAFETY: once, and TIM9's interrupt is not enabled yet.
     let built = unsafe {
@@ -293,8 +353,14 @@ fn start() -> (
     // 2 ms of cycles: one tick overruns, the watchdog does not fire.
     fl.set_overrun_burn(2 * SYSCLK_HZ / 1000);
     fl.reanchor();
+    let kept = take_reset_reason();
     if reset_by_watchdog {
-        defmt::error!("reset by the watchdog: the force loop had stopped");
+        // The force loop stopped either way; the log says why, as far as it is known.
+        match kept {
+            Some(REASON_PANIC) => defmt::error!("reset by the watchdog after a panic"),
+            Some(REASON_HARDFAULT) => defmt::error!("reset by the watchdog after a HardFault"),
+            _ => defmt::error!("reset by the watchdog: the force loop had stopped"),
+        }
         app::latch(app::fault::LOOP_STALLED);
     }
 
@@ -391,13 +457,45 @@ async fn led_task(mut led: Output<'static>) {
     }
 }
 
-/// A boot failure: motors off, LED on, log, halt (the watchdog is not running yet).
+/// The fault LED's pattern after a fatal boot error, in steps of [`FATAL_STEP_MS`]: three
+/// short flashes and a pause, unlike every pattern of [`led_task`].
+const FATAL_BLINK: [(bool, u32); 6] = [
+    (true, 15),
+    (false, 15),
+    (true, 15),
+    (false, 15),
+    (true, 15),
+    (false, 120),
+];
+/// Well inside the watchdog's timeout, which the loop feeds between steps.
+const FATAL_STEP_MS: u32 = 10;
+
+/// A boot failure, for good: the motors off, the LED blinking [`FATAL_BLINK`] and the
+/// reason in the defmt log again on every round (a probe attached later still sees it),
+/// until the power goes.
+///
+/// The watchdog is already running when the boot can fail and the IWDG cannot be stopped
+/// once started. Left alone, it would reset the chip within its timeout, the boot would fail
+/// the same way, and the chip would loop through resets, each boot reporting a watchdog
+/// reset (a stalled force loop) that never happened. So this loop feeds it: with the
+/// interrupts off nothing else runs, so there is no force loop whose stall the feeding could
+/// hide, and the motors are switched off again on every round.
 fn fatal(what: &str) -> ! {
-    motors::motors_off();
-    led_on();
-    defmt::error!("FATAL {}", what);
+    cortex_m::interrupt::disable();
     loop {
-        cortex_m::asm::wfi();
+        motors::motors_off();
+        defmt::error!("FATAL {=str}; motors off, halted (power-cycle to retry)", what);
+        for (on, steps) in FATAL_BLINK {
+            if on {
+                led_on();
+            } else {
+                led_off();
+            }
+            for _ in 0..steps {
+                watchdog::feed_now();
+                cortex_m::asm::delay(SYSCLK_HZ / 1000 * FATAL_STEP_MS);
+            }
+        }
     }
 }
 
@@ -405,6 +503,7 @@ fn fatal(what: &str) -> ! {
 unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     motors::motors_off();
     led_on();
+    keep_reset_reason(REASON_HARDFAULT);
     defmt::error!("FATAL HardFault at pc={=u32:#010x}; motors off", ef.pc());
     // Spin: the watchdog resets the chip and the next boot reports it.
     loop {
@@ -417,6 +516,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     motors::motors_off();
     led_on();
+    keep_reset_reason(REASON_PANIC);
     // The location and, when it has no arguments, the message, as defmt strings: formatting
     // the message with `core::fmt` would bring its machinery into the image (with
     // `InvalidField`'s `write!`, 620 bytes)

@@ -10,6 +10,15 @@
 //!
 //! [`motors_off`] writes the registers directly (no driver object, no lock), so the fault
 //! paths (panic, HardFault, the supervisor) can call it from any context, at once.
+//!
+//! A debugger's halt stops the core with every pin as it was: standby high and TIM1 still
+//! running its PWM would keep the motors driven for as long as the halt lasts (a
+//! breakpoint, `probe-rs` flashing with forces on). [`stop_in_debug`] makes the chip stop
+//! TIM1 whenever the core halts, and an advanced timer whose counter the debug halt stops
+//! disables its outputs as if `MOE` were cleared (RM0383, TIM1 "Debug mode"): with
+//! `OSSI` set they are driven to their idle level, low, so every PWM input sits low and the
+//! TB6612 brakes (the bridge's low sides on: no current from the supply) until the core
+//! runs again.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -39,6 +48,15 @@ pub fn motors_off() {
     for ch in 0..3 {
         pac::TIM1.ccr(ch).write(|w| w.set_ccr(0));
     }
+}
+
+/// TIM1, the only timer with motor outputs, stopped while a debugger halts the core, its
+/// outputs then at their idle level (low). Called once TIM1 is set up.
+pub fn stop_in_debug() {
+    pac::DBGMCU.apb2fzr().modify(|w| w.set_tim1(true));
+    pac::TIM1
+        .bdtr()
+        .modify(|w| w.set_ossi(pac::timer::vals::Ossi::IDLE_LEVEL));
 }
 
 /// The pen's three motor channels.

@@ -3,8 +3,11 @@
 //! stylus buttons. Read once per force tick, in the tick ([`JointSensors::read`]); the
 //! application unwraps, filters, debounces and calibrates ([`crate::app::SensorPen`]).
 //!
-//! Timing of one read at 96 MHz: three counter reads (a few cycles each) and three ADC
-//! conversions of 84 + 12 ADC cycles at 24 MHz (4 us each): about 15 us of the 1 ms tick.
+//! What one read costs: three counter reads (a few cycles each) and three ADC conversions
+//! of 84 + 12 ADC cycles each; but embassy's `blocking_read` switches the ADC off and on
+//! around every conversion and waits out its power-up each time, so each read pays that
+//! wait on top of its conversion (docs/figures.md has the total). One scan of the three
+//! channels with the ADC left on would save the waits.
 
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
 use embassy_stm32::gpio::Input;

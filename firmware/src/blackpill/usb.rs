@@ -10,7 +10,10 @@
 //! Receiving waits for room in the receive pipe (USB's flow control then holds the host
 //! back: nothing is dropped). While no terminal holds the port open (DTR low) the bytes the
 //! link sends are discarded, as a UART with nothing attached would: a closed port must not
-//! stall the link task.
+//! stall the link task. DTR is the host's "a program has the port open" (CDC-ACM's
+//! SET_CONTROL_LINE_STATE): Linux raises it when a tty is opened, Windows only when the
+//! program asks, so the host asks (`host/src/device/endpoint.rs`, `serial_settings`); a
+//! terminal program that leaves DTR off sees the pen accept commands and answer nothing.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 

@@ -3,7 +3,11 @@
 //! an input (the carriers' standby inputs are pulled low on the TB6612 boards: off).
 //!
 //! [`Stretch`] lengthens it for the one deliberate stall, a configuration-sector erase
-//! (1-2 s with the core waiting on flash), and puts it back after.
+//! (seconds with the core waiting on flash), and puts it back after.
+//!
+//! Once started, the IWDG runs until the next reset: nothing stops it. Only the debug halt
+//! freezes it ([`freeze_in_debug`]), and a fatal boot error feeds it ([`feed_now`], from
+//! `fatal`) rather than reset into the same error again and again.
 
 use embassy_stm32::pac;
 use embassy_stm32::pac::iwdg::vals::{Key, Pr};
@@ -35,8 +39,9 @@ fn set(pr: Pr, reload: u16) {
     w.kr().write(|k| k.set_key(Key::RESET));
 }
 
-/// The watchdog at about 8 s (LSI / 256, full reload: 8.2 s at 32 kHz, 5.6 s at the
-/// fastest LSI) while this value lives; [`TIMEOUT_US`] again after.
+/// The watchdog at its longest (LSI / 256, the full 12-bit reload: tens of seconds even at
+/// the fastest LSI the datasheet allows, far beyond a sector erase) while this value lives;
+/// [`TIMEOUT_US`] again after.
 pub struct Stretch {
     saved: (Pr, u16),
 }
@@ -55,6 +60,12 @@ impl Drop for Stretch {
     fn drop(&mut self) {
         set(self.saved.0, self.saved.1);
     }
+}
+
+/// Reloads the watchdog's counter from any context, without the driver object (a reload
+/// key write; harmless if the watchdog was never started).
+pub fn feed_now() {
+    pac::IWDG.kr().write(|k| k.set_key(Key::RESET));
 }
 
 /// Keeps the watchdog from resetting the chip while a debugger halts the core (probe-rs

@@ -14,7 +14,7 @@ use std::fmt;
 use std::path::Path;
 use std::time::Duration;
 
-use maobi_shared::pen_io::{ConfigState, DeviceConfig, InvalidField};
+use maobi_shared::pen_io::{ConfigState, DeviceConfig, InvalidField, OverCurrent};
 use maobi_shared::protocol::ConfigRejected;
 
 use super::bringup::Wire;
@@ -28,6 +28,9 @@ pub enum ConfigFileError {
     UnknownKeys(Vec<String>),
     /// A value out of its range.
     Invalid(InvalidField),
+    /// A duty clamp that lets a stalled motor draw more than the driver's rating (the same
+    /// check as [`Self::Invalid`]'s `drive[j].max_duty`, with the currents that explain it).
+    OverCurrent(OverCurrent),
 }
 
 impl fmt::Display for ConfigFileError {
@@ -44,6 +47,7 @@ impl fmt::Display for ConfigFileError {
                     .join(", ")
             ),
             ConfigFileError::Invalid(field) => write!(f, "{field}"),
+            ConfigFileError::OverCurrent(over) => write!(f, "{over}"),
         }
     }
 }
@@ -69,8 +73,33 @@ pub fn from_toml(text: &str) -> Result<DeviceConfig, ConfigFileError> {
     if !unknown.is_empty() {
         return Err(ConfigFileError::UnknownKeys(unknown));
     }
-    cfg.validate().map_err(ConfigFileError::Invalid)?;
+    // The pen's own validation; its over-current refusal is explained with the currents.
+    cfg.validate().map_err(|field| match cfg.over_current() {
+        Some(over) if field.field.ends_with("].max_duty") => ConfigFileError::OverCurrent(over),
+        _ => ConfigFileError::Invalid(field),
+    })?;
     Ok(cfg)
+}
+
+/// Each channel's current with its motor stalled at the duty clamp, and the driver's
+/// rating: what `maobi device config check` reports of a valid file.
+pub fn stall_currents(cfg: &DeviceConfig) -> String {
+    let each: Vec<String> = cfg
+        .drive
+        .iter()
+        .map(|d| {
+            format!(
+                "{:.2} A",
+                cfg.power.stall_current_a(d.max_duty, d.winding_ohm())
+            )
+        })
+        .collect();
+    format!(
+        "stall currents at the duty clamps {} (motors 1, 2, 3) at {} V, within the driver's {} A",
+        each.join(", "),
+        cfg.power.supply_v,
+        cfg.power.driver_current_a
+    )
 }
 
 /// Reads and validates a configuration file; errors name the file.
@@ -195,7 +224,11 @@ const COMMENTS: &[(&str, &str, &str)] = &[
         "+1 or -1: which way a rising count turns each joint",
     ),
     ("pen", "torque_constant", "motor torque constant (N m / A)"),
-    ("pen", "max_current", "motor current at full command (A)"),
+    (
+        "pen",
+        "max_current",
+        "motor current at full command (A): the stall current at the duty clamp, power.supply_v x drive.max_duty / the winding's resistance",
+    ),
     (
         "pen",
         "motor_sign",
@@ -228,12 +261,27 @@ const COMMENTS: &[(&str, &str, &str)] = &[
     (
         "drive",
         "max_duty",
-        "largest duty any command gets (fraction, above the deadband, at most 1)",
+        "largest duty any command gets (fraction, above the deadband, at most 1, and at most power.driver_current_a x the winding's resistance / power.supply_v, so that a stalled motor stays within the driver's rating)",
     ),
     (
         "drive",
         "zero",
         "what a zero command does: \"Coast\" (bridge off) or \"Brake\" (winding shorted)",
+    ),
+    (
+        "drive",
+        "winding_mohm",
+        "the motor's winding resistance (milliohms, at least 100): measured across its terminals with the shaft still, or rated voltage / stall current",
+    ),
+    (
+        "power",
+        "supply_v",
+        "motor supply at the drivers' VM (V), at most 13.5 (the TB6612's limit)",
+    ),
+    (
+        "power",
+        "driver_current_a",
+        "the driver's continuous current per channel (A): 1.2 for the TB6612 (its 3.2 A peak holds for milliseconds only)",
     ),
     ("limits", "peak_n", "largest force, briefly (N)"),
     (
@@ -282,6 +330,10 @@ const TABLE_COMMENTS: &[(&str, &str)] = &[
     (
         "drive",
         "One H-bridge channel per motor, in joint order (base, shoulder, elbow).",
+    ),
+    (
+        "power",
+        "The motor supply and the driver's rating: with each winding resistance they bound the duty.",
     ),
     (
         "limits",
@@ -473,6 +525,40 @@ mod tests {
         assert_eq!(f.field.as_str(), "drive[0].deadband");
         let text = to_toml(&DeviceConfig::DEFAULT, "t").replace("peak_n = 3.3", "peak_n = nan");
         assert!(matches!(from_toml(&text), Err(ConfigFileError::Invalid(_))));
+    }
+
+    #[test]
+    fn a_duty_that_would_overload_the_driver_is_refused_with_the_currents() {
+        let text = to_toml(&DeviceConfig::DEFAULT, "t");
+        assert!(stall_currents(&from_toml(&text).unwrap()).contains("1.09 A, 1.09 A, 1.09 A"));
+        // The old default duty clamp, 0.95, on motor 2: 5.18 A into a stalled motor.
+        let at = text.match_indices("max_duty = 0.2\n").nth(1).unwrap().0;
+        let bad = format!("{}max_duty = 0.95\n{}", &text[..at], &text[at + 15..]);
+        let e = from_toml(&bad).unwrap_err();
+        let ConfigFileError::OverCurrent(over) = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(over.channel, 1);
+        let said = e.to_string();
+        for part in [
+            "drive[1].max_duty = 0.95",
+            "5.18 A (12 V x 0.95 / 2.2 Ohm)",
+            "driver's rating of 1.2 A",
+            "at most 0.22",
+        ] {
+            assert!(said.contains(part), "{part}: {said}");
+        }
+        // A motor of lower resistance at the default clamp, a supply above the driver's.
+        let bad = text.replacen("winding_mohm = 2200", "winding_mohm = 1000", 1);
+        assert!(from_toml(&bad)
+            .unwrap_err()
+            .to_string()
+            .ends_with("at most 0.1"));
+        let bad = text.replace("supply_v = 12.0", "supply_v = 15.0");
+        assert!(from_toml(&bad)
+            .unwrap_err()
+            .to_string()
+            .starts_with("power.supply_v: 15"));
     }
 
     #[test]

@@ -125,16 +125,58 @@ impl Endpoint {
                 Err(last)
             }
             Endpoint::Serial(path) => {
-                let port = serialport::new(path, SERIAL_BAUD)
-                    .timeout(READ_POLL)
-                    .open()
-                    .map_err(io::Error::other)?;
-                // Stale bytes from an earlier session would only count as errors.
-                let _ = port.clear(serialport::ClearBuffer::All);
+                let mut port = serial_settings(path).open().map_err(io::Error::other)?;
+                prepare_serial(&mut port);
                 Ok(Box::new(SerialConn(port)))
             }
         }
     }
+}
+
+/// How a pen's serial port is opened: [`SERIAL_BAUD`], reads timing out after [`READ_POLL`],
+/// and DTR asserted on open.
+///
+/// The pen sends only while the host holds DTR (data terminal ready): that is how a USB
+/// CDC-ACM device knows a program has the port open, and the Black Pill's firmware discards
+/// what it would send until then (`firmware/src/blackpill/usb.rs`), as a UART with nothing
+/// attached would. Linux asserts DTR when a tty is opened; Windows does not, and serialport
+/// leaves it as the system has it unless told: without this the pen never answers there.
+pub fn serial_settings(path: &str) -> serialport::SerialPortBuilder {
+    serialport::new(path, SERIAL_BAUD)
+        .timeout(READ_POLL)
+        .dtr_on_open(true)
+}
+
+/// The modem-control lines and buffers of an open serial port: what [`prepare_serial`]
+/// touches, so that its sequence is tested without a port.
+pub trait SerialLines {
+    fn set_dtr(&mut self, on: bool) -> serialport::Result<()>;
+    fn set_rts(&mut self, on: bool) -> serialport::Result<()>;
+    fn clear_buffers(&mut self) -> serialport::Result<()>;
+}
+
+impl SerialLines for Box<dyn serialport::SerialPort> {
+    fn set_dtr(&mut self, on: bool) -> serialport::Result<()> {
+        self.write_data_terminal_ready(on)
+    }
+    fn set_rts(&mut self, on: bool) -> serialport::Result<()> {
+        self.write_request_to_send(on)
+    }
+    fn clear_buffers(&mut self) -> serialport::Result<()> {
+        self.clear(serialport::ClearBuffer::All)
+    }
+}
+
+/// Right after a pen's port is opened: DTR asserted (again: the builder's
+/// [`serial_settings`] asks for it on open, which some backends do only on a best-effort
+/// basis), RTS asserted as CDC hosts do, then stale bytes from an earlier session dropped
+/// (they would only count as errors). Each step is best effort: a pseudo-terminal (the
+/// tests' stand-in for a pen) has no modem lines and refuses them, and a port that does
+/// not answer without DTR shows as a handshake that times out.
+pub fn prepare_serial(port: &mut impl SerialLines) {
+    let _ = port.set_dtr(true);
+    let _ = port.set_rts(true);
+    let _ = port.clear_buffers();
 }
 
 /// A serial port and, for a USB one, its IDs.
@@ -244,6 +286,73 @@ pub fn usb_ids_from_sysfs(class_tty: &Path, port: &str) -> Option<UsbIds> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pen_port_is_opened_with_dtr_asserted() {
+        let s = serial_settings("/dev/ttyACM0");
+        // DTR set to on, not left as the system has it (Windows: off).
+        assert_ne!(s, s.clone().preserve_dtr_on_open());
+        assert_ne!(s, s.clone().dtr_on_open(false));
+        assert_eq!(s, s.clone().dtr_on_open(true));
+        assert_eq!(
+            s,
+            serialport::new("/dev/ttyACM0", SERIAL_BAUD)
+                .timeout(READ_POLL)
+                .dtr_on_open(true)
+        );
+    }
+
+    /// Records what [`prepare_serial`] does to the lines, failing as a pty does.
+    #[derive(Default)]
+    struct Lines {
+        calls: Vec<&'static str>,
+        refuse: bool,
+    }
+
+    impl SerialLines for Lines {
+        fn set_dtr(&mut self, on: bool) -> serialport::Result<()> {
+            self.calls.push(if on { "dtr on" } else { "dtr off" });
+            self.result()
+        }
+        fn set_rts(&mut self, on: bool) -> serialport::Result<()> {
+            self.calls.push(if on { "rts on" } else { "rts off" });
+            self.result()
+        }
+        fn clear_buffers(&mut self) -> serialport::Result<()> {
+            self.calls.push("clear");
+            self.result()
+        }
+    }
+
+    impl Lines {
+        fn result(&self) -> serialport::Result<()> {
+            if self.refuse {
+                Err(serialport::Error::new(
+                    serialport::ErrorKind::Unknown,
+                    "not a tty with modem lines",
+                ))
+            } else {
+                Ok(())
+            }
+        }
+    }
+
+    #[test]
+    fn opening_asserts_dtr_and_rts_then_drops_stale_bytes() {
+        for refuse in [false, true] {
+            let mut lines = Lines {
+                refuse,
+                ..Lines::default()
+            };
+            prepare_serial(&mut lines);
+            // Every step runs even where the lines are refused (a pty).
+            assert_eq!(
+                lines.calls,
+                ["dtr on", "rts on", "clear"],
+                "refuse {refuse}"
+            );
+        }
+    }
 
     /// A sysfs tree as Linux lays it out for a CDC-ACM device and a plain UART.
     #[test]

@@ -29,16 +29,23 @@
 //!
 //! postcard is already the wire protocol's encoding (the same serde derives serve
 //! [`crate::protocol::HostMsg::SetConfig`]); it is compact and bounded. It has no schema
-//! evolution, so any change to [`DeviceConfig`]'s layout increments [`CONFIG_FORMAT_VERSION`]
-//! and an older image is reported as [`ConfigError::UnsupportedVersion`]: the pen starts safe
-//! (no force) and the builder writes the configuration again.
+//! evolution, so any change to [`DeviceConfig`]'s layout increments [`CONFIG_FORMAT_VERSION`].
+//! An image of another version is reported as [`ConfigError::UnsupportedVersion`]: the pen
+//! starts safe (no force) and the builder writes the configuration again.
+//!
+//! * 1: the first format.
+//! * 2: each motor's winding resistance ([`DriveConfig::winding_mohm`]) and the motor supply
+//!   and driver rating ([`PowerConfig`]), which bound the duty. A format-1 image is not
+//!   migrated: it lacks exactly what bounds the motor current, so no migration could put
+//!   it in force without the builder's values (and reading it cost the pen's image more
+//!   flash than its budget had left); the handshake says "format version 1".
 
 use core::fmt;
 
 use heapless::String;
 use serde::{Deserialize, Serialize};
 
-use crate::force::{DeviceLimits, LimitError, PHANTOM_OMNI};
+use crate::force::{check, DeviceLimits, LimitError, PHANTOM_OMNI};
 use crate::kinematics::{PenConfig, RawReadings};
 use crate::protocol::crc32;
 
@@ -47,16 +54,16 @@ use super::drive::DriveConfig;
 /// First four bytes of every configuration image.
 pub const CONFIG_MAGIC: [u8; 4] = *b"MBCF";
 /// Version of the image's payload layout; any change to [`DeviceConfig`] increments it.
-pub const CONFIG_FORMAT_VERSION: u16 = 1;
+pub const CONFIG_FORMAT_VERSION: u16 = 2;
 /// Magic, version and length.
 pub const IMAGE_HEADER_LEN: usize = 8;
 const CRC_LEN: usize = 4;
 /// Longest postcard encoding of a [`DeviceConfig`]: 30 `f32` and 9 `i8` in the pen
 /// (120 + 9 bytes) and its three `u32` counts (5 bytes each at most); per drive channel a
-/// `u32` (5), two `f32` (8) and the policy (1); 7 `f32` limits (28); the calibration's
-/// option tag (1), three `i64` (10 each) and three `i32` (5 each). Test
-/// `longest_payload_is_the_bound` encodes a config with every varint at its longest.
-pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 14 + 28 + 1 + 30 + 15;
+/// `u32` (5), two `f32` (8), the policy (1) and a `u16` (3); the power's two `f32` (8); 7 `f32` limits
+/// (28); the calibration's option tag (1), three `i64` (10 each) and three `i32` (5 each).
+/// Test `longest_payload_is_the_bound` encodes a config with every varint at its longest.
+pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 17 + 8 + 28 + 1 + 30 + 15;
 /// Longest image: header, payload and CRC. A flash page for the image needs this much.
 pub const CONFIG_IMAGE_MAX: usize = IMAGE_HEADER_LEN + CONFIG_PAYLOAD_MAX + CRC_LEN;
 /// Capacity of a field's name in [`InvalidField`] (`"drive[2].max_duty"`).
@@ -70,6 +77,9 @@ pub struct DeviceConfig {
     pub pen: PenConfig,
     /// One H-bridge channel per motor.
     pub drive: [DriveConfig; 3],
+    /// The motor supply and the driver's current rating: with each channel's winding
+    /// resistance they bound its duty.
+    pub power: PowerConfig,
     /// The force limits of this pen's motors.
     pub limits: DeviceLimits,
     /// The raw readings with the pen resting in its inkwell ([`crate::kinematics::Pen::calibrate`]);
@@ -83,12 +93,19 @@ impl DeviceConfig {
     pub const DEFAULT: DeviceConfig = DeviceConfig {
         pen: PenConfig::OMNI_LIKE,
         drive: [DriveConfig::DEFAULT; 3],
+        power: PowerConfig::DEFAULT,
         limits: PHANTOM_OMNI,
         calibration: None,
     };
 
     /// Every value within its range; the first one that is not, by name
-    /// (`"pen.ratio"`, `"drive[1].deadband"`, `"limits.peak_n"`).
+    /// (`"pen.ratio"`, `"drive[1].deadband"`, `"limits.peak_n"`). A channel whose
+    /// `max_duty` would let its stalled motor draw more than the driver's rating
+    /// ([`Self::over_current`]) is reported as `drive[j].max_duty` with the largest duty
+    /// that does not as the range's top.
+    ///
+    /// The one validation of a configuration: the pen runs it on every image it loads and
+    /// every `SetConfig`, the host on every file before it sends it.
     pub fn validate(&self) -> Result<(), InvalidField> {
         self.pen
             .validate()
@@ -97,14 +114,150 @@ impl DeviceConfig {
             d.validate()
                 .map_err(|e| InvalidField::new("drive", Some(j), e))?;
         }
+        self.power
+            .validate()
+            .map_err(|e| InvalidField::new("power.", None, e))?;
+        if let Some(over) = self.over_current() {
+            let d = self.drive.get(over.channel).copied().unwrap_or_default();
+            return Err(InvalidField::new(
+                "drive",
+                Some(over.channel),
+                LimitError {
+                    name: "max_duty",
+                    value: d.max_duty,
+                    min: d.deadband + 0.05,
+                    max: over.duty_limit,
+                },
+            ));
+        }
         self.limits
             .validate()
             .map_err(|e| InvalidField::new("limits.", None, e))
     }
 
+    /// The first channel whose duty clamp lets its motor, stalled, draw more than the
+    /// driver's rating: `power.supply_v * max_duty / R > power.driver_current_a`.
+    /// A stalled motor is the haptic pen's usual state (the hand holds the stylus against
+    /// the force), and with no back-EMF the winding's resistance alone sets the current.
+    pub fn over_current(&self) -> Option<OverCurrent> {
+        self.drive.iter().enumerate().find_map(|(channel, d)| {
+            let duty_limit = self.power.duty_limit(d.winding_ohm());
+            // A NaN anywhere compares as nothing: over the limit.
+            let within = d
+                .max_duty
+                .partial_cmp(&duty_limit)
+                .is_some_and(core::cmp::Ordering::is_le);
+            (!within).then_some(OverCurrent {
+                channel,
+                max_duty: d.max_duty,
+                winding_ohm: d.winding_ohm(),
+                supply_v: self.power.supply_v,
+                stall_a: self.power.stall_current_a(d.max_duty, d.winding_ohm()),
+                rating_a: self.power.driver_current_a,
+                duty_limit,
+            })
+        })
+    }
+
     /// Whether forces may be rendered with this configuration: valid and calibrated.
     pub fn ready_for_forces(&self) -> bool {
         self.validate().is_ok() && self.calibration.is_some()
+    }
+}
+
+/// The motor supply and the H-bridge driver, for every channel.
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PowerConfig {
+    /// The motor supply at the drivers' VM pins (V). At most [`Self::MAX_SUPPLY_V`].
+    pub supply_v: f32,
+    /// The driver's continuous (average) output current per channel (A): the TB6612's
+    /// 1.2 A, not its 3.2 A peak, which holds only for a pulse of milliseconds, while a
+    /// haptic pen holds a stall for as long as the hand pushes.
+    pub driver_current_a: f32,
+}
+
+impl PowerConfig {
+    /// A 12 V supply and TB6612 drivers (the bill of materials).
+    pub const DEFAULT: PowerConfig = PowerConfig {
+        supply_v: 12.0,
+        driver_current_a: 1.2,
+    };
+    /// The TB6612's largest operating motor supply (V). Back-driven motors pump the supply
+    /// above its nominal value, so a 12 V supply needs the bulk capacitance and clamp the
+    /// builder's guide gives.
+    pub const MAX_SUPPLY_V: f32 = 13.5;
+    /// Smallest supply accepted (V).
+    pub const MIN_SUPPLY_V: f32 = 1.0;
+    /// Largest driver rating accepted (A).
+    pub const MAX_DRIVER_CURRENT_A: f32 = 10.0;
+
+    pub fn validate(&self) -> Result<(), LimitError> {
+        check(
+            "supply_v",
+            self.supply_v,
+            Self::MIN_SUPPLY_V,
+            Self::MAX_SUPPLY_V,
+        )?;
+        check(
+            "driver_current_a",
+            self.driver_current_a,
+            0.01,
+            Self::MAX_DRIVER_CURRENT_A,
+        )
+    }
+
+    /// The largest duty that keeps a stalled motor of `winding_ohm` within the driver's
+    /// rating: `driver_current_a * winding_ohm / supply_v`, at most 1.
+    pub fn duty_limit(&self, winding_ohm: f32) -> f32 {
+        (self.driver_current_a * winding_ohm / self.supply_v).min(1.0)
+    }
+
+    /// The current a stalled motor of `winding_ohm` draws at `duty` (A).
+    pub fn stall_current_a(&self, duty: f32, winding_ohm: f32) -> f32 {
+        self.supply_v * duty / winding_ohm
+    }
+}
+
+impl Default for PowerConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// A channel whose duty clamp lets its stalled motor draw more than the driver's rating
+/// ([`DeviceConfig::over_current`]), with the figures that say so.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct OverCurrent {
+    pub channel: usize,
+    pub max_duty: f32,
+    pub winding_ohm: f32,
+    pub supply_v: f32,
+    /// `supply_v * max_duty / winding_ohm` (A).
+    pub stall_a: f32,
+    /// `power.driver_current_a` (A).
+    pub rating_a: f32,
+    /// The largest `max_duty` within the rating ([`PowerConfig::duty_limit`]).
+    pub duty_limit: f32,
+}
+
+impl fmt::Display for OverCurrent {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // The suggestion rounded down, so that it passes the check it comes from.
+        let suggest = libm::floorf(self.duty_limit * 1000.0) / 1000.0;
+        write!(
+            f,
+            "drive[{}].max_duty = {} lets the stalled motor draw {:.2} A ({} V x {} / {} Ohm), \
+             more than the driver's rating of {} A (power.driver_current_a); with this motor \
+             and supply, max_duty may be at most {}",
+            self.channel,
+            self.max_duty,
+            self.stall_a,
+            self.supply_v,
+            self.max_duty,
+            self.winding_ohm,
+            self.rating_a,
+            suggest
+        )
     }
 }
 
@@ -350,8 +503,15 @@ pub fn encode(cfg: &DeviceConfig, out: &mut [u8]) -> Result<usize, ConfigError> 
 }
 
 /// Reads an image from the start of `image` (bytes after its end are ignored: a flash page
-/// is larger than the image). Never panics, whatever the bytes.
+/// is larger than the image) and validates it. Never panics, whatever the bytes.
 pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
+    let cfg = decode_unchecked(image)?;
+    cfg.validate().map_err(ConfigError::Invalid)?;
+    Ok(cfg)
+}
+
+/// [`decode`] without the validation: the configuration an intact image holds.
+fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
     let header_part = image.get(..IMAGE_HEADER_LEN).unwrap_or(image);
     if !header_part.is_empty() && header_part.iter().all(|&b| b == 0xFF) {
         return Err(ConfigError::Erased);
@@ -393,12 +553,10 @@ pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
         });
     }
     let payload = body.get(IMAGE_HEADER_LEN..).ok_or(ConfigError::Truncated)?;
-    let cfg = match postcard::take_from_bytes::<DeviceConfig>(payload) {
-        Ok((cfg, [])) => cfg,
-        _ => return Err(ConfigError::Undecodable),
-    };
-    cfg.validate().map_err(ConfigError::Invalid)?;
-    Ok(cfg)
+    match postcard::take_from_bytes::<DeviceConfig>(payload) {
+        Ok((cfg, [])) => Ok(cfg),
+        _ => Err(ConfigError::Undecodable),
+    }
 }
 
 /// All erased flash (`0xFF`) or all zero (RAM where nothing was loaded).

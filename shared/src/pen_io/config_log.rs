@@ -220,6 +220,46 @@ impl<F: NorFlash, const SLOT: usize> ConfigLog<F, SLOT> {
         Ok(())
     }
 
+    /// Takes the region over from whatever else wrote it, so that the first save does not
+    /// stall on an erase: a board calls this once at boot, before anything is timed.
+    ///
+    /// The region is the log's own when its newest committed slot holds an image starting
+    /// with `magic` (the configuration image's [`super::CONFIG_MAGIC`]), or when it is all
+    /// erased: then nothing is touched. Otherwise it holds nothing a load would ever hand
+    /// out as a configuration (another firmware's data, such as the demo a board ships
+    /// with; the start of a first save cut short; a committed image that is not one of
+    /// ours), and every sector that is not blank is erased now. Without this the first
+    /// save would find no erased slot and erase a sector while the host waits for its
+    /// answer. Returns the number of sectors erased.
+    pub fn reclaim(&mut self, magic: &[u8]) -> Result<u32, LogError<F::Error>> {
+        if let Some(i) = self.newest {
+            let mut head = [0u8; CHUNK];
+            let head = head.get_mut(..magic.len()).ok_or(LogError::TooLarge)?;
+            self.flash
+                .read(Self::offset(self.region, i), head)
+                .map_err(LogError::Flash)?;
+            if head == magic {
+                return Ok(0);
+            }
+        }
+        // Nothing here is a save of ours, whatever the erases below leave.
+        self.newest = None;
+        self.next_seq = 1;
+        let per = Self::SLOTS_PER_SECTOR;
+        let mut erased = 0;
+        for sector in 0..self.region.sectors {
+            if self.blank(sector * per, per)? {
+                continue;
+            }
+            let from = Self::offset(self.region, sector * per);
+            self.flash
+                .erase(from, from + F::ERASE_SIZE as u32)
+                .map_err(LogError::Flash)?;
+            erased += 1;
+        }
+        Ok(erased)
+    }
+
     /// The newest committed slot's index over the region (for tests and logs).
     pub fn newest_slot(&self) -> Option<u32> {
         self.newest

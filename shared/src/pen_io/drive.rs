@@ -13,6 +13,9 @@
 //!   out of the bridge's and the motor's dead zone (a duty below it moves no current through
 //!   the winding's inductance and the brushes' friction), so that small forces are felt at
 //!   all; the clamp keeps the duty, and so the current, within what the motor and supply take.
+//!   The clamp is bounded in turn by the motor's winding resistance, the supply and the
+//!   driver's rating ([`super::PowerConfig::duty_limit`], checked by
+//!   [`super::DeviceConfig::validate`]): at stall the winding carries `supply * duty / R`.
 //! * the sign of `c` is the direction (`c > 0`: [`Direction::Forward`]).
 
 use serde::{Deserialize, Serialize};
@@ -54,10 +57,17 @@ pub struct DriveConfig {
     /// Duty (fraction of the period) the smallest non-zero command gets: the bridge's and
     /// the motor's dead zone. 0 ..= 0.5.
     pub deadband: f32,
-    /// Largest duty (fraction of the period) any command gets; above `deadband`, at most 1.
+    /// Largest duty (fraction of the period) any command gets; above `deadband`, at most 1,
+    /// and at most what keeps this motor's stall current within the driver's rating
+    /// ([`super::PowerConfig::duty_limit`]).
     pub max_duty: f32,
     /// What a zero command does.
     pub zero: ZeroPolicy,
+    /// The motor's winding (terminal) resistance in milliohms: at stall, with no back-EMF,
+    /// it alone sets the current a duty drives (`supply * duty / R`). At least 100 (0.1 Ohm),
+    /// at most 65,535 (65.5 Ohm). Milliohms in a `u16` rather than ohms in an `f32`: the
+    /// channel's settings keep their size (the firmware holds several copies in RAM).
+    pub winding_mohm: u16,
 }
 
 /// The bridge's inputs for one channel for one tick.
@@ -71,15 +81,21 @@ pub struct DriveOutput {
 }
 
 impl DriveConfig {
-    /// 25 kHz, 4% deadband, 95% duty at most, coast at zero: a DRV8833 or TB6612 with a small
-    /// brushed DC motor. The deadband is a starting point; the bring-up procedure measures it
-    /// (the smallest nudge that turns the motor).
+    /// 25 kHz, 4% deadband, coast at zero, a 2.2 Ohm winding (a 12 V motor that stalls at
+    /// about 5.5 A, such as the bill of materials' Pololu 37D) and a duty clamp of 20%,
+    /// which keeps that motor's stall current at 12 V within a TB6612's continuous rating
+    /// ([`super::PowerConfig::DEFAULT`]). The deadband is a starting point; the bring-up
+    /// procedure measures it (the smallest nudge that turns the motor).
     pub const DEFAULT: DriveConfig = DriveConfig {
         pwm_hz: 25_000,
         deadband: 0.04,
-        max_duty: 0.95,
+        max_duty: 0.2,
         zero: ZeroPolicy::Coast,
+        winding_mohm: 2200,
     };
+
+    /// Smallest winding resistance accepted (milliohms).
+    pub const MIN_WINDING_MOHM: u16 = 100;
 
     /// Smallest PWM frequency accepted (Hz): above hearing.
     pub const MIN_PWM_HZ: u32 = 20_000;
@@ -111,7 +127,18 @@ impl DriveConfig {
         check("deadband", self.deadband, 0.0, 0.5)?;
         // Some range must be left between the deadband and the clamp, or every command would
         // get the same duty.
-        check("max_duty", self.max_duty, self.deadband + 0.05, 1.0)
+        check("max_duty", self.max_duty, self.deadband + 0.05, 1.0)?;
+        check(
+            "winding_mohm",
+            f32::from(self.winding_mohm),
+            f32::from(Self::MIN_WINDING_MOHM),
+            f32::from(u16::MAX),
+        )
+    }
+
+    /// The winding resistance in ohms.
+    pub fn winding_ohm(&self) -> f32 {
+        f32::from(self.winding_mohm) / 1000.0
     }
 
     /// Timer counts per PWM period for a timer counting at `timer_hz`: `timer_hz / pwm_hz`,

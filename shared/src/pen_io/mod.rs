@@ -15,7 +15,10 @@
 //!   it is calibrated ([`Readiness`], [`ZeroHold`]).
 //!
 //! * [`config_log`]: where the image lives in NOR flash, a log of slots that survives a
-//!   power loss at any moment ([`ConfigLog`], over `embedded-storage`'s `NorFlash`).
+//!   power loss at any moment ([`ConfigLog`], over `embedded-storage`'s `NorFlash`), and
+//!   takes over sectors another firmware left data in ([`ConfigLog::reclaim`]).
+//! * [`flash_acr`]: the STM32F4 flash accelerator's register values at boot and after every
+//!   flash write or erase (prefetch, caches, their reset).
 //!
 //! Encoder unwrapping is [`crate::kinematics::EncoderUnwrap`] (tested in
 //! `shared/tests/pen_io.rs` too).
@@ -35,12 +38,13 @@ pub mod adc;
 pub mod config;
 pub mod config_log;
 pub mod drive;
+pub mod flash_acr;
 
 pub use adc::AdcFilter;
 pub use config::{
-    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, Readiness, ZeroHold,
-    CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN,
-    IMAGE_HEADER_LEN,
+    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, OverCurrent, PowerConfig,
+    Readiness, ZeroHold, CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX,
+    FIELD_LEN, IMAGE_HEADER_LEN,
 };
 pub use config_log::{ConfigLog, LogError, Region};
 pub use drive::{Direction, DriveConfig, DriveOutput, ZeroPolicy, ZERO_COMMAND};

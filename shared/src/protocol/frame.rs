@@ -19,7 +19,10 @@ use serde::{Deserialize, Serialize};
 /// * 3: the stored configuration and bring-up: `DeviceInfo::config`, `HostMsg::GetConfig` /
 ///   `SetConfig`, `DeviceMsg::Config` / `Sensors`, `Command::StreamSensors` / `NudgeMotor`,
 ///   four `CommandError`s, `Capabilities::STORED_CONFIG`; host frames up to 512 bytes.
-pub const PROTOCOL_VERSION: u8 = 3;
+/// * 4: `DeviceConfig` carries each motor's winding resistance (`DriveConfig::winding_mohm`)
+///   and the motor supply and driver rating (`DeviceConfig::power`), which bound the duty
+///   (configuration image format 2).
+pub const PROTOCOL_VERSION: u8 = 4;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

@@ -140,16 +140,14 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    // One substep per 1 ms tick: the only rate within the 50,000-instruction budget (half a
-    // millisecond of this core, the rest left for USB, the link and flash wait states).
-    // `hil bench` (Cortex-M4 under QEMU, large brush, worst of 600 ticks, this image's code
-    // generation) counts 47,825 instructions at 1 substep, 68,905 at 2 and 578,785 at the
-    // presets' 25; at 96 MHz and roughly one instruction per cycle one substep takes about
-    // 0.51 ms of the 1 ms, two about 0.72 ms.
+    // One substep per 1 ms tick: the only rate whose worst tick `hil bench` counts within the
+    // 50,000-instruction budget (half a millisecond of this core, the rest left for USB, the
+    // link and flash wait states); two substeps, and the presets' 25, do not fit
+    // (docs/figures.md has the counts).
     // The cost of the rate: large steps damp the spine, so the hairs creep back after a
-    // press (1.2 mm from rest after 0.5 s, 0.14 mm after 3 s, against 0.025 mm after 0.5 s
-    // at 25 kHz); rest, stability and the bend under load hold
-    // (`shared/tests/model.rs`, `shared/tests/properties.rs`). Not measured on a board yet.
+    // press instead of springing back (`shared/tests/model.rs` prints how far); rest,
+    // stability and the bend under load hold (`shared/tests/model.rs`,
+    // `shared/tests/properties.rs`). Not measured on a board yet.
     substeps_per_tick: Some(1),
 };
 
@@ -191,8 +189,9 @@ use embassy_stm32::pac::interrupt;
 #[cortex_m_rt::entry]
 fn main() -> ! {
     // Everything built at boot is built in `start`'s frame, which is gone before the executor
-    // runs: `main` never returns, so what its own frame held (the peripherals' drivers, the
-    // USB builder: 7 KB) would sit under the tasks' and the interrupts' stack for good.
+    // runs: `main` never returns, so what its own frame held (the peripherals' drivers and
+    // the USB builder, kilobytes) would sit under the tasks' and the interrupts' stack for
+    // good.
     let (usb_parts, link_parts, led) = start();
     crate::executor::run(move |spawner: Spawner| {
         spawner.spawn(
@@ -518,9 +517,8 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     led_on();
     keep_reset_reason(REASON_PANIC);
     // The location and, when it has no arguments, the message, as defmt strings: formatting
-    // the message with `core::fmt` would bring its machinery into the image (with
-    // `InvalidField`'s `write!`, 620 bytes)
-    // for a path that runs at most once. A message with arguments shows its location only.
+    // the message with `core::fmt` would bring its machinery into an image that has to fit
+    // 128 KiB, for a path that runs at most once. A message with arguments shows its location only.
     let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
     let message = info.message().as_str().unwrap_or("(a message with arguments)");
     defmt::error!("FATAL panic at {=str}:{=u32}: {=str}; motors off", file, line, message);

@@ -36,8 +36,9 @@ pub const USB_MANUFACTURER: &str = "Maobi";
 const PACKET: usize = 64;
 /// Host to device: a few packets; the link task empties it every half tick.
 const RX_CAP: usize = 512;
-/// Device to host: one state frame of the large brush with room to spare (852-1275 bytes
-/// measured) plus events; a frame is queued whole or not at all (`Link::try_send`), so the
+/// Device to host: one state frame of the large brush (under a kilobyte and a half: test
+/// `state_frame_size_and_link_share` and `hil run`'s `bytes_per_state`) with room to spare,
+/// plus events; a frame is queued whole or not at all (`Link::try_send`), so the
 /// largest frame the link sends must fit. The largest device message is 4,114 bytes
 /// (`DeviceMsg::MAX_FRAME`); it never occurs in practice, and a frame that does not fit is
 /// dropped and counted like any state frame that finds the pipe full.

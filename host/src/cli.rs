@@ -438,7 +438,7 @@ fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
 fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     use crate::phantom::device::BridgeModel;
     use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
-    let lib = std::sync::Arc::new(HdLib::find(a.phantom.hd_lib.as_deref())?);
+    let lib = HdLib::find(a.phantom.hd_lib.as_deref())?;
     eprintln!(
         "maobi bridge: loaded {} (from {})",
         lib.path().display(),
@@ -450,6 +450,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         state_hz: a.state_hz,
         forces_on: !a.no_forces,
         stop_after_ticks: a.stop_after_ticks,
+        panic_at_tick: None,
     };
     let bridge = Bridge::start(lib.clone(), &opts)?;
     let limits = bridge.limits();

@@ -164,7 +164,7 @@ impl Device for PhantomDevice {
         })?;
         let mut opts = self.opts.clone();
         opts.preset = self.preset.clone();
-        let bridge = Bridge::start(Arc::new(lib), &opts).map_err(|e| {
+        let bridge = Bridge::start(lib, &opts).map_err(|e| {
             let e = DeviceError::Link(format!("{e:#}"));
             self.last_error = Some(e.to_string());
             e

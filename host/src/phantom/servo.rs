@@ -594,6 +594,9 @@ pub struct BridgeOptions {
     pub forces_on: bool,
     /// Stop by itself after this many servo ticks (scripted runs and tests).
     pub stop_after_ticks: Option<u32>,
+    /// Fault injection for the tests of the recovery path: the model's step panics at this
+    /// servo tick, as a bug in it would.
+    pub panic_at_tick: Option<u32>,
 }
 
 impl Default for BridgeOptions {
@@ -604,6 +607,7 @@ impl Default for BridgeOptions {
             state_hz: 120,
             forces_on: true,
             stop_after_ticks: None,
+            panic_at_tick: None,
         }
     }
 }
@@ -816,6 +820,7 @@ struct ServoCtx {
     shared: Arc<ServoShared>,
     state_hz: u32,
     stop_after: Option<u32>,
+    panic_at: Option<u32>,
 }
 
 impl ServoCtx {
@@ -845,6 +850,9 @@ impl ServoCtx {
                 return self.finish(0, HdErrorInfo::none());
             }
             self.shared.apply_pending(&mut self.core);
+            if self.panic_at == Some(self.core.tick().wrapping_add(1)) {
+                panic!("injected");
+            }
             let force = self.core.step(&m, buttons);
             (f.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
             (f.end_frame)(self.hhd);
@@ -925,7 +933,7 @@ impl HdErrorInfo {
 
 /// The scheduler callback: one servo frame. A panic inside (a bug) must not unwind into C:
 /// it is caught, the force zeroed, and the callback unschedules itself.
-unsafe extern "C" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
+unsafe extern "system" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
     if user_data.is_null() {
         return HD_CALLBACK_DONE;
     }
@@ -1050,6 +1058,7 @@ impl Bridge {
             shared: shared.clone(),
             state_hz: opts.state_hz,
             stop_after: opts.stop_after_ticks,
+            panic_at: opts.panic_at_tick,
         }));
         // SAFETY: `ctx` stays valid until `shutdown`, after hdStopScheduler.
         let handle = unsafe {

@@ -437,7 +437,8 @@ fn injected_hd_error_zeroes_the_force_and_stops_cleanly() {
         log.contains("Communication error with the device (maobi stand-in)"),
         "hdGetErrorString's text is reported:\n{log}"
     );
-    assert!(log.contains(&format!("servo tick {AT}")), "{log}");
+    // The stand-in's tick AT (counted from 0) is the servo loop's tick AT + 1.
+    assert!(log.contains(&format!("servo tick {}", AT + 1)), "{log}");
     let got = read_record(&record);
     assert!(
         norm(got[AT - 1]) > 0.1,
@@ -1203,7 +1204,8 @@ fn a_scheduler_error_stops_the_loop_cleanly() {
     );
     match &run.stopped {
         Some(Stopped::HdError { tick, info, text }) => {
-            assert_eq!(*tick, AT as u32);
+            // The stand-in's tick AT (from 0) is the servo loop's tick AT + 1 (from 1).
+            assert_eq!(*tick, AT as u32 + 1);
             assert_eq!(info.error_code, hd::HD_TIMER_ERROR, "{text}");
             assert!(text.contains("Timer error"), "{text}");
         }
@@ -1234,10 +1236,11 @@ fn a_panic_in_the_step_still_closes_its_one_frame() {
         |_| {},
     );
     assert_eq!(run.stopped, Some(Stopped::Panicked(AT as u32)));
+    // Servo tick AT (from 1) is the stand-in's record row AT - 1 (from 0).
     let f = &run.record;
-    assert!(norm(f[AT - 1]) > 0.1);
-    assert_eq!(f[AT], [0.0; 3], "zero committed in the tick of the panic");
-    assert!(f[AT..].iter().all(|v| *v == [0.0; 3]));
+    assert!(norm(f[AT - 2]) > 0.1);
+    assert_eq!(f[AT - 1], [0.0; 3], "zero committed in the tick of the panic");
+    assert!(f[AT - 1..].iter().all(|v| *v == [0.0; 3]));
     assert_eq!(run.summary["frame_errors"], "0", "{:?}", run.summary);
     assert_eq!(run.summary["frames_left_open"], "0");
 }

@@ -165,11 +165,12 @@ pub struct PhantomArgs {
     #[arg(long, value_name = "X,Z", default_value = "0,0", value_parser = parse_origin, allow_hyphen_values = true)]
     pub origin: [f64; 2],
     /// Device height (mm) of the ferrule at the paper; both stylus buttons together
-    /// recalibrate it (hold the brush tip just touching the paper).
+    /// recalibrate it (hold the brush tip just touching the paper). The default sits above
+    /// the stylus resting in its inkwell.
     #[arg(
         long,
         value_name = "MM",
-        default_value = "-60",
+        default_value_t = crate::phantom::servo::DEFAULT_PAPER_HEIGHT_MM,
         allow_negative_numbers = true
     )]
     pub paper_height: f64,
@@ -471,12 +472,37 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         a.brush.name,
         limits.peak_n,
         limits.continuous_n,
-        if a.no_forces { "off" } else { "ramping in" },
+        if a.no_forces {
+            "off"
+        } else {
+            "on once the brush is lifted clear above the paper"
+        },
         server.addr(),
         server.addr()
     );
     let signalled = stop_on_signals();
+    // What the user should know (the inkwell, forces waiting, device warnings), each time it
+    // changes.
+    let mut said: Vec<String> = Vec::new();
+    let mut warnings_seen = 0;
     while !shared.done() && !signalled.load(std::sync::atomic::Ordering::Relaxed) {
+        let (warnings, last) = shared.warnings();
+        if warnings != warnings_seen {
+            warnings_seen = warnings;
+            if let Some((e, tick)) = last {
+                eprintln!(
+                    "maobi bridge: device warning {} at servo tick {tick}: forces off and the \
+                     brush at rest; clear the fault (the host's ClearFaults, or stylus button 2) \
+                     to go on",
+                    crate::phantom::hd::error_name(e.error_code)
+                );
+            }
+        }
+        let notices = shared.notices(maobi_shared::protocol::Faults::empty());
+        for n in notices.iter().filter(|n| !said.contains(n)) {
+            eprintln!("maobi bridge: {n}");
+        }
+        said = notices;
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     if signalled.load(std::sync::atomic::Ordering::Relaxed) {

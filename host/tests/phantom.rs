@@ -1129,6 +1129,8 @@ fn a_device_warning_mid_stroke_zeroes_the_force_and_the_loop_goes_on() {
     const CLEAR: u32 = 600;
     let ticks = (n + HOLD_TICKS) as u32;
     let mut cleared_at = None;
+    let mut notices = Vec::new();
+    let mut warnings = (0, None);
     let run = run_in_process(
         "warn",
         &format!("poses={};error={AT}:0x0203", poses.display()),
@@ -1138,10 +1140,25 @@ fn a_device_warning_mid_stroke_zeroes_the_force_and_the_loop_goes_on() {
         },
         |s| {
             if cleared_at.is_none() && s.ticks() >= CLEAR {
+                notices = s.notices(maobi_shared::protocol::Faults::DEVICE_WARNING);
+                warnings = s.warnings();
                 s.send(maobi::phantom::ServoCommand::ClearFaults);
                 cleared_at = Some(s.ticks());
             }
         },
+    );
+    // The warning as the user hears of it: which one, and when (the stand-in's tick AT is
+    // the servo loop's AT + 1).
+    let (count, last) = warnings;
+    assert_eq!(count, 1);
+    let (info, tick) = last.expect("the last warning");
+    assert_eq!(info.error_code, hd::HD_EXCEEDED_MAX_VELOCITY);
+    assert_eq!(tick, AT as u32 + 1);
+    assert!(
+        notices
+            .iter()
+            .any(|n| n.contains("HD_EXCEEDED_MAX_VELOCITY") && n.contains("cleared")),
+        "{notices:?}"
     );
     assert_eq!(
         run.stopped,

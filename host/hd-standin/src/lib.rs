@@ -768,7 +768,7 @@ fn scheduler(stop: &AtomicBool) {
             d.rate_hz.max(1)
         });
         tick += 1;
-        let due = start + Duration::from_nanos(tick * 1_000_000_000 / rate);
+        let due = start + Duration::from_nanos(tick * 1_000_000_000 / u64::from(rate));
         let now = Instant::now();
         if due > now {
             std::thread::sleep(due - now);

@@ -4,10 +4,28 @@
 //! (HD_CURRENT_TRANSFORM) mapped to the paper by a [`Mapping`], one `Brush<Fx>` tick, the
 //! force model and the output stage (limits from the device's own HD_NOMINAL_MAX_FORCE and
 //! HD_NOMINAL_MAX_CONTINUOUS_FORCE, ramp-in on enable), the command mapped back to device
-//! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback between
-//! `hdBeginFrame`/`hdEndFrame` and checks `hdGetError` every frame: on any error the force
-//! of that very callback is zero, the callback unschedules itself, and the error (with
-//! `hdGetErrorString`'s text) is reported to whoever watches the bridge.
+//! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback.
+//!
+//! # One frame per tick, the force decided inside it
+//! libHD allows one `hdBeginFrame`/`hdEndFrame` pair per servo tick (a second is refused with
+//! HD_ILLEGAL_BEGIN, and its force never reaches the motors). So each callback opens exactly
+//! one frame, reads the pose and the whole HD error stack, decides the force (zero on any
+//! fault: an error, a stop, the tick limit, a panic in the model, which is caught inside the
+//! frame) and commits it with the frame's end. Errors are sorted as the SDK's `hduError`
+//! helpers sort them ([`super::hd::classify`]): a device warning (force, force impulse,
+//! velocity, warm motors) zeroes the force, restarts the brush at rest and latches
+//! [`Faults::DEVICE_WARNING`] until the user clears it, and the loop goes on; anything else
+//! (communication, configuration, timer, scheduler errors; device faults; a misused call)
+//! stops it, reported with `hdGetErrorString`'s text.
+//!
+//! # Calibration and the safe start
+//! `hdCheckCalibration` runs at the first tick, when the user calibrates, and periodically;
+//! when the library can update the calibration the callback does (`hdUpdateCalibration`, in
+//! its frame), and the jump of the pose that follows is no sensor jump: the brush starts
+//! afresh at the new pose. While the library asks for the inkwell, [`Faults::NOT_CALIBRATED`]
+//! is reported and forces are held. Forces asked for at start wait until the stylus has been
+//! seen with the brush clear above the paper (a stylus resting in the inkwell is below it),
+//! unless the user enables them.
 //!
 //! # Why `Fx` and not `f32`
 //! Measured by `servo_step_cost` in `host/tests/phantom.rs` (the test profile, opt-level 2,
@@ -1758,6 +1776,102 @@ mod tests {
         assert!(!core.faults().is_empty());
         // Stays at zero until cleared, whatever the pose.
         assert_eq!(core.step(&m, 0), [0.0; 3]);
+    }
+
+    /// The stylus held upright at device height `y` (mm), as a transform.
+    fn upright_at(y: f64) -> [f64; 16] {
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        transform_of_pose([0.0, y, 0.0], Quat::new(h, -h, 0.0, 0.0))
+    }
+
+    #[test]
+    fn the_safe_start_waits_for_the_brush_above_the_paper() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        // In the inkwell, below the paper: held, whatever the model would push.
+        for _ in 0..600 {
+            assert_eq!(core.step(&upright_at(-65.6), 0), [0.0; 3]);
+        }
+        assert!(core.awaiting_lift() && !core.forces_enabled());
+        // Lifted (as a hand does, no sensor jump) until the ferrule is just under a brush
+        // length above the paper: still held.
+        let paper = Mapping::default().paper_height_mm;
+        let below = paper + params.length_mm as f64 - 0.5;
+        let mut y = -65.6;
+        while y < below {
+            y = (y + 0.1).min(below);
+            assert_eq!(core.step(&upright_at(y), 0), [0.0; 3]);
+        }
+        assert!(core.awaiting_lift() && core.faults().is_empty());
+        core.step(&upright_at(paper + params.length_mm as f64 + 0.5), 0);
+        assert!(!core.awaiting_lift() && core.forces_enabled());
+        // The user's explicit enable skips the wait.
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        core.step(&upright_at(-65.6), 0);
+        core.apply(ServoCommand::EnableForces(true));
+        core.step(&upright_at(-65.6), 0);
+        assert!(core.forces_enabled());
+        // Asked for no forces: none, wherever the stylus goes.
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), false).unwrap();
+        core.step(&upright_at(0.0), 0);
+        assert!(!core.awaiting_lift() && !core.forces_enabled());
+    }
+
+    #[test]
+    fn calibration_holds_forces_and_an_update_is_no_jump() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        core.set_uncalibrated(true);
+        for _ in 0..10 {
+            core.step(&upright_at(20.0), 0);
+        }
+        assert_eq!(core.faults(), Faults::NOT_CALIBRATED);
+        assert!(!core.forces_enabled(), "held while the inkwell is wanted");
+        core.device_recalibrated();
+        assert_eq!(core.hold_tick(), [0.0; 3]);
+        // 30 mm lower at once: the calibrated pose, no sensor jump.
+        core.step(&upright_at(-10.0), 0);
+        assert!(core.faults().is_empty(), "{:?}", core.faults());
+        assert!(core.forces_enabled());
+        let z = core.state().unwrap().handle.pose().pos.z.to_f64();
+        assert!((z - 50.0).abs() < 1e-6, "{z}");
+        // The same jump without the update is one.
+        core.step(&upright_at(20.0), 0);
+        assert!(core.faults().contains(Faults::SENSOR_JUMP));
+    }
+
+    #[test]
+    fn a_device_warning_latches_until_cleared() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        for _ in 0..10 {
+            core.step(&upright_at(-10.0), 0);
+        }
+        core.device_warning();
+        assert_eq!(core.step(&upright_at(-30.0), 0), [0.0; 3]);
+        assert_eq!(core.faults(), Faults::DEVICE_WARNING);
+        core.apply(ServoCommand::EnableForces(true));
+        assert!(!core.forces_enabled(), "enabling waits for the clear");
+        core.apply(ServoCommand::ClearFaults);
+        core.step(&upright_at(-30.0), 0);
+        assert!(core.faults().is_empty() && core.forces_enabled());
+    }
+
+    #[test]
+    fn the_calibration_style_prefers_what_needs_no_help() {
+        assert_eq!(calibration_style(0), None);
+        assert_eq!(
+            calibration_style(HD_CALIBRATION_ENCODER_RESET | HD_CALIBRATION_INKWELL),
+            Some(HD_CALIBRATION_INKWELL as HdEnum)
+        );
+        assert_eq!(
+            calibration_style(7),
+            Some(HD_CALIBRATION_AUTO as HdEnum)
+        );
+        assert_eq!(
+            calibration_style(HD_CALIBRATION_ENCODER_RESET),
+            Some(HD_CALIBRATION_ENCODER_RESET as HdEnum)
+        );
     }
 
     #[test]

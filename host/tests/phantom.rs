@@ -68,12 +68,7 @@ fn standin() -> PathBuf {
     found
         .pop()
         .map(|(_, p)| p)
-        .unwrap_or_else(|| {
-            panic!(
-                "no {prefix}*{DLL_SUFFIX} near {}",
-                exe.display()
-            )
-        })
+        .unwrap_or_else(|| panic!("no {prefix}*{DLL_SUFFIX} near {}", exe.display()))
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -659,7 +654,11 @@ fn the_standin_is_as_strict_as_libhd() {
     assert_eq!(got[0], [0.0; 3]);
     assert!((norm(got[2]) - 3.3).abs() < 1e-12, "{:?}", got[2]);
     assert_eq!(got[3], [0.5, 0.0, 0.0]);
-    assert_eq!(got[4], [0.5, 0.0, 0.0], "the open frame's zero was not committed");
+    assert_eq!(
+        got[4],
+        [0.5, 0.0, 0.0],
+        "the open frame's zero was not committed"
+    );
 }
 
 /// The servo step's cost, `Fx` (what the bridge runs) and `f32`, on the hook stroke.
@@ -1181,21 +1180,28 @@ fn a_device_warning_mid_stroke_zeroes_the_force_and_the_loop_goes_on() {
         .collect();
     assert!(!latched.is_empty());
     assert!(
-        latched.iter().all(|s| !s.faults.is_empty() && !s.haptics.enabled),
+        latched
+            .iter()
+            .all(|s| !s.faults.is_empty() && !s.haptics.enabled),
         "{:?}",
         latched.iter().map(|s| s.faults).collect::<Vec<_>>()
     );
-    assert!(latched
-        .iter()
-        .all(|s| s.faults.contains(maobi_shared::protocol::Faults::DEVICE_WARNING)));
+    assert!(latched.iter().all(|s| s
+        .faults
+        .contains(maobi_shared::protocol::Faults::DEVICE_WARNING)));
     let later: Vec<&BrushState> = run
         .states
         .range(cleared as u32 + 20..)
         .map(|(_, s)| s)
         .collect();
-    assert!(later.iter().all(|s| s.faults.is_empty() && s.haptics.enabled));
+    assert!(later
+        .iter()
+        .all(|s| s.faults.is_empty() && s.haptics.enabled));
     // The stroke is felt again after the clear (it presses until about tick 1080).
-    let peak = f[cleared..1080].iter().map(|v| norm(*v)).fold(0.0, f64::max);
+    let peak = f[cleared..1080]
+        .iter()
+        .map(|v| norm(*v))
+        .fold(0.0, f64::max);
     assert!(peak > 0.1, "largest force after the clear {peak} N");
     assert_eq!(run.summary["frame_errors"], "0");
     assert_eq!(run.summary["violations"], "0");
@@ -1212,7 +1218,10 @@ fn a_scheduler_error_stops_the_loop_cleanly() {
     let run = run_in_process(
         "sched",
         // Pushed in this order: the warning is on top of the stack.
-        &format!("poses={};error={AT}:0x0304;error={AT}:0x0203", poses.display()),
+        &format!(
+            "poses={};error={AT}:0x0304;error={AT}:0x0203",
+            poses.display()
+        ),
         BridgeOptions {
             stop_after_ticks: Some((n + HOLD_TICKS) as u32),
             ..BridgeOptions::default()
@@ -1256,7 +1265,11 @@ fn a_panic_in_the_step_still_closes_its_one_frame() {
     // Servo tick AT (from 1) is the stand-in's record row AT - 1 (from 0).
     let f = &run.record;
     assert!(norm(f[AT - 2]) > 0.1);
-    assert_eq!(f[AT - 1], [0.0; 3], "zero committed in the tick of the panic");
+    assert_eq!(
+        f[AT - 1],
+        [0.0; 3],
+        "zero committed in the tick of the panic"
+    );
     assert!(f[AT - 1..].iter().all(|v| *v == [0.0; 3]));
     assert_eq!(run.summary["frame_errors"], "0", "{:?}", run.summary);
     assert_eq!(run.summary["frames_left_open"], "0");
@@ -1340,7 +1353,10 @@ fn the_stylus_in_the_inkwell_gets_no_force_until_it_is_above_the_paper() {
     let mut csv = String::from("t,x,y,z,qw,qx,qy,qz\n");
     let mut t = 0.0;
     while t <= 2.5 + 1e-9 {
-        let k = keys.windows(2).position(|w| t <= w[1].0).unwrap_or(keys.len() - 2);
+        let k = keys
+            .windows(2)
+            .position(|w| t <= w[1].0)
+            .unwrap_or(keys.len() - 2);
         let (a, b) = (keys[k], keys[k + 1]);
         let y = a.1 + (b.1 - a.1) * ((t - a.0) / (b.0 - a.0)).clamp(0.0, 1.0);
         csv.push_str(&format!("{t},0,{y},0,{h},{},0,0\n", -h));
@@ -1369,8 +1385,14 @@ fn the_stylus_in_the_inkwell_gets_no_force_until_it_is_above_the_paper() {
         "a force before the brush was above the paper: {:?}",
         f[..clear_tick].iter().find(|v| **v != [0.0; 3])
     );
-    let held: Vec<&BrushState> = run.states.range(..clear_tick as u32).map(|(_, s)| s).collect();
-    assert!(held.iter().all(|s| !s.haptics.enabled && s.faults.is_empty()));
+    let held: Vec<&BrushState> = run
+        .states
+        .range(..clear_tick as u32)
+        .map(|(_, s)| s)
+        .collect();
+    assert!(held
+        .iter()
+        .all(|s| !s.haptics.enabled && s.faults.is_empty()));
     assert!(run
         .states
         .range(clear_tick as u32 + 10..)
@@ -1435,11 +1457,9 @@ fn libhd_is_loaded_once_per_process() {
         .any(|l| std::fs::canonicalize(l.path()).ok() == std::fs::canonicalize(standin()).ok()));
     let lib = HdLib::open(&standin(), Source::Flag).unwrap();
     configure(&lib, "");
-    let mut d = maobi::phantom::device::PhantomDevice::new(
-        Some(standin()),
-        BridgeOptions::default(),
-    )
-    .unwrap();
+    let mut d =
+        maobi::phantom::device::PhantomDevice::new(Some(standin()), BridgeOptions::default())
+            .unwrap();
     use maobi::gui::device::Device;
     for _ in 0..2 {
         d.connect().unwrap();

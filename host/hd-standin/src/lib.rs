@@ -444,7 +444,8 @@ impl Device {
         for code in due {
             self.push_error(code);
         }
-        if self.config.inkwell_at == Some(k) && self.calibration == HD_CALIBRATION_NEEDS_MANUAL_INPUT
+        if self.config.inkwell_at == Some(k)
+            && self.calibration == HD_CALIBRATION_NEEDS_MANUAL_INPUT
         {
             // The stylus went into the inkwell: the library now has what it needs.
             self.calibration = HD_CALIBRATION_NEEDS_UPDATE;
@@ -768,6 +769,8 @@ fn scheduler(stop: &AtomicBool) {
             d.rate_hz.max(1)
         });
         tick += 1;
+        // `c_ulong` is 64 bits on Linux, 32 on Windows.
+        #[allow(clippy::useless_conversion)]
         let due = start + Duration::from_nanos(tick * 1_000_000_000 / u64::from(rate));
         let now = Instant::now();
         if due > now {

@@ -8,9 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use maobi_shared::protocol::{
-    BrushState, Capabilities, Command, CommandError, Faults, PoseSample,
-};
+use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, Faults, PoseSample};
 use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;

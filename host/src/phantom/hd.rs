@@ -34,8 +34,7 @@ pub type HdSchedulerHandle = c_ulong;
 pub type HdString = *const c_char;
 
 /// `HDSchedulerCallback`: `HDCALLBACK`, `__stdcall` on Windows (see the module docs).
-pub type HdSchedulerCallback =
-    unsafe extern "system" fn(user_data: *mut c_void) -> HdCallbackCode;
+pub type HdSchedulerCallback = unsafe extern "system" fn(user_data: *mut c_void) -> HdCallbackCode;
 
 /// `HDErrorInfo`, which `hdGetError` returns by value.
 #[repr(C)]

@@ -1109,8 +1109,7 @@ impl ServoCtx {
                 Ok(Err(err)) => outcome = Outcome::Stop(2, err),
                 Err(_) => outcome = Outcome::Stop(3, HdErrorInfo::none()),
             }
-            if matches!(outcome, Outcome::Continue) && self.stop_after.is_some_and(|n| tick >= n)
-            {
+            if matches!(outcome, Outcome::Continue) && self.stop_after.is_some_and(|n| tick >= n) {
                 outcome = Outcome::Stop(1, HdErrorInfo::none());
             }
         }
@@ -1517,11 +1516,7 @@ impl Bridge {
         }
         // SAFETY: `ctx` stays valid until `shutdown`, after hdStopScheduler.
         let handle = unsafe {
-            (f.schedule_asynchronous)(
-                servo_callback,
-                bridge.ctx.cast(),
-                HD_MAX_SCHEDULER_PRIORITY,
-            )
+            (f.schedule_asynchronous)(servo_callback, bridge.ctx.cast(), HD_MAX_SCHEDULER_PRIORITY)
         };
         if let Some(e) = take_error() {
             return Err(hd_err("hdScheduleAsynchronous failed", e));
@@ -1864,10 +1859,7 @@ mod tests {
             calibration_style(HD_CALIBRATION_ENCODER_RESET | HD_CALIBRATION_INKWELL),
             Some(HD_CALIBRATION_INKWELL as HdEnum)
         );
-        assert_eq!(
-            calibration_style(7),
-            Some(HD_CALIBRATION_AUTO as HdEnum)
-        );
+        assert_eq!(calibration_style(7), Some(HD_CALIBRATION_AUTO as HdEnum));
         assert_eq!(
             calibration_style(HD_CALIBRATION_ENCODER_RESET),
             Some(HD_CALIBRATION_ENCODER_RESET as HdEnum)

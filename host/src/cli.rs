@@ -485,15 +485,19 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     // changes.
     let mut said: Vec<String> = Vec::new();
     let mut warnings_seen = 0;
+    // A device that raises a warning every tick is reported once a second, not each time.
+    let mut warned_at: Option<std::time::Instant> = None;
     while !shared.done() && !signalled.load(std::sync::atomic::Ordering::Relaxed) {
         let (warnings, last) = shared.warnings();
-        if warnings != warnings_seen {
+        let quiet = warned_at.is_some_and(|t| t.elapsed() < std::time::Duration::from_secs(1));
+        if warnings != warnings_seen && !quiet {
             warnings_seen = warnings;
+            warned_at = Some(std::time::Instant::now());
             if let Some((e, tick)) = last {
                 eprintln!(
-                    "maobi bridge: device warning {} at servo tick {tick}: forces off and the \
-                     brush at rest; clear the fault (the host's ClearFaults, or stylus button 2) \
-                     to go on",
+                    "maobi bridge: device warning {} at servo tick {tick} ({warnings} so far): \
+                     forces off and the brush at rest; clear the fault (the host's ClearFaults, \
+                     or stylus button 2) to go on",
                     crate::phantom::hd::error_name(e.error_code)
                 );
             }

@@ -1467,3 +1467,33 @@ fn libhd_is_loaded_once_per_process() {
     }
     assert_eq!(HdLib::loaded().len(), count, "no second copy was loaded");
 }
+
+/// `maobi bridge` (a process) with a device warning mid-stroke: it says which warning and how
+/// to go on, keeps running to its tick limit and exits zero.
+#[test]
+fn maobi_bridge_reports_a_device_warning_and_runs_on() {
+    let (poses, n) = hook_script("bridge_warn_device.csv");
+    let record = scratch("bridge_warn_record.csv");
+    let config = format!(
+        "poses={};record={};error=400:0x0203",
+        poses.display(),
+        record.display()
+    );
+    let (mut child, addr, log) = spawn_bridge(&config, n + HOLD_TICKS);
+    let states = tcp_states(&addr);
+    let status = wait(&mut child, &log);
+    let log = log.lock().unwrap().clone();
+    assert!(status.success(), "{log}");
+    assert!(
+        log.contains("device warning HD_EXCEEDED_MAX_VELOCITY at servo tick 401")
+            && log.contains("clear the fault"),
+        "{log}"
+    );
+    assert!(log.contains("stopped after"), "{log}");
+    assert!(states.iter().any(|s| s
+        .faults
+        .contains(maobi_shared::protocol::Faults::DEVICE_WARNING)));
+    let got = read_record(&record);
+    assert_eq!(got[400], [0.0; 3]);
+    assert_eq!(read_summary(&record)["frame_errors"], "0");
+}

@@ -192,6 +192,7 @@ fn spawn_bridge(
                 }
                 log.lock().unwrap().push_str(&(line + "\n"));
             }
+            log.lock().unwrap().push_str(STDERR_CLOSED);
         });
     }
     let addr = rx
@@ -206,10 +207,18 @@ fn spawn_bridge(
     (child, addr, log)
 }
 
+/// The last line of a bridge's log: its stderr has been read to the end.
+const STDERR_CLOSED: &str = "(stderr closed)\n";
+
+/// Waits for the bridge to exit, and for its stderr to be read to the end (the reader thread
+/// may still be behind when the process has gone, on a loaded machine).
 fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::ExitStatus {
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         if let Some(s) = child.try_wait().unwrap() {
+            while !log.lock().unwrap().ends_with(STDERR_CLOSED) && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(5));
+            }
             return s;
         }
         if Instant::now() > deadline {

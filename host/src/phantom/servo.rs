@@ -1523,10 +1523,12 @@ impl Bridge {
         }
         bridge.handle = Some(handle);
         unsafe { (f.start_scheduler)() };
+        // Even if it reports an error, the scheduler may have begun: the teardown stops it
+        // before the callback's context is freed.
+        bridge.started = true;
         if let Some(e) = take_error() {
             return Err(hd_err("hdStartScheduler: cannot start the servo loop", e));
         }
-        bridge.started = true;
         Ok(bridge)
     }
 

@@ -166,11 +166,12 @@ pub struct PhantomArgs {
     #[arg(long, value_name = "X,Z", default_value = "0,0", value_parser = parse_origin, allow_hyphen_values = true)]
     pub origin: [f64; 2],
     /// Device height (mm) of the ferrule at the paper; both stylus buttons together
-    /// recalibrate it (hold the brush tip just touching the paper).
+    /// recalibrate it (hold the brush tip just touching the paper). The default sits above
+    /// the stylus resting in its inkwell.
     #[arg(
         long,
         value_name = "MM",
-        default_value = "-60",
+        default_value_t = crate::phantom::servo::DEFAULT_PAPER_HEIGHT_MM,
         allow_negative_numbers = true
     )]
     pub paper_height: f64,
@@ -484,7 +485,7 @@ fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
 fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     use crate::phantom::device::BridgeModel;
     use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
-    let lib = std::sync::Arc::new(HdLib::find(a.phantom.hd_lib.as_deref())?);
+    let lib = HdLib::find(a.phantom.hd_lib.as_deref())?;
     eprintln!(
         "maobi bridge: loaded {} (from {})",
         lib.path().display(),
@@ -496,6 +497,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         state_hz: a.state_hz,
         forces_on: !a.no_forces,
         stop_after_ticks: a.stop_after_ticks,
+        panic_at_tick: None,
     };
     let bridge = Bridge::start(lib.clone(), &opts)?;
     let limits = bridge.limits();
@@ -516,12 +518,41 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         a.brush.name,
         limits.peak_n,
         limits.continuous_n,
-        if a.no_forces { "off" } else { "ramping in" },
+        if a.no_forces {
+            "off"
+        } else {
+            "on once the brush is lifted clear above the paper"
+        },
         server.addr(),
         server.addr()
     );
     let signalled = stop_on_signals();
+    // What the user should know (the inkwell, forces waiting, device warnings), each time it
+    // changes.
+    let mut said: Vec<String> = Vec::new();
+    let mut warnings_seen = 0;
+    // A device that raises a warning every tick is reported once a second, not each time.
+    let mut warned_at: Option<std::time::Instant> = None;
     while !shared.done() && !signalled.load(std::sync::atomic::Ordering::Relaxed) {
+        let (warnings, last) = shared.warnings();
+        let quiet = warned_at.is_some_and(|t| t.elapsed() < std::time::Duration::from_secs(1));
+        if warnings != warnings_seen && !quiet {
+            warnings_seen = warnings;
+            warned_at = Some(std::time::Instant::now());
+            if let Some((e, tick)) = last {
+                eprintln!(
+                    "maobi bridge: device warning {} at servo tick {tick} ({warnings} so far): \
+                     forces off and the brush at rest; clear the fault (the host's ClearFaults, \
+                     or stylus button 2) to go on",
+                    crate::phantom::hd::error_name(e.error_code)
+                );
+            }
+        }
+        let notices = shared.notices(maobi_shared::protocol::Faults::empty());
+        for n in notices.iter().filter(|n| !said.contains(n)) {
+            eprintln!("maobi bridge: {n}");
+        }
+        said = notices;
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     if signalled.load(std::sync::atomic::Ordering::Relaxed) {

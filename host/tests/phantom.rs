@@ -8,7 +8,13 @@
 //!   GUI's `--device phantom` falls back to the simulator saying why;
 //! * an HD error injected mid-stroke zeroes the force in that very callback, is reported with
 //!   `hdGetErrorString`'s text, and the bridge stops cleanly;
-//! * the stand-in saw no force above the device's limit (and does catch one when sent).
+//! * the stand-in saw no force above the device's limit (and does catch one when sent);
+//! * the stand-in is as strict as libHD about frames (one per tick, none nested), and against
+//!   it: a device warning mid-stroke zeroes the force and latches a fault while the loop goes
+//!   on; a scheduler error stops it cleanly; a panic in the step still closes its one frame; a
+//!   calibration update is no sensor jump; the stylus resting in the inkwell gets no force
+//!   until it has been above the paper; a failed setup call is reported by name; libHD is
+//!   loaded once per process.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -18,7 +24,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::phantom::hd::{self, HdErrorInfo};
-use maobi::phantom::loader::{HdLib, Source, DEFAULT_PATHS};
+use maobi::phantom::loader::{default_candidates, HdLib, Source, HD_LIB_NAME};
 use maobi::phantom::servo::{pose_of_transform, transform_of_pose, Mapping, ServoCore};
 use maobi::phantom::{Bridge, BridgeOptions, Stopped};
 use maobi::poses::PoseTrack;
@@ -36,9 +42,12 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The stand-in cdylib: cargo builds it (as a dev-dependency) into the directory of this
-/// test binary, or a workspace build uplifts it one level up.
+/// The stand-in cdylib (`libmaobi_hd_standin.so`, `maobi_hd_standin.dll`): cargo builds it
+/// (as a dev-dependency) into the directory of this test binary, or a workspace build uplifts
+/// it one level up.
 fn standin() -> PathBuf {
+    use std::env::consts::{DLL_PREFIX, DLL_SUFFIX};
+    let prefix = format!("{DLL_PREFIX}maobi_hd_standin");
     let exe = std::env::current_exe().expect("the test binary's path");
     let deps = exe.parent().expect("the test binary's directory");
     let mut found: Vec<(std::time::SystemTime, PathBuf)> = Vec::new();
@@ -48,7 +57,7 @@ fn standin() -> PathBuf {
         };
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
-            if name.starts_with("libmaobi_hd_standin") && name.ends_with(".so") {
+            if name.starts_with(&prefix) && name.ends_with(DLL_SUFFIX) {
                 if let Ok(t) = e.metadata().and_then(|m| m.modified()) {
                     found.push((t, e.path()));
                 }
@@ -59,7 +68,7 @@ fn standin() -> PathBuf {
     found
         .pop()
         .map(|(_, p)| p)
-        .unwrap_or_else(|| panic!("no libmaobi_hd_standin*.so near {}", exe.display()))
+        .unwrap_or_else(|| panic!("no {prefix}*{DLL_SUFFIX} near {}", exe.display()))
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -183,6 +192,7 @@ fn spawn_bridge(
                 }
                 log.lock().unwrap().push_str(&(line + "\n"));
             }
+            log.lock().unwrap().push_str(STDERR_CLOSED);
         });
     }
     let addr = rx
@@ -197,10 +207,18 @@ fn spawn_bridge(
     (child, addr, log)
 }
 
+/// The last line of a bridge's log: its stderr has been read to the end.
+const STDERR_CLOSED: &str = "(stderr closed)\n";
+
+/// Waits for the bridge to exit, and for its stderr to be read to the end (the reader thread
+/// may still be behind when the process has gone, on a loaded machine).
 fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::ExitStatus {
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         if let Some(s) = child.try_wait().unwrap() {
+            while !log.lock().unwrap().ends_with(STDERR_CLOSED) && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(5));
+            }
             return s;
         }
         if Instant::now() > deadline {
@@ -314,13 +332,14 @@ fn bridge_plays_the_hook_with_the_models_forces_and_streams_its_states() {
         ticks - 1
     );
 
-    // (e) The stand-in checked every frame against its limit.
+    // (e) The stand-in checked every frame against its limit, and saw one frame per tick.
     let summary = read_summary(&record);
     assert_eq!(summary["violations"], "0", "{summary:?}");
+    assert_eq!(summary["frame_errors"], "0", "{summary:?}");
     assert!(summary["max_force_n"].parse::<f64>().unwrap() <= 3.3);
 
     // (b) The same run in this process, through the same loader.
-    let lib = Arc::new(HdLib::open(&standin(), Source::Flag).expect("the stand-in loads"));
+    let lib = HdLib::open(&standin(), Source::Flag).expect("the stand-in loads");
     let record2 = scratch("hook_record_inproc.csv");
     configure(
         &lib,
@@ -422,7 +441,8 @@ fn injected_hd_error_zeroes_the_force_and_stops_cleanly() {
         log.contains("Communication error with the device (maobi stand-in)"),
         "hdGetErrorString's text is reported:\n{log}"
     );
-    assert!(log.contains(&format!("servo tick {AT}")), "{log}");
+    // The stand-in's tick AT (counted from 0) is the servo loop's tick AT + 1.
+    assert!(log.contains(&format!("servo tick {}", AT + 1)), "{log}");
     let got = read_record(&record);
     assert!(
         norm(got[AT - 1]) > 0.1,
@@ -432,13 +452,15 @@ fn injected_hd_error_zeroes_the_force_and_stops_cleanly() {
     assert_eq!(got[AT], [0.0; 3], "zero in the callback that saw the error");
     assert!(got[AT..].iter().all(|f| *f == [0.0; 3]), "and after it");
     assert_eq!(read_summary(&record)["violations"], "0");
+    assert_eq!(read_summary(&record)["frame_errors"], "0");
     assert!(states.iter().all(|s| s.tick <= AT as u32));
 }
 
 /// No library: every place looked in, a non-zero exit.
 #[test]
 fn without_a_library_the_bridge_says_where_it_looked() {
-    if DEFAULT_PATHS.iter().any(|p| Path::new(p).exists()) {
+    let defaults = default_candidates();
+    if defaults.iter().any(|(p, _)| p.exists()) {
         eprintln!("skipped: OpenHaptics is installed on this machine");
         return;
     }
@@ -450,11 +472,12 @@ fn without_a_library_the_bridge_says_where_it_looked() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    for p in DEFAULT_PATHS {
-        assert!(err.contains(p), "{p} missing from:\n{err}");
+    for (p, _) in &defaults {
+        let p = p.display().to_string();
+        assert!(err.contains(&p), "{p} missing from:\n{err}");
     }
     assert!(
-        err.contains("libHD.so") && err.contains("MAOBI_HD_LIB") && err.contains("--hd-lib"),
+        err.contains(HD_LIB_NAME) && err.contains("MAOBI_HD_LIB") && err.contains("--hd-lib"),
         "{err}"
     );
 
@@ -486,6 +509,7 @@ fn without_a_library_the_bridge_says_where_it_looked() {
 }
 
 /// A library without the HD symbols: the error names the file and the first missing symbol.
+#[cfg(target_os = "linux")]
 #[test]
 fn a_library_without_the_symbols_names_the_missing_one() {
     let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
@@ -560,22 +584,31 @@ fn the_top_level_device_flag_accepts_phantom() {
     assert!(maobi::cli::Cli::try_parse_from(["maobi", "--device", "phantom", "trace"]).is_err());
 }
 
-/// The stand-in really checks the limit: a force above it is counted and raises
-/// HD_EXCEEDED_MAX_FORCE (so the zero-violation checks above can fail).
+/// The stand-in really checks the limit (a force above it is counted, and raises
+/// HD_EXCEEDED_MAX_FORCE unless the library's clamping is on) and the frames (one per tick,
+/// none nested; a force reaches the motors only when its frame ends), so the checks above
+/// can fail.
 #[test]
-fn the_standin_catches_a_force_above_the_limit() {
+fn the_standin_is_as_strict_as_libhd() {
     let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
     let lib = HdLib::open(&standin(), Source::Flag).unwrap();
     let record = scratch("violation.csv");
     configure(&lib, &format!("record={}", record.display()));
     let f = lib.fns();
     type Count = extern "C" fn() -> u64;
-    // SAFETY: the stand-in's control function, with its declared type.
-    let violations: Count = unsafe { lib.extra("maobi_standin_violations") }.unwrap();
-    // SAFETY: the HD API as declared, on one thread.
+    // SAFETY: the stand-in's control functions, with their declared types.
+    let (violations, frame_errors, tick): (Count, Count, Count) = unsafe {
+        (
+            lib.extra("maobi_standin_violations").unwrap(),
+            lib.extra("maobi_standin_frame_errors").unwrap(),
+            lib.extra("maobi_standin_tick").unwrap(),
+        )
+    };
+    // SAFETY: the HD API as declared, on one thread (no scheduler: `tick` runs the ticks).
     unsafe {
         let h = (f.init_device)(hd::HD_DEFAULT_DEVICE);
         assert_ne!(h, hd::HD_INVALID_HANDLE);
+        (f.enable)(hd::HD_FORCE_OUTPUT);
         let before = violations();
         (f.begin_frame)(h);
         (f.set_doublev)(hd::HD_CURRENT_FORCE, [3.0, 2.0, 0.0].as_ptr());
@@ -583,13 +616,58 @@ fn the_standin_catches_a_force_above_the_limit() {
         let e: HdErrorInfo = (f.get_error)();
         assert_eq!(e.error_code, hd::HD_EXCEEDED_MAX_FORCE);
         assert_eq!(violations(), before + 1);
+        tick();
         (f.begin_frame)(h);
         (f.set_doublev)(hd::HD_CURRENT_FORCE, [3.0, 1.0, 0.0].as_ptr());
         (f.end_frame)(h);
         assert!(!(f.get_error)().is_error(), "3.16 N is within 3.3 N");
+        tick();
+        // With the library's clamping on, no error: the force is clamped (and counted).
+        (f.enable)(hd::HD_MAX_FORCE_CLAMPING);
+        (f.begin_frame)(h);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [3.0, 2.0, 0.0].as_ptr());
+        (f.end_frame)(h);
+        assert!(!(f.get_error)().is_error(), "clamped silently");
+        assert_eq!(violations(), before + 2);
+        // A second frame in the same tick is refused, and so is its force.
+        assert_eq!(frame_errors(), 0);
+        (f.begin_frame)(h);
+        assert_eq!((f.get_error)().error_code, hd::HD_ILLEGAL_BEGIN);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [0.0; 3].as_ptr());
+        assert_eq!((f.get_error)().error_code, hd::HD_INVALID_OPERATION);
+        (f.end_frame)(h);
+        assert_eq!((f.get_error)().error_code, hd::HD_ILLEGAL_END);
+        tick();
+        // A nested frame is refused; the outer one still commits.
+        (f.begin_frame)(h);
+        (f.begin_frame)(h);
+        assert_eq!((f.get_error)().error_code, hd::HD_ILLEGAL_BEGIN);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [0.5, 0.0, 0.0].as_ptr());
+        (f.end_frame)(h);
+        assert!(!(f.get_error)().is_error());
+        assert_eq!(frame_errors(), 3);
+        tick();
+        // A frame left open at the end of its tick commits nothing.
+        (f.begin_frame)(h);
+        (f.set_doublev)(hd::HD_CURRENT_FORCE, [0.0; 3].as_ptr());
+        tick();
+        assert_eq!(frame_errors(), 4);
         (f.disable_device)(h);
     }
-    assert_eq!(read_summary(&record)["violations"], "1");
+    let summary = read_summary(&record);
+    assert_eq!(summary["violations"], "2");
+    assert_eq!(summary["frames_left_open"], "1");
+    let got = read_record(&record);
+    // Tick 0: refused (zero); tick 2: the clamped force, the refused second frame's zero
+    // never reached the motors; tick 4: the open frame's zero was not committed either.
+    assert_eq!(got[0], [0.0; 3]);
+    assert!((norm(got[2]) - 3.3).abs() < 1e-12, "{:?}", got[2]);
+    assert_eq!(got[3], [0.5, 0.0, 0.0]);
+    assert_eq!(
+        got[4],
+        [0.5, 0.0, 0.0],
+        "the open frame's zero was not committed"
+    );
 }
 
 /// The servo step's cost, `Fx` (what the bridge runs) and `f32`, on the hook stroke.
@@ -661,7 +739,7 @@ fn stylus_buttons_toggle_forces_calibrate_and_dip() {
     let poses = scratch("buttons.csv");
     std::fs::write(&poses, csv).unwrap();
     let record = scratch("buttons_record.csv");
-    let lib = Arc::new(HdLib::open(&standin(), Source::Flag).unwrap());
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
     configure(
         &lib,
         &format!("poses={};record={}", poses.display(), record.display()),
@@ -726,6 +804,7 @@ fn stylus_buttons_toggle_forces_calibrate_and_dip() {
 
 /// Ctrl-C (SIGINT) stops `maobi bridge` through its shutdown: zero force, the device
 /// released (the stand-in writes its record only then), a zero exit.
+#[cfg(unix)]
 #[test]
 fn sigint_stops_the_bridge_cleanly() {
     let (device, _) = hook_device_poses();
@@ -994,4 +1073,436 @@ fn the_gui_device_guides_the_stylus() {
     assert!(pull > 0.1, "{pull}");
     assert!(peak <= PHANTOM_OMNI.peak_n as f64 + 1e-9, "{peak}");
     assert_eq!(read_summary(&record)["violations"], "0");
+}
+
+/// One in-process bridge run on the stand-in, to its end.
+struct Run {
+    states: std::collections::BTreeMap<u32, BrushState>,
+    stopped: Option<Stopped>,
+    record: Vec<[f64; 3]>,
+    summary: std::collections::HashMap<String, String>,
+}
+
+/// Runs an in-process bridge on the stand-in configured with `config` (plus a record) until
+/// its servo loop stops; `each` sees the shared side every couple of milliseconds (to send
+/// commands as a host would).
+fn run_in_process(
+    name: &str,
+    config: &str,
+    opts: BridgeOptions,
+    mut each: impl FnMut(&maobi::phantom::servo::ServoShared),
+) -> Run {
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    let record = scratch(&format!("{name}_record.csv"));
+    configure(&lib, &format!("{config};record={}", record.display()));
+    let mut bridge = Bridge::start(lib, &opts).expect("the bridge starts on the stand-in");
+    let shared = bridge.shared();
+    let mut states = std::collections::BTreeMap::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !shared.done() && Instant::now() < deadline {
+        each(&shared);
+        while let Some(s) = shared.take_state() {
+            states.insert(s.tick, s);
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    while let Some(s) = shared.take_state() {
+        states.insert(s.tick, s);
+    }
+    let stopped = bridge.stopped();
+    bridge.shutdown();
+    Run {
+        states,
+        stopped,
+        record: read_record(&record),
+        summary: read_summary(&record),
+    }
+}
+
+fn hook_script(name: &str) -> (PathBuf, usize) {
+    let (device, _) = hook_device_poses();
+    let poses = scratch(name);
+    write_pose_csv(&device, &poses);
+    (poses, device.len())
+}
+
+/// A device warning mid-stroke (HD_EXCEEDED_MAX_VELOCITY, what a fast flick raises): the
+/// force is zero from that very tick, a fault is latched, and the servo loop goes on; once
+/// the host clears the fault, forces ramp in again and the stroke is felt.
+#[test]
+fn a_device_warning_mid_stroke_zeroes_the_force_and_the_loop_goes_on() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let (poses, n) = hook_script("warn_device.csv");
+    const AT: usize = 400;
+    const CLEAR: u32 = 600;
+    let ticks = (n + HOLD_TICKS) as u32;
+    let mut cleared_at = None;
+    let mut notices = Vec::new();
+    let mut warnings = (0, None);
+    let run = run_in_process(
+        "warn",
+        &format!("poses={};error={AT}:0x0203", poses.display()),
+        BridgeOptions {
+            stop_after_ticks: Some(ticks),
+            ..BridgeOptions::default()
+        },
+        |s| {
+            if cleared_at.is_none() && s.ticks() >= CLEAR {
+                notices = s.notices(maobi_shared::protocol::Faults::DEVICE_WARNING);
+                warnings = s.warnings();
+                s.send(maobi::phantom::ServoCommand::ClearFaults);
+                cleared_at = Some(s.ticks());
+            }
+        },
+    );
+    // The warning as the user hears of it: which one, and when (the stand-in's tick AT is
+    // the servo loop's AT + 1).
+    let (count, last) = warnings;
+    assert_eq!(count, 1);
+    let (info, tick) = last.expect("the last warning");
+    assert_eq!(info.error_code, hd::HD_EXCEEDED_MAX_VELOCITY);
+    assert_eq!(tick, AT as u32 + 1);
+    assert!(
+        notices
+            .iter()
+            .any(|n| n.contains("HD_EXCEEDED_MAX_VELOCITY") && n.contains("cleared")),
+        "{notices:?}"
+    );
+    assert_eq!(
+        run.stopped,
+        Some(Stopped::TickLimit(ticks)),
+        "the loop went on"
+    );
+    let f = &run.record;
+    assert!(norm(f[AT - 1]) > 0.1, "forces were on: {:?}", f[AT - 1]);
+    assert_eq!(f[AT], [0.0; 3], "zero in the tick of the warning");
+    let cleared = cleared_at.expect("the fault was cleared") as usize;
+    assert!(
+        f[AT..cleared].iter().all(|v| *v == [0.0; 3]),
+        "zero until the fault is cleared"
+    );
+    // Latched in the states between the warning and the clear, gone after.
+    let latched: Vec<&BrushState> = run
+        .states
+        .range(AT as u32 + 1..cleared as u32)
+        .map(|(_, s)| s)
+        .collect();
+    assert!(!latched.is_empty());
+    assert!(
+        latched
+            .iter()
+            .all(|s| !s.faults.is_empty() && !s.haptics.enabled),
+        "{:?}",
+        latched.iter().map(|s| s.faults).collect::<Vec<_>>()
+    );
+    assert!(latched.iter().all(|s| s
+        .faults
+        .contains(maobi_shared::protocol::Faults::DEVICE_WARNING)));
+    let later: Vec<&BrushState> = run
+        .states
+        .range(cleared as u32 + 20..)
+        .map(|(_, s)| s)
+        .collect();
+    assert!(later
+        .iter()
+        .all(|s| s.faults.is_empty() && s.haptics.enabled));
+    // The stroke is felt again after the clear (it presses until about tick 1080).
+    let peak = f[cleared..1080]
+        .iter()
+        .map(|v| norm(*v))
+        .fold(0.0, f64::max);
+    assert!(peak > 0.1, "largest force after the clear {peak} N");
+    assert_eq!(run.summary["frame_errors"], "0");
+    assert_eq!(run.summary["violations"], "0");
+}
+
+/// A scheduler error (HD_TIMER_ERROR), with a device warning on the stack above it in the
+/// same tick: the whole stack is read in that tick, the force is zero in it, and the servo
+/// loop stops with the scheduler error as the reason; the device is released.
+#[test]
+fn a_scheduler_error_stops_the_loop_cleanly() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let (poses, n) = hook_script("sched_device.csv");
+    const AT: usize = 600;
+    let run = run_in_process(
+        "sched",
+        // Pushed in this order: the warning is on top of the stack.
+        &format!(
+            "poses={};error={AT}:0x0304;error={AT}:0x0203",
+            poses.display()
+        ),
+        BridgeOptions {
+            stop_after_ticks: Some((n + HOLD_TICKS) as u32),
+            ..BridgeOptions::default()
+        },
+        |_| {},
+    );
+    match &run.stopped {
+        Some(Stopped::HdError { tick, info, text }) => {
+            // The stand-in's tick AT (from 0) is the servo loop's tick AT + 1 (from 1).
+            assert_eq!(*tick, AT as u32 + 1);
+            assert_eq!(info.error_code, hd::HD_TIMER_ERROR, "{text}");
+            assert!(text.contains("Timer error"), "{text}");
+        }
+        other => panic!("stopped: {other:?}"),
+    }
+    let f = &run.record;
+    assert!(norm(f[AT - 1]) > 0.1);
+    assert!(f[AT..].iter().all(|v| *v == [0.0; 3]));
+    assert!(run.states.keys().all(|&t| t <= AT as u32));
+    assert_eq!(run.summary["frame_errors"], "0");
+}
+
+/// A panic in the model's step (injected): the force of that tick is zero, committed by the
+/// tick's one frame, which is closed once; the loop stops and says why.
+#[test]
+fn a_panic_in_the_step_still_closes_its_one_frame() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let (poses, n) = hook_script("panic_device.csv");
+    const AT: usize = 500;
+    let run = run_in_process(
+        "panic",
+        &format!("poses={}", poses.display()),
+        BridgeOptions {
+            stop_after_ticks: Some((n + HOLD_TICKS) as u32),
+            panic_at_tick: Some(AT as u32),
+            ..BridgeOptions::default()
+        },
+        |_| {},
+    );
+    assert_eq!(run.stopped, Some(Stopped::Panicked(AT as u32)));
+    // Servo tick AT (from 1) is the stand-in's record row AT - 1 (from 0).
+    let f = &run.record;
+    assert!(norm(f[AT - 2]) > 0.1);
+    assert_eq!(
+        f[AT - 1],
+        [0.0; 3],
+        "zero committed in the tick of the panic"
+    );
+    assert!(f[AT - 1..].iter().all(|v| *v == [0.0; 3]));
+    assert_eq!(run.summary["frame_errors"], "0", "{:?}", run.summary);
+    assert_eq!(run.summary["frames_left_open"], "0");
+}
+
+/// The stylus held still, upright, 50 mm above the paper, on a device that starts
+/// uncalibrated (its positions 30 mm off) until the stylus goes into the inkwell: forces are
+/// held while the library asks for the inkwell; then the bridge updates the calibration, the
+/// pose moves by 30 mm, which is no sensor jump, and forces come on.
+#[test]
+fn a_calibration_update_is_no_sensor_jump() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let poses = scratch("cal_hold.csv");
+    std::fs::write(
+        &poses,
+        format!("t,x,y,z,qw,qx,qy,qz\n0,0,-10,0,{h},{},0,0\n", -h),
+    )
+    .unwrap();
+    const INKWELL: u32 = 300;
+    let run = run_in_process(
+        "cal",
+        &format!(
+            "poses={};calibration=manual;cal_offset=0,30,0;inkwell_at={INKWELL}",
+            poses.display()
+        ),
+        BridgeOptions {
+            stop_after_ticks: Some(900),
+            ..BridgeOptions::default()
+        },
+        |_| {},
+    );
+    assert_eq!(run.stopped, Some(Stopped::TickLimit(900)));
+    let z = |s: &BrushState| s.handle.pose().pos.z.to_f64();
+    let before: Vec<&BrushState> = run.states.range(..INKWELL).map(|(_, s)| s).collect();
+    assert!(!before.is_empty());
+    for s in &before {
+        assert!((z(s) - 80.0).abs() < 1e-6, "uncalibrated: {}", z(s));
+        assert!(
+            s.faults == maobi_shared::protocol::Faults::NOT_CALIBRATED && !s.haptics.enabled,
+            "tick {}: {:?}",
+            s.tick,
+            s.faults
+        );
+    }
+    let after: Vec<&BrushState> = run.states.range(INKWELL + 150..).map(|(_, s)| s).collect();
+    assert!(!after.is_empty());
+    for s in &after {
+        assert!((z(s) - 50.0).abs() < 1e-6, "calibrated: {}", z(s));
+        assert!(s.faults.is_empty(), "tick {}: {:?}", s.tick, s.faults);
+    }
+    assert!(after.last().unwrap().haptics.enabled, "forces came on");
+    assert_eq!(run.summary["calibrations"], "1");
+    assert_eq!(run.summary["frame_errors"], "0");
+}
+
+/// The device pose of the stylus resting upright in a Touch's inkwell (device mm).
+const INKWELL_Y: f64 = -65.6;
+
+/// The start with the stylus in the inkwell, below the paper: no force at all while it
+/// rests there and while it is lifted, until the brush has been clear above the paper; then
+/// forces ramp in, and pressing the brush on the paper is felt.
+#[test]
+fn the_stylus_in_the_inkwell_gets_no_force_until_it_is_above_the_paper() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let map = Mapping::default();
+    assert!(
+        map.paper_height_mm > INKWELL_Y,
+        "the inkwell reads below the default paper"
+    );
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    // (t, y): rest in the inkwell, lift above the paper, hold, press the brush 25 mm.
+    let keys = [
+        (0.0, INKWELL_Y),
+        (0.5, INKWELL_Y),
+        (1.0, -10.0),
+        (1.3, -10.0),
+        (1.6, -45.0),
+        (2.5, -45.0),
+    ];
+    let mut csv = String::from("t,x,y,z,qw,qx,qy,qz\n");
+    let mut t = 0.0;
+    while t <= 2.5 + 1e-9 {
+        let k = keys
+            .windows(2)
+            .position(|w| t <= w[1].0)
+            .unwrap_or(keys.len() - 2);
+        let (a, b) = (keys[k], keys[k + 1]);
+        let y = a.1 + (b.1 - a.1) * ((t - a.0) / (b.0 - a.0)).clamp(0.0, 1.0);
+        csv.push_str(&format!("{t},0,{y},0,{h},{},0,0\n", -h));
+        t += 0.005;
+    }
+    let poses = scratch("inkwell.csv");
+    std::fs::write(&poses, csv).unwrap();
+    let run = run_in_process(
+        "inkwell",
+        &format!("poses={}", poses.display()),
+        BridgeOptions {
+            stop_after_ticks: Some(2400),
+            ..BridgeOptions::default()
+        },
+        |_| {},
+    );
+    assert_eq!(run.stopped, Some(Stopped::TickLimit(2400)));
+    let length = presets::by_name("large").unwrap().length_mm as f64;
+    // The brush tip clears the paper when the ferrule is `length` above it.
+    let clear_y = map.paper_height_mm + length;
+    let clear_t = 0.5 + 0.5 * (clear_y - INKWELL_Y) / (-10.0 - INKWELL_Y);
+    let clear_tick = (clear_t * 1000.0) as usize;
+    let f = &run.record;
+    assert!(
+        f[..clear_tick].iter().all(|v| *v == [0.0; 3]),
+        "a force before the brush was above the paper: {:?}",
+        f[..clear_tick].iter().find(|v| **v != [0.0; 3])
+    );
+    let held: Vec<&BrushState> = run
+        .states
+        .range(..clear_tick as u32)
+        .map(|(_, s)| s)
+        .collect();
+    assert!(held
+        .iter()
+        .all(|s| !s.haptics.enabled && s.faults.is_empty()));
+    assert!(run
+        .states
+        .range(clear_tick as u32 + 10..)
+        .all(|(_, s)| s.haptics.enabled));
+    let pressed = f[1700..2400].iter().map(|v| norm(*v)).fold(0.0, f64::max);
+    assert!(pressed > 0.3, "pressing the brush: {pressed} N");
+    assert_eq!(run.summary["violations"], "0");
+}
+
+/// A setup call that fails (here hdSetSchedulerRate) is reported by name, before any servo
+/// tick runs, and the device is released (a second start works).
+#[test]
+fn a_failed_setup_call_is_reported_by_name() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    for (call, code) in [
+        ("hdSetSchedulerRate", "HD_INVALID_VALUE"),
+        ("hdEnable", "HD_COMM_CONFIG_ERROR"),
+        ("hdStartScheduler", "HD_TIMER_ERROR"),
+    ] {
+        let n = match code {
+            "HD_INVALID_VALUE" => "0x0101",
+            "HD_COMM_CONFIG_ERROR" => "0x0303",
+            _ => "0x0304",
+        };
+        configure(&lib, &format!("fail={call}:{n}"));
+        let err = Bridge::start(lib.clone(), &BridgeOptions::default())
+            .err()
+            .unwrap_or_else(|| panic!("{call} failed, yet the bridge started"));
+        let text = format!("{err:#}");
+        assert!(text.contains(call) && text.contains(code), "{text}");
+    }
+    configure(&lib, "");
+    let mut b = Bridge::start(
+        lib,
+        &BridgeOptions {
+            stop_after_ticks: Some(50),
+            ..BridgeOptions::default()
+        },
+    )
+    .expect("the device was released after the failed starts");
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while !b.shared().done() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert_eq!(b.stopped(), Some(Stopped::TickLimit(50)));
+    b.shutdown();
+}
+
+/// libHD is loaded once per process and never unloaded: asking again (by path, through the
+/// search, or by the GUI's connecting again) gives the same library.
+#[test]
+fn libhd_is_loaded_once_per_process() {
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let a = HdLib::open(&standin(), Source::Flag).unwrap();
+    let b = HdLib::find(Some(&standin())).unwrap();
+    assert!(Arc::ptr_eq(&a, &b));
+    let count = HdLib::loaded().len();
+    drop((a, b));
+    assert!(HdLib::loaded()
+        .iter()
+        .any(|l| std::fs::canonicalize(l.path()).ok() == std::fs::canonicalize(standin()).ok()));
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    configure(&lib, "");
+    let mut d =
+        maobi::phantom::device::PhantomDevice::new(Some(standin()), BridgeOptions::default())
+            .unwrap();
+    use maobi::gui::device::Device;
+    for _ in 0..2 {
+        d.connect().unwrap();
+        d.disconnect();
+    }
+    assert_eq!(HdLib::loaded().len(), count, "no second copy was loaded");
+}
+
+/// `maobi bridge` (a process) with a device warning mid-stroke: it says which warning and how
+/// to go on, keeps running to its tick limit and exits zero.
+#[test]
+fn maobi_bridge_reports_a_device_warning_and_runs_on() {
+    let (poses, n) = hook_script("bridge_warn_device.csv");
+    let record = scratch("bridge_warn_record.csv");
+    let config = format!(
+        "poses={};record={};error=400:0x0203",
+        poses.display(),
+        record.display()
+    );
+    let (mut child, addr, log) = spawn_bridge(&config, n + HOLD_TICKS);
+    let states = tcp_states(&addr);
+    let status = wait(&mut child, &log);
+    let log = log.lock().unwrap().clone();
+    assert!(status.success(), "{log}");
+    assert!(
+        log.contains("device warning HD_EXCEEDED_MAX_VELOCITY at servo tick 401")
+            && log.contains("clear the fault"),
+        "{log}"
+    );
+    assert!(log.contains("stopped after"), "{log}");
+    assert!(states.iter().any(|s| s
+        .faults
+        .contains(maobi_shared::protocol::Faults::DEVICE_WARNING)));
+    let got = read_record(&record);
+    assert_eq!(got[400], [0.0; 3]);
+    assert_eq!(read_summary(&record)["frame_errors"], "0");
 }

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, PoseSample};
+use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, Faults, PoseSample};
 use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
@@ -101,6 +101,8 @@ impl ProtocolModel for BridgeModel {
 /// The Phantom as the GUI's device: the servo loop in this process.
 pub struct PhantomDevice {
     hd_lib: Option<PathBuf>,
+    /// The faults of the last state polled (for the status' notices).
+    last_faults: Faults,
     opts: BridgeOptions,
     bridge: Option<Bridge>,
     params: BrushParams,
@@ -123,6 +125,7 @@ impl PhantomDevice {
         })?;
         Ok(PhantomDevice {
             hd_lib,
+            last_faults: Faults::empty(),
             preset: opts.preset.clone(),
             opts,
             bridge: None,
@@ -157,6 +160,7 @@ impl Device for PhantomDevice {
         if self.bridge.is_some() {
             return Ok(());
         }
+        // Loaded once per process: connecting again reuses the library (see `loader`).
         let lib = HdLib::find(self.hd_lib.as_deref()).map_err(|e| {
             let e = DeviceError::Link(e.to_string());
             self.last_error = Some(e.to_string());
@@ -164,7 +168,7 @@ impl Device for PhantomDevice {
         })?;
         let mut opts = self.opts.clone();
         opts.preset = self.preset.clone();
-        let bridge = Bridge::start(Arc::new(lib), &opts).map_err(|e| {
+        let bridge = Bridge::start(lib, &opts).map_err(|e| {
             let e = DeviceError::Link(format!("{e:#}"));
             self.last_error = Some(e.to_string());
             e
@@ -204,6 +208,8 @@ impl Device for PhantomDevice {
             Some(b) => {
                 if let Some(s) = b.stopped() {
                     faults.push(s.to_string());
+                } else {
+                    faults.extend(b.shared().notices(self.last_faults));
                 }
                 (
                     format!("Phantom ({})", b.lib().path().display()),
@@ -243,6 +249,7 @@ impl Device for PhantomDevice {
         if let Some(b) = &self.bridge {
             let shared = b.shared();
             while let Some((s, guide)) = shared.take_state_with_guide() {
+                self.last_faults = s.faults;
                 let mut frame = frame_from_state(&s, u64::from(s.tick), false);
                 frame.guide = guide;
                 out.push(frame);

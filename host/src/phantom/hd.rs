@@ -6,6 +6,12 @@
 //! library reports them: millimetres, newtons, and the transform as 16 doubles, column-major
 //! (OpenGL order: element `[12..15]` is the translation).
 //!
+//! Calling convention: `hdExport.h` declares every function `HDAPIENTRY` and the scheduler
+//! callback `HDCALLBACK`, both `__stdcall` on Windows. That is `extern "system"` in Rust:
+//! `__stdcall` on 32-bit Windows, and the platform's one C convention on x86-64 (Windows and
+//! Linux alike, where the header's `stdcall` attribute has no effect). On 32-bit x86 Linux the
+//! header asks for `stdcall` too, which `"system"` is not; the bridge is not built for it.
+//!
 //! The stand-in library (`maobi-hd-standin`) declares the same items on its side; keep the
 //! two in step (the tests load the stand-in through [`super::loader`], so a mismatch in a
 //! signature shows up there).
@@ -27,9 +33,8 @@ pub type HdSchedulerHandle = c_ulong;
 /// `HDstring`: a NUL-terminated string owned by the library.
 pub type HdString = *const c_char;
 
-/// `HDSchedulerCallback`. `HDCALLBACK` is `__stdcall` on 32-bit Windows only; on Linux it
-/// is the C convention.
-pub type HdSchedulerCallback = unsafe extern "C" fn(user_data: *mut c_void) -> HdCallbackCode;
+/// `HDSchedulerCallback`: `HDCALLBACK`, `__stdcall` on Windows (see the module docs).
+pub type HdSchedulerCallback = unsafe extern "system" fn(user_data: *mut c_void) -> HdCallbackCode;
 
 /// `HDErrorInfo`, which `hdGetError` returns by value.
 #[repr(C)]
@@ -85,6 +90,7 @@ pub const HD_CURRENT_INKWELL_SWITCH: HdEnum = 0x2002;
 pub const HD_CURRENT_POSITION: HdEnum = 0x2050;
 pub const HD_CURRENT_VELOCITY: HdEnum = 0x2051;
 pub const HD_CURRENT_TRANSFORM: HdEnum = 0x2052;
+pub const HD_CALIBRATION_STYLE: HdEnum = 0x2555;
 pub const HD_UPDATE_RATE: HdEnum = 0x2600;
 pub const HD_NOMINAL_MAX_STIFFNESS: HdEnum = 0x2602;
 pub const HD_NOMINAL_MAX_FORCE: HdEnum = 0x2603;
@@ -106,6 +112,15 @@ pub const HD_MIN_SCHEDULER_PRIORITY: c_ushort = 0;
 pub const HD_DEFAULT_SCHEDULER_PRIORITY: c_ushort =
     ((HD_MAX_SCHEDULER_PRIORITY as u32 + HD_MIN_SCHEDULER_PRIORITY as u32) / 2) as c_ushort;
 
+// Calibration: what hdCheckCalibration returns, and the styles (a mask in
+// HD_CALIBRATION_STYLE; one of them is hdUpdateCalibration's argument).
+pub const HD_CALIBRATION_OK: HdEnum = 0x5000;
+pub const HD_CALIBRATION_NEEDS_UPDATE: HdEnum = 0x5001;
+pub const HD_CALIBRATION_NEEDS_MANUAL_INPUT: HdEnum = 0x5002;
+pub const HD_CALIBRATION_ENCODER_RESET: c_int = 1 << 0;
+pub const HD_CALIBRATION_AUTO: c_int = 1 << 1;
+pub const HD_CALIBRATION_INKWELL: c_int = 1 << 2;
+
 // Button masks.
 pub const HD_DEVICE_BUTTON_1: c_int = 1 << 0;
 pub const HD_DEVICE_BUTTON_2: c_int = 1 << 1;
@@ -118,26 +133,65 @@ pub const HD_INVALID_HANDLE: Hhd = 0xFFFF_FFFF;
 pub const HD_DEFAULT_DEVICE: HdString = std::ptr::null();
 
 // The functions' C types, one alias per symbol.
-pub type FnInitDevice = unsafe extern "C" fn(name: HdString) -> Hhd;
-pub type FnDisableDevice = unsafe extern "C" fn(hhd: Hhd);
-pub type FnEnable = unsafe extern "C" fn(cap: HdEnum);
-pub type FnDisable = unsafe extern "C" fn(cap: HdEnum);
-pub type FnStartScheduler = unsafe extern "C" fn();
-pub type FnStopScheduler = unsafe extern "C" fn();
-pub type FnSetSchedulerRate = unsafe extern "C" fn(rate_hz: c_ulong);
-pub type FnScheduleAsynchronous = unsafe extern "C" fn(
+pub type FnInitDevice = unsafe extern "system" fn(name: HdString) -> Hhd;
+pub type FnDisableDevice = unsafe extern "system" fn(hhd: Hhd);
+pub type FnEnable = unsafe extern "system" fn(cap: HdEnum);
+pub type FnDisable = unsafe extern "system" fn(cap: HdEnum);
+pub type FnStartScheduler = unsafe extern "system" fn();
+pub type FnStopScheduler = unsafe extern "system" fn();
+pub type FnSetSchedulerRate = unsafe extern "system" fn(rate_hz: c_ulong);
+pub type FnScheduleAsynchronous = unsafe extern "system" fn(
     callback: HdSchedulerCallback,
     user_data: *mut c_void,
     priority: c_ushort,
 ) -> HdSchedulerHandle;
-pub type FnUnschedule = unsafe extern "C" fn(handle: HdSchedulerHandle);
-pub type FnBeginFrame = unsafe extern "C" fn(hhd: Hhd);
-pub type FnEndFrame = unsafe extern "C" fn(hhd: Hhd);
-pub type FnGetDoublev = unsafe extern "C" fn(name: HdEnum, values: *mut f64);
-pub type FnGetIntegerv = unsafe extern "C" fn(name: HdEnum, values: *mut c_int);
-pub type FnSetDoublev = unsafe extern "C" fn(name: HdEnum, values: *const f64);
-pub type FnGetError = unsafe extern "C" fn() -> HdErrorInfo;
-pub type FnGetErrorString = unsafe extern "C" fn(code: HdError) -> HdString;
+pub type FnUnschedule = unsafe extern "system" fn(handle: HdSchedulerHandle);
+pub type FnBeginFrame = unsafe extern "system" fn(hhd: Hhd);
+pub type FnEndFrame = unsafe extern "system" fn(hhd: Hhd);
+pub type FnGetDoublev = unsafe extern "system" fn(name: HdEnum, values: *mut f64);
+pub type FnGetIntegerv = unsafe extern "system" fn(name: HdEnum, values: *mut c_int);
+pub type FnSetDoublev = unsafe extern "system" fn(name: HdEnum, values: *const f64);
+pub type FnGetError = unsafe extern "system" fn() -> HdErrorInfo;
+pub type FnGetErrorString = unsafe extern "system" fn(code: HdError) -> HdString;
+pub type FnCheckCalibration = unsafe extern "system" fn() -> HdEnum;
+pub type FnUpdateCalibration = unsafe extern "system" fn(style: HdEnum);
+
+/// How the servo loop treats an HD error, as the SDK's `hduError` helpers sort them.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum ErrorClass {
+    /// A device warning about the force or the motion (`hduIsForceError`, and the force
+    /// impulse limit): the library has limited or refused this force; the loop goes on with
+    /// zero force, the simulation reset ("resetting contact or simulation state", as
+    /// `hduError.h` puts it) and a fault latched for the user to clear.
+    Warning,
+    /// Anything else: communication, configuration, timer and scheduler errors
+    /// (`hduIsSchedulerError`: the servo loop cannot run properly), device faults, and the
+    /// errors of a misused call (frames, handles, enums), which mean the bridge itself is
+    /// wrong. The loop stops.
+    Fatal,
+}
+
+/// The class of an error code (see [`ErrorClass`]).
+pub fn classify(code: HdError) -> ErrorClass {
+    match code {
+        HD_WARM_MOTORS
+        | HD_EXCEEDED_MAX_FORCE
+        | HD_EXCEEDED_MAX_FORCE_IMPULSE
+        | HD_EXCEEDED_MAX_VELOCITY
+        | HD_FORCE_ERROR => ErrorClass::Warning,
+        _ => ErrorClass::Fatal,
+    }
+}
+
+/// The name of a calibration status (hdCheckCalibration's result), for messages.
+pub fn calibration_name(status: HdEnum) -> &'static str {
+    match status {
+        HD_CALIBRATION_OK => "HD_CALIBRATION_OK",
+        HD_CALIBRATION_NEEDS_UPDATE => "HD_CALIBRATION_NEEDS_UPDATE",
+        HD_CALIBRATION_NEEDS_MANUAL_INPUT => "HD_CALIBRATION_NEEDS_MANUAL_INPUT",
+        _ => "an unknown calibration status",
+    }
+}
 
 /// The name of an error code, for messages (the library's own text comes from
 /// `hdGetErrorString`).
@@ -179,5 +233,32 @@ mod tests {
         assert_eq!(std::mem::size_of::<HdErrorInfo>(), 12);
         assert_eq!(std::mem::align_of::<HdErrorInfo>(), 4);
         assert_eq!(HD_DEFAULT_SCHEDULER_PRIORITY, 32767);
+    }
+
+    #[test]
+    fn errors_are_sorted_as_the_sdk_sorts_them() {
+        for w in [
+            HD_WARM_MOTORS,
+            HD_EXCEEDED_MAX_FORCE,
+            HD_EXCEEDED_MAX_FORCE_IMPULSE,
+            HD_EXCEEDED_MAX_VELOCITY,
+            HD_FORCE_ERROR,
+        ] {
+            assert_eq!(classify(w), ErrorClass::Warning, "{}", error_name(w));
+        }
+        for f in [
+            HD_COMM_ERROR,
+            HD_COMM_CONFIG_ERROR,
+            HD_TIMER_ERROR,
+            HD_INVALID_PRIORITY,
+            HD_SCHEDULER_FULL,
+            HD_DEVICE_FAULT,
+            HD_ILLEGAL_BEGIN,
+            HD_ILLEGAL_END,
+            HD_BAD_HANDLE,
+            0x7777,
+        ] {
+            assert_eq!(classify(f), ErrorClass::Fatal, "{}", error_name(f));
+        }
     }
 }

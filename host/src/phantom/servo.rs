@@ -4,10 +4,28 @@
 //! (HD_CURRENT_TRANSFORM) mapped to the paper by a [`Mapping`], one `Brush<Fx>` tick, the
 //! force model and the output stage (limits from the device's own HD_NOMINAL_MAX_FORCE and
 //! HD_NOMINAL_MAX_CONTINUOUS_FORCE, ramp-in on enable), the command mapped back to device
-//! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback between
-//! `hdBeginFrame`/`hdEndFrame` and checks `hdGetError` every frame: on any error the force
-//! of that very callback is zero, the callback unschedules itself, and the error (with
-//! `hdGetErrorString`'s text) is reported to whoever watches the bridge.
+//! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback.
+//!
+//! # One frame per tick, the force decided inside it
+//! libHD allows one `hdBeginFrame`/`hdEndFrame` pair per servo tick (a second is refused with
+//! HD_ILLEGAL_BEGIN, and its force never reaches the motors). So each callback opens exactly
+//! one frame, reads the pose and the whole HD error stack, decides the force (zero on any
+//! fault: an error, a stop, the tick limit, a panic in the model, which is caught inside the
+//! frame) and commits it with the frame's end. Errors are sorted as the SDK's `hduError`
+//! helpers sort them ([`super::hd::classify`]): a device warning (force, force impulse,
+//! velocity, warm motors) zeroes the force, restarts the brush at rest and latches
+//! [`Faults::DEVICE_WARNING`] until the user clears it, and the loop goes on; anything else
+//! (communication, configuration, timer, scheduler errors; device faults; a misused call)
+//! stops it, reported with `hdGetErrorString`'s text.
+//!
+//! # Calibration and the safe start
+//! `hdCheckCalibration` runs at the first tick, when the user calibrates, and periodically;
+//! when the library can update the calibration the callback does (`hdUpdateCalibration`, in
+//! its frame), and the jump of the pose that follows is no sensor jump: the brush starts
+//! afresh at the new pose. While the library asks for the inkwell, [`Faults::NOT_CALIBRATED`]
+//! is reported and forces are held. Forces asked for at start wait until the stylus has been
+//! seen with the brush clear above the paper (a stylus resting in the inkwell is below it),
+//! unless the user enables them.
 //!
 //! # Why `Fx` and not `f32`
 //! Measured by `servo_step_cost` in `host/tests/phantom.rs` (the test profile, opt-level 2,
@@ -54,6 +72,23 @@ pub const SENSOR_JUMP_MM: f64 = 10.0;
 /// 160 x 120 x 70 mm).
 pub const MAX_DEVICE_MM: f64 = 2000.0;
 
+/// The bridge's default paper height: the device height (mm) of the ferrule at the paper.
+/// It must sit above where a Touch's stylus reads when it rests in the inkwell (about
+/// y = -65.6 mm), so that the stylus in the inkwell is below the paper and the safe start
+/// holds forces until the stylus has been lifted above it; and low enough that the large
+/// brush (40 mm) has room above the paper in the workspace. `maobi bridge --paper-height`
+/// and the GUI's `--device phantom` start from it; the model itself has no paper height.
+pub const DEFAULT_PAPER_HEIGHT_MM: f64 = -60.0;
+
+/// Servo ticks between two calibration checks (`hdCheckCalibration`) while the device is
+/// calibrated, as the SDK's Calibration example checks once a second.
+pub const CAL_CHECK_TICKS: u32 = 1000;
+/// The same while it is not: the inkwell is noticed within this many ticks.
+pub const CAL_CHECK_WAITING_TICKS: u32 = 100;
+/// At most this many errors are read off the HD error stack in one tick (a library that
+/// never returns HD_SUCCESS must not hold the callback).
+pub const MAX_ERRORS_PER_TICK: usize = 64;
+
 /// How the Phantom's workspace maps to the paper.
 ///
 /// Device frame (OpenHaptics): +x to the user's right, +y up, +z toward the user, mm. Paper
@@ -81,7 +116,7 @@ impl Default for Mapping {
     fn default() -> Self {
         Mapping {
             origin_mm: [0.0, 0.0],
-            paper_height_mm: -60.0,
+            paper_height_mm: DEFAULT_PAPER_HEIGHT_MM,
             scale: 1.0,
         }
     }
@@ -278,7 +313,9 @@ pub enum ServoCommand {
     ClearFaults,
     /// Wet every layer to this wetness (clamped to [0, 1]).
     Dip(f32),
-    /// Record the current height as the paper (see [`Mapping::calibrate`]).
+    /// Calibrate: check the device's own calibration (`hdCheckCalibration`, updated if the
+    /// library can), then record the height of the stylus as the paper (see
+    /// [`Mapping::calibrate`]) from the next pose.
     Calibrate,
     /// Replace the brush parameters (already validated); the brush is reset.
     SetParams(BrushParams),
@@ -303,8 +340,17 @@ pub struct ServoCore {
     mapping: Mapping,
     buttons: Buttons,
     last_pos: Vec3<Fx>,
-    last_device_y: f64,
+    /// Latched faults (cleared by [`ServoCommand::ClearFaults`]).
     faults: Faults,
+    /// The safe start: forces are asked for but held until the stylus has been seen with the
+    /// brush clear above the paper (or the user enables them).
+    await_lift: bool,
+    /// The HD library wants the stylus in the inkwell (HD_CALIBRATION_NEEDS_MANUAL_INPUT):
+    /// reported as [`Faults::NOT_CALIBRATED`], forces held.
+    uncalibrated: bool,
+    /// A paper calibration to do at the next pose, and a device calibration check asked for.
+    paper_cal_pending: bool,
+    device_cal_requested: bool,
     tick: u32,
     command: Vec3<Fx>,
     /// Guided writing: the coupling, the stroke being played (points, next index; at or past
@@ -315,8 +361,9 @@ pub struct ServoCore {
 }
 
 impl ServoCore {
-    /// `limits`: the device's (from HD_NOMINAL_MAX_*); forces ramp in from the first tick
-    /// when `forces_on`.
+    /// `limits`: the device's (from HD_NOMINAL_MAX_*). With `forces_on`, forces ramp in from
+    /// the first tick at which the brush hangs clear above the paper (the safe start: the
+    /// stylus may rest in the inkwell, below the paper).
     pub fn new(
         params: BrushParams,
         limits: DeviceLimits,
@@ -325,10 +372,7 @@ impl ServoCore {
     ) -> Result<ServoCore, String> {
         params.validate().map_err(|e| e.to_string())?;
         mapping.validate()?;
-        let mut stage = OutputStage::new(limits).map_err(|e| e.to_string())?;
-        if forces_on {
-            stage.enable();
-        }
+        let stage = OutputStage::new(limits).map_err(|e| e.to_string())?;
         Ok(ServoCore {
             params,
             brush: None,
@@ -337,8 +381,11 @@ impl ServoCore {
             mapping,
             buttons: Buttons::default(),
             last_pos: Vec3::ZERO,
-            last_device_y: 0.0,
             faults: Faults::empty(),
+            await_lift: forces_on,
+            uncalibrated: false,
+            paper_cal_pending: false,
+            device_cal_requested: false,
             tick: 0,
             command: Vec3::ZERO,
             guide: GuideStream::new(DEFAULT_GUIDE).map_err(|e| e.to_string())?,
@@ -359,8 +406,18 @@ impl ServoCore {
     pub fn output_state(&self) -> OutputState {
         self.stage.state()
     }
+    /// The faults to report: the latched ones, and [`Faults::NOT_CALIBRATED`] while the
+    /// library asks for the inkwell.
     pub fn faults(&self) -> Faults {
-        self.faults
+        if self.uncalibrated {
+            self.faults | Faults::NOT_CALIBRATED
+        } else {
+            self.faults
+        }
+    }
+    /// Forces are asked for but wait for the stylus above the paper (or for calibration).
+    pub fn awaiting_lift(&self) -> bool {
+        self.await_lift
     }
     pub fn forces_enabled(&self) -> bool {
         !matches!(
@@ -371,10 +428,23 @@ impl ServoCore {
 
     pub fn apply(&mut self, cmd: ServoCommand) {
         match cmd {
-            ServoCommand::EnableForces(true) if self.faults.is_empty() => self.stage.enable(),
+            // The user's explicit enable skips the wait for the stylus above the paper; while
+            // the library asks for the inkwell, forces wait for the calibration (and then for
+            // the stylus out of the inkwell, above the paper).
+            ServoCommand::EnableForces(true) if self.faults.is_empty() => {
+                if self.uncalibrated {
+                    self.await_lift = true;
+                } else {
+                    self.await_lift = false;
+                    self.stage.enable();
+                }
+            }
             // With faults latched, enabling waits for ClearFaults (as the firmware does).
             ServoCommand::EnableForces(true) => {}
-            ServoCommand::EnableForces(false) => self.stage.disable(),
+            ServoCommand::EnableForces(false) => {
+                self.await_lift = false;
+                self.stage.disable();
+            }
             ServoCommand::ClearFaults => {
                 self.faults = Faults::empty();
                 self.stage.clear_fault();
@@ -390,12 +460,10 @@ impl ServoCore {
                 }
             }
             ServoCommand::Calibrate => {
-                let length = self.params.length_mm as f64;
-                self.mapping.calibrate(self.last_device_y, length);
-                // The paper moved under the hand: start the brush afresh where it now is.
-                self.brush = None;
-                self.forces.reset();
-                self.cut_guide();
+                // The device's calibration is checked first (by the servo callback, before
+                // the next step), so the paper height is taken from a calibrated pose.
+                self.paper_cal_pending = true;
+                self.device_cal_requested = true;
             }
             ServoCommand::SetParams(p) => {
                 if p.validate().is_ok() {
@@ -489,10 +557,62 @@ impl ServoCore {
         self.guide_frame
     }
 
+    /// A device calibration check was asked for (by [`ServoCommand::Calibrate`]) since the
+    /// last call.
+    pub fn take_device_cal_request(&mut self) -> bool {
+        std::mem::take(&mut self.device_cal_requested)
+    }
+
+    /// What `hdCheckCalibration` says: `true` while the library wants the stylus in the
+    /// inkwell. Forces asked for then wait for the calibration and the stylus above the paper.
+    pub fn set_uncalibrated(&mut self, uncalibrated: bool) {
+        if uncalibrated && !self.uncalibrated && self.forces_enabled() {
+            self.stage.disable();
+            self.await_lift = true;
+        }
+        self.uncalibrated = uncalibrated;
+    }
+
+    /// The library's calibration was just updated (`hdUpdateCalibration`): from the next
+    /// reading the pose is the calibrated one, however far that is from the last. That is
+    /// no sensor jump: the brush starts afresh, at rest, at the next pose, and forces asked
+    /// for wait again for the stylus above the paper (an Omni is calibrated in its inkwell).
+    pub fn device_recalibrated(&mut self) {
+        self.uncalibrated = false;
+        if self.forces_enabled() {
+            self.stage.disable();
+            self.await_lift = true;
+        }
+        self.brush = None;
+        self.forces.reset();
+        self.cut_guide();
+    }
+
+    /// A device warning from the library (see [`ErrorClass::Warning`]): zero force, the
+    /// brush at rest (started afresh at the next pose), a fault latched until cleared.
+    pub fn device_warning(&mut self) {
+        self.faults |= Faults::DEVICE_WARNING;
+        self.stage.fault();
+        self.brush = None;
+        self.forces.reset();
+        self.cut_guide();
+        self.command = self.stage.apply(Vec3::ZERO, Vec3::ZERO);
+    }
+
+    /// A tick without a usable reading (the one in which the calibration was updated): the
+    /// tick counts, the force is zero, the brush is not moved.
+    pub fn hold_tick(&mut self) -> [f64; 3] {
+        self.tick = self.tick.wrapping_add(1);
+        self.command = Vec3::ZERO;
+        [0.0; 3]
+    }
+
     /// One 1 ms tick: the device transform and buttons in, the force to command (N, device
     /// axes) out. Never panics; a garbage pose latches a sensor fault (zero force).
     pub fn step(&mut self, transform: &[f64; 16], buttons: c_int) -> [f64; 3] {
         self.tick = self.tick.wrapping_add(1);
+        // A calibration asked for by an earlier tick (after the device's own check).
+        let paper_cal = std::mem::take(&mut self.paper_cal_pending);
         match self.buttons.update(buttons) {
             Some(ButtonAction::Dip) => self.apply(ServoCommand::Dip(1.0)),
             Some(ButtonAction::ToggleForces) => {
@@ -504,18 +624,20 @@ impl ServoCore {
                     self.apply(ServoCommand::EnableForces(true));
                 }
             }
-            Some(ButtonAction::Calibrate) => {
-                if let Some((pos, _)) = pose_of_transform(transform) {
-                    self.last_device_y = pos[1];
-                }
-                self.apply(ServoCommand::Calibrate);
-            }
+            Some(ButtonAction::Calibrate) => self.apply(ServoCommand::Calibrate),
             None => {}
         }
         let Some((pos, rot)) = pose_of_transform(transform) else {
             return self.fault();
         };
-        self.last_device_y = pos[1];
+        if paper_cal {
+            let length = self.params.length_mm as f64;
+            self.mapping.calibrate(pos[1], length);
+            // The paper moved under the hand: start the brush afresh where it now is.
+            self.brush = None;
+            self.forces.reset();
+            self.cut_guide();
+        }
         let pose: Pose<Fx> = self.mapping.to_paper(pos, rot).cast();
         let brush = match &mut self.brush {
             Some(b) => b,
@@ -531,6 +653,16 @@ impl ServoCore {
         if jump.iter().map(|d| d * d).sum::<f64>() > SENSOR_JUMP_MM * SENSOR_JUMP_MM {
             self.faults |= Faults::SENSOR_JUMP;
             self.stage.fault();
+        }
+        // The safe start: the brush (hanging at most its length below the ferrule) clear of
+        // the paper, the device calibrated, no fault.
+        if self.await_lift
+            && !self.uncalibrated
+            && self.faults.is_empty()
+            && pose.pos.z.to_f64() > self.params.length_mm as f64
+        {
+            self.await_lift = false;
+            self.stage.enable();
         }
         brush.tick(pose);
         let f = self.forces.tick(brush, pose.pos);
@@ -577,7 +709,7 @@ impl ServoCore {
             self.tick,
             0,
             Haptics::new(self.command, [Fx::ZERO; 3], self.forces_enabled()),
-            self.faults,
+            self.faults(),
         ))
     }
 }
@@ -594,6 +726,9 @@ pub struct BridgeOptions {
     pub forces_on: bool,
     /// Stop by itself after this many servo ticks (scripted runs and tests).
     pub stop_after_ticks: Option<u32>,
+    /// Fault injection for the tests of the recovery path: the model's step panics at this
+    /// servo tick, as a bug in it would.
+    pub panic_at_tick: Option<u32>,
 }
 
 impl Default for BridgeOptions {
@@ -604,6 +739,7 @@ impl Default for BridgeOptions {
             state_hz: 120,
             forces_on: true,
             stop_after_ticks: None,
+            panic_at_tick: None,
         }
     }
 }
@@ -669,6 +805,18 @@ pub struct ServoShared {
     cost_ns_total: AtomicU64,
     cost_ns_max: AtomicU64,
     forces_on: AtomicBool,
+    /// The safe start is holding forces (see [`ServoCore::awaiting_lift`]).
+    awaiting_lift: AtomicBool,
+    /// Device warnings seen, and the last one (code, internal code, tick).
+    warnings: AtomicU64,
+    warning_code: AtomicU32,
+    warning_internal: AtomicI32,
+    warning_tick: AtomicU32,
+    /// The last hdCheckCalibration result (0 before the first check), the updates done, and
+    /// the last error an update raised (HD_SUCCESS if none).
+    calibration: AtomicU32,
+    calibration_updates: AtomicU32,
+    calibration_error: AtomicU32,
 }
 
 impl ServoShared {
@@ -690,7 +838,91 @@ impl ServoShared {
             cost_ns_total: AtomicU64::new(0),
             cost_ns_max: AtomicU64::new(0),
             forces_on: AtomicBool::new(false),
+            awaiting_lift: AtomicBool::new(false),
+            warnings: AtomicU64::new(0),
+            warning_code: AtomicU32::new(0),
+            warning_internal: AtomicI32::new(0),
+            warning_tick: AtomicU32::new(0),
+            calibration: AtomicU32::new(0),
+            calibration_updates: AtomicU32::new(0),
+            calibration_error: AtomicU32::new(HD_SUCCESS),
         }
+    }
+
+    /// Forces are asked for but held until the stylus is above the paper (the safe start).
+    pub fn awaiting_lift(&self) -> bool {
+        self.awaiting_lift.load(Ordering::Relaxed)
+    }
+
+    /// Device warnings seen so far, and the last one with the servo tick it was read at.
+    pub fn warnings(&self) -> (u64, Option<(HdErrorInfo, u32)>) {
+        let n = self.warnings.load(Ordering::Acquire);
+        let last = (n > 0).then(|| {
+            (
+                HdErrorInfo {
+                    error_code: self.warning_code.load(Ordering::Acquire),
+                    internal_error_code: self.warning_internal.load(Ordering::Acquire),
+                    h_hd: 0,
+                },
+                self.warning_tick.load(Ordering::Acquire),
+            )
+        });
+        (n, last)
+    }
+
+    /// The last `hdCheckCalibration` result (`None` before the first check), the
+    /// calibration updates done, and the error the last failed update raised.
+    pub fn calibration(&self) -> (Option<HdEnum>, u32, Option<HdError>) {
+        let status = self.calibration.load(Ordering::Acquire);
+        let err = self.calibration_error.load(Ordering::Acquire);
+        (
+            (status != 0).then_some(status),
+            self.calibration_updates.load(Ordering::Acquire),
+            (err != HD_SUCCESS).then_some(err),
+        )
+    }
+
+    /// What the user should know about the device now, one sentence each: a calibration the
+    /// library asks for, forces waiting for the stylus, the last device warning while its
+    /// fault is latched (`faults` is what the last state reported).
+    pub fn notices(&self, faults: Faults) -> Vec<String> {
+        let mut out = Vec::new();
+        let (status, _, cal_err) = self.calibration();
+        if status == Some(HD_CALIBRATION_NEEDS_MANUAL_INPUT) {
+            out.push(
+                "the device is not calibrated: put the stylus in its inkwell (forces stay off \
+                 until it is)"
+                    .to_string(),
+            );
+        } else if status == Some(HD_CALIBRATION_NEEDS_UPDATE) {
+            out.push(
+                "the device's calibration needs an update: hold the stylus at its reset \
+                 position and calibrate"
+                    .to_string(),
+            );
+        }
+        if let Some(e) = cal_err {
+            out.push(format!(
+                "the last calibration update failed: {}",
+                error_name(e)
+            ));
+        }
+        if self.awaiting_lift() && status != Some(HD_CALIBRATION_NEEDS_MANUAL_INPUT) {
+            out.push(
+                "forces start once the brush is lifted clear above the paper (or enable them)"
+                    .to_string(),
+            );
+        }
+        if faults.contains(Faults::DEVICE_WARNING) {
+            if let (_, Some((e, tick))) = self.warnings() {
+                out.push(format!(
+                    "device warning {} at servo tick {tick}: forces off and the brush at rest \
+                     until the fault is cleared",
+                    error_name(e.error_code)
+                ));
+            }
+        }
+        out
     }
 
     /// Servo ticks run so far.
@@ -808,7 +1040,7 @@ impl ServoShared {
     }
 }
 
-/// What the scheduler callback owns: the model, the HD functions and the shared side.
+/// What the callback owns: the model, the HD functions and the shared side.
 struct ServoCtx {
     fns: HdFns,
     hhd: Hhd,
@@ -816,96 +1048,247 @@ struct ServoCtx {
     shared: Arc<ServoShared>,
     state_hz: u32,
     stop_after: Option<u32>,
+    panic_at: Option<u32>,
+    /// The style `hdUpdateCalibration` is called with (`None`: the device reports none).
+    cal_style: Option<HdEnum>,
+    /// Whether the bridge updates the calibration by itself when the library says it can
+    /// (not for encoder-reset devices, where the user must hold the arm at its reset
+    /// position: only when asked).
+    cal_auto: bool,
+    /// The servo tick of the next calibration check (the first tick checks it).
+    next_cal_check: u32,
+    /// A frame of this callback is open (between hdBeginFrame and hdEndFrame).
+    frame_open: bool,
+}
+
+/// How a servo tick ends.
+enum Outcome {
+    Continue,
+    /// Stop: why (see [`ServoShared::stopped`]) and the error behind it.
+    Stop(u32, HdErrorInfo),
 }
 
 impl ServoCtx {
-    /// One scheduler frame. Returns the callback code.
+    /// One scheduler tick: exactly one frame. The force it commits is decided inside it,
+    /// from everything the tick learned (errors, a stop, a panic in the step): zero on any
+    /// fault. Returns the callback code.
     fn frame(&mut self) -> HdCallbackCode {
         let started = Instant::now();
         let f = self.fns;
-        let zero = [0.0f64; 3];
-        // SAFETY: the HD functions are called from the scheduler thread, inside a frame,
-        // with buffers of the sizes hdDefines.h documents (16 doubles for the transform, one
-        // int for the buttons, 3 doubles for the force).
+        let tick = self.core.tick().wrapping_add(1);
+        let mut m = [0.0f64; 16];
+        let mut buttons: c_int = 0;
+        // SAFETY: the HD functions are called from the scheduler thread, with buffers of the
+        // sizes hdDefines.h documents (16 doubles for the transform, one int for the buttons).
         unsafe {
             (f.begin_frame)(self.hhd);
-            let mut m = [0.0f64; 16];
+            self.frame_open = true;
             (f.get_doublev)(HD_CURRENT_TRANSFORM, m.as_mut_ptr());
-            let mut buttons: c_int = 0;
             (f.get_integerv)(HD_CURRENT_BUTTONS, &mut buttons);
-            let err = (f.get_error)();
-            if err.is_error() {
-                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
-                (f.end_frame)(self.hhd);
-                return self.finish(2, err);
+        }
+        // Everything raised since the last tick read the stack: the last frame's end, this
+        // frame's begin and reads.
+        let (fatal, warning) = self.drain_errors();
+        let mut force = [0.0f64; 3];
+        let mut stepped = false;
+        let mut outcome = Outcome::Continue;
+        if let Some(err) = fatal {
+            outcome = Outcome::Stop(2, err);
+        } else if self.shared.stop.load(Ordering::Acquire) {
+            outcome = Outcome::Stop(0, HdErrorInfo::none());
+        } else {
+            // A panic in the model (a bug) must not unwind into the library, nor leave this
+            // frame open: it is caught here, and the frame commits zero below.
+            match std::panic::catch_unwind(AssertUnwindSafe(|| {
+                self.decide(tick, &m, buttons, warning)
+            })) {
+                Ok(Ok((f, s))) => {
+                    force = f;
+                    stepped = s;
+                }
+                Ok(Err(err)) => outcome = Outcome::Stop(2, err),
+                Err(_) => outcome = Outcome::Stop(3, HdErrorInfo::none()),
             }
-            if self.shared.stop.load(Ordering::Acquire) {
-                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
-                (f.end_frame)(self.hhd);
-                return self.finish(0, HdErrorInfo::none());
-            }
-            self.shared.apply_pending(&mut self.core);
-            let force = self.core.step(&m, buttons);
-            (f.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
-            (f.end_frame)(self.hhd);
-            let err = (f.get_error)();
-            if err.is_error() {
-                // The error came with the frame's end (e.g. the force was refused): command
-                // zero in a frame of its own, still within this callback.
-                (f.begin_frame)(self.hhd);
-                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
-                (f.end_frame)(self.hhd);
-                return self.finish(2, err);
+            if matches!(outcome, Outcome::Continue) && self.stop_after.is_some_and(|n| tick >= n) {
+                outcome = Outcome::Stop(1, HdErrorInfo::none());
             }
         }
-        let tick = self.core.tick();
+        if !matches!(outcome, Outcome::Continue) {
+            force = [0.0; 3];
+        }
+        // SAFETY: as above; three doubles for the force, inside this tick's one frame.
+        unsafe {
+            (f.set_doublev)(HD_CURRENT_FORCE, force.as_ptr());
+            (f.end_frame)(self.hhd);
+        }
+        self.frame_open = false;
         self.shared.tick.store(tick, Ordering::Release);
         self.shared
             .forces_on
             .store(self.core.forces_enabled(), Ordering::Relaxed);
-        // A state whenever tick * state_hz / 1000 steps: deterministic in the tick number,
-        // so two runs of the same poses hand over states of the same ticks.
-        let hz = u64::from(self.state_hz);
-        if (u64::from(tick) * hz) / 1000 != (u64::from(tick.wrapping_sub(1)) * hz) / 1000 {
-            if let Some(state) = self.core.state() {
-                match self.shared.states_q.try_lock() {
-                    Ok(mut q) => {
-                        if q.len() >= STATE_QUEUE {
-                            q.pop_front();
-                            self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
-                        }
-                        // Within the reserved capacity: no allocation.
-                        q.push_back((state, self.core.guide_frame()));
-                        self.shared.states.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(_) => {
-                        self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
-            }
+        self.shared
+            .awaiting_lift
+            .store(self.core.awaiting_lift(), Ordering::Relaxed);
+        if stepped {
+            self.hand_over_state(tick);
         }
         let ns = started.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64;
         self.shared.cost_ns_total.fetch_add(ns, Ordering::Relaxed);
         self.shared.cost_ns_max.fetch_max(ns, Ordering::Relaxed);
-        if self.stop_after.is_some_and(|n| tick >= n) {
-            // SAFETY: as above.
-            unsafe {
-                (f.begin_frame)(self.hhd);
-                (f.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
-                (f.end_frame)(self.hhd);
-            }
-            return self.finish(1, HdErrorInfo::none());
+        match outcome {
+            Outcome::Continue => HD_CALLBACK_CONTINUE,
+            Outcome::Stop(why, err) => self.finish(why, tick, err),
         }
-        HD_CALLBACK_CONTINUE
     }
 
-    fn finish(&mut self, why: u32, err: HdErrorInfo) -> HdCallbackCode {
+    /// Reads the HD error stack to the end: the first scheduler-class (fatal) error and the
+    /// first device warning on it.
+    fn drain_errors(&mut self) -> (Option<HdErrorInfo>, Option<HdErrorInfo>) {
+        let (mut fatal, mut warning) = (None, None);
+        for _ in 0..MAX_ERRORS_PER_TICK {
+            // SAFETY: a plain HD call on the scheduler thread.
+            let e = unsafe { (self.fns.get_error)() };
+            if !e.is_error() {
+                break;
+            }
+            match classify(e.error_code) {
+                ErrorClass::Fatal => {
+                    fatal.get_or_insert(e);
+                }
+                ErrorClass::Warning => {
+                    warning.get_or_insert(e);
+                }
+            }
+        }
+        (fatal, warning)
+    }
+
+    /// The model's part of the tick: commands, a device warning, the calibration, the step.
+    /// Returns the force and whether the model stepped (a state to hand over), or the fatal
+    /// error a calibration update raised.
+    fn decide(
+        &mut self,
+        tick: u32,
+        m: &[f64; 16],
+        buttons: c_int,
+        warning: Option<HdErrorInfo>,
+    ) -> Result<([f64; 3], bool), HdErrorInfo> {
+        if self.panic_at == Some(tick) {
+            panic!("injected fault: the servo step panics at tick {tick}");
+        }
+        self.shared.apply_pending(&mut self.core);
+        if let Some(w) = warning {
+            self.core.device_warning();
+            let s = &self.shared;
+            s.warning_code.store(w.error_code, Ordering::Release);
+            s.warning_internal
+                .store(w.internal_error_code, Ordering::Release);
+            s.warning_tick.store(tick, Ordering::Release);
+            s.warnings.fetch_add(1, Ordering::AcqRel);
+        }
+        let asked = self.core.take_device_cal_request();
+        if (asked || tick >= self.next_cal_check) && self.check_calibration(tick, asked)? {
+            // This tick's reading predates the update: do not use it.
+            return Ok((self.core.hold_tick(), false));
+        }
+        Ok((self.core.step(m, buttons), true))
+    }
+
+    /// `hdCheckCalibration`, and `hdUpdateCalibration` when the library says it needs one
+    /// and the bridge may do it. Returns whether the calibration was updated.
+    fn check_calibration(&mut self, tick: u32, asked: bool) -> Result<bool, HdErrorInfo> {
+        let f = self.fns;
+        // SAFETY: plain HD calls inside this tick's frame, as the SDK's example makes them.
+        let status = unsafe { (f.check_calibration)() };
+        self.shared.calibration.store(status, Ordering::Release);
+        self.next_cal_check = tick.wrapping_add(if status == HD_CALIBRATION_OK {
+            CAL_CHECK_TICKS
+        } else {
+            CAL_CHECK_WAITING_TICKS
+        });
+        match status {
+            HD_CALIBRATION_OK => self.core.set_uncalibrated(false),
+            HD_CALIBRATION_NEEDS_MANUAL_INPUT => self.core.set_uncalibrated(true),
+            HD_CALIBRATION_NEEDS_UPDATE => match self.cal_style {
+                Some(style) if self.cal_auto || asked => {
+                    // SAFETY: as above.
+                    unsafe { (f.update_calibration)(style) };
+                    let (fatal, warning) = self.drain_errors();
+                    if let Some(e) = fatal {
+                        self.shared
+                            .calibration_error
+                            .store(e.error_code, Ordering::Release);
+                        // A communication or scheduler error ends the loop; a refused update
+                        // is reported and the device treated as uncalibrated.
+                        if matches!(
+                            e.error_code,
+                            HD_COMM_ERROR
+                                | HD_COMM_CONFIG_ERROR
+                                | HD_TIMER_ERROR
+                                | HD_INVALID_PRIORITY
+                                | HD_SCHEDULER_FULL
+                                | HD_DEVICE_FAULT
+                        ) {
+                            return Err(e);
+                        }
+                        self.core.set_uncalibrated(true);
+                        return Ok(false);
+                    }
+                    if warning.is_some() {
+                        self.core.device_warning();
+                    }
+                    self.shared
+                        .calibration_error
+                        .store(HD_SUCCESS, Ordering::Release);
+                    self.shared
+                        .calibration_updates
+                        .fetch_add(1, Ordering::AcqRel);
+                    self.core.device_recalibrated();
+                    return Ok(true);
+                }
+                // An encoder-reset device: the user must hold the arm at its reset position
+                // and ask (Calibrate); until then it is not calibrated.
+                _ => self.core.set_uncalibrated(true),
+            },
+            // A status this bridge does not know: leave things as they are.
+            _ => {}
+        }
+        Ok(false)
+    }
+
+    /// A state whenever tick * state_hz / 1000 steps: deterministic in the tick number, so
+    /// two runs of the same poses hand over states of the same ticks.
+    fn hand_over_state(&mut self, tick: u32) {
+        let hz = u64::from(self.state_hz);
+        if (u64::from(tick) * hz) / 1000 == (u64::from(tick.wrapping_sub(1)) * hz) / 1000 {
+            return;
+        }
+        let Some(state) = self.core.state() else {
+            return;
+        };
+        match self.shared.states_q.try_lock() {
+            Ok(mut q) => {
+                if q.len() >= STATE_QUEUE {
+                    q.pop_front();
+                    self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
+                }
+                // Within the reserved capacity: no allocation.
+                q.push_back((state, self.core.guide_frame()));
+                self.shared.states.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(_) => {
+                self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn finish(&mut self, why: u32, tick: u32, err: HdErrorInfo) -> HdCallbackCode {
         let s = &self.shared;
         s.error_code.store(err.error_code, Ordering::Release);
         s.internal_code
             .store(err.internal_error_code, Ordering::Release);
         s.error_hhd.store(err.h_hd, Ordering::Release);
-        s.stop_tick.store(self.core.tick(), Ordering::Release);
+        s.stop_tick.store(tick, Ordering::Release);
         s.why.store(why, Ordering::Release);
         s.forces_on.store(false, Ordering::Relaxed);
         s.done.store(true, Ordering::Release);
@@ -923,9 +1306,11 @@ impl HdErrorInfo {
     }
 }
 
-/// The scheduler callback: one servo frame. A panic inside (a bug) must not unwind into C:
-/// it is caught, the force zeroed, and the callback unschedules itself.
-unsafe extern "C" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
+/// The scheduler callback: one servo tick ([`ServoCtx::frame`], which catches a panic in the
+/// model itself). Should anything else in it panic, the panic must not unwind into C either:
+/// it is caught, a frame still open commits zero and is closed (no second frame is begun in
+/// the tick), and the callback unschedules itself.
+unsafe extern "system" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
     if user_data.is_null() {
         return HD_CALLBACK_DONE;
     }
@@ -935,14 +1320,17 @@ unsafe extern "C" fn servo_callback(user_data: *mut c_void) -> HdCallbackCode {
     match std::panic::catch_unwind(AssertUnwindSafe(|| ctx.frame())) {
         Ok(code) => code,
         Err(_) => {
-            let zero = [0.0f64; 3];
-            // SAFETY: as in `ServoCtx::frame`.
-            unsafe {
-                (ctx.fns.begin_frame)(ctx.hhd);
-                (ctx.fns.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
-                (ctx.fns.end_frame)(ctx.hhd);
+            if ctx.frame_open {
+                let zero = [0.0f64; 3];
+                // SAFETY: as in `ServoCtx::frame`, inside the frame it opened.
+                unsafe {
+                    (ctx.fns.set_doublev)(HD_CURRENT_FORCE, zero.as_ptr());
+                    (ctx.fns.end_frame)(ctx.hhd);
+                }
+                ctx.frame_open = false;
             }
-            ctx.finish(3, HdErrorInfo::none())
+            let tick = ctx.core.tick();
+            ctx.finish(3, tick, HdErrorInfo::none())
         }
     }
 }
@@ -968,11 +1356,30 @@ pub fn device_limits(peak_n: f64, continuous_n: f64) -> Result<DeviceLimits, Str
     Ok(limits)
 }
 
+/// The calibration style to update with, from HD_CALIBRATION_STYLE's mask, preferring what
+/// needs no help from the user, as the SDK's Calibration example does: auto, then inkwell,
+/// then encoder reset. `None` if the mask names none.
+pub fn calibration_style(mask: c_int) -> Option<HdEnum> {
+    [
+        HD_CALIBRATION_AUTO,
+        HD_CALIBRATION_INKWELL,
+        HD_CALIBRATION_ENCODER_RESET,
+    ]
+    .into_iter()
+    .find(|s| mask & s != 0)
+    .map(|s| s as HdEnum)
+}
+
 /// The running servo loop on a device.
 pub struct Bridge {
     lib: Arc<HdLib>,
     hhd: Hhd,
-    handle: HdSchedulerHandle,
+    /// The servo callback's handle, once scheduled.
+    handle: Option<HdSchedulerHandle>,
+    /// hdStartScheduler has succeeded.
+    started: bool,
+    /// HD_FORCE_OUTPUT has been enabled.
+    force_output: bool,
     ctx: *mut ServoCtx,
     shared: Arc<ServoShared>,
     limits: DeviceLimits,
@@ -985,8 +1392,10 @@ pub struct Bridge {
 unsafe impl Send for Bridge {}
 
 impl Bridge {
-    /// Initialises the default device, reads its force limits, enables force output and
-    /// schedules the servo callback at 1 kHz.
+    /// Initialises the default device, reads its force limits and calibration style,
+    /// enables force output and schedules the servo callback at 1 kHz. The HD error stack is
+    /// read after every setup call, so a failure is reported by the call that failed (and the
+    /// device released) before the servo loop runs.
     pub fn start(lib: Arc<HdLib>, opts: &BridgeOptions) -> anyhow::Result<Bridge> {
         let params = presets::by_name(&opts.preset).ok_or_else(|| {
             anyhow::anyhow!(
@@ -1000,83 +1409,125 @@ impl Bridge {
         }
         opts.mapping.validate().map_err(anyhow::Error::msg)?;
         let f = lib.fns();
-        let lib2 = lib.clone();
-        let hd_err = move |what: &str, e: HdErrorInfo| {
+        let hd_err = |what: &str, e: HdErrorInfo| {
             anyhow::anyhow!(
                 "{what}: {} (0x{:04x}, device code {}): {}",
                 error_name(e.error_code),
                 e.error_code,
                 e.internal_error_code,
-                lib2.error_string(e.error_code)
+                lib.error_string(e.error_code)
             )
         };
-        // SAFETY: plain calls of the HD API from one thread, before the scheduler runs.
+        // The first error a setup call left on the stack, with the rest read off.
+        let take_error = || -> Option<HdErrorInfo> {
+            let mut first = None;
+            for _ in 0..MAX_ERRORS_PER_TICK {
+                // SAFETY: a plain HD call, before the scheduler runs.
+                let e = unsafe { (f.get_error)() };
+                if !e.is_error() {
+                    break;
+                }
+                first.get_or_insert(e);
+            }
+            first
+        };
+        // Errors left by an earlier session in this process are not this start's.
+        let _ = take_error();
+        // SAFETY (this and the HD calls below): plain calls of the HD API from one thread,
+        // before the scheduler runs, with the buffer sizes hdDefines.h documents.
         let hhd = unsafe { (f.init_device)(HD_DEFAULT_DEVICE) };
-        let e = unsafe { (f.get_error)() };
-        if e.is_error() || hhd == HD_INVALID_HANDLE {
-            return Err(hd_err("cannot initialise the default haptic device", e));
+        if let Some(e) = take_error() {
+            return Err(hd_err(
+                "hdInitDevice: cannot initialise the default haptic device",
+                e,
+            ));
         }
-        let cleanup = |hhd| unsafe { (f.disable_device)(hhd) };
+        if hhd == HD_INVALID_HANDLE {
+            anyhow::bail!("hdInitDevice: cannot initialise the default haptic device");
+        }
+        // From here on a failure releases the device: `bridge` is dropped (shut down).
+        let mut bridge = Bridge {
+            lib: lib.clone(),
+            hhd,
+            handle: None,
+            started: false,
+            force_output: false,
+            ctx: std::ptr::null_mut(),
+            shared: Arc::new(ServoShared::new()),
+            limits: PHANTOM_OMNI,
+            params,
+            shut: false,
+        };
         let mut peak = 0.0f64;
         let mut cont = 0.0f64;
         unsafe {
             (f.get_doublev)(HD_NOMINAL_MAX_FORCE, &mut peak);
             (f.get_doublev)(HD_NOMINAL_MAX_CONTINUOUS_FORCE, &mut cont);
         }
-        let e = unsafe { (f.get_error)() };
-        if e.is_error() {
-            cleanup(hhd);
-            return Err(hd_err("cannot read the device's force limits", e));
+        if let Some(e) = take_error() {
+            return Err(hd_err(
+                "hdGetDoublev(HD_NOMINAL_MAX_FORCE): cannot read the device's force limits",
+                e,
+            ));
         }
-        let limits = match device_limits(peak, cont) {
-            Ok(l) => l,
-            Err(why) => {
-                cleanup(hhd);
-                anyhow::bail!(why);
+        bridge.limits = device_limits(peak, cont).map_err(anyhow::Error::msg)?;
+        let mut style_mask: c_int = 0;
+        unsafe { (f.get_integerv)(HD_CALIBRATION_STYLE, &mut style_mask) };
+        match take_error() {
+            None => {}
+            // A library that does not know the query: no calibration to manage.
+            Some(e) if e.error_code == HD_INVALID_ENUM => style_mask = 0,
+            Some(e) => {
+                return Err(hd_err(
+                    "hdGetIntegerv(HD_CALIBRATION_STYLE): cannot read the calibration style",
+                    e,
+                ))
             }
-        };
-        let core = match ServoCore::new(params, limits, opts.mapping, opts.forces_on) {
-            Ok(c) => c,
-            Err(why) => {
-                cleanup(hhd);
-                anyhow::bail!(why);
-            }
-        };
-        let shared = Arc::new(ServoShared::new());
-        let ctx = Box::into_raw(Box::new(ServoCtx {
+        }
+        let cal_style = calibration_style(style_mask);
+        let core = ServoCore::new(params, bridge.limits, opts.mapping, opts.forces_on)
+            .map_err(anyhow::Error::msg)?;
+        bridge.ctx = Box::into_raw(Box::new(ServoCtx {
             fns: f,
             hhd,
             core,
-            shared: shared.clone(),
+            shared: bridge.shared.clone(),
             state_hz: opts.state_hz,
             stop_after: opts.stop_after_ticks,
+            panic_at: opts.panic_at_tick,
+            cal_style,
+            cal_auto: cal_style.is_some_and(|s| s != HD_CALIBRATION_ENCODER_RESET as HdEnum),
+            next_cal_check: 1,
+            frame_open: false,
         }));
+        unsafe { (f.enable)(HD_FORCE_OUTPUT) };
+        bridge.force_output = true;
+        if let Some(e) = take_error() {
+            return Err(hd_err("hdEnable(HD_FORCE_OUTPUT) failed", e));
+        }
+        // The library's own clamp as a second line behind the output stage's.
+        unsafe { (f.enable)(HD_MAX_FORCE_CLAMPING) };
+        if let Some(e) = take_error() {
+            return Err(hd_err("hdEnable(HD_MAX_FORCE_CLAMPING) failed", e));
+        }
+        unsafe { (f.set_scheduler_rate)(1000) };
+        if let Some(e) = take_error() {
+            return Err(hd_err("hdSetSchedulerRate(1000) failed", e));
+        }
         // SAFETY: `ctx` stays valid until `shutdown`, after hdStopScheduler.
         let handle = unsafe {
-            (f.enable)(HD_FORCE_OUTPUT);
-            // The library's own clamp as a second line behind the output stage's.
-            (f.enable)(HD_MAX_FORCE_CLAMPING);
-            (f.set_scheduler_rate)(1000);
-            let h =
-                (f.schedule_asynchronous)(servo_callback, ctx.cast(), HD_MAX_SCHEDULER_PRIORITY);
-            (f.start_scheduler)();
-            h
+            (f.schedule_asynchronous)(servo_callback, bridge.ctx.cast(), HD_MAX_SCHEDULER_PRIORITY)
         };
-        let mut bridge = Bridge {
-            lib,
-            hhd,
-            handle,
-            ctx,
-            shared,
-            limits,
-            params,
-            shut: false,
-        };
-        let e = unsafe { (f.get_error)() };
-        if e.is_error() {
-            let err = hd_err("cannot start the servo loop", e);
-            bridge.shutdown();
-            return Err(err);
+        if let Some(e) = take_error() {
+            return Err(hd_err("hdScheduleAsynchronous failed", e));
+        }
+        bridge.handle = Some(handle);
+        unsafe { (f.start_scheduler)() };
+        // Even if it reports an error, the scheduler may have begun: the teardown stops it
+        // before the callback's context is freed.
+        bridge.started = true;
+        if let Some(e) = take_error() {
+            return Err(hd_err("hdStartScheduler: cannot start the servo loop", e));
         }
         Ok(bridge)
     }
@@ -1105,35 +1556,45 @@ impl Bridge {
     }
 
     /// Stops the servo loop (the callback's last frame commands zero force), the scheduler,
-    /// and releases the device. Idempotent.
+    /// and releases the device. Idempotent; also undoes a start that failed half-way.
     pub fn shutdown(&mut self) {
         if self.shut {
             return;
         }
         self.shut = true;
         let f = self.lib.fns();
-        self.shared.stop.store(true, Ordering::Release);
-        // Let the callback see the stop and command zero itself (a few frames at most).
-        let deadline = Instant::now() + Duration::from_millis(200);
-        while !self.shared.done() && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(1));
+        if self.started {
+            self.shared.stop.store(true, Ordering::Release);
+            // Let the callback see the stop and command zero itself (a few frames at most).
+            let deadline = Instant::now() + Duration::from_millis(200);
+            while !self.shared.done() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(1));
+            }
         }
         // SAFETY: plain HD calls; after hdStopScheduler returns the callback no longer runs,
         // so `ctx` can be freed.
         unsafe {
-            (f.stop_scheduler)();
-            if !self.shared.done() {
-                (f.unschedule)(self.handle);
+            if self.started {
+                (f.stop_scheduler)();
             }
-            (f.disable)(HD_FORCE_OUTPUT);
+            if let Some(h) = self.handle {
+                if !self.shared.done() {
+                    (f.unschedule)(h);
+                }
+            }
+            if self.force_output {
+                (f.disable)(HD_FORCE_OUTPUT);
+            }
             (f.disable_device)(self.hhd);
             // Errors of the teardown itself are of no use any more; drain them.
-            for _ in 0..16 {
+            for _ in 0..MAX_ERRORS_PER_TICK {
                 if !(f.get_error)().is_error() {
                     break;
                 }
             }
-            drop(Box::from_raw(self.ctx));
+            if !self.ctx.is_null() {
+                drop(Box::from_raw(self.ctx));
+            }
         }
         self.ctx = std::ptr::null_mut();
     }
@@ -1312,6 +1773,99 @@ mod tests {
         assert!(!core.faults().is_empty());
         // Stays at zero until cleared, whatever the pose.
         assert_eq!(core.step(&m, 0), [0.0; 3]);
+    }
+
+    /// The stylus held upright at device height `y` (mm), as a transform.
+    fn upright_at(y: f64) -> [f64; 16] {
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        transform_of_pose([0.0, y, 0.0], Quat::new(h, -h, 0.0, 0.0))
+    }
+
+    #[test]
+    fn the_safe_start_waits_for_the_brush_above_the_paper() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        // In the inkwell, below the paper: held, whatever the model would push.
+        for _ in 0..600 {
+            assert_eq!(core.step(&upright_at(-65.6), 0), [0.0; 3]);
+        }
+        assert!(core.awaiting_lift() && !core.forces_enabled());
+        // Lifted (as a hand does, no sensor jump) until the ferrule is just under a brush
+        // length above the paper: still held.
+        let paper = Mapping::default().paper_height_mm;
+        let below = paper + params.length_mm as f64 - 0.5;
+        let mut y = -65.6;
+        while y < below {
+            y = (y + 0.1).min(below);
+            assert_eq!(core.step(&upright_at(y), 0), [0.0; 3]);
+        }
+        assert!(core.awaiting_lift() && core.faults().is_empty());
+        core.step(&upright_at(paper + params.length_mm as f64 + 0.5), 0);
+        assert!(!core.awaiting_lift() && core.forces_enabled());
+        // The user's explicit enable skips the wait.
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        core.step(&upright_at(-65.6), 0);
+        core.apply(ServoCommand::EnableForces(true));
+        core.step(&upright_at(-65.6), 0);
+        assert!(core.forces_enabled());
+        // Asked for no forces: none, wherever the stylus goes.
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), false).unwrap();
+        core.step(&upright_at(0.0), 0);
+        assert!(!core.awaiting_lift() && !core.forces_enabled());
+    }
+
+    #[test]
+    fn calibration_holds_forces_and_an_update_is_no_jump() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        core.set_uncalibrated(true);
+        for _ in 0..10 {
+            core.step(&upright_at(20.0), 0);
+        }
+        assert_eq!(core.faults(), Faults::NOT_CALIBRATED);
+        assert!(!core.forces_enabled(), "held while the inkwell is wanted");
+        core.device_recalibrated();
+        assert_eq!(core.hold_tick(), [0.0; 3]);
+        // 30 mm lower at once: the calibrated pose, no sensor jump.
+        core.step(&upright_at(-10.0), 0);
+        assert!(core.faults().is_empty(), "{:?}", core.faults());
+        assert!(core.forces_enabled());
+        let z = core.state().unwrap().handle.pose().pos.z.to_f64();
+        assert!((z - 50.0).abs() < 1e-6, "{z}");
+        // The same jump without the update is one.
+        core.step(&upright_at(20.0), 0);
+        assert!(core.faults().contains(Faults::SENSOR_JUMP));
+    }
+
+    #[test]
+    fn a_device_warning_latches_until_cleared() {
+        let params = presets::by_name("large").unwrap();
+        let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
+        for _ in 0..10 {
+            core.step(&upright_at(-10.0), 0);
+        }
+        core.device_warning();
+        assert_eq!(core.step(&upright_at(-30.0), 0), [0.0; 3]);
+        assert_eq!(core.faults(), Faults::DEVICE_WARNING);
+        core.apply(ServoCommand::EnableForces(true));
+        assert!(!core.forces_enabled(), "enabling waits for the clear");
+        core.apply(ServoCommand::ClearFaults);
+        core.step(&upright_at(-30.0), 0);
+        assert!(core.faults().is_empty() && core.forces_enabled());
+    }
+
+    #[test]
+    fn the_calibration_style_prefers_what_needs_no_help() {
+        assert_eq!(calibration_style(0), None);
+        assert_eq!(
+            calibration_style(HD_CALIBRATION_ENCODER_RESET | HD_CALIBRATION_INKWELL),
+            Some(HD_CALIBRATION_INKWELL as HdEnum)
+        );
+        assert_eq!(calibration_style(7), Some(HD_CALIBRATION_AUTO as HdEnum));
+        assert_eq!(
+            calibration_style(HD_CALIBRATION_ENCODER_RESET),
+            Some(HD_CALIBRATION_ENCODER_RESET as HdEnum)
+        );
     }
 
     #[test]

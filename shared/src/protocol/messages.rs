@@ -212,6 +212,10 @@ bitflags::bitflags! {
         /// is true (forces refused with [`CommandError::ConfigNotValid`]), gone once
         /// [`Command::Calibrate`] succeeds; [`Command::ClearFaults`] does not clear it.
         const NOT_CALIBRATED = 1 << 5;
+        /// The force device refused or limited a command on its own: the Phantom bridge's
+        /// HD library raised a device warning (force, force impulse, velocity, warm motors).
+        /// Forces stay at zero, the brush restarts at rest, until cleared.
+        const DEVICE_WARNING = 1 << 6;
     }
 }
 flag_fmt!(Faults);

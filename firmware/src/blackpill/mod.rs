@@ -290,8 +290,6 @@ fn start() -> (
     let Some(fl) = built else {
         fatal("the brush preset or the force model's defaults are invalid");
     };
-    // 2 ms of cycles: one tick overruns, the watchdog does not fire.
-    fl.set_overrun_burn(2 * SYSCLK_HZ / 1000);
     fl.reanchor();
     if reset_by_watchdog {
         defmt::error!("reset by the watchdog: the force loop had stopped");

@@ -19,7 +19,7 @@ use hil::qemu::stack_readings;
 use hil::run::QemuDevice;
 use maobi_shared::protocol::fuzz::{self, Fuzz, Piece};
 use maobi_shared::protocol::{DeviceMsg, EventKind, HostMsg};
-use maobi_shared::Fx;
+use maobi_shared::{Fx, Scalar};
 
 const TIMEOUT: Duration = Duration::from_secs(900);
 const ANSWER: Duration = Duration::from_secs(20);

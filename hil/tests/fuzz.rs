@@ -30,6 +30,9 @@ const MESSAGES: usize = 6000;
 const STREAM_SECS: u64 = 120;
 /// Share of frames damaged.
 const DAMAGED: f64 = 0.1;
+/// A round trip every this many messages (the host's own pings, [`SYNC_SEQ`] on).
+const SYNC_EVERY: usize = 32;
+const SYNC_SEQ: u32 = 0x5EC0_0000;
 
 fn env_num(key: &str, default: u64) -> u64 {
     std::env::var(key)
@@ -47,6 +50,8 @@ struct Seen {
     /// States with the motors driven, and the largest commanded force (N) among them.
     driven: u32,
     peak_n: f64,
+    /// States with forces off and a motor nudged.
+    nudged: u32,
     /// The largest peak force the pen was configured for so far (N): its own at the
     /// handshake, then any configuration it accepted.
     limit_n: f64,
@@ -70,9 +75,19 @@ impl Seen {
             }
             DeviceMsg::State(st) => {
                 self.states += 1;
-                // The virtual pen's motor commands are the force's components (N).
+                // With forces enabled, the virtual pen's motor commands are the components
+                // of the force on the hand (N). With forces off the motors may still run
+                // for a bring-up nudge: one motor's torque, capped by the protocol
+                // (`Nudge::MAX_PERMILLE` of the configured motor's full torque), not a
+                // force the model commands.
                 let f = st.haptics.motors.map(|b| Fx::from_bits(b).to_f64());
                 let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+                if !st.haptics.enabled {
+                    if n > 0.0 {
+                        self.nudged += 1;
+                    }
+                    return;
+                }
                 if n > 0.0 {
                     self.driven += 1;
                 }
@@ -110,11 +125,17 @@ fn random_host_traffic_never_takes_the_pen_down() {
     };
 
     let start = Instant::now();
-    let (mut sent, mut damaged) = (0usize, 0usize);
+    let (mut sent, mut damaged, mut syncs) = (0usize, 0usize, 0usize);
     while sent < max_messages && start.elapsed() < budget {
         for p in fz.host_pieces(DAMAGED) {
-            if matches!(p, Piece::Damaged(_)) {
-                damaged += 1;
+            match &p {
+                Piece::Damaged(_) => damaged += 1,
+                // A valid configuration sent may be in force from the next tick on, before
+                // its answer comes back: its limits count from now.
+                Piece::Frame(HostMsg::SetConfig(cfg), _) if cfg.validate().is_ok() => {
+                    seen.limit_n = seen.limit_n.max(f64::from(cfg.limits.peak_n));
+                }
+                _ => {}
             }
             s.write_raw(p.bytes()).unwrap();
             sent += 1;
@@ -122,10 +143,18 @@ fn random_host_traffic_never_takes_the_pen_down() {
         for r in s.poll().unwrap() {
             seen.take(&r.msg);
         }
-        // About the pace the pen consumes poses at, so the walk's poses move the brush
-        // rather than overflow its queue.
-        if sent % 4 == 0 {
-            std::thread::sleep(Duration::from_millis(2));
+        // Every so often a round trip, as a host keeps in step with its device: the pen
+        // under emulation reads slower than a host can write, and without it the stream
+        // would pile up in the socket ahead of the pen. It also shows the link still
+        // serving all along.
+        if sent / SYNC_EVERY > syncs {
+            syncs += 1;
+            let mut skipped = vec![];
+            let r = s.ping(SYNC_SEQ.wrapping_add(syncs as u32), ANSWER, &mut skipped);
+            for m in &skipped {
+                seen.take(&m.msg);
+            }
+            r.unwrap_or_else(|e| panic!("after {sent} messages: {e}"));
         }
     }
     let streamed = start.elapsed();
@@ -156,7 +185,7 @@ fn random_host_traffic_never_takes_the_pen_down() {
         .collect();
     println!(
         "FUZZ pen: seed={seed:#x} messages={sent} damaged={damaged} kinds={}/{} \
-         faults_raised={} faults_cleared={} states={} driven={} peak_force_n={:.3} \
+         faults_raised={} faults_cleared={} states={} driven={} nudged={} peak_force_n={:.3} \
          limit_n={:.3} deepest_stack_bytes={} reserve_bytes={} streamed_s={:.1}",
         kinds.len(),
         fuzz::HOST_KINDS.len(),
@@ -164,6 +193,7 @@ fn random_host_traffic_never_takes_the_pen_down() {
         seen.faults_cleared,
         seen.states,
         seen.driven,
+        seen.nudged,
         seen.peak_n,
         seen.limit_n,
         deepest.map_or("none".into(), |d| d.to_string()),

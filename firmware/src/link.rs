@@ -394,7 +394,11 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             }
             Wire::ClearFaults => Command::ClearFaults,
             Wire::ResetBrush => Command::ResetBrush,
+            #[cfg(feature = "test-hooks")]
             Wire::InjectOverrun => Command::InjectOverrun,
+            // A test hook: only test builds of the firmware offer it.
+            #[cfg(not(feature = "test-hooks"))]
+            Wire::InjectOverrun => return Err(CommandError::Unsupported),
             Wire::StreamSensors { rate_hz } => {
                 if *rate_hz > SENSOR_RATE_MAX_HZ {
                     return Err(CommandError::OutOfRange);

@@ -7,6 +7,18 @@ use anyhow::{bail, Context, Result};
 
 pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const BIN: &str = "maobi-fw";
+/// The QEMU image with the firmware's test hooks (feature `test-hooks`: fault injection,
+/// the `crash` boot modes), a bin of its own so that building it never replaces [`BIN`].
+pub const HOOKS_BIN: &str = "maobi-fw-hooks";
+/// `cargo build` arguments in `firmware/` for [`HOOKS_BIN`].
+const HOOKS_BUILD_ARGS: &[&str] = &[
+    "build",
+    "--release",
+    "--features",
+    "test-hooks",
+    "--bin",
+    HOOKS_BIN,
+];
 
 /// The boards the firmware builds for (`firmware/Cargo.toml`'s `board-*` features).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -111,14 +123,43 @@ pub fn qemu_test_image() -> Option<PathBuf> {
     .clone()
 }
 
+/// The QEMU image with the test hooks ([`HOOKS_BIN`]) for the hil tests that inject faults,
+/// built once per test binary; `None` as for [`qemu_test_image`]. The pen's images never
+/// have them: [`qemu_test_image`] is the image a test uses to show that.
+pub fn qemu_test_hooks_image() -> Option<PathBuf> {
+    static ELF: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    ELF.get_or_init(|| {
+        qemu_test_image()?;
+        Some(build_test_hooks().expect("the firmware builds with its test hooks"))
+    })
+    .clone()
+}
+
+/// Builds [`HOOKS_BIN`]: the QEMU image's code with the `test-hooks` feature. Only the
+/// firmware crate is compiled again (its dependencies' features do not change).
+pub fn build_test_hooks() -> Result<PathBuf> {
+    cargo_build(HOOKS_BUILD_ARGS)?;
+    Ok(firmware_dir()
+        .join("target")
+        .join(TARGET)
+        .join(Board::Qemu.profile())
+        .join(HOOKS_BIN))
+}
+
 /// Builds `board`'s image.
 pub fn build_board(board: Board) -> Result<PathBuf> {
+    cargo_build(board.build_args())?;
+    Ok(board_elf(board))
+}
+
+/// Runs `cargo ARGS` in `firmware/`.
+fn cargo_build(args: &[&str]) -> Result<()> {
     let dir = firmware_dir();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let status = Command::new(cargo)
         .current_dir(&dir)
         // Not `--locked`: a dependency added to maobi-shared must not break the HIL build.
-        .args(board.build_args())
+        .args(args)
         // The firmware's own target dir, whatever the calling cargo uses.
         .env("CARGO_TARGET_DIR", dir.join("target"))
         .env_remove("RUSTFLAGS")
@@ -129,7 +170,7 @@ pub fn build_board(board: Board) -> Result<PathBuf> {
     if !status.success() {
         bail!("building the firmware failed ({status})");
     }
-    Ok(board_elf(board))
+    Ok(())
 }
 
 /// The image: `elf` if given, else a fresh build unless `no_build`.

@@ -171,6 +171,33 @@ impl Guest {
     pub fn deadline(&self) -> Instant {
         self.deadline
     }
+
+    /// Stops the emulator and returns its stdout, with how it had exited if it had (`None`:
+    /// it was still running, as a device should be).
+    pub fn stop(&mut self) -> Result<(Option<ExitStatus>, String)> {
+        let exited = self.child.try_wait()?;
+        if exited.is_none() {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+        let mut out = String::new();
+        if let Some(mut s) = self.child.stdout.take() {
+            s.read_to_string(&mut out)?;
+        }
+        Ok((exited, out))
+    }
+}
+
+/// The firmware's stack readings in its stdout (`STACK high_water_bytes=N`, printed by the
+/// supervisor at each new high-water mark, `firmware/src/app/stack.rs`), deepest first.
+pub fn stack_readings(stdout: &str) -> Vec<u64> {
+    let mut r: Vec<u64> = stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix("STACK high_water_bytes="))
+        .filter_map(|n| n.trim().parse().ok())
+        .collect();
+    r.sort_unstable_by(|a, b| b.cmp(a));
+    r
 }
 
 impl Drop for Guest {

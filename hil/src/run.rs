@@ -35,11 +35,24 @@ impl QemuDevice {
         qemu_args: &[String],
         timeout: Duration,
     ) -> Result<(Self, TcpStream)> {
+        Self::start_at_shift(elf, 0, extra, qemu_args, timeout)
+    }
+
+    /// As [`Self::start_with`] at `-icount shift=SHIFT,sleep=off`: a virtual millisecond
+    /// holds 2^SHIFT times fewer instructions, so the force loop is paced 2^SHIFT times
+    /// slower ([`EMULATED_TICK_US`] at shift 0) and keeps the same share of each tick.
+    pub fn start_at_shift(
+        elf: &Path,
+        shift: u32,
+        extra: &[&str],
+        qemu_args: &[String],
+        timeout: Duration,
+    ) -> Result<(Self, TcpStream)> {
         let port = free_port()?;
-        let tick = format!("tick_us={EMULATED_TICK_US}");
+        let tick = format!("tick_us={}", EMULATED_TICK_US << shift);
         let mut args = vec!["run", tick.as_str()];
         args.extend_from_slice(extra);
-        let mut run = Run::new(elf, &args, Clock::Deterministic { shift: 0 }, timeout);
+        let mut run = Run::new(elf, &args, Clock::Deterministic { shift }, timeout);
         run.uart_port = Some(port);
         run.qemu_args = qemu_args.to_vec();
         let guest = run.spawn()?;

@@ -13,7 +13,8 @@ use hil::link::{self, Action, Session, StreamLog, StreamOptions};
 use hil::run::{self, QemuDevice};
 use maobi::poses::PoseTrack;
 use maobi_shared::protocol::{
-    crc32, Command, DeviceMsg, EventKind, Faults, HostMsg, HOST_TO_DEVICE, PROTOCOL_VERSION,
+    crc32, Command, CommandError, DeviceMsg, EventKind, Faults, HostMsg, HOST_TO_DEVICE,
+    PROTOCOL_VERSION,
 };
 use maobi_shared::{presets, Fx, Scalar};
 
@@ -258,13 +259,24 @@ fn link_cut_mid_stroke_latches_link_silent_and_zeroes_the_motors() {
     }
 }
 
-#[test]
-fn injected_overrun_turns_the_motors_off_until_cleared() {
-    let Some(elf) = image() else { return };
+/// An injected overrun (the test image's hook) under QEMU at `-icount shift=SHIFT`: it costs
+/// one tick's overrun by the board's own tick timer, so it latches `LOOP_OVERRUN` with the
+/// motors off, never the watchdog's FATAL; the link answers throughout, forces are refused
+/// while it is latched, and `ClearFaults` brings the pen back.
+fn injected_overrun_degrades_at_shift(shift: u32) {
+    let Some(elf) = firmware::qemu_test_hooks_image() else {
+        return;
+    };
     let t = track("hook.csv");
     let poses = link::track_poses(&t);
-    let (dev, stream) =
-        QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=100"], TIMEOUT).unwrap();
+    let (mut dev, stream) = QemuDevice::start_at_shift(
+        &elf,
+        shift,
+        &["state_hz=1000", "telemetry_ticks=100"],
+        &[],
+        TIMEOUT,
+    )
+    .unwrap();
     let mut s = Session::new(stream).unwrap();
     let mut log = StreamLog::default();
     s.handshake(Duration::from_secs(10), &mut log.received)
@@ -273,6 +285,9 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
     let cmd = |c| vec![Action::Send(HostMsg::Command(c))];
     let mut actions = std::collections::BTreeMap::new();
     actions.insert(300, cmd(Command::InjectOverrun));
+    // While latched: the link answers a ping, and enabling is refused.
+    actions.insert(500, vec![Action::Send(HostMsg::Ping { seq: 0x0E_0001 })]);
+    actions.insert(510, cmd(Command::EnableForces));
     actions.insert(700, cmd(Command::ClearFaults));
     actions.insert(710, cmd(Command::EnableForces));
     let opts = StreamOptions {
@@ -280,10 +295,19 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
         ..Default::default()
     };
     link::stream(&mut s, &poses, opts, &mut log).unwrap();
-    drop(dev);
+    // Still serving after the stroke: a round trip, and QEMU has not exited.
+    s.ping(7, Duration::from_secs(20), &mut log.received)
+        .expect("the link answers after the overrun");
+    drop(s);
+    let (alive, out) = dev.guest.stop().unwrap();
+    assert!(
+        alive.is_none(),
+        "shift {shift}: QEMU exited ({alive:?}): {out}"
+    );
+    assert!(!out.contains("FATAL"), "shift {shift}: {out}");
 
     let events: Vec<_> = log.events().cloned().collect();
-    println!("{:?}", events);
+    println!("shift {shift}: {events:?}");
     let t_o = events
         .iter()
         .find_map(|e| match &e.kind {
@@ -299,6 +323,17 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
         })
         .expect("LOOP_OVERRUN cleared");
     assert!(t_c > t_o);
+    // Nothing but the overrun: no stall, no other fault raised by it.
+    for e in &events {
+        if let EventKind::FaultRaised(f) = &e.kind {
+            assert_eq!(*f, Faults::LOOP_OVERRUN, "shift {shift}: {e:?}");
+        }
+    }
+    let pong_at = log
+        .received
+        .iter()
+        .position(|r| matches!(r.msg, DeviceMsg::Pong { seq: 0x0E_0001 }))
+        .expect("the pong sent while the overrun was latched");
     let states: Vec<_> = log.states().map(|(_, st)| st.clone()).collect();
     let before = states.iter().filter(|st| st.tick < t_o);
     assert!(before.clone().any(|st| st.haptics.motors != [0; 3]));
@@ -314,6 +349,19 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
         assert!(!st.haptics.enabled);
         assert_eq!(st.haptics.motors, [0; 3], "tick {}", st.tick);
     }
+    // The pong came while latched: after the overrun, before the clear.
+    let pong_tick = log.received[..pong_at]
+        .iter()
+        .rev()
+        .find_map(|r| match &r.msg {
+            DeviceMsg::State(st) => Some(st.tick),
+            _ => None,
+        })
+        .unwrap();
+    assert!(
+        pong_tick > t_o && pong_tick < t_c,
+        "pong at tick {pong_tick}"
+    );
     // Off from the very next tick (whose state may be missed: it runs right after the
     // overrunning one, before the link task has taken that one's snapshot).
     let first = latched.first().unwrap();
@@ -322,7 +370,7 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
         "first state after the overrun: tick {}",
         first.tick
     );
-    // Enable refused while latched? (Not sent then.) After clear + enable: driven again.
+    // After clear + enable: driven again.
     assert!(
         events
             .iter()
@@ -335,12 +383,43 @@ fn injected_overrun_turns_the_motors_off_until_cleared() {
             .any(|st| st.tick > t_c && st.haptics.enabled && st.haptics.motors != [0; 3]),
         "driven again after clear and enable"
     );
-    // Commands were all answered OK.
-    let results: Vec<_> = log.command_results().collect();
-    assert!(results.iter().all(|(_, ok)| *ok), "{results:?}");
-    // Telemetry saw the long tick.
+    // Every command answered OK but the enable while latched, refused for the overrun.
+    let results: Vec<_> = log
+        .received
+        .iter()
+        .filter_map(|r| match &r.msg {
+            DeviceMsg::CommandDone { command, result } => Some((command.clone(), result.clone())),
+            _ => None,
+        })
+        .collect();
+    let refused: Vec<_> = results.iter().filter(|(_, r)| r.is_err()).collect();
+    assert_eq!(refused.len(), 1, "{results:?}");
+    match refused[0] {
+        (Command::EnableForces, Err(CommandError::FaultsLatched(f))) => {
+            assert!(f.contains(Faults::LOOP_OVERRUN), "{f:?}")
+        }
+        other => panic!("{other:?}"),
+    }
+    // One tick's overrun, by the board's own period: the overrunning tick ran on until the
+    // next one fell due, which then started at once, so no interval between tick starts
+    // reached two periods (a fixed burn of cycles would have, at one shift or another).
+    let period = hil::selftest::EMULATED_TICK_US << shift;
     let max = log.telemetry().map(|t| t.tick_period_max_us).max().unwrap();
-    assert!(max > 4000, "longest tick period {max} us");
+    assert!(
+        max >= period && max < 2 * period,
+        "longest tick period {max} us, paced at {period}"
+    );
+    println!("shift {shift}: overrun latched at tick {t_o}, cleared at {t_c}, longest tick period {max} us");
+}
+
+#[test]
+fn injected_overrun_at_shift_0_latches_loop_overrun_until_cleared() {
+    injected_overrun_degrades_at_shift(0);
+}
+
+#[test]
+fn injected_overrun_at_shift_3_latches_loop_overrun_until_cleared() {
+    injected_overrun_degrades_at_shift(3);
 }
 
 /// Sends `m` and returns the device's answer (`Param` or `CommandDone`).
@@ -484,24 +563,21 @@ fn parameters_and_commands_are_validated_and_answered() {
         done(ask(&mut s, HostMsg::Command(Command::ResetBrush))),
         Ok(())
     );
+    // The image built without the test hooks (what `cargo build --release` makes, like the
+    // pen's) refuses fault injection, and nothing overruns.
     assert_eq!(
         done(ask(&mut s, HostMsg::Command(Command::InjectOverrun))),
-        Ok(())
+        Err(CommandError::Unsupported)
     );
-    // Wait for the overrun to latch, then enabling is refused with the latched faults.
-    s.wait_for(Duration::from_secs(10), &mut vec![], |m| match m {
-        DeviceMsg::Event(e) => match &e.kind {
-            EventKind::FaultRaised(f) if f.contains(Faults::LOOP_OVERRUN) => Some(()),
-            _ => None,
-        },
-        _ => None,
-    })
-    .unwrap()
-    .expect("LOOP_OVERRUN raised");
-    match done(ask(&mut s, HostMsg::Command(Command::EnableForces))) {
-        Err(CommandError::FaultsLatched(f)) => assert!(f.contains(Faults::LOOP_OVERRUN)),
-        other => panic!("{other:?}"),
+    let mut after = vec![];
+    for seq in 0..20 {
+        s.ping(seq, Duration::from_secs(10), &mut after).unwrap();
     }
+    let raised: Vec<_> = after
+        .iter()
+        .filter(|r| matches!(&r.msg, DeviceMsg::Event(e) if matches!(e.kind, EventKind::FaultRaised(_))))
+        .collect();
+    assert!(raised.is_empty(), "{raised:?}");
     assert_eq!(
         done(ask(&mut s, HostMsg::Command(Command::ClearFaults))),
         Ok(())

@@ -8,12 +8,12 @@
 //! Needs `qemu-system-arm` (skipped with a message without it, unless `MAOBI_REQUIRE_QEMU`
 //! is set, as in CI).
 
-use std::io::Read;
 use std::path::Path;
 use std::time::Duration;
 
 use hil::firmware::{self, Board};
 use hil::link::{self, Session, StreamLog, StreamOptions};
+use hil::qemu::stack_readings as readings;
 use hil::run::QemuDevice;
 use maobi::poses::PoseTrack;
 use maobi_shared::kinematics::RawReadings;
@@ -22,17 +22,6 @@ use maobi_shared::protocol::{Command, DeviceMsg, HostMsg};
 
 const TIMEOUT: Duration = Duration::from_secs(600);
 const ANSWER: Duration = Duration::from_secs(20);
-
-/// The `STACK high_water_bytes=N` readings in the firmware's stdout, deepest first.
-fn readings(stdout: &str) -> Vec<u64> {
-    let mut r: Vec<u64> = stdout
-        .lines()
-        .filter_map(|l| l.strip_prefix("STACK high_water_bytes="))
-        .filter_map(|n| n.trim().parse().ok())
-        .collect();
-    r.sort_unstable_by(|a, b| b.cmp(a));
-    r
-}
 
 #[test]
 fn readings_are_parsed_deepest_first() {
@@ -102,12 +91,7 @@ fn the_deepest_stack_fits_the_reserve() {
         let _ = s.poll();
     }
     drop(s);
-    let _ = dev.guest.child.kill();
-    let _ = dev.guest.child.wait();
-    let mut out = String::new();
-    if let Some(mut o) = dev.guest.child.stdout.take() {
-        o.read_to_string(&mut out).unwrap();
-    }
+    let (_, out) = dev.guest.stop().unwrap();
     let _ = std::fs::remove_file(&path);
     let r = readings(&out);
     println!("stack readings (bytes, deepest first): {r:?}");

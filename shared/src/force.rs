@@ -635,10 +635,21 @@ impl<S: Scalar> OutputStage<S> {
     }
 }
 
+/// Squares above this (N^2) may have saturated in fixed point (`Fx`'s range ends at 2^31),
+/// so the norm from them is too short and a clamp by it too weak.
+const SQUARE_MAY_SATURATE: f32 = 1.0e9;
+
 /// `v` scaled down to length `max` if it is longer.
 fn clamp_norm<S: Scalar>(v: Vec3<S>, max: S) -> Vec3<S> {
     let n2 = v.norm2();
     if n2 > max * max {
+        if n2 > S::from_f32(SQUARE_MAY_SATURATE) {
+            // A force from a model pushed far outside its range (a hostile host's poses):
+            // measure it scaled by its longest component, whose square cannot saturate.
+            let big = v.x.abs().max(v.y.abs()).max(v.z.abs());
+            let u = v.scale(big.recip());
+            return u.scale(max * u.norm2().rsqrt());
+        }
         v.scale(max * n2.rsqrt())
     } else {
         v

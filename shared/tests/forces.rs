@@ -179,6 +179,36 @@ fn output_stage_states() {
     assert!(s.apply(f, Vec3::ZERO).z.to_f64() > 0.0);
 }
 
+/// A model force far beyond fixed point's squares (a hostile host's poses drive the model
+/// there): the command still stays within the peak, tick after tick. The norm's square
+/// saturated, the clamp came out too weak, and the step limit walked the command past the
+/// peak at 0.2 N a tick (found by the pen's fuzz test, `hil/tests/fuzz.rs`).
+#[test]
+fn a_force_beyond_fixed_points_range_is_still_clamped_to_the_peak() {
+    for wanted in [
+        [-2.4e6, 0.6, 7.2],
+        [5.5e5, -4.0e5, 1.0e5],
+        [0.0, 0.0, 2.0e9],
+        [3.0e4, 3.0e4, 3.0e4],
+    ] {
+        let mut s = OutputStage::<Fx>::new(PHANTOM_OMNI).unwrap();
+        s.enable();
+        let f = Vec3::<Fx>::from_f64(wanted);
+        let mut last = 0.0;
+        for k in 0..3000 {
+            let c = s.apply(f, Vec3::ZERO);
+            let n = c.to_f64();
+            last = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            assert!(
+                last <= f64::from(PHANTOM_OMNI.peak_n) * (1.0 + 1e-6),
+                "{wanted:?}, tick {k}: {last} N"
+            );
+        }
+        // Held at the thermal limit by then, pointing along the wanted force.
+        assert!(last > 0.5, "{wanted:?}: {last} N");
+    }
+}
+
 /// The command after the passivity controller's ticks (see the test below), and the energy
 /// the observer holds then (J).
 fn passivity_run<S: Scalar>(step_mm: f64) -> (f64, f64) {

@@ -230,9 +230,12 @@ pub enum Command {
     DisableForces,
     /// Clear every latched fault (re-arms the link timer).
     ClearFaults,
-    /// Test hook: burn more than one tick's time in the next tick.
+    /// Test hook: the next tick runs on until the following one falls due (by the board's
+    /// own tick timer), one overrun.
+    #[cfg(feature = "test-hooks")]
     InjectOverrun,
     /// Test hook: the force loop never returns from its next tick (for the watchdog).
+    #[cfg(feature = "test-hooks")]
     #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's crash test
     Stall,
     /// Set a brush parameter (validated by the link task; a rejection here latches
@@ -286,10 +289,6 @@ pub type PoseProducer = heapless::spsc::Producer<'static, PoseIn>;
 #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
 pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
 
-/// Cycles [`Command::InjectOverrun`] burns in one tick unless the board says otherwise:
-/// more than a millisecond at any `-icount` shift QEMU runs with, and on any real clock.
-pub const OVERRUN_BURN_CYCLES: u32 = 8_000_000;
-
 /// The state the link task reports, built by the force loop when a state frame is due (or
 /// when the link task asks).
 ///
@@ -342,8 +341,9 @@ pub struct ForceLoop<P, M, W> {
     last_pose: Option<Pose<Fx>>,
     /// The next pose places the brush at rest rather than dragging it there.
     reanchor: bool,
+    /// [`Command::InjectOverrun`] arrived: [`run_tick`] overruns this tick.
+    #[cfg(feature = "test-hooks")]
     inject_overrun: bool,
-    overrun_burn_cycles: u32,
     forces: force::HandForces,
     force: [Fx; 3],
     enabled: bool,
@@ -416,8 +416,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             addr_of_mut!((*p).pose_gaps).write(0);
             addr_of_mut!((*p).last_pose).write(None);
             addr_of_mut!((*p).reanchor).write(false);
+            #[cfg(feature = "test-hooks")]
             addr_of_mut!((*p).inject_overrun).write(false);
-            addr_of_mut!((*p).overrun_burn_cycles).write(OVERRUN_BURN_CYCLES);
             addr_of_mut!((*p).forces).write(forces);
             addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
             addr_of_mut!((*p).enabled).write(false);
@@ -438,8 +438,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 pose_gaps: _,
                 last_pose: _,
                 reanchor: _,
+                #[cfg(feature = "test-hooks")]
                 inject_overrun: _,
-                overrun_burn_cycles: _,
                 forces: _,
                 force: _,
                 enabled: _,
@@ -448,13 +448,6 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             } = f;
         };
         Some(())
-    }
-
-    /// The cycles [`Command::InjectOverrun`] burns: enough to overrun one tick, short of
-    /// the board's hardware watchdog (which would reset the chip instead).
-    #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
-    pub fn set_overrun_burn(&mut self, cycles: u32) {
-        self.overrun_burn_cycles = cycles;
     }
 
     /// The next pose places the brush at rest there (a board whose sensors start the pen
@@ -476,11 +469,6 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             self.apply(cmd);
             CMDS_APPLIED.fetch_add(1, Ordering::Release);
         }
-        if self.inject_overrun {
-            self.inject_overrun = false;
-            cortex_m::asm::delay(self.overrun_burn_cycles);
-        }
-
         let fresh = match self.pen.next_pose() {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
@@ -594,7 +582,9 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 LAST_RX_TICK.store(TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
                 FAULTS.store(0, Ordering::SeqCst);
             }
+            #[cfg(feature = "test-hooks")]
             Command::InjectOverrun => self.inject_overrun = true,
+            #[cfg(feature = "test-hooks")]
             Command::Stall => loop {
                 core::hint::spin_loop();
             },
@@ -666,11 +656,21 @@ pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
     fl: &mut ForceLoop<P, M, W>,
     clock: &C,
     counts_per_us: u32,
-    overran: impl FnOnce() -> bool,
+    overran: impl Fn() -> bool,
 ) {
     static LAST_TICK_START: AtomicU32 = AtomicU32::new(0);
     let start = clock.now();
     fl.tick();
+    // An injected overrun runs on until the board's own tick timer says the next tick is
+    // due, and no further: one overrun whatever the clock (any `-icount` shift, any core
+    // clock), never long enough to look like a stopped loop to the watchdog. The timer runs
+    // on its own, so this ends; were it ever to stop, the watchdog is what catches that.
+    #[cfg(feature = "test-hooks")]
+    if core::mem::take(&mut fl.inject_overrun) {
+        while !overran() {
+            core::hint::spin_loop();
+        }
+    }
     let end = clock.now();
     let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
     if last != 0 {

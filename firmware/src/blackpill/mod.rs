@@ -349,8 +349,6 @@ fn start() -> (
     let Some(fl) = built else {
         fatal("the brush preset or the force model's defaults are invalid");
     };
-    // 2 ms of cycles: one tick overruns, the watchdog does not fire.
-    fl.set_overrun_burn(2 * SYSCLK_HZ / 1000);
     fl.reanchor();
     let kept = take_reset_reason();
     if reset_by_watchdog {

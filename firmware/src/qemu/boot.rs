@@ -16,7 +16,8 @@
 //! * `arith`: checks the fixed-point operators' inline assembly against their portable
 //!   references on this core, prints `ARITH` lines (see [`crate::app::arith`]) and exits 0
 //!   when every case agrees, 1 otherwise.
-//! * `crash panic|hardfault|stall`: test hooks for the fault paths.
+//! * `crash panic|hardfault|stall`: test hooks for the fault paths, only in images built
+//!   with the `test-hooks` feature (`maobi-fw-hooks`); without it the line boots as `run`.
 
 use core::fmt::Write;
 use core::sync::atomic::Ordering;
@@ -53,6 +54,7 @@ enum Mode {
     Bench(u32),
     Arith,
     /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
+    #[cfg(feature = "test-hooks")]
     Crash(&'static str),
 }
 
@@ -84,6 +86,7 @@ fn boot_mode() -> Mode {
         Some("bench") => Mode::Bench(num(words.next(), 0)),
         Some("arith") => Mode::Arith,
         Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
+        #[cfg(feature = "test-hooks")]
         Some("crash") => Mode::Crash(match words.next() {
             Some("hardfault") => "hardfault",
             Some("stall") => "stall",
@@ -113,6 +116,7 @@ fn main() -> ! {
             app::supervisor(tick_us, qemu::motors_off, report_stack).expect("one supervisor"),
         );
         match mode {
+            #[cfg(feature = "test-hooks")]
             Mode::Crash(how) => spawner.spawn(crash(parts, how).expect("one crash task")),
             Mode::Selftest(ticks) => {
                 spawner.spawn(selftest(parts, ticks).expect("one selftest"));
@@ -165,6 +169,7 @@ async fn link_task(parts: qemu::Parts, cfg: link::LinkConfig) {
 
 /// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop
 /// that never returns (the watchdog's case).
+#[cfg(feature = "test-hooks")]
 #[embassy_executor::task]
 async fn crash(mut parts: qemu::Parts, how: &'static str) {
     let _ = parts.cmds.enqueue(Command::EnableForces);

@@ -2,7 +2,7 @@
 //!
 //! | what | where | priority |
 //! |---|---|---|
-//! | watchdog: TIMER1 counting down 20 ms, reloaded by every force tick | 0x4000_1000, IRQ 9 | 0 (highest) |
+//! | watchdog: TIMER1 counting down 20 ms (or 5 tick periods if longer), reloaded by every force tick | 0x4000_1000, IRQ 9 | 0 (highest) |
 //! | force loop: TIMER0 at 1 kHz | 0x4000_0000, IRQ 8 | 1 |
 //! | link: UART0 RX / TX | 0x4000_4000, IRQ 0 / 1 | 2 |
 //! | embassy time driver: dual timer | 0x4000_2000, IRQ 10 | 3 |
@@ -30,7 +30,7 @@ pub mod time_driver;
 pub mod uart;
 
 use core::cell::Cell;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use critical_section::Mutex;
 
@@ -45,8 +45,15 @@ use crate::app::{self, PoseConsumer, PoseProducer, PoseQueue};
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 use regs::{rd, timer as t, wr, PCLK_HZ};
 
-/// Watchdog timeout in timer counts (20 ms).
+/// Shortest watchdog timeout in timer counts (20 ms).
 pub const WATCHDOG_COUNTS: u32 = PCLK_HZ / 50;
+/// The watchdog waits at least this many tick periods: a loop paced slower under emulation
+/// (`tick_us`), or one tick overrun, is not a stopped loop.
+const WATCHDOG_TICKS: u32 = 5;
+
+/// The watchdog timeout in force, in timer counts: [`WATCHDOG_COUNTS`] or
+/// [`WATCHDOG_TICKS`] tick periods, whichever is longer (set by [`start`]).
+static WATCHDOG_RELOAD: AtomicU32 = AtomicU32::new(WATCHDOG_COUNTS);
 
 /// Cortex-M4 with 3 priority bits on this machine model? The NVIC keeps the top bits; these
 /// are spaced so any implemented width orders them the same way.
@@ -192,7 +199,7 @@ pub struct TimerWatchdog {
 impl Watchdog for TimerWatchdog {
     #[inline]
     fn feed(&mut self) {
-        wr(t::TIMER1 + t::VALUE, WATCHDOG_COUNTS);
+        wr(t::TIMER1 + t::VALUE, WATCHDOG_RELOAD.load(Ordering::Relaxed));
     }
 }
 
@@ -230,6 +237,8 @@ pub struct Parts {
 /// are enabled on return.
 pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, tick_us: u32) -> Parts {
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
+    let watchdog_counts = WATCHDOG_COUNTS.max(tick_counts.saturating_mul(WATCHDOG_TICKS));
+    WATCHDOG_RELOAD.store(watchdog_counts, Ordering::Relaxed);
     static mut POSES: PoseQueue = PoseQueue::new();
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
     // SAFETY: `start` runs once; the queues are split here and never touched otherwise.
@@ -266,8 +275,8 @@ pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, ti
 
     // TIMER1: watchdog; TIMER0: 1 kHz force tick.
     wr(t::TIMER1 + t::CTRL, 0);
-    wr(t::TIMER1 + t::RELOAD, WATCHDOG_COUNTS);
-    wr(t::TIMER1 + t::VALUE, WATCHDOG_COUNTS);
+    wr(t::TIMER1 + t::RELOAD, watchdog_counts);
+    wr(t::TIMER1 + t::VALUE, watchdog_counts);
     wr(t::TIMER1 + t::INTCLEAR, 1);
     wr(t::TIMER0 + t::CTRL, 0);
     wr(t::TIMER0 + t::RELOAD, tick_counts - 1);
@@ -322,7 +331,7 @@ fn on_force_tick() {
 fn on_watchdog() -> ! {
     motors_off();
     app::latch(app::fault::LOOP_STALLED);
-    semihosting::fatal("watchdog: the force loop stopped for 20 ms; motors off", 3)
+    semihosting::fatal("watchdog: the force loop stopped for 20 ms or 5 ticks; motors off", 3)
 }
 
 /// Device interrupts arrive here (no peripheral-access crate): dispatch by number.

@@ -476,8 +476,9 @@ pub enum Command {
     ResetBrush,
     /// Test hook (HIL): make the next force-loop tick overrun its period, so the device's
     /// overrun path (motors off, [`Faults::LOOP_OVERRUN`] latched) can be exercised. Added
-    /// at the end: every earlier variant keeps its wire tag. Boards that do not offer the
-    /// hook answer [`CommandError::Unsupported`].
+    /// at the end: every earlier variant keeps its wire tag. Only test images offer it (the
+    /// firmware's `test-hooks` feature); a pen, and any image built without the feature,
+    /// answers [`CommandError::Unsupported`].
     InjectOverrun,
     // Protocol 3: bring-up (appended: earlier variants keep their tags).
     /// Stream [`DeviceMsg::Sensors`] at `rate_hz` (1 ..= [`SENSOR_RATE_MAX_HZ`]); 0 stops.

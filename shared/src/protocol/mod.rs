@@ -134,6 +134,8 @@
 )]
 
 mod frame;
+#[cfg(feature = "fuzz")]
+pub mod fuzz;
 mod messages;
 mod state;
 

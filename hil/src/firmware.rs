@@ -59,6 +59,14 @@ impl Board {
             ],
         }
     }
+    /// The defmt line each board logs once at boot (`hil run` and `hil size --check` look for
+    /// it).
+    pub fn boot_line(self) -> &'static str {
+        match self {
+            Board::Qemu => "maobi-fw up",
+            Board::Blackpill => crate::probe_rs::BOOT_LINE,
+        }
+    }
     /// Where its RAM starts (both: the Cortex-M SRAM region).
     pub fn ram_start(self) -> u64 {
         0x2000_0000
@@ -242,50 +250,123 @@ impl Size {
     }
 }
 
-/// Reads [`Size`] from a 32-bit little-endian ELF: allocated sections at addresses below
-/// `ram_start` are flash; allocated ones at or above it are RAM, and those with contents
-/// (`.data`) count in flash too (their initial values are copied from there).
+/// Reads [`Size`] from an ARM ELF image: allocated sections at addresses below `ram_start`
+/// are flash; allocated ones at or above it are RAM, and those with contents (`.data`) count
+/// in flash too (their initial values are copied from there).
 pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
-    let b = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
-    if b.len() < 52 || &b[..4] != b"\x7fELF" || b[4] != 1 || b[5] != 1 {
-        bail!("{} is not a 32-bit little-endian ELF", elf.display());
-    }
-    let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as u64;
-    let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]) as u64;
-    let shoff = u32_at(32) as usize;
-    let shentsize = u16_at(46) as usize;
-    let shnum = u16_at(48) as usize;
-    if shoff + shnum * shentsize > b.len() || shentsize < 40 {
-        bail!("{}: bad section header table", elf.display());
-    }
-    const SHF_ALLOC: u64 = 2;
-    const SHT_NOBITS: u64 = 8;
+    use object::{Object, ObjectSection, SectionFlags, SectionKind};
+    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*bytes)
+        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
     let mut s = Size {
         flash: 0,
         static_ram: 0,
     };
-    for i in 0..shnum {
-        let h = shoff + i * shentsize;
-        let (kind, flags, addr, size) =
-            (u32_at(h + 4), u32_at(h + 8), u32_at(h + 12), u32_at(h + 20));
-        if flags & SHF_ALLOC == 0 || size == 0 {
+    for sec in file.sections() {
+        let alloc = match sec.flags() {
+            SectionFlags::Elf { sh_flags, .. } => sh_flags.contains(object::elf::SHF_ALLOC),
+            _ => false,
+        };
+        let size = sec.size();
+        if !alloc || size == 0 {
             continue;
         }
-        if addr >= ram_start {
+        // `.bss` and `.uninit` take RAM but have nothing to store.
+        let stored = !matches!(
+            sec.kind(),
+            SectionKind::UninitializedData | SectionKind::UninitializedTls
+        );
+        if sec.address() >= ram_start {
             s.static_ram += size;
-            if kind != SHT_NOBITS {
-                s.flash += size;
-            }
-        } else if kind != SHT_NOBITS {
+        }
+        if stored {
             s.flash += size;
         }
     }
     Ok(s)
 }
 
+/// defmt's levels, lowest first.
+const DEFMT_LEVELS: [&str; 5] = ["trace", "debug", "info", "warn", "error"];
+
+/// The level of the defmt record in `elf` whose format string is exactly `text` (`None`:
+/// the image does not carry it, as when `DEFMT_LOG` filtered it out at build time).
+///
+/// defmt keeps each log call's format string out of the image's loaded bytes, as the name of
+/// a symbol in its `.defmt` section: JSON with the level as `"tag":"defmt_<level>"` and the
+/// string as `"data"`.
+pub fn defmt_record_level(elf: &Path, text: &str) -> Result<Option<&'static str>> {
+    use object::{Object, ObjectSymbol};
+    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*bytes)
+        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
+    Ok(file
+        .symbols()
+        .filter_map(|sym| sym.name().ok())
+        .find_map(|name| record_level(name, text)))
+}
+
+/// The level of a defmt symbol `name` if it is the record of format string `text`.
+fn record_level(name: &str, text: &str) -> Option<&'static str> {
+    let data = format!("\"data\":{},", json_string(text));
+    if !name.starts_with('{') || !name.contains(&data) {
+        return None;
+    }
+    DEFMT_LEVELS
+        .into_iter()
+        .find(|level| name.contains(&format!("\"tag\":\"defmt_{level}\"")))
+}
+
+/// `text` as a JSON string literal (defmt escapes quotes and backslashes in the symbol).
+fn json_string(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 2);
+    out.push('"');
+    for c in text.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// `hil size --check`'s log check: the board's boot line is in the image at info level or
+/// above, so a probe's (or QEMU's) log shows that the firmware came up.
+pub fn check_boot_line(elf: &Path, board: Board) -> Result<&'static str> {
+    match defmt_record_level(elf, board.boot_line())? {
+        Some(level) if !matches!(level, "trace" | "debug") => Ok(level),
+        Some(level) => bail!(
+            "{}: the boot line `{}` is logged at {level}, below the info level the probe's log \
+             shows by default",
+            elf.display(),
+            board.boot_line()
+        ),
+        None => bail!(
+            "{}: the boot line `{}` is not in the image (was it built with DEFMT_LOG below info? \
+             firmware/.cargo/config.toml sets info)",
+            elf.display(),
+            board.boot_line()
+        ),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn defmt_records_are_found_by_their_exact_text_and_level() {
+        let boot = r#"{"package":"maobi-firmware","tag":"defmt_info","data":"maobi-pen up","disambiguator":"7084599705938531334","crate_name":"maobi_pen"}"#;
+        assert_eq!(record_level(boot, "maobi-pen up"), Some("info"));
+        // Another string that starts the same is not the boot line.
+        assert_eq!(record_level(boot, "maobi-pen"), None);
+        let warn = r#"{"package":"p","tag":"defmt_warn","data":"say \"hi\" \\ now","disambiguator":"1","crate_name":"c"}"#;
+        assert_eq!(record_level(warn, r#"say "hi" \ now"#), Some("warn"));
+        // Not a defmt symbol at all.
+        assert_eq!(record_level("maobi-pen up", "maobi-pen up"), None);
+    }
 
     #[test]
     fn the_budget_check_names_what_is_over() {

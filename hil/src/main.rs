@@ -157,10 +157,7 @@ fn main() -> Result<()> {
     } = cli.cmd
     {
         let elf = firmware::board_image(board, cli.elf.as_deref(), cli.no_build)?;
-        let s = firmware::size(&elf, board.ram_start())?;
-        println!("image: {}", elf.display());
-        println!("{}", s.report());
-        return s.check(check);
+        return size(&elf, board, check);
     }
     let elf = firmware::image(cli.elf.as_deref(), cli.no_build)?;
     match cli.cmd {
@@ -177,15 +174,28 @@ fn main() -> Result<()> {
             let r = bench::run(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));
         }
-        Cmd::Size { check, .. } => {
-            let s = firmware::size(&elf, firmware::Board::Qemu.ram_start())?;
-            println!("image: {}", elf.display());
-            println!("{}", s.report());
-            s.check(check)?;
-        }
+        Cmd::Size { check, .. } => size(&elf, firmware::Board::Qemu, check)?,
         Cmd::Selftest { ticks } => {
             println!("{}", selftest::selftest(&elf, ticks, timeout)?);
         }
+    }
+    Ok(())
+}
+
+/// `hil size`: flash and static RAM against the budgets, and whether the image carries its
+/// boot line at info level; `check` makes either a failure.
+fn size(elf: &std::path::Path, board: firmware::Board, check: bool) -> anyhow::Result<()> {
+    let s = firmware::size(elf, board.ram_start())?;
+    println!("image: {}", elf.display());
+    println!("{}", s.report());
+    let boot = firmware::check_boot_line(elf, board);
+    match &boot {
+        Ok(level) => println!("boot_line=\"{}\" level={level}", board.boot_line()),
+        Err(e) => println!("boot_line=missing: {e:#}"),
+    }
+    s.check(check)?;
+    if check {
+        boot?;
     }
     Ok(())
 }

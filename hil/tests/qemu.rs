@@ -171,3 +171,12 @@ fn image_fits_the_budget() {
     println!("{}", s.report());
     assert_eq!(s.over_budget(), None, "{s:?}");
 }
+
+/// The image carries its boot line at info level (firmware/.cargo/config.toml's DEFMT_LOG):
+/// without it a probe's log never shows the firmware come up.
+#[test]
+fn the_image_logs_its_boot_line_at_info() {
+    let Some(elf) = image() else { return };
+    let level = firmware::check_boot_line(&elf, firmware::Board::Qemu).unwrap();
+    assert_eq!(level, "info");
+}

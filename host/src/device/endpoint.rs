@@ -223,64 +223,46 @@ impl PortInfo {
     }
 }
 
-/// Serial ports on this machine, Maobi's USB IDs first. `serialport` reports USB IDs on
-/// Windows and macOS; on Linux we build it without libudev (so the app needs no system
-/// library) and read the IDs from sysfs instead.
+/// Serial ports on this machine, Maobi's USB IDs first. `serialport` reports the USB IDs on
+/// every platform (on Linux it reads them from sysfs when built, as here, without libudev, so
+/// the app needs no system library).
 pub fn serial_ports() -> Vec<PortInfo> {
+    // serialport's sysfs scan assumes /sys/class/tty exists (it panics otherwise); a container
+    // without it simply has no serial ports.
+    if cfg!(target_os = "linux") && !Path::new("/sys/class/tty").is_dir() {
+        return Vec::new();
+    }
     let mut ports: Vec<PortInfo> = serialport::available_ports()
         .unwrap_or_default()
         .into_iter()
-        .map(|p| {
-            let usb = match p.port_type {
-                serialport::SerialPortType::UsbPort(u) => Some(UsbIds {
-                    vid: u.vid,
-                    pid: u.pid,
-                    product: u.product,
-                    serial: u.serial_number,
-                }),
-                _ => usb_ids_from_sysfs(Path::new("/sys/class/tty"), &p.port_name),
-            };
-            PortInfo {
-                name: p.port_name,
-                usb,
-            }
-        })
+        .map(PortInfo::from)
         .collect();
     // Stable: Maobi's ports first, then USB ones, then the rest, each in the OS's order.
     ports.sort_by_key(|p| (!p.is_maobi(), p.usb.is_none()));
     ports
 }
 
+impl From<serialport::SerialPortInfo> for PortInfo {
+    fn from(p: serialport::SerialPortInfo) -> PortInfo {
+        let usb = match p.port_type {
+            serialport::SerialPortType::UsbPort(u) => Some(UsbIds {
+                vid: u.vid,
+                pid: u.pid,
+                product: u.product,
+                serial: u.serial_number,
+            }),
+            _ => None,
+        };
+        PortInfo {
+            name: p.port_name,
+            usb,
+        }
+    }
+}
+
 /// Serial port names, Maobi's USB IDs first (see [`serial_ports`]).
 pub fn available_serial_ports() -> Vec<String> {
     serial_ports().into_iter().map(|p| p.name).collect()
-}
-
-/// The USB IDs of the tty `port` (`/dev/ttyACM0` or `ttyACM0`) from a Linux sysfs class
-/// directory (`/sys/class/tty`): its `device` link leads to the USB interface, whose
-/// ancestor holds `idVendor`, `idProduct`, `product` and `serial`. `None` for a port that
-/// is not USB or a system without sysfs.
-pub fn usb_ids_from_sysfs(class_tty: &Path, port: &str) -> Option<UsbIds> {
-    let name = port.rsplit('/').next()?;
-    let mut dir = std::fs::canonicalize(class_tty.join(name).join("device")).ok()?;
-    let read = |d: &Path, f: &str| {
-        std::fs::read_to_string(d.join(f))
-            .ok()
-            .map(|s| s.trim().to_string())
-    };
-    // Interface (…/1-1:1.0) → device (…/1-1); a USB-serial adapter's tty sits one lower.
-    for _ in 0..4 {
-        if let (Some(v), Some(p)) = (read(&dir, "idVendor"), read(&dir, "idProduct")) {
-            return Some(UsbIds {
-                vid: u16::from_str_radix(&v, 16).ok()?,
-                pid: u16::from_str_radix(&p, 16).ok()?,
-                product: read(&dir, "product"),
-                serial: read(&dir, "serial"),
-            });
-        }
-        dir = dir.parent()?.to_path_buf();
-    }
-    None
 }
 
 #[cfg(test)]
@@ -354,42 +336,33 @@ mod tests {
         }
     }
 
-    /// A sysfs tree as Linux lays it out for a CDC-ACM device and a plain UART.
+    /// What serialport reports of a port becomes the app's port entry: the pen by its IDs,
+    /// other ports without.
     #[test]
-    fn usb_ids_come_from_sysfs() {
-        let root = std::env::temp_dir().join(format!("maobi-sysfs-{}", std::process::id()));
-        let dev = root.join("devices/pci0000:00/usb1/1-2");
-        let intf = dev.join("1-2:1.0");
-        std::fs::create_dir_all(intf.join("tty/ttyACM0")).unwrap();
-        std::fs::write(dev.join("idVendor"), "1209\n").unwrap();
-        std::fs::write(dev.join("idProduct"), "0001\n").unwrap();
-        std::fs::write(dev.join("product"), "Maobi pen\n").unwrap();
-        std::fs::write(dev.join("serial"), "E66118604B1F\n").unwrap();
-        let class = root.join("class/tty");
-        std::fs::create_dir_all(class.join("ttyACM0")).unwrap();
-        std::fs::create_dir_all(class.join("ttyS0")).unwrap();
-        std::fs::create_dir_all(root.join("devices/platform/serial8250")).unwrap();
-        #[cfg(unix)]
-        {
-            std::os::unix::fs::symlink(&intf, class.join("ttyACM0/device")).unwrap();
-            std::os::unix::fs::symlink(
-                root.join("devices/platform/serial8250"),
-                class.join("ttyS0/device"),
-            )
-            .unwrap();
-            let ids = usb_ids_from_sysfs(&class, "/dev/ttyACM0").expect("a USB port");
-            assert_eq!((ids.vid, ids.pid), (0x1209, 0x0001));
-            assert_eq!(ids.product.as_deref(), Some("Maobi pen"));
-            assert_eq!(ids.serial.as_deref(), Some("E66118604B1F"));
-            let p = PortInfo {
-                name: "/dev/ttyACM0".into(),
-                usb: Some(ids),
-            };
-            assert!(p.is_maobi());
-            assert_eq!(p.label(), "/dev/ttyACM0 (Maobi pen, 1209:0001)");
-            assert_eq!(usb_ids_from_sysfs(&class, "/dev/ttyS0"), None);
+    fn ports_take_their_usb_ids_from_serialport() {
+        let pen: PortInfo = serialport::SerialPortInfo {
+            port_name: "/dev/ttyACM0".into(),
+            port_type: serialport::SerialPortType::UsbPort(serialport::UsbPortInfo {
+                vid: 0x1209,
+                pid: 0x0001,
+                serial_number: Some("E66118604B1F".into()),
+                manufacturer: None,
+                product: Some("Maobi pen".into()),
+            }),
         }
-        assert_eq!(usb_ids_from_sysfs(&class, "/dev/ttyUSB9"), None);
-        std::fs::remove_dir_all(&root).ok();
+        .into();
+        assert!(pen.is_maobi());
+        assert_eq!(pen.label(), "/dev/ttyACM0 (Maobi pen, 1209:0001)");
+        assert_eq!(
+            pen.usb.as_ref().unwrap().serial.as_deref(),
+            Some("E66118604B1F")
+        );
+        let uart: PortInfo = serialport::SerialPortInfo {
+            port_name: "/dev/ttyS0".into(),
+            port_type: serialport::SerialPortType::Unknown,
+        }
+        .into();
+        assert!(!uart.is_maobi());
+        assert_eq!(uart.label(), "/dev/ttyS0");
     }
 }

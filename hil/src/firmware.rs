@@ -286,6 +286,56 @@ pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
     Ok(s)
 }
 
+/// Where the image's stack lies: `(bottom, top)`, from cortex-m-rt's `_stack_end` and
+/// `_stack_start` as the linker (flip-link) set them.
+pub fn stack_bounds(elf: &Path) -> Result<(u64, u64)> {
+    use object::{Object, ObjectSymbol};
+    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*bytes)
+        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
+    let addr = |name: &str| {
+        file.symbols()
+            .find(|s| s.name() == Ok(name))
+            .map(|s| s.address())
+            .with_context(|| format!("{}: no symbol {name}", elf.display()))
+    };
+    Ok((addr("_stack_end")?, addr("_stack_start")?))
+}
+
+/// `hil size --check`'s layout check: the stack grows down to the RAM's start, below every
+/// static (flip-link's layout), so an overflow faults at the RAM boundary instead of
+/// overwriting statics. Returns the stack's size.
+pub fn check_stack_layout(elf: &Path, board: Board) -> Result<u64> {
+    use object::{Object, ObjectSection, SectionFlags};
+    let (bottom, top) = stack_bounds(elf)?;
+    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*bytes)
+        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
+    // The lowest static in RAM (`.data`, `.bss`, `.uninit`).
+    let lowest_static = file
+        .sections()
+        .filter(|sec| {
+            sec.size() > 0
+                && sec.address() >= board.ram_start()
+                && matches!(sec.flags(), SectionFlags::Elf { sh_flags, .. }
+                    if sh_flags.contains(object::elf::SHF_ALLOC))
+        })
+        .map(|sec| sec.address())
+        .min();
+    let statics_above = lowest_static.is_none_or(|a| a >= top);
+    if bottom != board.ram_start() || top < bottom || !statics_above {
+        bail!(
+            "{}: the stack spans {bottom:#x}..{top:#x} and the statics start at {:#x}: an \
+             overflow would run into them silently instead of off the RAM's start {:#x} (is the \
+             image linked with flip-link? firmware/.cargo/config.toml)",
+            elf.display(),
+            lowest_static.unwrap_or(0),
+            board.ram_start()
+        );
+    }
+    Ok(top - bottom)
+}
+
 /// defmt's levels, lowest first.
 const DEFMT_LEVELS: [&str; 5] = ["trace", "debug", "info", "warn", "error"];
 

@@ -193,9 +193,17 @@ fn size(elf: &std::path::Path, board: firmware::Board, check: bool) -> anyhow::R
         Ok(level) => println!("boot_line=\"{}\" level={level}", board.boot_line()),
         Err(e) => println!("boot_line=missing: {e:#}"),
     }
+    let layout = firmware::check_stack_layout(elf, board);
+    match &layout {
+        Ok(bytes) => {
+            println!("stack=below_statics bytes={bytes} (an overflow faults at the RAM's start)")
+        }
+        Err(e) => println!("stack=above_statics: {e:#}"),
+    }
     s.check(check)?;
     if check {
         boot?;
+        layout?;
     }
     Ok(())
 }

@@ -180,3 +180,12 @@ fn the_image_logs_its_boot_line_at_info() {
     let level = firmware::check_boot_line(&elf, firmware::Board::Qemu).unwrap();
     assert_eq!(level, "info");
 }
+
+/// flip-link's layout: the stack from the RAM's start up to the statics, so an overflow
+/// faults (HardFault: motors off) instead of overwriting the force loop's state.
+#[test]
+fn the_stack_lies_below_the_statics() {
+    let Some(elf) = image() else { return };
+    let bytes = firmware::check_stack_layout(&elf, firmware::Board::Qemu).unwrap();
+    assert!(bytes >= firmware::Board::STACK_RESERVE, "{bytes}");
+}

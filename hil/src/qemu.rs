@@ -3,7 +3,8 @@
 use std::io::Read;
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, ChildStderr, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
@@ -112,13 +113,14 @@ impl Run {
         c
     }
 
-    /// Starts the emulator with stdout captured and stderr (defmt frames) discarded.
+    /// Starts the emulator with stdout captured and stderr (the firmware's defmt frames)
+    /// decoded into [`Guest::defmt_log`].
     pub fn spawn(&self) -> Result<Guest> {
-        let child = self
+        let mut child = self
             .command()
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(Stdio::null())
+            .stderr(Stdio::piped())
             .spawn()
             .with_context(|| {
                 format!(
@@ -126,10 +128,15 @@ impl Run {
                     qemu_binary().display()
                 )
             })?;
+        let log = DefmtLog::default();
+        if let Some(stderr) = child.stderr.take() {
+            log.decode_from(&self.elf, stderr);
+        }
         Ok(Guest {
             child,
             deadline: Instant::now() + self.timeout,
             timeout: self.timeout,
+            log,
         })
     }
 
@@ -145,14 +152,82 @@ impl Run {
     }
 }
 
+/// The firmware's defmt log as decoded so far, one line a record (`timestamp LEVEL message`).
+#[derive(Clone, Debug, Default)]
+pub struct DefmtLog(Arc<Mutex<Vec<String>>>);
+
+impl DefmtLog {
+    /// Decodes defmt frames from `stderr` on a thread until QEMU closes it, with the string
+    /// table of `elf` (the image QEMU runs). An image without a table, or one this decoder
+    /// cannot read, leaves a line saying so instead of records.
+    fn decode_from(&self, elf: &Path, mut stderr: ChildStderr) {
+        let lines = self.0.clone();
+        let elf = elf.to_path_buf();
+        std::thread::spawn(move || {
+            let push = |l: String| {
+                if let Ok(mut v) = lines.lock() {
+                    v.push(l);
+                }
+            };
+            let table = std::fs::read(&elf)
+                .map_err(anyhow::Error::from)
+                .and_then(|b| defmt_decoder::Table::parse(&b));
+            let table = match table {
+                Ok(Some(t)) => t,
+                Ok(None) => return push("(the image has no defmt table)".into()),
+                Err(e) => return push(format!("(cannot read the image's defmt table: {e})")),
+            };
+            let mut decoder = table.new_stream_decoder();
+            // defmt's encoder opens the stream with a frame separator (so that a decoder can
+            // drop what an earlier boot left half-written), which reads as one empty,
+            // malformed frame before the first record: not worth a line.
+            let mut decoded_any = false;
+            let mut buf = [0u8; 4096];
+            loop {
+                let n = match stderr.read(&mut buf) {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => n,
+                };
+                decoder.received(&buf[..n]);
+                loop {
+                    match decoder.decode() {
+                        Ok(frame) => {
+                            decoded_any = true;
+                            push(frame.display(false).to_string())
+                        }
+                        Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+                        Err(defmt_decoder::DecodeError::Malformed) if !decoded_any => {
+                            decoded_any = true;
+                        }
+                        Err(defmt_decoder::DecodeError::Malformed) => {
+                            push("(a malformed defmt frame)".into())
+                        }
+                    }
+                }
+            }
+        });
+    }
+
+    /// The records decoded so far.
+    pub fn lines(&self) -> Vec<String> {
+        self.0.lock().map(|v| v.clone()).unwrap_or_default()
+    }
+}
+
 /// A running emulator; killed when dropped.
 pub struct Guest {
     pub child: Child,
     deadline: Instant,
     timeout: Duration,
+    log: DefmtLog,
 }
 
 impl Guest {
+    /// The firmware's defmt log so far (decoded from QEMU's stderr).
+    pub fn defmt_log(&self) -> Vec<String> {
+        self.log.lines()
+    }
+
     /// Waits for the emulator to exit; kills it and fails at the deadline.
     pub fn wait(&mut self) -> Result<ExitStatus> {
         loop {

@@ -101,6 +101,8 @@ impl std::fmt::Display for Check {
 
 /// The outcome of a run.
 pub struct RunReport {
+    /// The firmware's own defmt log, where the backend decodes it (QEMU).
+    pub defmt_log: Vec<String>,
     pub checks: Vec<Check>,
     pub figures: link::Figures,
     pub round_trip: Vec<Duration>,
@@ -114,6 +116,18 @@ impl RunReport {
     pub fn render(&self) -> String {
         use std::fmt::Write;
         let mut s = String::new();
+        if !self.defmt_log.is_empty() {
+            let shown = self.defmt_log.len().saturating_sub(20);
+            let _ = writeln!(
+                s,
+                "defmt log ({} lines{}):",
+                self.defmt_log.len(),
+                if shown > 0 { ", the last 20" } else { "" }
+            );
+            for l in &self.defmt_log[shown..] {
+                let _ = writeln!(s, "  {l}");
+            }
+        }
         for c in &self.checks {
             let _ = writeln!(s, "{c}");
         }
@@ -205,6 +219,7 @@ pub fn run_session<T: Transport>(
         detail: format!("{} frames dropped by the host decoder", s.errors.len()),
     });
     Ok(RunReport {
+        defmt_log: Vec::new(),
         figures: link::figures(&log),
         checks,
         round_trip,
@@ -287,6 +302,7 @@ pub fn sensor_pen_checks<T: Transport>(
         ),
     });
     Ok(RunReport {
+        defmt_log: Vec::new(),
         figures: link::figures(&log),
         checks,
         round_trip,
@@ -300,9 +316,15 @@ pub fn run_qemu(elf: &Path, poses: &Path, state_hz: u32, timeout: Duration) -> R
     let hz = format!("state_hz={state_hz}");
     let (dev, stream) = QemuDevice::start(elf, &[&hz], timeout)?;
     let mut s = Session::new(stream)?;
-    let r = run_session(&mut s, &track, StreamOptions::default());
+    let mut r = run_session(&mut s, &track, StreamOptions::default())?;
+    // The firmware's log, decoded from QEMU's stderr: booted once, no panic or fault.
+    r.defmt_log = dev.guest.defmt_log();
+    r.checks.extend(crate::probe_rs::log_checks(
+        &r.defmt_log,
+        crate::firmware::Board::Qemu.boot_line(),
+    ));
     drop(dev);
-    r
+    Ok(r)
 }
 
 /// `hil run --backend serial --port PATH POSES.csv`: the same session over a serial port.

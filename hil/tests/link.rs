@@ -90,6 +90,12 @@ fn state_stream_at_120_hz_matches_by_pose_seq() {
     let r = run::run_qemu(&elf, &examples().join("hook.csv"), 120, TIMEOUT).unwrap();
     println!("{}", r.render());
     assert!(r.passed(), "{}", r.render());
+    // The firmware's own log, decoded from QEMU's stderr with the image's defmt table.
+    assert!(
+        r.defmt_log.iter().any(|l| l.ends_with("INFO maobi-fw up")),
+        "{:?}",
+        r.defmt_log
+    );
     let f = &r.figures;
     assert!(
         (110.0..=130.0).contains(&f.states_per_device_s),

@@ -76,13 +76,14 @@ impl Board {
     /// overflows at this size; the figure is the deepest stack measured plus a margin: the
     /// firmware paints its stack at reset and reports the high-water mark, and the hil test
     /// `stack` drives the deepest paths we know of under QEMU and fails when the mark passes
-    /// this reserve. Measured on the QEMU image: 14,768 bytes (the link task's state machine
-    /// with the force-tick interrupt on top; the boards build the force loop in its static;
-    /// 13,464 when everything was built at opt-level 3); reserve 16 KiB, a margin of 1,616
-    /// bytes (10%). The Black Pill's mark has not been
-    /// read on a board (its largest frames, from the disassembly, are of the same sizes).
-    /// The QEMU image's `bench` mode, a measurement that never runs on a pen, goes deeper
-    /// (about 24 KB: it builds its force loop by value).
+    /// this reserve. The deepest path under QEMU is the link task's state machine with the
+    /// force-tick interrupt on top (the boards build the force loop in its static); the
+    /// reserve leaves a margin over it (docs/figures.md has the measured depth:
+    /// `MAOBI_REQUIRE_QEMU=1 cargo test -p hil --test stack -- --nocapture`, and the fuzz
+    /// test's). The Black Pill's mark has not been read on a board (its largest frames, from
+    /// the disassembly, are of the same sizes). The QEMU image's `bench` mode, a measurement
+    /// that never runs on a pen, goes deeper than the reserve: it builds its force loop by
+    /// value.
     pub const STACK_RESERVE: u64 = 16 * 1024;
 }
 

@@ -9,7 +9,7 @@ use anyhow::{bail, Result};
 use crate::qemu::{Clock, Run};
 
 /// Force-loop period for emulated runs (us). The QEMU board runs the presets' 25 substeps per
-/// tick, whose dearest tick costs about 580,000 instructions (`hil bench`); with the link's
+/// tick, whose dearest tick costs about half a million instructions (`hil bench`); with the link's
 /// work beside it that leaves too little of the million a virtual millisecond holds at
 /// `-icount` shift 0, so emulated runs pace the loop slower; the model still advances 1 ms
 /// per tick.

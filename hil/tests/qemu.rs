@@ -43,10 +43,9 @@ fn bench_reports_instructions_per_tick() {
     // board's: the sensors through the encoder unwrap and ADC filter, forward kinematics,
     // the brush, the force model, the output stage with forces enabled, and the joint
     // torques. It must fit the 50,000 (half of a 100 MHz millisecond at one
-    // instruction per cycle): its dearest tick was 49,525 when this bound was set, about 52%
-    // of the board's millisecond, the rest left for the link, USB and the flash's wait
-    // states. (Before the kinematics and the output stage were counted the bench reported
-    // 47,170; with them as they were then, 99,235.)
+    // instruction per cycle): about half of the board's millisecond, the rest left for the
+    // link, USB and the flash's wait states (the count today: docs/figures.md; its history:
+    // CHANGELOG.md).
     let one = r
         .ticks
         .iter()

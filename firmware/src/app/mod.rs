@@ -248,7 +248,7 @@ pub enum Command {
     /// A new stored configuration is in force: the pen and the motors take it from
     /// [`CONFIG`] (sent by the link task at boot and after a write, with forces off). The
     /// configuration travels through that slot, not in the command, so that every queued
-    /// command does not grow to its ~270 bytes.
+    /// command does not grow to the size of a whole `DeviceConfig`.
     Configure,
     /// Drive one motor with `torque_nm` for `ticks` ticks while forces are off (bring-up);
     /// the motors are off again afterwards. Checked by the link task (caps, forces off,
@@ -292,7 +292,7 @@ pub type PoseConsumer = heapless::spsc::Consumer<'static, PoseIn>;
 /// The state the link task reports, built by the force loop when a state frame is due (or
 /// when the link task asks).
 ///
-/// It holds the frame's [`BrushState`] (about 3 KB), not a copy of the brush (6.3 KB): the
+/// It holds the frame's [`BrushState`], not a copy of the brush (about twice its size): the
 /// state is what the frame carries, so the link task encodes it as it is. Building it costs
 /// the force loop about what copying the brush did (`BrushState::from_brush` reads the
 /// brush's positions and ellipses, computes nothing).
@@ -368,7 +368,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     /// [`Self::new`] with the brush built from `params` at `pose` ([`Brush::new`]), all of
-    /// it built in `slot` (a static's storage): the force loop is about 7.4 KB, and `new`
+    /// it built in `slot` (a static's storage): the force loop is kilobytes (its brush most of it), and `new`
     /// moves it and its brush through the stack, which the board pays for at boot in stack
     /// it must reserve. None if the parameters or the force model's defaults are invalid.
     pub fn new_in(
@@ -642,7 +642,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
         let faults = Faults::from_bits_retain(reported_faults() as u16);
         // In place: the slot is a static, so a `BrushState` built and then moved there would
-        // be a 3 KB temporary on the force-tick interrupt's stack.
+        // be a temporary of the state's whole size on the force-tick interrupt's stack.
         s.state
             .fill_from_brush(&self.brush, now, self.pen.pose_seq(), haptics, faults);
     }

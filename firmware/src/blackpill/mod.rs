@@ -10,7 +10,7 @@
 //!
 //! The force loop reads the sensors and writes the motors inside `ForceLoop::tick` exactly
 //! as on QEMU (`app::run_tick` from the timer interrupt): the board only provides the trait
-//! implementations ([`sensors`], [`motors`], [`watchdog`], [`usb`]) and its boot ([`main`]).
+//! implementations ([`sensors`], [`motors`], [`watchdog`], [`usb`]) and its boot (`main`).
 //!
 //! Clocks: HSE 25 MHz / 25 x 192 = 192 MHz VCO; SYSCLK 96 MHz (P / 2), USB 48 MHz (Q / 4);
 //! APB1 48 MHz (its timers 96 MHz), APB2 96 MHz (TIM1 and TIM9 at 96 MHz, ADC 24 MHz).
@@ -51,7 +51,7 @@ pub const SYSCLK_HZ: u32 = 96_000_000;
 pub const TICK_US: u32 = 1000;
 
 /// Pins the fault paths drive through raw registers, without driver objects. They must be
-/// the pins [`main`] hands to the drivers (the table in firmware/README.md).
+/// the pins `main` hands to the drivers (the table in firmware/README.md).
 pub mod pins {
     use embassy_stm32::pac::gpio::Gpio;
     use embassy_stm32::pac::GPIOB;
@@ -153,7 +153,7 @@ static BOARD: BoardInfo = BoardInfo {
 
 type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;
 
-/// The force loop: written by [`main`] before TIM9's interrupt is enabled, then used only
+/// The force loop: written by `main` before TIM9's interrupt is enabled, then used only
 /// by that interrupt's handler.
 static LOOP: app::ForceLoopSlot<Loop> = app::ForceLoopSlot::new();
 

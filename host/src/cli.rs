@@ -259,12 +259,13 @@ pub struct GuiArgs {
     /// Brush preset (default: the one used last, else `large`).
     #[arg(long, value_name = "NAME", value_parser = parse_brush)]
     pub brush: Option<BrushChoice>,
-    /// Paper size: a square of this many millimetres centred on the origin.
-    #[arg(long, value_name = "MM", default_value = "200", value_parser = parse_px_per_mm)]
-    pub paper_mm: f64,
-    /// Paper resolution (the default paper is 2000 x 2000 px).
-    #[arg(long, value_name = "N", default_value = "10", value_parser = parse_px_per_mm)]
-    pub px_per_mm: f64,
+    /// Paper size: a square of this many millimetres centred on the origin (default: as last
+    /// used, else 200).
+    #[arg(long, value_name = "MM", value_parser = parse_px_per_mm)]
+    pub paper_mm: Option<f64>,
+    /// Paper resolution (default: as last used, else 10; the default paper is 2000 x 2000 px).
+    #[arg(long, value_name = "N", value_parser = parse_px_per_mm)]
+    pub px_per_mm: Option<f64>,
     /// A pen tablet drives the brush: its evdev node (`/dev/input/eventN`, Linux; the app's
     /// "Find tablets" lists them) or a recording made with `evemu-record`, replayed along the
     /// model's clock. Pressure presses the brush, tilt tilts it.
@@ -447,14 +448,15 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
         replay: a.replay,
         screenshot: a.screenshot,
         session: a.session,
-        paper_mm: a.paper_mm,
-        px_per_mm: a.px_per_mm,
+        paper_mm: a.paper_mm.unwrap_or(defaults.paper_mm),
+        px_per_mm: a.px_per_mm.unwrap_or(defaults.px_per_mm),
         tablet: a.tablet,
         pressure_curve: curve.unwrap_or(defaults.pressure_curve),
         given: crate::gui::Given {
             device: a.device.is_some(),
             brush: a.brush.is_some(),
             tablet: curve.is_some(),
+            paper: a.paper_mm.is_some() || a.px_per_mm.is_some(),
         },
     }
 }

@@ -70,6 +70,7 @@ fn settings_survive_a_restart_and_the_command_line_wins() {
     assert_eq!(saved.device_kind, DeviceKind::Tcp);
     assert_eq!(saved.device_addr, "127.0.0.1:7999");
     assert_eq!(saved.pressure_exponent, 1.8);
+    assert_eq!((saved.paper_mm, saved.px_per_mm), (100.0, 2.0), "the paper");
     assert!(saved.replay_path.ends_with("heng.csv"));
     let recent: Vec<&Path> = saved.recent.of(FileKind::Poses).collect();
     assert_eq!(recent.len(), 1);

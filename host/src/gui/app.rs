@@ -1547,6 +1547,9 @@ impl MaobiApp {
                 .map(|_| PathBuf::from(&self.tablet_path)),
             pressure_exponent: self.pressure_curve.exponent,
             pressure_threshold: self.pressure_curve.threshold,
+            // The paper is a square centred on the origin (`gui::paper_frame`).
+            paper_mm: -2.0 * self.paper.frame().x0_mm,
+            px_per_mm: self.paper.frame().px_per_mm,
             png_path: self.save_path.clone(),
             record_path: self.record_path.clone(),
             replay_path: self.replay_path.clone(),

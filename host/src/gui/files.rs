@@ -148,6 +148,9 @@ pub struct Settings {
     pub tablet: Option<PathBuf>,
     pub pressure_exponent: f32,
     pub pressure_threshold: f32,
+    /// The paper's size (mm, square) and resolution (px/mm).
+    pub paper_mm: f64,
+    pub px_per_mm: f64,
     /// The file fields as last used.
     pub png_path: String,
     pub record_path: String,
@@ -165,6 +168,8 @@ impl Default for Settings {
             tablet: None,
             pressure_exponent: 1.0,
             pressure_threshold: 0.02,
+            paper_mm: 200.0,
+            px_per_mm: 10.0,
             png_path: "out/maobi-canvas.png".into(),
             record_path: "out/maobi-recording.csv".into(),
             replay_path: "examples/poses/hook.csv".into(),

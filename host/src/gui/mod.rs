@@ -134,6 +134,8 @@ pub struct Given {
     pub brush: bool,
     /// The tablet or its pressure curve.
     pub tablet: bool,
+    /// The paper's size or resolution.
+    pub paper: bool,
 }
 
 impl Default for GuiOptions {
@@ -157,9 +159,33 @@ impl Default for GuiOptions {
 impl GuiOptions {
     /// The paper's frame: `paper_mm` square centred on the origin.
     pub fn frame(&self) -> Frame {
-        let h = self.paper_mm / 2.0;
-        Frame::covering([-h, -h], [h, h], 0.0, self.px_per_mm)
+        paper_frame(self.paper_mm, self.px_per_mm)
     }
+}
+
+/// The paper's frame: `paper_mm` square centred on the origin at `px_per_mm`.
+pub fn paper_frame(paper_mm: f64, px_per_mm: f64) -> Frame {
+    let h = paper_mm / 2.0;
+    Frame::covering([-h, -h], [h, h], 0.0, px_per_mm)
+}
+
+/// The paper the GUI can show: positive sizes, at most 8192 px a side.
+pub fn check_paper(paper_mm: f64, px_per_mm: f64) -> anyhow::Result<Frame> {
+    if !(px_per_mm.is_finite() && px_per_mm > 0.0) {
+        bail!("--px-per-mm must be a positive number");
+    }
+    if !(paper_mm.is_finite() && paper_mm > 0.0) {
+        bail!("--paper-mm must be a positive number");
+    }
+    let frame = paper_frame(paper_mm, px_per_mm);
+    if frame.width > 8192 || frame.height > 8192 {
+        bail!(
+            "the paper would be {} x {} px; the GUI shows at most 8192 x 8192: use a smaller --paper-mm or --px-per-mm",
+            frame.width,
+            frame.height
+        );
+    }
+    Ok(frame)
 }
 
 /// The hand's start: above the paper's centre, the brush hanging straight down.
@@ -185,20 +211,7 @@ pub fn have_display() -> bool {
 
 /// Opens the GUI and runs it until the window closes (or the automation finishes).
 pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
-    if !(opts.px_per_mm.is_finite() && opts.px_per_mm > 0.0) {
-        bail!("--px-per-mm must be a positive number");
-    }
-    if !(opts.paper_mm.is_finite() && opts.paper_mm > 0.0) {
-        bail!("--paper-mm must be a positive number");
-    }
-    let frame = opts.frame();
-    if frame.width > 8192 || frame.height > 8192 {
-        bail!(
-            "the paper would be {} x {} px; the GUI shows at most 8192 x 8192: use a smaller --paper-mm or --px-per-mm",
-            frame.width,
-            frame.height
-        );
-    }
+    let frame = check_paper(opts.paper_mm, opts.px_per_mm)?;
     // Check the inputs before opening a window.
     if let Some(p) = &opts.replay {
         crate::poses::PoseTrack::from_path(p)?;
@@ -277,6 +290,12 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
                     )?
                 }
                 None => make_device(&choice, &brush, Some(wake))?,
+            };
+            // The last run's paper, unless the command line gave one (a remembered paper that
+            // no longer passes the checks is ignored).
+            let frame = match &saved {
+                Some(s) if !given.paper => check_paper(s.paper_mm, s.px_per_mm).unwrap_or(frame),
+                _ => frame,
             };
             let mut app = MaobiApp::new(device, frame, automation, out2);
             app.set_device_choice(&choice, &brush);

@@ -1485,15 +1485,16 @@ impl MaobiApp {
         if path.as_os_str().is_empty() {
             return Ok(());
         }
-        self.set_tablet(Tablet::open(path)?);
-        self.tablet_path = path.display().to_string();
+        self.set_tablet(Tablet::open(path)?, path);
         Ok(())
     }
 
-    /// Uses a tablet already opened.
-    pub fn set_tablet(&mut self, t: Tablet) {
+    /// Uses a tablet already opened from `path` (remembered for the next run if it is a
+    /// device).
+    pub fn set_tablet(&mut self, t: Tablet, path: &Path) {
         self.tablet_status = None;
         self.tablet = Some(t);
+        self.tablet_path = path.display().to_string();
     }
 
     /// The tablet's state as of the last UI frame.

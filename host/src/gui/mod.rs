@@ -226,6 +226,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.
+    let tablet_path = opts.tablet.clone();
     let tablet = opts
         .tablet
         .as_deref()
@@ -308,8 +309,8 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
             if saved.is_none() || given.tablet {
                 app.set_pressure_curve(curve);
             }
-            if let Some(t) = tablet {
-                app.set_tablet(t);
+            if let (Some(t), Some(path)) = (tablet, &tablet_path) {
+                app.set_tablet(t, path);
             }
             if let Some(p) = &phantom {
                 app.choose_phantom(p.hd_lib.as_deref());

@@ -4,11 +4,13 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, DeviceKind, MaobiApp};
 use maobi::gui::files::{FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
-use maobi::gui::sim::{SimClock, SimDevice};
-use maobi::gui::{start_hand, DeviceChoice, GuiOptions};
+use maobi::gui::sim::SimClock;
+use maobi::gui::DeviceChoice;
 use maobi::tablet::PressureCurve;
 
 #[derive(Default)]
@@ -28,22 +30,7 @@ impl eframe::Storage for MemoryStorage {
 }
 
 fn harness(automation: Automation) -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 100.0,
-        px_per_mm: 2.0,
-        ..GuiOptions::default()
-    };
-    let device =
-        SimDevice::new(SimClock::Stepped(10), "large", start_hand(40.0)).expect("simulator");
-    let app = MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
-        automation,
-        Default::default(),
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    common::harness(common::app(SimClock::Stepped(10), 100.0, 2.0, automation))
 }
 
 fn example(name: &str) -> PathBuf {

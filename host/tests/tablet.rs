@@ -5,10 +5,12 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::sim::{SimClock, SimDevice};
-use maobi::gui::{start_hand, GuiOptions};
+use maobi::gui::sim::SimClock;
+use maobi::gui::start_hand;
 use maobi::tablet::{
     Axes, AxisRange, Decoder, PressureCurve, Reading, Recording, Tablet, ABS_PRESSURE, ABS_TILT_X,
     BTN_TOOL_PEN, BTN_TOUCH, EV_ABS, EV_KEY, EV_SYN, SYN_DROPPED, SYN_REPORT,
@@ -126,38 +128,30 @@ fn the_pressure_curve_shapes_the_press() {
 
 #[test]
 fn the_tilt_mapping_leans_the_brush_as_the_pen_leans() {
-    // The pen's top toward +x (tablet tilt x > 0) must put the ferrule's axis leaning toward
-    // +x: the brush's tip, below the ferrule, then lies toward -x.
-    let r = Reading {
-        in_range: true,
-        touching: false,
-        pressure: 0.0,
-        tilt_x_deg: 30.0,
-        tilt_y_deg: 0.0,
+    // Where the brush's tip lies from the ferrule (unit vector) for a pen leaning so.
+    let tip = |tilt_x_deg: f32, tilt_y_deg: f32| {
+        let r = Reading {
+            in_range: true,
+            touching: false,
+            pressure: 0.0,
+            tilt_x_deg,
+            tilt_y_deg,
+        };
+        let h = r.hand(PressureCurve::default(), 5.0);
+        let mut hand = start_hand(40.0);
+        hand.tilt_x_deg = h.tilt_x_deg;
+        hand.tilt_y_deg = h.tilt_y_deg;
+        hand.pose()
+            .rot
+            .rotate(maobi_shared::Vec3::new(0.0, 0.0, -1.0))
     };
-    let h = r.hand(PressureCurve::default(), 5.0);
-    let mut hand = start_hand(40.0);
-    hand.tilt_x_deg = h.tilt_x_deg;
-    hand.tilt_y_deg = h.tilt_y_deg;
-    let tip = hand
-        .pose()
-        .rot
-        .rotate(maobi_shared::Vec3::new(0.0, 0.0, -1.0));
-    assert!(tip.x < -0.45 && tip.y.abs() < 1e-9, "{tip:?}");
+    // The pen's top toward +x (tablet tilt x > 0) leans the ferrule's axis toward +x: the
+    // brush's tip, below the ferrule, then lies toward -x.
+    let t = tip(30.0, 0.0);
+    assert!(t.x < -0.45 && t.y.abs() < 1e-9, "{t:?}");
     // Toward the user (+y down the tablet, -y on the paper): the tip lies toward +y.
-    let r = Reading {
-        tilt_x_deg: 0.0,
-        tilt_y_deg: 30.0,
-        ..r
-    };
-    let h = r.hand(PressureCurve::default(), 5.0);
-    hand.tilt_x_deg = h.tilt_x_deg;
-    hand.tilt_y_deg = h.tilt_y_deg;
-    let tip = hand
-        .pose()
-        .rot
-        .rotate(maobi_shared::Vec3::new(0.0, 0.0, -1.0));
-    assert!(tip.y > 0.45 && tip.x.abs() < 1e-9, "{tip:?}");
+    let t = tip(0.0, 30.0);
+    assert!(t.y > 0.45 && t.x.abs() < 1e-9, "{t:?}");
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
@@ -217,26 +211,12 @@ fn bad_recordings_and_devices_are_refused_with_the_reason() {
 }
 
 fn harness() -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
-    let device = SimDevice::new(
+    common::harness(common::app(
         SimClock::Stepped(TICKS_PER_FRAME),
-        "large",
-        start_hand(40.0),
-    )
-    .expect("the simulator starts");
-    let app = MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
+        150.0,
+        4.0,
         Automation::default(),
-        Default::default(),
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    ))
 }
 
 /// Steps the app until the recording has played to `t_s` seconds.

@@ -620,8 +620,13 @@ fn run(sectors: u32, backwards: bool, steps: &[Step]) -> Result<u32, TestCaseErr
                     prop_assert_eq!(&got, &Ok(config(n)));
                 }
                 match (&got, current) {
-                    // The save in progress: its commit was programmed before the cut.
-                    (Ok(c), _) if *c == config(n) => current = Some(n),
+                    // The save in progress: its commit was programmed before the cut. It is a
+                    // save like any other: a later torn erase may leave its half-erased
+                    // image behind, reported corrupt, not missing.
+                    (Ok(c), _) if *c == config(n) => {
+                        current = Some(n);
+                        saved_any = true;
+                    }
                     // The one before.
                     (Ok(c), Some(k)) if *c == config(k) => {}
                     (_, None) if !saved_any => {

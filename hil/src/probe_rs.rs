@@ -397,17 +397,23 @@ impl ProbeRsReport {
         for c in &self.checks {
             let _ = writeln!(s, "{c}");
         }
-        let shown = self.log.len().saturating_sub(20);
-        let _ = writeln!(
-            s,
-            "defmt log ({} lines{}):",
-            self.log.len(),
-            if shown > 0 { ", the last 20" } else { "" }
-        );
-        for l in &self.log[shown..] {
-            let _ = writeln!(s, "  {l}");
-        }
+        render_log(&mut s, &self.log);
         s.trim_end().to_string()
+    }
+}
+
+/// A defmt log's last 20 lines under a heading with the count, for a run's report.
+pub fn render_log(s: &mut String, log: &[String]) {
+    use std::fmt::Write;
+    let shown = log.len().saturating_sub(20);
+    let _ = writeln!(
+        s,
+        "defmt log ({} lines{}):",
+        log.len(),
+        if shown > 0 { ", the last 20" } else { "" }
+    );
+    for l in &log[shown..] {
+        let _ = writeln!(s, "  {l}");
     }
 }
 

@@ -117,16 +117,7 @@ impl RunReport {
         use std::fmt::Write;
         let mut s = String::new();
         if !self.defmt_log.is_empty() {
-            let shown = self.defmt_log.len().saturating_sub(20);
-            let _ = writeln!(
-                s,
-                "defmt log ({} lines{}):",
-                self.defmt_log.len(),
-                if shown > 0 { ", the last 20" } else { "" }
-            );
-            for l in &self.defmt_log[shown..] {
-                let _ = writeln!(s, "  {l}");
-            }
+            crate::probe_rs::render_log(&mut s, &self.defmt_log);
         }
         for c in &self.checks {
             let _ = writeln!(s, "{c}");

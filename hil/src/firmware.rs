@@ -255,23 +255,33 @@ impl Size {
 /// are flash; allocated ones at or above it are RAM, and those with contents (`.data`) count
 /// in flash too (their initial values are copied from there).
 pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
-    use object::{Object, ObjectSection, SectionFlags, SectionKind};
+    with_elf(elf, |file| Ok(size_of(file, ram_start)))
+}
+
+/// Reads and parses the image `elf` for `f`.
+fn with_elf<T>(elf: &Path, f: impl FnOnce(&object::File) -> Result<T>) -> Result<T> {
     let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
     let file = object::File::parse(&*bytes)
         .with_context(|| format!("{} is not an ELF image", elf.display()))?;
+    f(&file)
+}
+
+/// The section takes memory when the image runs (code, constants, statics).
+fn allocated(sec: &object::Section) -> bool {
+    use object::{ObjectSection, SectionFlags};
+    sec.size() > 0
+        && matches!(sec.flags(), SectionFlags::Elf { sh_flags, .. }
+            if sh_flags.contains(object::elf::SHF_ALLOC))
+}
+
+fn size_of(file: &object::File, ram_start: u64) -> Size {
+    use object::{Object, ObjectSection, SectionKind};
     let mut s = Size {
         flash: 0,
         static_ram: 0,
     };
-    for sec in file.sections() {
-        let alloc = match sec.flags() {
-            SectionFlags::Elf { sh_flags, .. } => sh_flags.contains(object::elf::SHF_ALLOC),
-            _ => false,
-        };
+    for sec in file.sections().filter(allocated) {
         let size = sec.size();
-        if !alloc || size == 0 {
-            continue;
-        }
         // `.bss` and `.uninit` take RAM but have nothing to store.
         let stored = !matches!(
             sec.kind(),
@@ -284,16 +294,17 @@ pub fn size(elf: &Path, ram_start: u64) -> Result<Size> {
             s.flash += size;
         }
     }
-    Ok(s)
+    s
 }
 
 /// Where the image's stack lies: `(bottom, top)`, from cortex-m-rt's `_stack_end` and
 /// `_stack_start` as the linker (flip-link) set them.
 pub fn stack_bounds(elf: &Path) -> Result<(u64, u64)> {
+    with_elf(elf, |file| stack_bounds_of(file, elf))
+}
+
+fn stack_bounds_of(file: &object::File, elf: &Path) -> Result<(u64, u64)> {
     use object::{Object, ObjectSymbol};
-    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
-    let file = object::File::parse(&*bytes)
-        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
     let addr = |name: &str| {
         file.symbols()
             .find(|s| s.name() == Ok(name))
@@ -307,22 +318,17 @@ pub fn stack_bounds(elf: &Path) -> Result<(u64, u64)> {
 /// static (flip-link's layout), so an overflow faults at the RAM boundary instead of
 /// overwriting statics. Returns the stack's size.
 pub fn check_stack_layout(elf: &Path, board: Board) -> Result<u64> {
-    use object::{Object, ObjectSection, SectionFlags};
-    let (bottom, top) = stack_bounds(elf)?;
-    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
-    let file = object::File::parse(&*bytes)
-        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
-    // The lowest static in RAM (`.data`, `.bss`, `.uninit`).
-    let lowest_static = file
-        .sections()
-        .filter(|sec| {
-            sec.size() > 0
-                && sec.address() >= board.ram_start()
-                && matches!(sec.flags(), SectionFlags::Elf { sh_flags, .. }
-                    if sh_flags.contains(object::elf::SHF_ALLOC))
-        })
-        .map(|sec| sec.address())
-        .min();
+    use object::{Object, ObjectSection};
+    let ((bottom, top), lowest_static) = with_elf(elf, |file| {
+        // The lowest static in RAM (`.data`, `.bss`, `.uninit`).
+        let lowest = file
+            .sections()
+            .filter(allocated)
+            .map(|sec| sec.address())
+            .filter(|&a| a >= board.ram_start())
+            .min();
+        Ok((stack_bounds_of(file, elf)?, lowest))
+    })?;
     let statics_above = lowest_static.is_none_or(|a| a >= top);
     if bottom != board.ram_start() || top < bottom || !statics_above {
         bail!(
@@ -348,13 +354,12 @@ const DEFMT_LEVELS: [&str; 5] = ["trace", "debug", "info", "warn", "error"];
 /// string as `"data"`.
 pub fn defmt_record_level(elf: &Path, text: &str) -> Result<Option<&'static str>> {
     use object::{Object, ObjectSymbol};
-    let bytes = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
-    let file = object::File::parse(&*bytes)
-        .with_context(|| format!("{} is not an ELF image", elf.display()))?;
-    Ok(file
-        .symbols()
-        .filter_map(|sym| sym.name().ok())
-        .find_map(|name| record_level(name, text)))
+    with_elf(elf, |file| {
+        Ok(file
+            .symbols()
+            .filter_map(|sym| sym.name().ok())
+            .find_map(|name| record_level(name, text)))
+    })
 }
 
 /// The level of a defmt symbol `name` if it is the record of format string `text`.

@@ -1059,14 +1059,8 @@ impl MaobiApp {
                 let path = PathBuf::from(&self.save_path);
                 self.file_action(FileKind::Png, &path, &ui.ctx().clone());
             }
-            if ui
-                .button("…")
-                .on_hover_text("Choose where to save the PNG")
-                .clicked()
-            {
-                if let Some(p) = FileKind::Png.pick_save(&self.save_path) {
-                    self.file_action(FileKind::Png, &p, &ui.ctx().clone());
-                }
+            if let Some(p) = browse_save(ui, FileKind::Png, &self.save_path) {
+                self.file_action(FileKind::Png, &p, &ui.ctx().clone());
             }
             ui.separator();
             let l = ui.label("pose recording");
@@ -1085,15 +1079,9 @@ impl MaobiApp {
                     let p = PathBuf::from(&self.record_path);
                     self.start_recording(&p);
                 }
-                if ui
-                    .button("…")
-                    .on_hover_text("Choose where to record the poses")
-                    .clicked()
-                {
-                    if let Some(p) = FileKind::Poses.pick_save(&self.record_path) {
-                        self.record_path = p.display().to_string();
-                        self.start_recording(&p);
-                    }
+                if let Some(p) = browse_save(ui, FileKind::Poses, &self.record_path) {
+                    self.record_path = p.display().to_string();
+                    self.start_recording(&p);
                 }
             }
             ui.separator();
@@ -1124,15 +1112,9 @@ impl MaobiApp {
                 let p = PathBuf::from(&self.session_path);
                 self.save_session_reporting(&p);
             }
-            if ui
-                .button("…")
-                .on_hover_text("Choose where to save the session")
-                .clicked()
-            {
-                if let Some(p) = FileKind::Session.pick_save(&self.session_path) {
-                    self.session_path = p.display().to_string();
-                    self.save_session_reporting(&p);
-                }
+            if let Some(p) = browse_save(ui, FileKind::Session, &self.session_path) {
+                self.session_path = p.display().to_string();
+                self.save_session_reporting(&p);
             }
             if self.opening.is_some() {
                 ui.spinner();
@@ -1856,6 +1838,16 @@ impl eframe::App for MaobiApp {
         }
         self.device.disconnect();
     }
+}
+
+/// A "…" button that asks the system's dialog where to save a file of `kind`, starting from
+/// `current`; the path chosen, if any.
+fn browse_save(ui: &mut egui::Ui, kind: FileKind, current: &str) -> Option<PathBuf> {
+    ui.button("…")
+        .on_hover_text(format!("Choose where to save the {}", kind.label()))
+        .clicked()
+        .then(|| kind.pick_save(current))
+        .flatten()
 }
 
 fn write_recording(r: &Recorder) -> anyhow::Result<usize> {

@@ -4,7 +4,7 @@
 //!   loopback socket when the host needs the link.
 //! * [`firmware`]: building the image (the firmware is its own cargo workspace) and its size.
 //! * [`bench`](mod@bench): the firmware's own instruction count of one force-loop tick.
-//! * [`link`]: the host end of the wire protocol: handshake, pose streaming paced by the
+//! * [`session`]: the host end of the wire protocol: handshake, pose streaming paced by the
 //!   device's states, bit-exact comparison with the host simulation.
 //! * [`panics`]: the index panics the force loop can reach, read from the image's machine code.
 //! * [`run`]: `hil run`: a pose file through the device (QEMU or a serial port), with checks.
@@ -15,10 +15,10 @@
 
 pub mod bench;
 pub mod firmware;
-pub mod link;
 pub mod panics;
 pub mod probe_rs;
 pub mod qemu;
 pub mod run;
 pub mod selftest;
 pub mod serial;
+pub mod session;

@@ -20,8 +20,8 @@ use anyhow::{bail, Context, Result};
 use maobi::device::{serial_ports, PortInfo};
 use maobi::poses::PoseTrack;
 
-use crate::link::{Session, StreamOptions};
 use crate::run::{run_session, Check, RunReport};
+use crate::session::{Session, StreamOptions};
 
 /// The pen's microcontroller as probe-rs names it (the STM32F411CE "Black Pill").
 pub const DEFAULT_CHIP: &str = "STM32F411CEUx";

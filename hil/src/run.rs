@@ -10,9 +10,9 @@ use maobi::poses::PoseTrack;
 use maobi_shared::presets;
 use maobi_shared::protocol::Capabilities;
 
-use crate::link::{self, Session, StreamLog, StreamOptions, Transport};
 use crate::qemu::{free_port, Clock, Guest, Run};
 use crate::selftest::EMULATED_TICK_US;
+use crate::session::{self, Session, StreamLog, StreamOptions, Transport};
 
 /// A firmware image running in QEMU with UART0 on a loopback socket.
 pub struct QemuDevice {
@@ -104,7 +104,7 @@ pub struct RunReport {
     /// The firmware's own defmt log, where the backend decodes it (QEMU).
     pub defmt_log: Vec<String>,
     pub checks: Vec<Check>,
-    pub figures: link::Figures,
+    pub figures: session::Figures,
     pub round_trip: Vec<Duration>,
     pub log: StreamLog,
 }
@@ -151,8 +151,8 @@ pub fn run_session<T: Transport>(
     track: &PoseTrack,
     opts: StreamOptions,
 ) -> Result<RunReport> {
-    let poses = link::track_poses(track);
-    let sim = link::simulate(presets::LARGE, &poses)?;
+    let poses = session::track_poses(track);
+    let sim = session::simulate(presets::LARGE, &poses)?;
     let mut log = StreamLog::default();
     let info = s.handshake(Duration::from_secs(10), &mut log.received)?;
     let mut checks = vec![Check {
@@ -178,8 +178,8 @@ pub fn run_session<T: Transport>(
         round_trip.push(s.ping(seq, Duration::from_secs(5), &mut log.received)?);
     }
     let base = opts.base;
-    link::stream(s, &poses, opts, &mut log)?;
-    let cmp = link::compare(&log, base, &sim);
+    session::stream(s, &poses, opts, &mut log)?;
+    let cmp = session::compare(&log, base, &sim);
     checks.push(Check {
         name: "states bit-identical to the host simulation".into(),
         pass: cmp.mismatches.is_empty() && cmp.compared > 0,
@@ -211,7 +211,7 @@ pub fn run_session<T: Transport>(
     });
     Ok(RunReport {
         defmt_log: Vec::new(),
-        figures: link::figures(&log),
+        figures: session::figures(&log),
         checks,
         round_trip,
         log,
@@ -294,7 +294,7 @@ pub fn sensor_pen_checks<T: Transport>(
     });
     Ok(RunReport {
         defmt_log: Vec::new(),
-        figures: link::figures(&log),
+        figures: session::figures(&log),
         checks,
         round_trip,
         log,

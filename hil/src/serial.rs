@@ -1,5 +1,5 @@
 //! Backend `serial`: the device link over a serial port (the pen's USB CDC port on real
-//! hardware). The session code is the QEMU backend's ([`crate::link`]).
+//! hardware). The session code is the QEMU backend's ([`crate::session`]).
 
 use std::path::Path;
 use std::time::Duration;
@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use serialport::{SerialPort, TTYPort};
 
-use crate::link::Transport;
+use crate::session::Transport;
 
 /// Line rate asked of the port (a USB CDC port ignores it).
 pub const BAUD: u32 = 1_000_000;

@@ -20,8 +20,8 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use hil::link::Session;
 use hil::run::QemuDevice;
+use hil::session::Session;
 use hil::{firmware, qemu};
 use maobi_shared::kinematics::{Joints, Pen, PenConfig, RawReadings};
 use maobi_shared::pen_io::{self, ConfigError, ConfigState, DeviceConfig, CONFIG_IMAGE_MAX};
@@ -510,9 +510,9 @@ fn the_configurations_force_limits_are_the_ones_in_force() {
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/press_lift.csv"),
     )
     .unwrap();
-    let poses = hil::link::track_poses(&track);
-    let mut log = hil::link::StreamLog::default();
-    hil::link::stream(&mut s, &poses, Default::default(), &mut log).unwrap();
+    let poses = hil::session::track_poses(&track);
+    let mut log = hil::session::StreamLog::default();
+    hil::session::stream(&mut s, &poses, Default::default(), &mut log).unwrap();
     // The virtual pen's motor commands are the output stage's force (N, world frame);
     // `haptics.force_n` is what the model asked for before it.
     let (mut asked, mut given) = (0.0f64, 0.0f64);

@@ -14,9 +14,9 @@ use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 use hil::firmware::{self, Board};
-use hil::link::Session;
 use hil::qemu::stack_readings;
 use hil::run::QemuDevice;
+use hil::session::Session;
 use maobi_shared::protocol::fuzz::{self, Fuzz, Piece};
 use maobi_shared::protocol::{DeviceMsg, EventKind, HostMsg};
 use maobi_shared::{Fx, Scalar};

@@ -19,8 +19,8 @@ use hil::qemu::{free_port, Clock, Run};
 use hil::selftest::EMULATED_TICK_US;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::device::Device;
-use maobi::gui::sim::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 use maobi_shared::presets;
 

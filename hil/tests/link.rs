@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use hil::firmware;
-use hil::link::{self, Action, Session, StreamLog, StreamOptions};
 use hil::run::{self, QemuDevice};
+use hil::session::{self, Action, Session, StreamLog, StreamOptions};
 use maobi::poses::PoseTrack;
 use maobi_shared::protocol::{
     crc32, Command, CommandError, DeviceMsg, EventKind, Faults, HostMsg, HOST_TO_DEVICE,
@@ -108,8 +108,8 @@ fn state_stream_at_120_hz_matches_by_pose_seq() {
 fn damaged_frames_are_counted_and_dropped_while_the_loop_ticks() {
     let Some(elf) = image() else { return };
     let t = track("hook.csv");
-    let poses = link::track_poses(&t);
-    let sim = link::simulate(presets::LARGE, &poses).unwrap();
+    let poses = session::track_poses(&t);
+    let sim = session::simulate(presets::LARGE, &poses).unwrap();
     let (dev, stream) =
         QemuDevice::start(&elf, &["state_hz=120", "telemetry_ticks=100"], TIMEOUT).unwrap();
     let mut s = Session::new(stream).unwrap();
@@ -145,7 +145,7 @@ fn damaged_frames_are_counted_and_dropped_while_the_loop_ticks() {
         actions,
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log).unwrap();
     // Telemetry after the end of the stroke (counters since start).
     let mut more = vec![];
     let tel = s
@@ -165,7 +165,7 @@ fn damaged_frames_are_counted_and_dropped_while_the_loop_ticks() {
     assert!(rx.dropped() >= 4, "{rx:?}");
     assert!(rx.frames_ok as usize >= poses.len(), "{rx:?}");
     // The stream went on, bit for bit, through the damage.
-    let cmp = link::compare(&log, 1, &sim);
+    let cmp = session::compare(&log, 1, &sim);
     assert!(cmp.mismatches.is_empty() && cmp.compared > 100, "{cmp:?}");
     let ticks: Vec<u32> = log.states().map(|(_, st)| st.tick).collect();
     assert!(
@@ -190,7 +190,7 @@ fn postcard_ping(seq: u32, buf: &mut [u8; 16]) -> &[u8] {
 fn link_cut_mid_stroke_latches_link_silent_and_zeroes_the_motors() {
     let Some(elf) = image() else { return };
     let t = track("press_lift.csv");
-    let poses = link::track_poses(&t);
+    let poses = session::track_poses(&t);
     let (mut dev, stream) =
         QemuDevice::start(&elf, &["state_hz=120", "telemetry_ticks=100"], TIMEOUT).unwrap();
     let mut s = Session::new(stream).unwrap();
@@ -204,7 +204,7 @@ fn link_cut_mid_stroke_latches_link_silent_and_zeroes_the_motors() {
         actions,
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log).unwrap();
     let driven = log
         .states()
         .filter(|(_, st)| st.haptics.enabled && st.haptics.motors.iter().any(|&m| m != 0))
@@ -274,7 +274,7 @@ fn injected_overrun_degrades_at_shift(shift: u32) {
         return;
     };
     let t = track("hook.csv");
-    let poses = link::track_poses(&t);
+    let poses = session::track_poses(&t);
     let (mut dev, stream) = QemuDevice::start_at_shift(
         &elf,
         shift,
@@ -300,7 +300,7 @@ fn injected_overrun_degrades_at_shift(shift: u32) {
         actions,
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log).unwrap();
     // Still serving after the stroke: a round trip, and QEMU has not exited.
     s.ping(7, Duration::from_secs(20), &mut log.received)
         .expect("the link answers after the overrun");
@@ -609,10 +609,10 @@ fn parameters_and_commands_are_validated_and_answered() {
 fn guided_stroke_forces_are_bit_identical_to_the_host_mirror() {
     let Some(elf) = image() else { return };
     let t = track("hook.csv");
-    let poses = link::track_poses(&t);
+    let poses = session::track_poses(&t);
     let n = poses.len();
-    let guide = link::guide_along(&poses, 40, [0.0, 3.0, 0.0], n.saturating_sub(200));
-    let sim = link::simulate(presets::LARGE, &poses).unwrap();
+    let guide = session::guide_along(&poses, 40, [0.0, 3.0, 0.0], n.saturating_sub(200));
+    let sim = session::simulate(presets::LARGE, &poses).unwrap();
     let (dev, stream) =
         QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=1000"], TIMEOUT).unwrap();
     let mut s = Session::new(stream).unwrap();
@@ -624,7 +624,7 @@ fn guided_stroke_forces_are_bit_identical_to_the_host_mirror() {
         guide: guide.clone(),
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log).unwrap();
 
     // Again unguided: a new handshake restarts the brush and the forces at the first pose.
     let base2 = 1 + n as u32;
@@ -635,19 +635,19 @@ fn guided_stroke_forces_are_bit_identical_to_the_host_mirror() {
         base: base2,
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log2).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log2).unwrap();
     drop(dev);
 
     // The host's mirror of the force loop, tick by tick as the device ran them.
-    let timeline = link::device_timeline(&log, 1, n);
-    let guided = link::simulate_forces(presets::LARGE, &poses, &guide, &timeline).unwrap();
-    let unguided_here = link::simulate_forces(presets::LARGE, &poses, &[], &timeline).unwrap();
-    let timeline2 = link::device_timeline(&log2, base2, n);
-    let unguided = link::simulate_forces(presets::LARGE, &poses, &[], &timeline2).unwrap();
-    let brush = link::compare(&log, 1, &sim);
-    let forces = link::compare_forces(&log, &guided);
-    let brush2 = link::compare(&log2, base2, &sim);
-    let forces2 = link::compare_forces(&log2, &unguided);
+    let timeline = session::device_timeline(&log, 1, n);
+    let guided = session::simulate_forces(presets::LARGE, &poses, &guide, &timeline).unwrap();
+    let unguided_here = session::simulate_forces(presets::LARGE, &poses, &[], &timeline).unwrap();
+    let timeline2 = session::device_timeline(&log2, base2, n);
+    let unguided = session::simulate_forces(presets::LARGE, &poses, &[], &timeline2).unwrap();
+    let brush = session::compare(&log, 1, &sim);
+    let forces = session::compare_forces(&log, &guided);
+    let brush2 = session::compare(&log2, base2, &sim);
+    let forces2 = session::compare_forces(&log2, &unguided);
     let gaps = |t: &[(u32, Option<usize>)]| t.iter().filter(|(_, k)| k.is_none()).count();
     println!(
         "guided: brush {} states over {} of {n} ticks, {} mismatches; force at {} device \
@@ -719,11 +719,11 @@ fn guided_stroke_forces_are_bit_identical_to_the_host_mirror() {
 fn link_cut_while_guiding_zeroes_the_motors_within_the_timeout() {
     let Some(elf) = image() else { return };
     let t = track("press_lift.csv");
-    let poses = link::track_poses(&t);
+    let poses = session::track_poses(&t);
     let n = poses.len();
     assert!(n > 800, "{n}");
     // 5 mm beside the pen: 0.5 N at full gain.
-    let guide = link::guide_along(&poses, 0, [0.0, 5.0, 0.0], n);
+    let guide = session::guide_along(&poses, 0, [0.0, 5.0, 0.0], n);
     let (dev, stream) =
         QemuDevice::start(&elf, &["state_hz=1000", "telemetry_ticks=1000"], TIMEOUT).unwrap();
     let mut s = Session::new(stream).unwrap();
@@ -738,7 +738,7 @@ fn link_cut_while_guiding_zeroes_the_motors_within_the_timeout() {
         guide,
         ..Default::default()
     };
-    link::stream(&mut s, &poses, opts, &mut log).unwrap();
+    session::stream(&mut s, &poses, opts, &mut log).unwrap();
     // Silence: read what the device sends until 150 states after the fault latched (the
     // device's pace under QEMU depends on the machine's load; the deadline is generous).
     let end = Instant::now() + Duration::from_secs(60);
@@ -907,7 +907,7 @@ fn guided_hand_run(
     let info = s.handshake(Duration::from_secs(10), &mut skipped).unwrap();
     s.send(&HostMsg::Command(Command::EnableForces)).unwrap();
     let mut hand = SimHand::new(hand_params, plan.start);
-    let run = link::guide_hand(
+    let run = session::guide_hand(
         &mut s,
         1,
         &plan.anchors,
@@ -922,16 +922,16 @@ fn guided_hand_run(
 
     // Bit for bit: every state's brush and force against the host's mirror, tick by tick as
     // the device ran them (it ticked on its own clock while the hand waited).
-    let timeline = link::device_timeline(&run.log, 1, n);
+    let timeline = session::device_timeline(&run.log, 1, n);
     let mirror =
-        link::mirror_force_loop(presets::LARGE, &run.poses, &run.guide, &timeline).unwrap();
+        session::mirror_force_loop(presets::LARGE, &run.poses, &run.guide, &timeline).unwrap();
     let forces = mirror.iter().map(|(t, m)| (*t, m.force_n)).collect();
-    let brush = link::compare(
+    let brush = session::compare(
         &run.log,
         1,
-        &link::simulate(presets::LARGE, &run.poses).unwrap(),
+        &session::simulate(presets::LARGE, &run.poses).unwrap(),
     );
-    let fc = link::compare_forces(&run.log, &forces);
+    let fc = session::compare_forces(&run.log, &forces);
     println!(
         "{n} poses over {} device ticks; brush {} mismatches over {} poses, force {} \
          mismatches over {} states",

@@ -9,8 +9,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use common::{fake_device, pair};
-use hil::link::{Session, StreamOptions};
 use hil::run::run_session;
+use hil::session::{Session, StreamOptions};
 use maobi::poses::PoseTrack;
 use maobi_shared::protocol::{encode_raw, DEVICE_MSG_MAX, DEVICE_TO_HOST, PROTOCOL_VERSION};
 use serialport::SerialPort;

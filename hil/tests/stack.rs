@@ -12,9 +12,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use hil::firmware::{self, Board};
-use hil::link::{self, Session, StreamLog, StreamOptions};
 use hil::qemu::stack_readings as readings;
 use hil::run::QemuDevice;
+use hil::session::{self, Session, StreamLog, StreamOptions};
 use maobi::poses::PoseTrack;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::pen_io::{self, DeviceConfig, CONFIG_IMAGE_MAX};
@@ -76,9 +76,9 @@ fn the_deepest_stack_fits_the_reserve() {
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv"),
     )
     .unwrap();
-    let poses = link::track_poses(&track);
+    let poses = session::track_poses(&track);
     let mut log = StreamLog::default();
-    link::stream(&mut s, &poses, StreamOptions::default(), &mut log).unwrap();
+    session::stream(&mut s, &poses, StreamOptions::default(), &mut log).unwrap();
     answer(
         &mut s,
         HostMsg::Command(Command::StreamSensors { rate_hz: 0 }),

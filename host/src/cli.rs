@@ -8,9 +8,9 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use maobi_shared::{presets, BrushParams, Fx, Scalar};
 
+use crate::offline::{simulate, ScalarKind};
 use crate::poses::PoseTrack;
 use crate::render::{paper_frame, render, write_png, RenderStats};
-use crate::sim::{simulate, ScalarKind};
 use crate::strokes::Character;
 use crate::trace::{time_decimals, TraceWriter};
 

@@ -3,7 +3,7 @@
 //! The command line (`maobi trace`, `maobi render`) and the pieces the GUI will reuse:
 //!
 //! * [`poses`]: reading, validating and resampling handle-pose CSV files.
-//! * [`sim`]: running the shared brush model over a pose track, tick by tick.
+//! * [`offline`]: running the shared brush model offline over a pose track, tick by tick.
 //! * [`trace`]: the per-tick trace CSV.
 //! * [`strokes`]: keyframed stroke files (TOML): reading, sampling to poses, fitting.
 //! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
@@ -16,11 +16,11 @@
 pub mod cli;
 pub mod device;
 pub mod gui;
+pub mod offline;
 pub mod phantom;
 pub mod poses;
 pub mod raster;
 pub mod render;
-pub mod sim;
 pub mod strokes;
 pub mod tablet;
 pub mod trace;

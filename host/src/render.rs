@@ -13,9 +13,9 @@ use anyhow::{bail, Context};
 use maobi_shared::footprint::{self, Geometry};
 use maobi_shared::{Brush, BrushParams, Scalar, Vec2};
 
+use crate::offline::simulate;
 use crate::poses::PoseTrack;
 use crate::raster::{Canvas, Frame, Stamper};
-use crate::sim::simulate;
 
 /// Paper margin beyond the ferrule's extent, on top of the brush length (mm).
 pub const EXTRA_MARGIN_MM: f64 = 10.0;

@@ -14,7 +14,7 @@ use std::io::Write;
 
 use maobi_shared::Scalar;
 
-use crate::sim::Tick;
+use crate::offline::Tick;
 
 /// Decimals for lengths (mm): 1 nm.
 const MM_DECIMALS: usize = 6;
@@ -153,8 +153,8 @@ impl<W: Write> TraceWriter<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::offline::simulate;
     use crate::poses::PoseTrack;
-    use crate::sim::simulate;
     use maobi_shared::presets;
 
     #[test]

@@ -162,7 +162,7 @@ fn maobi_sim_device_serves_the_protocol() {
 /// Use); the paper keeps what the simulator drew.
 #[test]
 fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
-    use maobi::gui::sim::{SimClock, SimDevice};
+    use maobi::gui::builtin::{SimClock, SimDevice};
     let srv = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
     let opts = GuiOptions {
         paper_mm: 150.0,

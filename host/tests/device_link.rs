@@ -398,7 +398,7 @@ fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper
 /// inks the canvas exactly as the built-in simulator does.
 #[test]
 fn replay_over_tcp_inks_like_the_built_in_simulator() {
-    use maobi::gui::sim::{SimClock, SimDevice};
+    use maobi::gui::builtin::{SimClock, SimDevice};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
     let track = || maobi::poses::PoseTrack::from_path(&path).unwrap();
 
@@ -543,7 +543,7 @@ fn replays_need_a_virtual_pen() {
 #[test]
 fn serial_backend_over_a_pty() {
     use maobi::device::endpoint::SerialConn;
-    use maobi::device::sim_device::serve_stream;
+    use maobi::device::server::serve_stream;
     use serialport::SerialPort;
     let (mut master, slave) = serialport::TTYPort::pair().expect("a pty pair");
     let path = slave.name().expect("the pty has a name");

@@ -18,7 +18,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use maobi::device::link::host_version;
+use maobi::device::client::host_version;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::device::Device;
 use maobi::gui::start_hand;

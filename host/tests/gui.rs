@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, MaobiApp, Outcome};
-use maobi::gui::sim::{SimClock, SimDevice};
+use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 use maobi::poses::PoseTrack;
 

@@ -235,7 +235,7 @@ fn tcp_states(addr: &str) -> Vec<BrushState> {
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
     let hello = HostMsg::Hello(HostHello::new(
         "phantom-test",
-        maobi::device::link::host_version(),
+        maobi::device::client::host_version(),
     ));
     let mut frame = vec![0u8; 512];
     let n = hello.encode(&mut frame).unwrap();

@@ -8,8 +8,8 @@ mod common;
 
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, DeviceKind, MaobiApp};
+use maobi::gui::builtin::SimClock;
 use maobi::gui::files::{FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
-use maobi::gui::sim::SimClock;
 use maobi::gui::DeviceChoice;
 use maobi::tablet::PressureCurve;
 

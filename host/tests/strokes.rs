@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use maobi::offline::simulate;
 use maobi::raster::Canvas;
 use maobi::render::{encode_png, paper_frame, render, Inker};
-use maobi::sim::simulate;
 use maobi::strokes::{fit_track, Character};
 use maobi_shared::stroke::orient::angle_between;
 use maobi_shared::{presets, Fx};

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::sim::{SimClock, SimDevice};
+use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 
 const TICKS_PER_FRAME: usize = 50;

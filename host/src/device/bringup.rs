@@ -315,7 +315,7 @@ impl Wire {
                 .map_err(|e| format!("cannot open {endpoint}: {e}"))?;
             dec.reset();
             let left = timeout.saturating_sub(started.elapsed());
-            match super::link::handshake(&mut *conn, &mut dec, "maobi-check", left, &|| false) {
+            match super::client::handshake(&mut *conn, &mut dec, "maobi-check", left, &|| false) {
                 Some(Ok(info)) => break (conn, info),
                 Some(Err(e))
                     if e.closed

@@ -13,11 +13,11 @@ use maobi_shared::force::OutputState;
 use maobi_shared::{presets, ParamId};
 
 use super::brush_view::{self, Orbit};
+use super::builtin::{SimClock, SimDevice};
 use super::canvas::PaperView;
 use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use super::files::{FileKind, Recent, Settings};
 use super::session::{CanvasOp, InkLog, Rerender, Session};
-use super::sim::{SimClock, SimDevice};
 use super::timeline::{Timeline, TimelineAction};
 use super::DeviceChoice;
 use crate::device::{serial_ports, Endpoint, PortInfo};

@@ -6,7 +6,7 @@
 //! to it.
 //!
 //! Backends:
-//! * [`crate::gui::sim::SimDevice`]: the built-in simulator (the shared model on the host).
+//! * [`crate::gui::builtin::SimDevice`]: the built-in simulator (the shared model on the host).
 //! * [`crate::device::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
 //!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, later the Phantom bridge) or a
 //!   serial port (`serial:PATH`: the pen on USB).

@@ -2,7 +2,7 @@
 //! controls and a status bar, over a [`device::Device`] (for now the built-in simulator).
 //!
 //! * [`device`]: the device-backend trait the GUI talks through.
-//! * [`sim`]: the built-in simulator backend.
+//! * [`builtin`]: the built-in simulator backend.
 //! * [`canvas`]: the paper view (ink, partial texture uploads, zoom, pan, undo).
 //! * [`brush_view`]: the brush in 3D.
 //! * [`app`]: the application and its automation (`--replay`, `--screenshot`).
@@ -10,12 +10,12 @@
 
 pub mod app;
 pub mod brush_view;
+pub mod builtin;
 pub mod canvas;
 pub mod device;
 pub mod files;
 pub mod fonts;
 pub mod session;
-pub mod sim;
 pub mod timeline;
 
 use std::path::PathBuf;
@@ -26,8 +26,8 @@ use anyhow::bail;
 use crate::device::{Endpoint, LinkDevice, LinkOptions};
 use crate::raster::Frame;
 use app::{Automation, MaobiApp, Outcome};
+use builtin::{SimClock, SimDevice};
 use device::HandInput;
-use sim::{SimClock, SimDevice};
 
 /// What the headless commands are, for the error when there is no display.
 pub const HEADLESS_HINT: &str = "without a display, use the headless commands: \

@@ -32,9 +32,9 @@ use anyhow::{bail, Context as _};
 use maobi_shared::{presets, BrushParams, ParamId, Pose, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
+use super::builtin::SimCore;
 use super::canvas::PaperView;
 use super::device::DeviceError;
-use super::sim::SimCore;
 use crate::raster::Frame;
 
 /// The `format` key of a session file.

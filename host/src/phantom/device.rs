@@ -13,7 +13,7 @@ use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
 use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared};
-use crate::device::link::frame_from_state;
+use crate::device::client::frame_from_state;
 use crate::device::ProtocolModel;
 use crate::gui::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 
@@ -360,8 +360,11 @@ pub fn gui_device(
         Err(e) => {
             let why = format!("Phantom unavailable, using the built-in simulator: {e}");
             eprintln!("maobi: {why}");
-            let mut sim =
-                crate::gui::sim::SimDevice::new(crate::gui::sim::SimClock::RealTime, preset, hand)?;
+            let mut sim = crate::gui::builtin::SimDevice::new(
+                crate::gui::builtin::SimClock::RealTime,
+                preset,
+                hand,
+            )?;
             if let Some(w) = wake {
                 sim.on_frames(w);
             }

@@ -2,7 +2,7 @@
 
 use egui_kittest::Harness;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::sim::{SimClock, SimDevice};
+use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 
 /// The app on the `large` brush's simulator running on `clock`, with a square paper of

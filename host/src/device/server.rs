@@ -28,8 +28,8 @@ use maobi_shared::protocol::{
 };
 use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
+use super::client::host_version;
 use super::endpoint::Conn;
-use super::link::host_version;
 
 /// Options of the simulated device.
 #[derive(Clone, Debug)]

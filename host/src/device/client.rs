@@ -42,10 +42,10 @@ use maobi_shared::protocol::{
 use maobi_shared::{presets, BrushParams, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use super::endpoint::{Conn, Endpoint};
+use crate::gui::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
 use crate::gui::device::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
 };
-use crate::gui::sim::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
 
 /// No good frame for this long: the link is lost.
 pub const LINK_TIMEOUT: Duration = Duration::from_millis(500);

@@ -43,7 +43,7 @@ use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
 use crate::app::{self, SensorPen};
 use crate::board::CycleCounter;
-use crate::link::{self, BoardInfo, LinkParts};
+use crate::host_link::{self, BoardInfo, LinkParts};
 
 /// SYSCLK, the DWT cycle counter's rate.
 pub const SYSCLK_HZ: u32 = 96_000_000;
@@ -416,11 +416,11 @@ async fn usb_task(parts: usb::UsbParts) {
 
 #[embassy_executor::task]
 async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
-    let cfg = link::LinkConfig {
+    let cfg = host_link::LinkConfig {
         tick_us: TICK_US,
         telemetry_ticks: 1000,
     };
-    link::run(parts, &BOARD, BOARD.brush(presets::LARGE), cfg).await
+    host_link::run(parts, &BOARD, BOARD.brush(presets::LARGE), cfg).await
 }
 
 /// A new deepest stack reading (`app::stack`), in the defmt log: the figure the RAM budget's

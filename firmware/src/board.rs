@@ -1,8 +1,8 @@
 //! What the application needs from a board, as small traits.
 //!
-//! The application ([`crate::app`], [`crate::link`]) is written against these traits only;
-//! a board module implements them and owns every register address, pin, interrupt number
-//! and linker-script detail:
+//! The application ([`crate::app`], [`crate::host_link`]) is written against these traits
+//! only; a board module implements them and owns every register address, pin, interrupt
+//! number and linker-script detail:
 //!
 //! * `qemu` (feature `board-qemu`): QEMU's mps2-an386, a virtual pen fed by the host;
 //! * `blackpill` (feature `board-blackpill`): the STM32F411CE Black Pill driving the real

@@ -12,7 +12,7 @@ compile_error!("select a board feature: `board-qemu` (default) or `board-blackpi
 mod app;
 mod board;
 mod executor;
-mod link;
+mod host_link;
 
 #[cfg(feature = "board-blackpill")]
 mod blackpill;

@@ -17,6 +17,7 @@
 
 pub mod config;
 pub mod motors;
+pub mod pins;
 pub mod sensors;
 pub mod usb;
 pub mod watchdog;
@@ -43,41 +44,21 @@ use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
 use crate::app::{self, SensorPen};
 use crate::board::CycleCounter;
-use crate::link::{self, BoardInfo, LinkParts};
+use crate::host_link::{self, BoardInfo, LinkParts};
 
 /// SYSCLK, the DWT cycle counter's rate.
 pub const SYSCLK_HZ: u32 = 96_000_000;
 /// The force loop's period.
 pub const TICK_US: u32 = 1000;
 
-/// Pins the fault paths drive through raw registers, without driver objects. They must be
-/// the pins `main` hands to the drivers (the table in firmware/README.md).
-pub mod pins {
-    use embassy_stm32::pac::gpio::Gpio;
-    use embassy_stm32::pac::GPIOB;
-
-    /// Standby of motor carrier A (motors 1, 2): PB10; of carrier B (motor 3): PB2, a pin
-    /// with no peripheral function on this chip (PA4, its earlier pin, is the chip select of
-    /// the Black Pill's optional SPI-flash footprint).
-    pub const STBY: [(Gpio, usize); 2] = [(GPIOB, 10), (GPIOB, 2)];
-    /// IN1, IN2 of motors 1 (PB12, PB13), 2 (PB14, PB15), 3 (PB8, PB9).
-    pub const DIR: [[(Gpio, usize); 2]; 3] = [
-        [(GPIOB, 12), (GPIOB, 13)],
-        [(GPIOB, 14), (GPIOB, 15)],
-        [(GPIOB, 8), (GPIOB, 9)],
-    ];
-    /// The fault LED, PC13, lit when low (the Black Pill's blue LED).
-    pub const LED: usize = 13;
-}
-
 /// Lights the fault LED from any context (PC13 low).
 pub fn led_on() {
-    pac::GPIOC.bsrr().write(|w| w.set_br(pins::LED, true));
+    pins::LED.set_low();
 }
 
 /// Puts the fault LED out from any context (PC13 high).
 fn led_off() {
-    pac::GPIOC.bsrr().write(|w| w.set_bs(pins::LED, true));
+    pins::LED.set_high();
 }
 
 /// Prefetch and both flash caches on, the caches reset first
@@ -241,38 +222,33 @@ fn start() -> (
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
     watchdog::freeze_in_debug();
 
+    let pins = pins::take(p);
+
     // The motor bridges first, off: standby low, inputs low, duty zero.
-    let stby = [
-        Output::new(p.PB10, Level::Low, Speed::Low),
-        Output::new(p.PB2, Level::Low, Speed::Low),
-    ];
-    let dir = [
-        [
-            Output::new(p.PB12, Level::Low, Speed::Low),
-            Output::new(p.PB13, Level::Low, Speed::Low),
-        ],
-        [
-            Output::new(p.PB14, Level::Low, Speed::Low),
-            Output::new(p.PB15, Level::Low, Speed::Low),
-        ],
-        [
-            Output::new(p.PB8, Level::Low, Speed::Low),
-            Output::new(p.PB9, Level::Low, Speed::Low),
-        ],
-    ];
-    let led = Output::new(p.PC13, Level::High, Speed::Low);
+    let pins::MotorPins {
+        pwm_timer,
+        pwm1,
+        pwm2,
+        pwm3,
+        dir,
+        stby,
+    } = pins.motors;
+    let off = |pin| Output::new(pin, Level::Low, Speed::Low);
+    let stby = stby.map(off);
+    let dir = dir.map(|d| d.map(off));
+    let led = Output::new(pins.led, Level::High, Speed::Low);
 
     // The configuration log (sectors 6 and 7). The link task loads and decodes the newest image when it
     // starts and puts it in force (`app::Command::Configure`); until then the pen has no
     // kinematics, `app::CONFIG_OK` is off and the motors stay off.
-    let mut store = config::FlashConfig::open(Flash::new_blocking(p.FLASH));
+    let mut store = config::FlashConfig::open(Flash::new_blocking(pins.flash));
 
     let drive = [DriveConfig::DEFAULT; 3];
     let mut pwm = SimplePwm::new(
-        p.TIM1,
-        Some(PwmPin::new(p.PA8, embassy_stm32::gpio::OutputType::PushPull)),
-        Some(PwmPin::new(p.PA9, embassy_stm32::gpio::OutputType::PushPull)),
-        Some(PwmPin::new(p.PA10, embassy_stm32::gpio::OutputType::PushPull)),
+        pwm_timer,
+        Some(PwmPin::new(pwm1, embassy_stm32::gpio::OutputType::PushPull)),
+        Some(PwmPin::new(pwm2, embassy_stm32::gpio::OutputType::PushPull)),
+        Some(PwmPin::new(pwm3, embassy_stm32::gpio::OutputType::PushPull)),
         None,
         Hertz(drive[0].pwm_hz),
         CountingMode::EdgeAlignedUp,
@@ -298,25 +274,24 @@ fn start() -> (
         applied: [Fx::ZERO; 3],
     };
 
-    // Sensors: encoders on TIM2 (PA15, PB3), TIM3 (PB4, PB5), TIM4 (PB6, PB7), with the
-    // pull-ups on for open-collector encoder outputs; gimbal on PA1, PA2, PA3 (ADC1 IN1-3);
-    // buttons on PB0, PB1 to ground.
+    // Sensors (the pins in `pins`): the encoders' pull-ups on for open-collector outputs, the
+    // buttons' too (they switch to ground).
     let qei_cfg = qei::Config {
         ch1_pull: Pull::Up,
         ch2_pull: Pull::Up,
         ..Default::default()
     };
     let sensors = sensors::PenSensors {
-        enc1: Qei::new(p.TIM2, p.PA15, p.PB3, qei_cfg),
-        enc2: Qei::new(p.TIM3, p.PB4, p.PB5, qei_cfg),
-        enc3: Qei::new(p.TIM4, p.PB6, p.PB7, qei_cfg),
-        adc: Adc::new(p.ADC1),
+        enc1: Qei::new(pins.enc1.timer, pins.enc1.a, pins.enc1.b, qei_cfg),
+        enc2: Qei::new(pins.enc2.timer, pins.enc2.a, pins.enc2.b, qei_cfg),
+        enc3: Qei::new(pins.enc3.timer, pins.enc3.a, pins.enc3.b, qei_cfg),
+        adc: Adc::new(pins.gimbal.adc),
         gimbal: [
-            p.PA1.degrade_adc(),
-            p.PA2.degrade_adc(),
-            p.PA3.degrade_adc(),
+            pins.gimbal.g1.degrade_adc(),
+            pins.gimbal.g2.degrade_adc(),
+            pins.gimbal.g3.degrade_adc(),
         ],
-        buttons: [Input::new(p.PB0, Pull::Up), Input::new(p.PB1, Pull::Up)],
+        buttons: pins.buttons.map(|pin| Input::new(pin, Pull::Up)),
     };
 
     // The brush starts at rest wherever the first sensor pose puts it.
@@ -325,7 +300,7 @@ fn start() -> (
     // SAFETY: `main` runs once; the queue is split here and never touched otherwise.
     let (cmd_tx, cmd_rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
 
-    let mut iwdg = IndependentWatchdog::new(p.IWDG, watchdog::TIMEOUT_US);
+    let mut iwdg = IndependentWatchdog::new(pins.iwdg, watchdog::TIMEOUT_US);
     iwdg.unleash();
     // Another firmware's data in the configuration sectors (a new board's demo) is erased
     // now, with the motors off and nothing timed yet, rather than on the first save, while
@@ -378,17 +353,17 @@ fn start() -> (
     // Bus-powered: VBUS is always there while the chip runs (and PA9 is a PWM output).
     usb_cfg.vbus_detection = false;
     let driver = embassy_stm32::usb::Driver::new_fs(
-        p.USB_OTG_FS,
+        pins.usb.otg,
         Irqs,
-        p.PA12,
-        p.PA11,
+        pins.usb.dp,
+        pins.usb.dm,
         EP_OUT.init([0; 256]),
         usb_cfg,
     );
     let usb_parts = usb::build(driver, embassy_stm32::uid::uid_hex());
 
     // The force tick: TIM9 at 1 kHz.
-    let tick = LlTimer::new(p.TIM9);
+    let tick = LlTimer::new(pins.tick_timer);
     tick.set_frequency(Hertz(1_000_000 / TICK_US), RoundTo::Slower);
     tick.enable_update_interrupt(true);
     tick.start();
@@ -416,11 +391,11 @@ async fn usb_task(parts: usb::UsbParts) {
 
 #[embassy_executor::task]
 async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
-    let cfg = link::LinkConfig {
+    let cfg = host_link::LinkConfig {
         tick_us: TICK_US,
         telemetry_ticks: 1000,
     };
-    link::run(parts, &BOARD, BOARD.brush(presets::LARGE), cfg).await
+    host_link::run(parts, &BOARD, BOARD.brush(presets::LARGE), cfg).await
 }
 
 /// A new deepest stack reading (`app::stack`), in the defmt log: the figure the RAM budget's

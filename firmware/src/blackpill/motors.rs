@@ -42,8 +42,8 @@ static MOTORS_ON: AtomicBool = AtomicBool::new(false);
 /// then go to unclocked peripherals and change nothing, which is the reset state: off).
 pub fn motors_off() {
     MOTORS_ON.store(false, Ordering::SeqCst);
-    for (port, pin) in pins::STBY.iter().chain(pins::DIR.iter().flatten()) {
-        port.bsrr().write(|w| w.set_br(*pin, true));
+    for pin in pins::STBY.iter().chain(pins::DIR.iter().flatten()) {
+        pin.set_low();
     }
     for ch in 0..3 {
         pac::TIM1.ccr(ch).write(|w| w.set_ccr(0));

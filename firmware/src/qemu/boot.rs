@@ -30,7 +30,7 @@ use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::protocol::Capabilities;
 
 use crate::app::{self, bench, Command, SNAPSHOT};
-use crate::link::{self, BoardInfo, LinkParts};
+use crate::host_link::{self, BoardInfo, LinkParts};
 use crate::qemu::{self, semihosting, semihosting::Stdout};
 
 /// What the link says about this board.
@@ -142,12 +142,12 @@ fn run_bench(shift: u32) -> ! {
 /// The brush, the force loop and the board, from the command line's settings (see `main`
 /// for why not inline).
 #[inline(never)]
-fn start() -> (qemu::Parts, u32, link::LinkConfig) {
+fn start() -> (qemu::Parts, u32, host_link::LinkConfig) {
     let tick_us = tick_us();
     if let Some(hz) = arg_num("state_hz", 1..=1000) {
         app::STATE_HZ.store(hz, Ordering::Relaxed);
     }
-    let link_cfg = link::LinkConfig {
+    let link_cfg = host_link::LinkConfig {
         tick_us,
         telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
     };
@@ -157,14 +157,14 @@ fn start() -> (qemu::Parts, u32, link::LinkConfig) {
 }
 
 #[embassy_executor::task]
-async fn link_task(parts: qemu::Parts, cfg: link::LinkConfig) {
+async fn link_task(parts: qemu::Parts, cfg: host_link::LinkConfig) {
     let parts = LinkParts {
         transport: parts.uart,
         poses: Some(parts.poses),
         cmds: parts.cmds,
         store: parts.config,
     };
-    link::run(parts, &BOARD, presets::LARGE, cfg).await
+    host_link::run(parts, &BOARD, presets::LARGE, cfg).await
 }
 
 /// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop

@@ -1,7 +1,9 @@
-//! The link task: the wire protocol (`maobi_shared::protocol`) over the board's byte link
-//! (QEMU's UART, the Black Pill's USB CDC-ACM), the same on every board: a board calls
-//! [`run`] from its own task with its [`LinkTransport`], its [`ConfigStore`] and its
-//! [`BoardInfo`].
+//! The pen's end of the link to the host: the link task, the wire protocol
+//! (`maobi_shared::protocol`) over the board's byte link (QEMU's UART, the Black Pill's USB
+//! CDC-ACM), the same on every board: a board calls [`run`] from its own task with its
+//! [`LinkTransport`], its [`ConfigStore`] and its [`BoardInfo`]. The other ends are the
+//! host's protocol client (`host/src/device/client.rs`) and hil's session
+//! (`hil/src/session.rs`).
 //!
 //! * On start it writes one `0x00` so the host's decoder drops any partial frame.
 //! * `Hello` is answered with the device's [`DeviceInfo`] and arms the link supervision

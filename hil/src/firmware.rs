@@ -61,10 +61,10 @@ impl Board {
     }
     /// The defmt line each board logs once at boot (`hil run` and `hil size --check` look for
     /// it).
-    pub fn boot_line(self) -> &'static str {
+    pub const fn boot_line(self) -> &'static str {
         match self {
             Board::Qemu => "maobi-fw up",
-            Board::Blackpill => crate::probe_rs::BOOT_LINE,
+            Board::Blackpill => "maobi-pen up",
         }
     }
     /// Where its RAM starts (both: the Cortex-M SRAM region).

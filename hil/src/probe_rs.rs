@@ -20,14 +20,15 @@ use anyhow::{bail, Context, Result};
 use maobi::device::{serial_ports, PortInfo};
 use maobi::poses::PoseTrack;
 
-use crate::run::{run_session, Check, RunReport};
+use crate::firmware::Board;
+use crate::run::{log_checks, render_log, run_session, Check, RunReport};
 use crate::session::{Session, StreamOptions};
 
 /// The pen's microcontroller as probe-rs names it (the STM32F411CE "Black Pill").
 pub const DEFAULT_CHIP: &str = "STM32F411CEUx";
 /// What the pen's firmware logs once it has started: the Black Pill board's boot record
 /// (the QEMU image's is `maobi-fw up`).
-pub const BOOT_LINE: &str = "maobi-pen up";
+pub const BOOT_LINE: &str = Board::Blackpill.boot_line();
 /// How long the log may lag the link at the end of a run (probe-rs's idle RTT poll is 100 ms).
 pub const LOG_SETTLE: Duration = Duration::from_millis(300);
 /// How to get the tool, for the error when it is missing.
@@ -315,64 +316,6 @@ pub fn wait_for_port(
     }
 }
 
-/// The checks of a defmt log (probe-rs's stdout): the boot line exactly once (twice means
-/// the pen restarted during the run: watchdog, brown-out, a fault handler's reset), and no
-/// panic or fault. Records may carry a timestamp and a level before the message.
-pub fn log_checks(lines: &[String], boot_line: &str) -> Vec<Check> {
-    // Location lines (`└─ module @ file:line`), if a probe-rs prints them anyway, name
-    // functions, not events.
-    let records: Vec<&str> = lines
-        .iter()
-        .map(|l| l.trim())
-        .filter(|l| !l.is_empty() && !l.starts_with('└'))
-        .collect();
-    let boots = records.iter().filter(|l| l.contains(boot_line)).count();
-    let boot = Check {
-        name: "defmt log: the firmware booted once".into(),
-        pass: boots == 1,
-        detail: match boots {
-            0 => format!(
-                "`{boot_line}` not in the {} lines of the log (RTT not found, or the firmware \
-                 stopped before it)",
-                records.len()
-            ),
-            1 => format!("`{boot_line}` seen, {} log lines", records.len()),
-            n => format!("`{boot_line}` seen {n} times: the pen restarted during the run"),
-        },
-    };
-    let faults: Vec<&str> = records
-        .iter()
-        .copied()
-        .filter(|l| is_fault_line(l))
-        .collect();
-    let clean = Check {
-        name: "defmt log: no panic or fault".into(),
-        pass: faults.is_empty(),
-        detail: match faults.first() {
-            None => "no error-level record, panic, fault or stack trace".into(),
-            Some(first) => format!("{} such lines, the first: {first}", faults.len()),
-        },
-    };
-    vec![boot, clean]
-}
-
-/// An error-level defmt record, a panic, a fault handler's report, or the stack trace
-/// probe-rs prints when the core halts (`Frame 0: ...`).
-fn is_fault_line(line: &str) -> bool {
-    let lower = line.to_lowercase();
-    let level_error = line
-        .split_whitespace()
-        .take(2)
-        .any(|w| w.trim_matches(|c| c == '[' || c == ']') == "ERROR");
-    level_error
-        || lower.contains("panicked")
-        || lower.contains("panic:")
-        || lower.contains("hardfault")
-        || lower.contains("hard fault")
-        || lower.contains("locked up")
-        || lower.starts_with("frame 0:")
-}
-
 /// The outcome of a probe-rs run: the link session's report (if the pen came up), then the
 /// flashing, link and log checks.
 pub struct ProbeRsReport {
@@ -399,21 +342,6 @@ impl ProbeRsReport {
         }
         render_log(&mut s, &self.log);
         s.trim_end().to_string()
-    }
-}
-
-/// A defmt log's last 20 lines under a heading with the count, for a run's report.
-pub fn render_log(s: &mut String, log: &[String]) {
-    use std::fmt::Write;
-    let shown = log.len().saturating_sub(20);
-    let _ = writeln!(
-        s,
-        "defmt log ({} lines{}):",
-        log.len(),
-        if shown > 0 { ", the last 20" } else { "" }
-    );
-    for l in &log[shown..] {
-        let _ = writeln!(s, "  {l}");
     }
 }
 

@@ -117,7 +117,7 @@ impl RunReport {
         use std::fmt::Write;
         let mut s = String::new();
         if !self.defmt_log.is_empty() {
-            crate::probe_rs::render_log(&mut s, &self.defmt_log);
+            render_log(&mut s, &self.defmt_log);
         }
         for c in &self.checks {
             let _ = writeln!(s, "{c}");
@@ -310,7 +310,7 @@ pub fn run_qemu(elf: &Path, poses: &Path, state_hz: u32, timeout: Duration) -> R
     let mut r = run_session(&mut s, &track, StreamOptions::default())?;
     // The firmware's log, decoded from QEMU's stderr: booted once, no panic or fault.
     r.defmt_log = dev.guest.defmt_log();
-    r.checks.extend(crate::probe_rs::log_checks(
+    r.checks.extend(log_checks(
         &r.defmt_log,
         crate::firmware::Board::Qemu.boot_line(),
     ));
@@ -324,4 +324,77 @@ pub fn run_serial(port: &Path, poses: &Path) -> Result<RunReport> {
     let io = crate::serial::open(port)?;
     let mut s = Session::new(io)?;
     run_session(&mut s, &track, StreamOptions::default())
+}
+
+/// A defmt log's last 20 lines under a heading with the count, for a run's report.
+pub fn render_log(s: &mut String, log: &[String]) {
+    use std::fmt::Write;
+    let shown = log.len().saturating_sub(20);
+    let _ = writeln!(
+        s,
+        "defmt log ({} lines{}):",
+        log.len(),
+        if shown > 0 { ", the last 20" } else { "" }
+    );
+    for l in &log[shown..] {
+        let _ = writeln!(s, "  {l}");
+    }
+}
+
+/// The checks of a defmt log (probe-rs's stdout, QEMU's decoded stderr): the boot line exactly once (twice means
+/// the pen restarted during the run: watchdog, brown-out, a fault handler's reset), and no
+/// panic or fault. Records may carry a timestamp and a level before the message.
+pub fn log_checks(lines: &[String], boot_line: &str) -> Vec<Check> {
+    // Location lines (`└─ module @ file:line`), if a probe-rs prints them anyway, name
+    // functions, not events.
+    let records: Vec<&str> = lines
+        .iter()
+        .map(|l| l.trim())
+        .filter(|l| !l.is_empty() && !l.starts_with('└'))
+        .collect();
+    let boots = records.iter().filter(|l| l.contains(boot_line)).count();
+    let boot = Check {
+        name: "defmt log: the firmware booted once".into(),
+        pass: boots == 1,
+        detail: match boots {
+            0 => format!(
+                "`{boot_line}` not in the {} lines of the log (RTT not found, or the firmware \
+                 stopped before it)",
+                records.len()
+            ),
+            1 => format!("`{boot_line}` seen, {} log lines", records.len()),
+            n => format!("`{boot_line}` seen {n} times: the pen restarted during the run"),
+        },
+    };
+    let faults: Vec<&str> = records
+        .iter()
+        .copied()
+        .filter(|l| is_fault_line(l))
+        .collect();
+    let clean = Check {
+        name: "defmt log: no panic or fault".into(),
+        pass: faults.is_empty(),
+        detail: match faults.first() {
+            None => "no error-level record, panic, fault or stack trace".into(),
+            Some(first) => format!("{} such lines, the first: {first}", faults.len()),
+        },
+    };
+    vec![boot, clean]
+}
+
+/// An error-level defmt record, a panic, a fault handler's report, or the stack trace
+/// probe-rs prints when the core halts (`Frame 0: ...`).
+fn is_fault_line(line: &str) -> bool {
+    let lower = line.to_lowercase();
+    let level_error = line
+        .split_whitespace()
+        .take(2)
+        .any(|w| w.trim_matches(|c| c == '[' || c == ']') == "ERROR");
+    level_error
+        || lower.contains("panicked")
+        || lower.contains("panic:")
+        || lower.contains("hardfault")
+        || lower.contains("hard fault")
+        || lower.contains("locked up")
+        || lower.starts_with("frame 0:")
 }

@@ -8,7 +8,7 @@
 //! `callgrind_annotate --auto=yes callgrind.out.<pid>` for the per-line picture (the substep is
 //! inlined into `Brush::tick`). With `DUMP=1` it prints the final spine, layer radii and
 //! axes, to compare two builds' results; with `SCALAR=1` the host's wide kernels are off.
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
 use std::hint::black_box;
 
 fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
@@ -21,7 +21,7 @@ fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
     )
 }
 
-fn run<S: Scalar>(ticks: usize) {
+fn run<S: BrushScalar>(ticks: usize) {
     let mut b = Brush::<S>::new(presets::LARGE, stroke_pose(0)).unwrap();
     let poses: Vec<Pose<S>> = (0..ticks).map(stroke_pose).collect();
     let start = std::time::Instant::now();

@@ -64,7 +64,8 @@ use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBS
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
-use crate::wide::{Integration, InteriorRows, LayerAxes, Segments};
+
+pub mod state_frame;
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -203,7 +204,7 @@ pub struct Brush<S: Scalar> {
     substeps_done: u64,
 }
 
-impl<S: Scalar> Brush<S> {
+impl<S: BrushScalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
@@ -292,10 +293,6 @@ impl<S: Scalar> Brush<S> {
         self.measure_segments();
     }
 
-    pub fn params(&self) -> &BrushParams {
-        &self.params
-    }
-
     /// Replaces all parameters (validated first; on error nothing changes). The state is
     /// kept when the number of layers is unchanged; otherwise the brush is reset at its
     /// current pose.
@@ -318,6 +315,13 @@ impl<S: Scalar> Brush<S> {
         let mut p = self.params;
         p.set(id, value)?;
         self.set_params(p)
+    }
+}
+
+/// What reads the brush, or changes it without running the model: for any [`Scalar`].
+impl<S: Scalar> Brush<S> {
+    pub fn params(&self) -> &BrushParams {
+        &self.params
     }
 
     /// Number of layers N.
@@ -421,6 +425,15 @@ impl<S: Scalar> Brush<S> {
         }
     }
 
+    /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
+    /// [`TIE_RAMP_MM`] up.
+    #[inline]
+    pub fn tie_weight(&self, i: usize) -> S {
+        tie_weight_at(&self.d, self.spine[i].z)
+    }
+}
+
+impl<S: BrushScalar> Brush<S> {
     /// Advances one 1 ms tick to the handle pose `target`. Over the tick's substeps each
     /// skeleton node (the ferrule, node 0, with them) moves in equal steps along the straight
     /// line from where the previous tick's pose placed it to where `target` places it; the
@@ -761,13 +774,6 @@ impl<S: Scalar> Brush<S> {
         self.segments_cached = true;
     }
 
-    /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
-    /// [`TIE_RAMP_MM`] up.
-    #[inline]
-    pub fn tie_weight(&self, i: usize) -> S {
-        tie_weight_at(&self.d, self.spine[i].z)
-    }
-
     fn project_onto_paper(&mut self) {
         let tol = self.d.contact_tol;
         for i in 1..self.d.n() {
@@ -1002,7 +1008,7 @@ const FLAT: usize = 3 * MAX_LAYERS;
 /// per-mass branch or struct shuffling, and for the float types it vectorises. Each entry is
 /// computed with the same operations in the same order as per [`Vec3`], so the results are
 /// the same bits.
-fn jacobi<S: Scalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
+fn jacobi<S: BrushScalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
     // The two coefficients are the same for every sweep: tested once (the presets' are in
     // (-1, 1)), not on each of the sweeps' products; the same values either way.
     if c.is_coef() && c_tip.is_coef() {
@@ -1090,7 +1096,7 @@ fn jacobi_with<S: Scalar>(
 
 /// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6), from the node
 /// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
-fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
+fn place_skeleton<S: BrushScalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
     // Four nodes at a time in the host's wide form where it applies (see `wide`).
     if S::place_nodes_wide(pose.pos, offsets, &m, out) {
@@ -1360,6 +1366,182 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     }
 }
 
+/// A number type the brush runs on: a [`Scalar`] with the brush's inner loops, each of which
+/// the type may replace by a wide form that gives the same bits. Every hook has the scalar
+/// default "no wide form" (the brush then runs its own loop); [`Fx`](crate::Fx) on x86-64
+/// hosts with AVX2 takes the wide forms of the host-only module `wide`, which implements this
+/// trait for it. The number type itself knows nothing of the brush: the brush's loops are
+/// the brush's, and a host-only speed-up changes neither `Scalar` nor the device's code.
+pub trait BrushScalar: Scalar {
+    /// The brush's Jacobi sweeps (see `brush::jacobi`) at once, for coefficients whose
+    /// [`Scalar::is_coef`] holds: turns `p` into `du` in place and returns true where the
+    /// implementation has a wide form that applies (the fixed-point one on x86-64 hosts with
+    /// AVX2, see `wide`); returns false, with `p` unchanged, where not (then the brush runs
+    /// its own sweeps).
+    #[doc(hidden)]
+    #[inline]
+    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
+        let _ = (p, coefs, n, iterations);
+        false
+    }
+    /// Measures the brush's spine segments and writes their spring terms (see
+    /// [`Segments`]) where the implementation has a wide form that applies, and
+    /// returns the segments done as bits (bit j: segment j); 0 where it has none.
+    #[doc(hidden)]
+    #[inline]
+    fn segments_wide(segments: &mut Segments<'_, Self>) -> u32 {
+        let _ = segments;
+        0
+    }
+    /// The surface update's layer axes (see [`LayerAxes`]) where the
+    /// implementation has a wide form that applies; the layers done as bits (bit i: layer
+    /// i), 0 where it has none.
+    #[doc(hidden)]
+    #[inline]
+    fn layer_axes_wide(axes: &mut LayerAxes<'_, Self>) -> u32 {
+        let _ = axes;
+        0
+    }
+    /// The substep's integration, paper drag and projection of masses `1..k` (see
+    /// [`Integration`]) where the implementation has a wide form that applies;
+    /// returns `k`, the first mass left for the brush's own loop (1 where it has none).
+    #[doc(hidden)]
+    #[inline]
+    fn integrate_wide(integration: &mut Integration<'_, Self>) -> usize {
+        let _ = integration;
+        1
+    }
+    /// The skeleton's nodes `pos + m offset_i` into `out` where the implementation has a
+    /// wide form that applies (see `wide`); false, having written nothing, where not.
+    #[doc(hidden)]
+    #[inline]
+    fn place_nodes_wide(
+        pos: Vec3<Self>,
+        offsets: &[[Self; MAX_LAYERS]; 3],
+        m: &[[Self; 3]; 3],
+        out: &mut [Vec3<Self>],
+    ) -> bool {
+        let _ = (pos, offsets, m, out);
+        false
+    }
+    /// Whether `substeps` straight-line steps of each node by `step` (a tick's) may be taken
+    /// by [`BrushScalar::step_nodes_wide`]: false where the implementation has no wide form.
+    #[doc(hidden)]
+    #[inline]
+    fn node_steps_fit(nodes: &[Vec3<Self>], step: &[Vec3<Self>], substeps: usize) -> bool {
+        let _ = (nodes, step, substeps);
+        false
+    }
+    /// One of those steps, `node += step`, `vel = step`, where [`BrushScalar::node_steps_fit`]
+    /// said so at the tick's start; false, having changed nothing, where not done.
+    #[doc(hidden)]
+    #[inline]
+    fn step_nodes_wide(
+        nodes: &mut [Vec3<Self>],
+        vel: &mut [Vec3<Self>],
+        step: &[Vec3<Self>],
+    ) -> bool {
+        let _ = (nodes, vel, step);
+        false
+    }
+    /// Each spine segment j in `1..n`: its squared length and [`Scalar::rsqrt`] into `len2[j]`
+    /// and `rsqrt[j]` where the implementation has a wide form that applies (see
+    /// [`crate::wide`]); the segments done as bits (bit j), 0 where none.
+    #[doc(hidden)]
+    #[inline]
+    fn measure_wide(n: usize, spine: &[Vec3<Self>], len2: &mut [Self], rsqrt: &mut [Self]) -> u32 {
+        let _ = (n, spine, len2, rsqrt);
+        0
+    }
+    /// Writes the brush's interior right-hand sides (see [`InteriorRows`]) into
+    /// `p` at once and returns true where the implementation has a wide form that applies;
+    /// returns false, having written nothing, where not (then the brush runs its own loop).
+    #[doc(hidden)]
+    #[inline]
+    fn interior_rows_wide(rows: &InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
+        let _ = (rows, p);
+        false
+    }
+}
+
+impl BrushScalar for f32 {}
+impl BrushScalar for f64 {}
+
+/// What the right-hand side of the interior rows (masses `1..n-1`) reads, as `Brush` holds it:
+/// `p_i = c_k (f_{i+1} - f_i) + c_j ((u_{i-1} - u_i) + (u_{i+1} - u_i))
+///  + w_i (c_t (VS_i - S_i) + c_tv (VU_i - u_i))`,
+/// the tie term only where `w_i > 0` and its product only where `w_i < 1`.
+pub struct InteriorRows<'a, S> {
+    /// The masses (`n <= MAX_LAYERS`).
+    pub n: usize,
+    /// The spring term of segment j (between masses j-1 and j) at j, for j up to n.
+    pub seg: &'a [Vec3<S>],
+    pub vel: &'a [Vec3<S>],
+    pub spine: &'a [Vec3<S>],
+    pub skel: &'a [Vec3<S>],
+    pub skel_vel: &'a [Vec3<S>],
+    /// The tie weight of each mass.
+    pub ties: &'a [S],
+    /// The interior row's c_k, c_j, c_t and c_tv, each with [`Scalar::is_coef`].
+    pub coefs: [S; 4],
+}
+
+/// What the spine's segment springs read and write, as `Brush` holds them: for each segment
+/// j in `1..n` (between masses j-1 and j), `d = S_j - S_{j-1}`, its squared length and
+/// inverse length (the Newton step from the last one, see [`Scalar::rsqrt_near`]), and the
+/// spring term `(1 - L r) d`, the strain times the compression ratio where negative, zero
+/// for a segment no longer than `tiny`.
+pub struct Segments<'a, S> {
+    pub n: usize,
+    pub spine: &'a [Vec3<S>],
+    pub len2: &'a mut [S],
+    /// The last inverse lengths in, the new ones out.
+    pub rsqrt: &'a mut [S],
+    /// The spring terms, at j.
+    pub seg: &'a mut [Vec3<S>],
+    /// The rest length L.
+    pub segment: S,
+    pub compression_ratio: S,
+    pub tiny2: S,
+}
+
+/// What the substep's last step reads and writes, as `Brush` holds it: for each mass i in
+/// `1..n`, `v = u_i + du_i`; where the mass lies on the paper (tie weight `w_i < 1`) its x and
+/// y scaled by `keep = 1 - (1 - w_i) drag_loss`; `S_i + v`, put back onto the paper (z = 0,
+/// a downward v.z removed) where below it; then `S_i`, `u_i` and the contact flag (z at most
+/// `contact_tol`) stored.
+pub struct Integration<'a, S> {
+    pub n: usize,
+    pub spine: &'a mut [Vec3<S>],
+    pub vel: &'a mut [Vec3<S>],
+    pub contact: &'a mut [bool],
+    /// The velocity changes, flattened (mass i at `3i..3i+3`).
+    pub du: &'a [S],
+    /// The tie weight of each mass.
+    pub ties: &'a [S],
+    pub drag_loss: S,
+    pub contact_tol: S,
+}
+
+/// What the surface update's layer axes read and write, as `Brush` holds them: for each
+/// layer i in `1..n` whose segment (masses i-1 and i) has its squared length and inverse
+/// length measured in `len2`, `rsqrt` (bit i of `measured`) and is longer than
+/// `sqrt(min_len2)`, its direction `dir` (the segment normalised), then
+/// the surface update's axes from its short axis `sa`: the long axis `LA = sa x dir`
+/// normalised (`Vec3::normalized_or_none_coef(min_cross)`, where `|sa x dir|` is above
+/// `min_cross`) and the short axis `dir x LA`, as `Vec3::cross_coef` forms them.
+pub struct LayerAxes<'a, S> {
+    pub n: usize,
+    pub spine: &'a [Vec3<S>],
+    pub len2: &'a [S],
+    pub rsqrt: &'a [S],
+    pub measured: u32,
+    /// Their short axes in (step 1's), both axes out.
+    pub layers: &'a mut [Layer<S>],
+    pub min_len2: S,
+    pub min_cross: S,
+}
+
 /// Rate conversion is exposed for tests and documentation.
 pub fn rate_at(rate_at_25khz: f32, substep_hz: f32) -> f32 {
     per_substep_rate(rate_at_25khz, substep_hz)
@@ -1443,7 +1625,7 @@ mod tests {
     /// at the presets' 25, in fixed point and in f64.
     #[test]
     fn cached_segment_lengths_change_no_bit() {
-        fn run<S: Scalar>(substeps: f32) {
+        fn run<S: BrushScalar>(substeps: f32) {
             let pose = pressed_stroke::<S>;
             let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
             cached

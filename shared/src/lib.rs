@@ -51,7 +51,7 @@ pub mod vec;
 #[doc(hidden)]
 pub mod wide;
 
-pub use brush::{Brush, Layer};
+pub use brush::{Brush, BrushScalar, Layer};
 pub use params::{BrushParams, ParamError, ParamId};
 pub use quat::{Pose, Quat};
 pub use scalar::{Fx, Scalar};

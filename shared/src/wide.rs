@@ -15,8 +15,8 @@
 //! (`step_nodes`, with their range shown once a tick by `node_steps_fit`), and the
 //! integration (`integrate`: one mass per vector, its three components at once, which
 //! replaces the scalar loop's nine checked sums and branches by one range test). The brush
-//! reaches them through hidden `Scalar` hooks that only `Fx` implements. The tip's row and the
-//! ties stay scalar.
+//! reaches them through the hooks of `brush::BrushScalar`, which `Fx` implements here. The
+//! tip's row and the ties stay scalar.
 //!
 //! Exactness:
 //! * **Products.** The coefficient product `floor(x c / 2^32)` for `0 <= c < 2^32` raw is
@@ -40,6 +40,8 @@
 //! [`set_enabled`] switches the wide forms off to measure or compare them.
 #![allow(unsafe_code)]
 
+use crate::brush::{BrushScalar, Integration, InteriorRows, LayerAxes, Segments};
+use crate::params::MAX_LAYERS;
 use crate::scalar::Fx;
 // The scalar forms the kernels are tested against, and the documentation's links.
 #[cfg(target_arch = "x86_64")]
@@ -67,6 +69,57 @@ pub fn active() -> bool {
     }
 }
 
+/// The fixed-point format's wide forms of the brush's loops: the functions below, each of
+/// which falls back to the brush's own loop where it does not apply (on every target but
+/// x86-64 with AVX2, always).
+impl BrushScalar for Fx {
+    #[inline]
+    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
+        jacobi(p, coefs, n, iterations)
+    }
+    #[inline]
+    fn interior_rows_wide(rows: &InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
+        interior_rows(rows, p)
+    }
+    #[inline]
+    fn segments_wide(segments: &mut Segments<'_, Self>) -> u32 {
+        self::segments(segments)
+    }
+    #[inline]
+    fn integrate_wide(integration: &mut Integration<'_, Self>) -> usize {
+        integrate(integration)
+    }
+    #[inline]
+    fn layer_axes_wide(axes: &mut LayerAxes<'_, Self>) -> u32 {
+        layer_axes(axes)
+    }
+    #[inline]
+    fn measure_wide(n: usize, spine: &[Vec3<Self>], len2: &mut [Self], rsqrt: &mut [Self]) -> u32 {
+        measure(n, spine, len2, rsqrt)
+    }
+    #[inline]
+    fn node_steps_fit(nodes: &[Vec3<Self>], step: &[Vec3<Self>], substeps: usize) -> bool {
+        node_steps_fit(nodes, step, substeps)
+    }
+    #[inline]
+    fn step_nodes_wide(
+        nodes: &mut [Vec3<Self>],
+        vel: &mut [Vec3<Self>],
+        step: &[Vec3<Self>],
+    ) -> bool {
+        step_nodes(nodes, vel, step)
+    }
+    #[inline]
+    fn place_nodes_wide(
+        pos: Vec3<Self>,
+        offsets: &[[Self; MAX_LAYERS]; 3],
+        m: &[[Self; 3]; 3],
+        out: &mut [Vec3<Self>],
+    ) -> bool {
+        place_nodes(pos, offsets, m, out)
+    }
+}
+
 /// The brush's Jacobi solve (`brush::jacobi`): from `du = p`, `iterations` sweeps of
 /// `du_e = p_e + c (du_{e-3} + du_{e+3})` over the interior masses' entries `3..3(n-1)` and
 /// `du_e = p_e + c_tip du_{e-3}` over the tip's three, entries `0..3` (the ferrule's) held at
@@ -87,25 +140,6 @@ pub(crate) fn jacobi(p: &mut [Fx], (c, c_tip): (Fx, Fx), n: usize, iterations: u
 #[cfg(target_arch = "x86_64")]
 fn is_small_coef(c: Fx) -> bool {
     (0..1 << 31).contains(&c.to_bits())
-}
-
-/// What the right-hand side of the interior rows (masses `1..n-1`) reads, as `Brush` holds it:
-/// `p_i = c_k (f_{i+1} - f_i) + c_j ((u_{i-1} - u_i) + (u_{i+1} - u_i))
-///  + w_i (c_t (VS_i - S_i) + c_tv (VU_i - u_i))`,
-/// the tie term only where `w_i > 0` and its product only where `w_i < 1`.
-pub struct InteriorRows<'a, S> {
-    /// The masses (`n <= MAX_LAYERS`).
-    pub n: usize,
-    /// The spring term of segment j (between masses j-1 and j) at j, for j up to n.
-    pub seg: &'a [Vec3<S>],
-    pub vel: &'a [Vec3<S>],
-    pub spine: &'a [Vec3<S>],
-    pub skel: &'a [Vec3<S>],
-    pub skel_vel: &'a [Vec3<S>],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    /// The interior row's c_k, c_j, c_t and c_tv, each with [`Scalar::is_coef`].
-    pub coefs: [S; 4],
 }
 
 /// Writes [`InteriorRows`]' right-hand sides into `p` (flattened: mass i at `3i..3i+3`) and
@@ -164,25 +198,6 @@ impl<'a> FlatRows<'a> {
     }
 }
 
-/// What the spine's segment springs read and write, as `Brush` holds them: for each segment
-/// j in `1..n` (between masses j-1 and j), `d = S_j - S_{j-1}`, its squared length and
-/// inverse length (the Newton step from the last one, see [`Scalar::rsqrt_near`]), and the
-/// spring term `(1 - L r) d`, the strain times the compression ratio where negative, zero
-/// for a segment no longer than `tiny`.
-pub struct Segments<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a mut [S],
-    /// The last inverse lengths in, the new ones out.
-    pub rsqrt: &'a mut [S],
-    /// The spring terms, at j.
-    pub seg: &'a mut [Vec3<S>],
-    /// The rest length L.
-    pub segment: S,
-    pub compression_ratio: S,
-    pub tiny2: S,
-}
-
 /// Measures [`Segments`] and writes their spring terms where the wide form applies, and
 /// returns the segments it did as bits (bit j for segment j); the caller does the others
 /// (whose inverse lengths are left as they were) with its scalar code.
@@ -195,24 +210,6 @@ pub(crate) fn segments(s: &mut Segments<'_, Fx>) -> u32 {
     0
 }
 
-/// What the substep's last step reads and writes, as `Brush` holds it: for each mass i in
-/// `1..n`, `v = u_i + du_i`; where the mass lies on the paper (tie weight `w_i < 1`) its x and
-/// y scaled by `keep = 1 - (1 - w_i) drag_loss`; `S_i + v`, put back onto the paper (z = 0,
-/// a downward v.z removed) where below it; then `S_i`, `u_i` and the contact flag (z at most
-/// `contact_tol`) stored.
-pub struct Integration<'a, S> {
-    pub n: usize,
-    pub spine: &'a mut [Vec3<S>],
-    pub vel: &'a mut [Vec3<S>],
-    pub contact: &'a mut [bool],
-    /// The velocity changes, flattened (mass i at `3i..3i+3`).
-    pub du: &'a [S],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    pub drag_loss: S,
-    pub contact_tol: S,
-}
-
 /// Integrates masses `1..k` of [`Integration`] where the wide form applies and returns `k`,
 /// the first mass left for the caller's scalar loop (1 where none was done, `n` where all
 /// were).
@@ -223,25 +220,6 @@ pub(crate) fn integrate(s: &mut Integration<'_, Fx>) -> usize {
     }
     let _ = s;
     1
-}
-
-/// What the surface update's layer axes read and write, as `Brush` holds them: for each
-/// layer i in `1..n` whose segment (masses i-1 and i) has its squared length and inverse
-/// length measured in `len2`, `rsqrt` (bit i of `measured`) and is longer than
-/// `sqrt(min_len2)`, its direction `dir` (the segment normalised), then
-/// the surface update's axes from its short axis `sa`: the long axis `LA = sa x dir`
-/// normalised (`Vec3::normalized_or_none_coef(min_cross)`, where `|sa x dir|` is above
-/// `min_cross`) and the short axis `dir x LA`, as `Vec3::cross_coef` forms them.
-pub struct LayerAxes<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a [S],
-    pub rsqrt: &'a [S],
-    pub measured: u32,
-    /// Their short axes in (step 1's), both axes out.
-    pub layers: &'a mut [crate::brush::Layer<S>],
-    pub min_len2: S,
-    pub min_cross: S,
 }
 
 /// Sets [`LayerAxes`]' axes where the wide form applies and returns the layers it did as
@@ -260,7 +238,7 @@ pub(crate) fn layer_axes(a: &mut LayerAxes<'_, Fx>) -> u32 {
 /// written nothing, where not.
 pub(crate) fn place_nodes(
     pos: Vec3<Fx>,
-    offsets: &[[Fx; crate::params::MAX_LAYERS]; 3],
+    offsets: &[[Fx; MAX_LAYERS]; 3],
     m: &[[Fx; 3]; 3],
     out: &mut [Vec3<Fx>],
 ) -> bool {

@@ -133,6 +133,7 @@
     clippy::panic
 )]
 
+mod flags;
 mod frame;
 #[cfg(feature = "fuzz")]
 pub mod fuzz;
@@ -140,20 +141,22 @@ mod messages;
 mod state;
 
 pub use crate::pen_io::{ConfigError, ConfigState, DeviceConfig, InvalidField};
+pub use flags::{Buttons, Capabilities, Faults};
 pub use frame::{
     check_version, crc32, encode_raw, max_frame_len, Feed, FrameDecoder, LinkStats, Message,
     ProtocolError, CRC_LEN, DELIMITER, DEVICE_TO_HOST, HEADER_LEN, HOST_TO_DEVICE,
     PROTOCOL_VERSION,
 };
 pub use messages::{
-    bounded_str, param_id, Buttons, Capabilities, Command, CommandError, ConfigRejected,
-    DeviceInfo, DeviceMsg, Event, EventKind, Faults, HostHello, HostMsg, Nudge, ParamRejected,
-    ParamReply, PresetRef, RejectReason, SensorReport, Telemetry, Version, DEVICE_MSG_MAX,
-    HOST_MSG_MAX, NAME_LEN, POSES_IN_FLIGHT, REASON_LEN, SENSOR_RATE_MAX_HZ,
+    bounded_str, param_id, Command, CommandError, ConfigRejected, DeviceInfo, DeviceMsg, Event,
+    EventKind, HostHello, HostMsg, Nudge, ParamRejected, ParamReply, PresetRef, RejectReason,
+    SensorReport, Telemetry, Version, DEVICE_MSG_MAX, HOST_MSG_MAX, NAME_LEN, POSES_IN_FLIGHT,
+    REASON_LEN, SENSOR_RATE_MAX_HZ,
 };
+pub(crate) use state::{add_bits, delta_bits};
 pub use state::{
-    vec3_bits, vec3_from_bits, BrushShape, BrushState, GuideSample, Haptics, LayerState, PoseBits,
-    PoseSample, Vec3Bits,
+    vec3_bits, vec3_from_bits, BrushState, GuideSample, Haptics, LayerState, PoseBits, PoseSample,
+    Vec3Bits,
 };
 
 /// The device's receiver: decodes host messages.

@@ -4,12 +4,10 @@
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
-use super::messages::{Buttons, Faults};
-use crate::brush::{Brush, Layer};
-use crate::footprint::Geometry;
+use super::flags::{Buttons, Faults};
 use crate::params::MAX_LAYERS;
 use crate::quat::{Pose, Quat};
-use crate::scalar::{Fx, Scalar};
+use crate::scalar::Fx;
 use crate::vec::Vec3;
 
 /// A [`Vec3<Fx>`] as the bits of its components.
@@ -26,7 +24,7 @@ pub fn vec3_from_bits([x, y, z]: Vec3Bits) -> Vec3<Fx> {
 }
 
 /// `a - b` on the raw bits, wrapping: [`add_bits`] undoes it exactly for every input.
-fn delta_bits(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3Bits {
+pub(crate) fn delta_bits(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3Bits {
     [
         a.x.to_bits().wrapping_sub(b.x.to_bits()),
         a.y.to_bits().wrapping_sub(b.y.to_bits()),
@@ -35,7 +33,7 @@ fn delta_bits(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3Bits {
 }
 
 /// `base + d` on the raw bits, wrapping.
-fn add_bits(base: Vec3<Fx>, [x, y, z]: Vec3Bits) -> Vec3<Fx> {
+pub(crate) fn add_bits(base: Vec3<Fx>, [x, y, z]: Vec3Bits) -> Vec3<Fx> {
     Vec3::new(
         Fx::from_bits(base.x.to_bits().wrapping_add(x)),
         Fx::from_bits(base.y.to_bits().wrapping_add(y)),
@@ -167,6 +165,10 @@ pub struct LayerState {
 /// A brush of several spines (Baxter & Lin's multi-spine brushes) sends `spine_count` frames
 /// per tick with the same `tick`, `spine_index` 0, 1, ...; each frame is complete on its own,
 /// so a lost frame costs one spine for one tick. Today's brush has one spine.
+///
+/// Filled from a brush by [`BrushState::from_brush`] and read back as a brush's shape by
+/// [`BrushState::shape`], both in [`crate::brush::state_frame`], beside the brush: the
+/// protocol itself is data types and their codec, and knows nothing of the model.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BrushState {
     /// Device tick (1 ms, wrapping).
@@ -192,20 +194,6 @@ pub struct BrushState {
 }
 
 impl BrushState {
-    /// The state of a (single-spine) brush at device tick `tick`, after the pose sample
-    /// `pose_seq`.
-    pub fn from_brush(
-        brush: &Brush<Fx>,
-        tick: u32,
-        pose_seq: u32,
-        haptics: Haptics,
-        faults: Faults,
-    ) -> Self {
-        let mut state = BrushState::EMPTY;
-        state.fill_from_brush(brush, tick, pose_seq, haptics, faults);
-        state
-    }
-
     /// No layers, every field zero: a placeholder to [fill](Self::fill_from_brush). All zero
     /// bytes, so a `static` holding it costs no flash.
     pub const EMPTY: BrushState = BrushState {
@@ -229,146 +217,11 @@ impl BrushState {
         layers: Vec::new(),
     };
 
-    /// [`Self::from_brush`] written over `self` in place: the device's force loop fills the
-    /// state slot it shares with the link task this way, with no 3 KB temporary on its
-    /// (interrupt) stack.
-    pub fn fill_from_brush(
-        &mut self,
-        brush: &Brush<Fx>,
-        tick: u32,
-        pose_seq: u32,
-        haptics: Haptics,
-        faults: Faults,
-    ) {
-        let handle = brush.handle();
-        let geometry = Geometry::of(brush);
-        self.layers.clear();
-        let mut contacts = 0u32;
-        let mut prev = handle.pos;
-        let per_layer = geometry
-            .spine
-            .iter()
-            .zip(brush.skeleton())
-            .zip(geometry.layers)
-            .zip(brush.in_contact());
-        for (i, (((&s, &k), l), &touching)) in per_layer.enumerate() {
-            if touching {
-                contacts |= u32::try_from(i)
-                    .ok()
-                    .and_then(|i| 1u32.checked_shl(i))
-                    .unwrap_or(0);
-            }
-            // A brush has at most MAX_LAYERS layers: the push cannot fail.
-            let _ = self.layers.push(LayerState {
-                spine: delta_bits(s, prev),
-                skeleton: delta_bits(k, s),
-                short_axis: vec3_bits(l.short_axis),
-                long_axis: vec3_bits(l.long_axis),
-                long_radius: l.long_radius.to_bits(),
-                short_radius: l.short_radius.to_bits(),
-                wetness: l.wetness.to_bits(),
-            });
-            prev = s;
-        }
-        self.tick = tick;
-        self.pose_seq = pose_seq;
-        self.spine_index = 0;
-        self.spine_count = 1;
-        self.handle = handle.into();
-        self.haptics = haptics;
-        self.faults = faults;
-        self.contacts = contacts;
-        self.ring_nodes = u8::try_from(geometry.ring_nodes).unwrap_or(u8::MAX);
-        self.footprint_eps = geometry.eps.to_bits();
-    }
-
     /// Whether layer `i` lies on the paper.
     pub fn in_contact(&self, i: usize) -> bool {
         u32::try_from(i)
             .ok()
             .and_then(|i| self.contacts.checked_shr(i))
             .is_some_and(|bits| bits & 1 == 1)
-    }
-
-    /// The spine's positions and ellipses, decoded (host side): build the footprint from
-    /// [`BrushShape::geometry`] with the same code the device runs.
-    pub fn shape(&self) -> BrushShape {
-        let handle = self.handle.pose();
-        let mut shape = BrushShape {
-            handle,
-            spine: [Vec3::ZERO; MAX_LAYERS],
-            skeleton: [Vec3::ZERO; MAX_LAYERS],
-            layers: [NO_LAYER; MAX_LAYERS],
-            len: self.layers.len(),
-            ring_nodes: usize::from(self.ring_nodes),
-            eps: Fx::from_bits(self.footprint_eps),
-        };
-        let mut prev = handle.pos;
-        let slots = shape
-            .spine
-            .iter_mut()
-            .zip(shape.skeleton.iter_mut())
-            .zip(shape.layers.iter_mut());
-        for (w, ((s, k), l)) in self.layers.iter().zip(slots) {
-            *s = add_bits(prev, w.spine);
-            *k = add_bits(*s, w.skeleton);
-            *l = Layer {
-                short_axis: vec3_from_bits(w.short_axis),
-                long_axis: vec3_from_bits(w.long_axis),
-                long_radius: Fx::from_bits(w.long_radius),
-                short_radius: Fx::from_bits(w.short_radius),
-                wetness: Fx::from_bits(w.wetness),
-            };
-            prev = *s;
-        }
-        shape
-    }
-}
-
-const NO_LAYER: Layer<Fx> = Layer {
-    short_axis: Vec3::ZERO,
-    long_axis: Vec3::ZERO,
-    long_radius: Fx::ZERO,
-    short_radius: Fx::ZERO,
-    wetness: Fx::ZERO,
-};
-
-/// One spine of a [`BrushState`], decoded into the model's own types.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BrushShape {
-    handle: Pose<Fx>,
-    spine: [Vec3<Fx>; MAX_LAYERS],
-    skeleton: [Vec3<Fx>; MAX_LAYERS],
-    layers: [Layer<Fx>; MAX_LAYERS],
-    len: usize,
-    ring_nodes: usize,
-    eps: Fx,
-}
-
-impl BrushShape {
-    pub fn handle(&self) -> Pose<Fx> {
-        self.handle
-    }
-    /// Spine masses S_i (mm), the ferrule's first.
-    pub fn spine(&self) -> &[Vec3<Fx>] {
-        self.spine.get(..self.len).unwrap_or(&[])
-    }
-    /// Skeleton nodes VS_i (mm).
-    pub fn skeleton(&self) -> &[Vec3<Fx>] {
-        self.skeleton.get(..self.len).unwrap_or(&[])
-    }
-    /// Each layer's ellipse.
-    pub fn layers(&self) -> &[Layer<Fx>] {
-        self.layers.get(..self.len).unwrap_or(&[])
-    }
-    /// What the footprint is computed from: `shape.geometry().for_each_polygon(..)` gives the
-    /// device's polygons, bit for bit.
-    pub fn geometry(&self) -> Geometry<'_, Fx> {
-        Geometry {
-            spine: self.spine(),
-            layers: self.layers(),
-            ring_nodes: self.ring_nodes,
-            eps: self.eps,
-        }
     }
 }

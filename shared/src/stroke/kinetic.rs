@@ -24,7 +24,10 @@
 use core::fmt;
 
 use super::bspline::{CubicBSpline, End, SplineError};
-use super::MAX_KEYS;
+
+/// Most moving points of one kinetic curve, and so most keyframes of one stroke (a stroke's
+/// timing has a moving point per keyframe; `stroke` re-exports it as the stroke's bound).
+pub const MAX_KEYS: usize = 64;
 
 /// Most moving parts (stops + 1) of one kinetic curve.
 pub const MAX_PIECES: usize = 8;

@@ -37,7 +37,7 @@ use kinetic::{Kinetic, KineticError, MovingPoint};
 use orient::Q;
 
 /// Most keyframes of one stroke (and most moving points of its timing).
-pub const MAX_KEYS: usize = 64;
+pub use kinetic::MAX_KEYS;
 
 /// Pose-space weight of orientation in the chord length: mm per radian of handle turn.
 pub const ORIENT_MM_PER_RAD: f64 = 10.0;

@@ -1,0 +1,6 @@
+use super::helper;
+pub struct Q;
+pub fn go() {
+    helper();
+    let _ = crate::Ay;
+}

@@ -1,0 +1,3 @@
+pub fn l() {
+    crate::m::top();
+}

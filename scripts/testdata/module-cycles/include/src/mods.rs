@@ -1,0 +1,2 @@
+mod leaf;
+mod m;

@@ -1,0 +1,5 @@
+pub struct Ay;
+pub fn f() {
+    use crate::Thing;
+    let _ = Thing;
+}

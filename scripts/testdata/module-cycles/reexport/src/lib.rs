@@ -1,0 +1,5 @@
+mod a;
+mod b;
+pub mod p;
+mod z;
+pub use b::Thing;

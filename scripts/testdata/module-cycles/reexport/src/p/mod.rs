@@ -1,0 +1,5 @@
+mod q;
+pub struct Pee;
+pub fn run() {
+    q::go();
+}

@@ -1,0 +1,4 @@
+use super::Pee;
+pub fn go() {
+    let _ = Pee;
+}

@@ -1,0 +1,5 @@
+use crate::b::Bee;
+pub struct Ay;
+pub fn fa() -> Bee {
+    Bee
+}

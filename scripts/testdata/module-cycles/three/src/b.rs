@@ -1,0 +1,4 @@
+pub struct Bee;
+pub fn fb() {
+    super::c::fc();
+}

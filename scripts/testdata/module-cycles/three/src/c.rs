@@ -1,0 +1,4 @@
+use crate::a::*;
+pub fn fc() {
+    let _ = Ay;
+}

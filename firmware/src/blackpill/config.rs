@@ -28,8 +28,11 @@
 //! an erase.
 
 use embassy_stm32::flash::{Blocking, Error as FlashError, Flash};
+use embassy_stm32::pac;
 use maobi_shared::pen_io::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use maobi_shared::pen_io::{ConfigLog, LogError, Region, CONFIG_IMAGE_MAX, CONFIG_MAGIC};
+use maobi_shared::pen_io::{
+    flash_acr, ConfigLog, LogError, Region, CONFIG_IMAGE_MAX, CONFIG_MAGIC,
+};
 
 use super::watchdog;
 use crate::board::{ConfigStore, StoreError};
@@ -81,14 +84,14 @@ impl NorFlash for PausingFlash {
         let r = self.0.blocking_write(offset, bytes);
         // The data cache may still hold these bytes as they read before (the log reads a
         // slot blank, programs it, then reads it back to verify).
-        super::restart_flash_caches();
+        restart_flash_caches();
         r
     }
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
         let _long = watchdog::Stretch::begin();
         let r = self.0.blocking_erase(from, to);
-        super::restart_flash_caches();
+        restart_flash_caches();
         r
     }
 }
@@ -145,5 +148,17 @@ impl ConfigStore for FlashConfig {
                 StoreError::Write
             }
         })
+    }
+}
+
+/// Prefetch and both flash caches on, the caches reset first
+/// ([`maobi_shared::pen_io::flash_acr::cache_restart`], tested on the host): at boot, after
+/// embassy's clock setup turned them off, and after every flash write or erase
+/// ([`PausingFlash`]), which may leave the data cache holding what the flash held
+/// before.
+pub fn restart_flash_caches() {
+    let acr = pac::FLASH.acr();
+    for v in flash_acr::cache_restart(acr.read().0) {
+        acr.write_value(pac::flash::regs::Acr(v));
     }
 }

@@ -38,7 +38,7 @@ use embassy_stm32::timer::simple_pwm::{PwmPin, SimplePwm};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, pac, peripherals};
 use embassy_time::{Duration, Ticker};
-use maobi_shared::pen_io::{flash_acr, DriveConfig};
+use maobi_shared::pen_io::DriveConfig;
 use maobi_shared::protocol::Capabilities;
 use maobi_shared::{presets, Fx, Pose, Quat, Scalar, Vec3};
 
@@ -59,18 +59,6 @@ pub fn led_on() {
 /// Puts the fault LED out from any context (PC13 high).
 fn led_off() {
     pins::LED.set_high();
-}
-
-/// Prefetch and both flash caches on, the caches reset first
-/// ([`maobi_shared::pen_io::flash_acr::cache_restart`], tested on the host): at boot, after
-/// embassy's clock setup turned them off, and after every flash write or erase
-/// ([`config::PausingFlash`]), which may leave the data cache holding what the flash held
-/// before.
-pub fn restart_flash_caches() {
-    let acr = pac::FLASH.acr();
-    for v in flash_acr::cache_restart(acr.read().0) {
-        acr.write_value(pac::flash::regs::Acr(v));
-    }
 }
 
 /// Why the last run ended, kept across the reset in RAM the startup code leaves alone
@@ -217,7 +205,7 @@ fn start() -> (
     let p = embassy_stm32::init(config);
     // embassy's clock setup wrote the flash latency alone, which turned prefetch and the
     // caches off: on again before anything is timed.
-    restart_flash_caches();
+    config::restart_flash_caches();
     let reset_by_watchdog = pac::RCC.csr().read().wdgrstf();
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
     watchdog::freeze_in_debug();

@@ -746,7 +746,7 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
 fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<()> {
     let session = crate::gui::session::Session::load(path)?;
     let mut shown = -1i64;
-    let r = session.rerender(|f| {
+    let r = crate::gui::rerender::rerender(&session, |f| {
         let pct = (f * 100.0) as i64;
         if pct / 10 > shown / 10 {
             shown = pct;

@@ -144,7 +144,7 @@ fn maobi_sim_device_serves_the_protocol() {
         .unwrap_or_else(|| panic!("the address is printed: {line}"))
         .to_string();
     let mut dev = LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr), start_hand(30.0))).unwrap();
-    use maobi::gui::device::Device;
+    use maobi::device::Device;
     let r = dev.connect();
     let small = maobi_shared::presets::by_name("small").unwrap();
     let end = Instant::now() + Duration::from_secs(3);
@@ -162,7 +162,7 @@ fn maobi_sim_device_serves_the_protocol() {
 /// Use); the paper keeps what the simulator drew.
 #[test]
 fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
-    use maobi::gui::builtin::{SimClock, SimDevice};
+    use maobi::device::builtin::{SimClock, SimDevice};
     let srv = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
     let opts = GuiOptions {
         paper_mm: 150.0,

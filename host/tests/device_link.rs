@@ -8,10 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use maobi::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use maobi::device::{
     Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDeviceServer, LINK_TIMEOUT,
 };
-use maobi::gui::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use maobi::gui::start_hand;
 use maobi::raster::{Canvas, Frame};
 use maobi::render::Inker;
@@ -398,7 +398,7 @@ fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper
 /// inks the canvas exactly as the built-in simulator does.
 #[test]
 fn replay_over_tcp_inks_like_the_built_in_simulator() {
-    use maobi::gui::builtin::{SimClock, SimDevice};
+    use maobi::device::builtin::{SimClock, SimDevice};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
     let track = || maobi::poses::PoseTrack::from_path(&path).unwrap();
 

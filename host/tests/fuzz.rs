@@ -19,8 +19,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::device::client::host_version;
+use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
-use maobi::gui::device::Device;
 use maobi::gui::start_hand;
 use maobi_shared::protocol::fuzz::{self, Fuzz, Piece};
 use maobi_shared::protocol::{

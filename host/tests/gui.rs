@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp, Outcome};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 use maobi::poses::PoseTrack;
 

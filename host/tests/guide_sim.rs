@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use maobi::gui::builtin::SimCore;
-use maobi::gui::device::DeviceCommand;
+use maobi::device::builtin::SimCore;
+use maobi::device::DeviceCommand;
 use maobi::gui::start_hand;
 use maobi::poses::PoseTrack;
 use maobi_shared::force::DEFAULT_FORCES;

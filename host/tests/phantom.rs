@@ -835,7 +835,7 @@ fn sigint_stops_the_bridge_cleanly() {
 /// come from the servo loop, and its commands reach it.
 #[test]
 fn the_gui_device_runs_the_servo_loop() {
-    use maobi::gui::device::DeviceCommand;
+    use maobi::device::DeviceCommand;
     let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
     let h = std::f64::consts::FRAC_1_SQRT_2;
     let poses = scratch("gui_hold.csv");
@@ -989,7 +989,7 @@ fn the_servo_loop_leads_a_relaxed_hand_along_a_stroke() {
 /// and the device's limits.
 #[test]
 fn the_gui_device_guides_the_stylus() {
-    use maobi::gui::device::DeviceCommand;
+    use maobi::device::DeviceCommand;
     let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
     let h = std::f64::consts::FRAC_1_SQRT_2;
     // The stylus 50 mm above the paper at paper (0, 0), upright (see the test above).
@@ -1469,7 +1469,7 @@ fn libhd_is_loaded_once_per_process() {
     let mut d =
         maobi::phantom::device::PhantomDevice::new(Some(standin()), BridgeOptions::default())
             .unwrap();
-    use maobi::gui::device::Device;
+    use maobi::device::Device;
     for _ in 0..2 {
         d.connect().unwrap();
         d.disconnect();

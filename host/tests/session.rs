@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::session::Session;
 use maobi::gui::{start_hand, GuiOptions};
 use maobi_shared::ParamId;

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 mod common;
 
 use egui_kittest::Harness;
-use maobi::gui::app::{Automation, DeviceKind, MaobiApp};
-use maobi::gui::builtin::SimClock;
-use maobi::gui::files::{FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
+use maobi::device::builtin::SimClock;
+use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::files::{DeviceKind, FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
 use maobi::gui::DeviceChoice;
 use maobi::tablet::PressureCurve;
 

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 
 const TICKS_PER_FRAME: usize = 50;

@@ -1,4 +1,4 @@
-//! [`LinkDevice`]: a device on the other end of a wire-protocol link, behind the GUI's
+//! [`LinkDevice`]: a device on the other end of a wire-protocol link, behind the
 //! [`Device`] trait.
 //!
 //! Two threads per device, neither ever touched by the UI thread except through a mutex held
@@ -41,11 +41,11 @@ use maobi_shared::protocol::{
 };
 use maobi_shared::{presets, BrushParams, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
-use super::endpoint::{Conn, Endpoint};
-use crate::gui::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
-use crate::gui::device::{
+use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
 };
+use super::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
+use super::endpoint::{Conn, Endpoint};
 
 /// No good frame for this long: the link is lost.
 pub const LINK_TIMEOUT: Duration = Duration::from_millis(500);

@@ -60,7 +60,7 @@ use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
-use crate::gui::device::GuideFrame;
+use crate::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
 pub const STATE_QUEUE: usize = 64;

@@ -1,8 +1,8 @@
 //! The app over the built-in simulator for GUI tests (egui_kittest, no window).
 
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
 
 /// The app on the `large` brush's simulator running on `clock`, with a square paper of

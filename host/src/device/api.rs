@@ -1,15 +1,17 @@
-//! What the GUI talks to: "a device" that runs the brush model and sends back its state.
+//! The device seam: "a device" runs the brush model, takes the hand's pose and commands, and
+//! sends back its state.
 //!
 //! The GUI never touches a [`Brush`](maobi_shared::Brush) directly. It sends the hand's pose
 //! and commands through a [`Device`] and draws the [`BrushFrame`]s that come back (one per
 //! 1 ms model tick), so a real pen on a serial link and the built-in simulator look the same
 //! to it.
 //!
-//! Backends:
-//! * [`crate::gui::builtin::SimDevice`]: the built-in simulator (the shared model on the host).
-//! * [`crate::device::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
-//!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, later the Phantom bridge) or a
+//! Devices:
+//! * [`super::builtin::SimDevice`]: the built-in simulator (the shared model on the host).
+//! * [`super::client::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
+//!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, the Phantom bridge) or a
 //!   serial port (`serial:PATH`: the pen on USB).
+//! * `crate::phantom::device::PhantomDevice`: the Phantom's servo loop in this process.
 
 use std::fmt;
 use std::sync::Arc;
@@ -18,6 +20,7 @@ use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
 use maobi_shared::{BrushParams, Fx, Layer, ParamId, Pose, Vec3};
 
+use super::journal::Journal;
 use crate::poses::PoseTrack;
 
 /// The brush's state after one model tick, as a device reports it.
@@ -190,7 +193,7 @@ pub struct DeviceStatus {
     pub link: Option<LinkReport>,
 }
 
-/// The state of a wire-protocol link ([`crate::device::LinkDevice`]).
+/// The state of a wire-protocol link ([`super::client::LinkDevice`]).
 #[derive(Clone, Debug, Default)]
 pub struct LinkReport {
     /// "connected to ...", "link lost: ...; reconnecting", "not connected: ...".
@@ -235,8 +238,8 @@ pub trait Device {
     /// anything is sent, so a rejection comes back here.
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError>;
     /// Every pose and brush command since the model started, for saving the session
-    /// ([`super::session`]); `None` from devices that keep no journal (a pen on a link).
-    fn journal(&self) -> Option<super::session::Journal> {
+    /// ([`super::journal`]); `None` from devices that keep no journal (a pen on a link).
+    fn journal(&self) -> Option<Journal> {
         None
     }
 }

@@ -20,10 +20,10 @@ use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI}
 use maobi_shared::guide::{Guide, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
-use super::device::{
+use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput,
 };
-use super::session::{Journal, JournalEvent};
+use super::journal::{Journal, JournalEvent};
 
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
 pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
@@ -58,7 +58,7 @@ pub struct SimCore {
     guide_track: Option<(Vec<Pose<f64>>, usize)>,
     last_anchor: Option<Vec3<Fx>>,
     /// Every pose and brush command since the start, for saving the session
-    /// ([`super::session`]). Shared so the GUI can read it while the model thread runs.
+    /// ([`super::journal`]). Shared so the GUI can read it while the model thread runs.
     journal: Arc<Mutex<Journal>>,
 }
 

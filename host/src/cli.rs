@@ -290,12 +290,12 @@ pub struct BrushChoice {
 }
 
 fn parse_brush(name: &str) -> Result<BrushChoice, String> {
-    presets::by_name(name)
+    presets::find(name)
         .map(|params| BrushChoice {
             name: name.to_string(),
             params,
         })
-        .ok_or_else(|| format!("unknown brush `{name}`; valid brushes: {}", presets::NAMES))
+        .map_err(|e| e.to_string())
 }
 
 fn parse_px_per_mm(s: &str) -> Result<f64, String> {

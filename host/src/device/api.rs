@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
-use maobi_shared::{BrushParams, Fx, Layer, ParamId, Pose, Vec3};
+use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Vec3};
 
 use super::journal::Journal;
 use crate::poses::PoseTrack;
@@ -127,6 +127,30 @@ pub enum DeviceCommand {
     Guide(Option<Arc<PoseTrack>>),
 }
 
+impl DeviceCommand {
+    /// Checks the command against the parameters in force (`params`) with the shared
+    /// model's own checks, as every device does before carrying it out or sending it: a
+    /// parameter the model would refuse, an unknown preset, a wetness outside 0 ..= 1.
+    pub fn validate(&self, params: &BrushParams) -> Result<(), DeviceError> {
+        match self {
+            DeviceCommand::SetParam(id, v) => {
+                let mut p = *params;
+                p.set(*id, *v)
+                    .and_then(|()| p.validate())
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))
+            }
+            DeviceCommand::Preset(name) => {
+                presets::find(name)?;
+                Ok(())
+            }
+            DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
+                format!("wetness {w} is outside 0 ..= 1"),
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// Guided writing at one tick, as the device reports it.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct GuideFrame {
@@ -161,6 +185,12 @@ impl fmt::Display for DeviceError {
 }
 
 impl std::error::Error for DeviceError {}
+
+impl From<presets::UnknownPreset<'_>> for DeviceError {
+    fn from(e: presets::UnknownPreset<'_>) -> DeviceError {
+        DeviceError::Rejected(e.to_string())
+    }
+}
 
 /// What the status bar shows.
 #[derive(Clone, Debug)]

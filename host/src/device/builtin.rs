@@ -72,12 +72,7 @@ impl SimCore {
 
     /// The brush `preset`, hanging at rest at `pose`; the hand's target is that pose.
     pub fn at_pose(preset: &str, pose: Pose<f64>) -> Result<SimCore, DeviceError> {
-        let params = presets::by_name(preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{preset}`; valid brushes: {}",
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(preset)?;
         let brush =
             Brush::new(params, pose.cast()).map_err(|e| DeviceError::Rejected(e.to_string()))?;
         let model =
@@ -171,12 +166,7 @@ impl SimCore {
                 self.note(JournalEvent::Dip(w));
             }
             DeviceCommand::Preset(name) => {
-                let p = presets::by_name(&name).ok_or_else(|| {
-                    DeviceError::Rejected(format!(
-                        "unknown brush `{name}`; valid brushes: {}",
-                        presets::NAMES
-                    ))
-                })?;
+                let p = presets::find(&name)?;
                 self.brush
                     .set_params(p)
                     .map_err(|e| DeviceError::Rejected(e.to_string()))?;
@@ -419,24 +409,6 @@ impl SimDevice {
     pub fn on_frames(&mut self, wake: Arc<dyn Fn() + Send + Sync>) {
         self.wake = Some(wake);
     }
-
-    fn validate(&self, cmd: &DeviceCommand) -> Result<(), DeviceError> {
-        match cmd {
-            DeviceCommand::SetParam(id, v) => {
-                let mut p = self.params;
-                p.set(*id, *v)
-                    .and_then(|()| p.validate())
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))
-            }
-            DeviceCommand::Preset(name) => presets::by_name(name).map(|_| ()).ok_or_else(|| {
-                DeviceError::Rejected(format!(
-                    "unknown brush `{name}`; valid brushes: {}",
-                    presets::NAMES
-                ))
-            }),
-            _ => Ok(()),
-        }
-    }
 }
 
 impl Device for SimDevice {
@@ -535,7 +507,7 @@ impl Device for SimDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        self.validate(&cmd)?;
+        cmd.validate(&self.params)?;
         if let Some(r) = &self.running {
             if let DeviceCommand::SetParam(id, v) = cmd {
                 // Keep the local copy current so the next validation sees this change.

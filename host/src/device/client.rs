@@ -204,13 +204,7 @@ pub struct LinkDevice {
 
 impl LinkDevice {
     pub fn new(opts: LinkOptions) -> Result<LinkDevice, DeviceError> {
-        let params = presets::by_name(&opts.preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{}`; valid brushes: {}",
-                opts.preset,
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(&opts.preset)?;
         let status = DeviceStatus {
             name: opts.endpoint.to_string(),
             connected: false,
@@ -279,27 +273,6 @@ impl LinkDevice {
             std::thread::sleep(Duration::from_millis(5));
         }
         self.inner.shared().status.connected
-    }
-
-    fn validate(&self, cmd: &DeviceCommand) -> Result<(), DeviceError> {
-        match cmd {
-            DeviceCommand::SetParam(id, v) => {
-                let mut p = self.params;
-                p.set(*id, *v)
-                    .and_then(|()| p.validate())
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))
-            }
-            DeviceCommand::Preset(name) => presets::by_name(name).map(|_| ()).ok_or_else(|| {
-                DeviceError::Rejected(format!(
-                    "unknown brush `{name}`; valid brushes: {}",
-                    presets::NAMES
-                ))
-            }),
-            DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
-                format!("wetness {w} is outside 0 ..= 1"),
-            )),
-            _ => Ok(()),
-        }
     }
 }
 
@@ -396,7 +369,7 @@ impl Device for LinkDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        self.validate(&cmd)?;
+        cmd.validate(&self.params)?;
         let Some(r) = &self.running else {
             return Err(DeviceError::NotConnected);
         };

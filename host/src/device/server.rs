@@ -119,12 +119,7 @@ impl GuideMirror {
 
 impl Model {
     fn new(preset: &str) -> anyhow::Result<Model> {
-        let params = presets::by_name(preset).ok_or_else(|| {
-            anyhow::anyhow!(
-                "unknown brush `{preset}`; valid brushes: {}",
-                presets::NAMES
-            )
-        })?;
+        let params = presets::find(preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         let start = Pose::new(
             Vec3::from_f64([0.0, 0.0, params.length_mm as f64 + 6.0]),
             maobi_shared::Quat::IDENTITY,

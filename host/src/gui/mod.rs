@@ -145,13 +145,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     if let Some(p) = &opts.replay {
         crate::poses::PoseTrack::from_path(p)?;
     }
-    maobi_shared::presets::by_name(&opts.brush).ok_or_else(|| {
-        anyhow::anyhow!(
-            "unknown brush `{}`; valid brushes: {}",
-            opts.brush,
-            maobi_shared::presets::NAMES
-        )
-    })?;
+    maobi_shared::presets::find(&opts.brush).map_err(|e| anyhow::anyhow!("{e}"))?;
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.

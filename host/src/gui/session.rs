@@ -194,13 +194,7 @@ impl Session {
                 f.version
             );
         }
-        let preset_params = presets::by_name(&f.preset).ok_or_else(|| {
-            anyhow::anyhow!(
-                "unknown brush `{}`; valid brushes: {}",
-                f.preset,
-                presets::NAMES
-            )
-        })?;
+        let preset_params = presets::find(&f.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut params = preset_params;
         for (name, v) in &f.params {
             let id = ParamId::from_name(name)

@@ -118,13 +118,7 @@ impl PhantomDevice {
     /// Not yet connected: [`Device::connect`] loads libHD (`hd_lib`, `$MAOBI_HD_LIB`, the
     /// install paths) and starts the servo loop.
     pub fn new(hd_lib: Option<PathBuf>, opts: BridgeOptions) -> Result<PhantomDevice, DeviceError> {
-        let params = presets::by_name(&opts.preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{}`; valid brushes: {}",
-                opts.preset,
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(&opts.preset)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
@@ -267,12 +261,7 @@ impl Device for PhantomDevice {
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let p = presets::by_name(&name).ok_or_else(|| {
-                    DeviceError::Rejected(format!(
-                        "unknown brush `{name}`; valid brushes: {}",
-                        presets::NAMES
-                    ))
-                })?;
+                let p = presets::find(&name)?;
                 self.servo(ServoCommand::SetParams(p))?;
                 self.params = p;
                 self.preset = name;

@@ -10,7 +10,7 @@
 //!
 //! Seed: `MAOBI_FUZZ_SEED` (printed; the same seed gives the same streams).
 
-use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -19,6 +19,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::device::client::host_version;
+use maobi::device::endpoint::nothing_to_read_yet;
 use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::start_hand;
@@ -115,7 +116,7 @@ fn stream_host_traffic(addr: &str, fz: &mut Fuzz, n: usize) -> (usize, usize) {
         match s.read(&mut buf) {
             Ok(0) => panic!("the server closed the connection after {sent} messages"),
             Ok(_) => {}
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(e) if nothing_to_read_yet(&e) => {}
             Err(e) => panic!("reading from the server: {e}"),
         }
         if sent % 16 == 0 {
@@ -301,7 +302,7 @@ fn serve_random(mut s: TcpStream, mut fz: Fuzz, stop: &AtomicBool) -> usize {
                     }
                 }
             }
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(e) if nothing_to_read_yet(&e) => {}
             Err(_) => break,
         }
         if greeted {

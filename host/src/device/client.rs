@@ -25,7 +25,7 @@
 //!   guide's force ([`BrushFrame::guide`]).
 
 use std::collections::VecDeque;
-use std::io::{ErrorKind, Write};
+use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -45,7 +45,7 @@ use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
 };
 use super::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
-use super::endpoint::{Conn, Endpoint};
+use super::endpoint::{nothing_to_read_yet, Conn, Endpoint};
 
 /// No good frame for this long: the link is lost.
 pub const LINK_TIMEOUT: Duration = Duration::from_millis(500);
@@ -500,14 +500,7 @@ fn run_link(inner: &Inner, opts: &LinkOptions) {
 fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
     match conn.read(buf) {
         Ok(n) => Ok(Some(n)),
-        Err(e)
-            if matches!(
-                e.kind(),
-                ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
-            ) =>
-        {
-            Ok(None)
-        }
+        Err(e) if nothing_to_read_yet(&e) => Ok(None),
         Err(e) => Err(e),
     }
 }

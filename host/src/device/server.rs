@@ -29,7 +29,7 @@ use maobi_shared::protocol::{
 use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
 use super::client::host_version;
-use super::endpoint::Conn;
+use super::endpoint::{nothing_to_read_yet, Conn};
 
 /// Options of the simulated device.
 #[derive(Clone, Debug)]
@@ -447,14 +447,7 @@ fn connection(
         let n = match rx_stream.read(&mut buf) {
             Ok(0) => return Ok(()),
             Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
-                ) =>
-            {
-                0
-            }
+            Err(e) if nothing_to_read_yet(&e) => 0,
             // A pty master whose other end nobody holds open (yet): no host on the line.
             Err(e) if e.raw_os_error() == Some(EIO) => {
                 std::thread::sleep(Duration::from_millis(1));

@@ -12,22 +12,16 @@ use maobi::device::{Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDevi
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::{start_hand, GuiOptions};
 
+mod common;
+
 fn harness(endpoint: Endpoint) -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
     let device = LinkDevice::new(LinkOptions::new(endpoint, start_hand(40.0))).unwrap();
-    let app = MaobiApp::new(
+    common::harness(common::app_over(
         Box::new(device),
-        opts.frame(),
+        150.0,
+        4.0,
         Automation::default(),
-        Default::default(),
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    ))
 }
 
 /// Steps the UI (in real time: the device runs on its own clock) until `what` holds.

@@ -10,7 +10,7 @@
 //!
 //! Seed: `MAOBI_FUZZ_SEED` (printed; the same seed gives the same streams).
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -27,6 +27,8 @@ use maobi_shared::protocol::fuzz::{self, Fuzz, Piece};
 use maobi_shared::protocol::{
     Capabilities, DeviceInfo, DeviceMsg, HostHello, HostMsg, HostRx, Message, Version, DELIMITER,
 };
+
+mod common;
 
 /// Host messages streamed at each server.
 const HOST_MESSAGES: usize = 4000;
@@ -59,20 +61,7 @@ impl Server {
             cmd.env(k, v);
         }
         let mut child = cmd.spawn().expect("maobi starts");
-        let stderr = child.stderr.take().unwrap();
-        let log = Arc::new(Mutex::new(String::new()));
-        let (tx, rx) = std::sync::mpsc::channel();
-        {
-            let log = log.clone();
-            std::thread::spawn(move || {
-                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                    if let Some(a) = find(&line) {
-                        let _ = tx.send(a);
-                    }
-                    log.lock().unwrap().push_str(&(line + "\n"));
-                }
-            });
-        }
+        let (log, rx) = common::collect_stderr(child.stderr.take().unwrap(), find);
         let addr = rx
             .recv_timeout(Duration::from_secs(30))
             .unwrap_or_else(|_| {

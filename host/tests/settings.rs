@@ -5,6 +5,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 mod common;
+use common::example;
 
 use egui_kittest::Harness;
 use maobi::device::builtin::SimClock;
@@ -31,12 +32,6 @@ impl eframe::Storage for MemoryStorage {
 
 fn harness(automation: Automation) -> Harness<'static, MaobiApp> {
     common::harness(common::app(SimClock::Stepped(10), 100.0, 2.0, automation))
-}
-
-fn example(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../examples/poses")
-        .join(name)
 }
 
 #[test]

@@ -1,5 +1,5 @@
 //! The desktop GUI (eframe over glow): the paper with its ink, the brush in 3D, live plots,
-//! controls and a status bar, over a [`Device`] (the built-in
+//! controls and a status bar, over a [`Device`](crate::device::Device) (the built-in
 //! simulator, a device over the wire protocol or the Phantom: see [`crate::device`]).
 //!
 //! * [`choice`]: which device the GUI opens ([`DeviceChoice`]) and opening it.

@@ -5,10 +5,11 @@
 //! socket (backend `qemu`) or a serial port (backend `serial`).
 
 use std::collections::BTreeMap;
-use std::io::{ErrorKind, Read, Write};
+use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use maobi::device::endpoint::nothing_to_read_yet;
 use maobi::poses::PoseTrack;
 use maobi_shared::force::{ForceModel, DEFAULT_FORCES};
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
@@ -92,7 +93,7 @@ impl<T: Transport> Session<T> {
         let n = match self.io.read(&mut self.buf) {
             Ok(0) => bail!("the device closed the link"),
             Ok(n) => n,
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => 0,
+            Err(e) if nothing_to_read_yet(&e) => 0,
             Err(e) => return Err(e).context("reading from the device"),
         };
         self.bytes_in += n as u64;

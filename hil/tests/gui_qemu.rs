@@ -17,10 +17,10 @@ use egui_kittest::Harness;
 use hil::firmware;
 use hil::qemu::{free_port, Clock, Run};
 use hil::selftest::EMULATED_TICK_US;
+use maobi::device::builtin::{SimClock, SimDevice};
+use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
-use maobi::gui::device::Device;
 use maobi::gui::{start_hand, GuiOptions};
 use maobi_shared::presets;
 
@@ -138,7 +138,7 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
 /// and stops after the stroke.
 #[test]
 fn guided_writing_over_tcp_to_the_qemu_firmware() {
-    use maobi::gui::device::{DeviceCommand, HandInput};
+    use maobi::device::{DeviceCommand, HandInput};
     use std::sync::Arc;
     let Some(elf) = image() else { return };
     let length = f64::from(presets::LARGE.length_mm);

@@ -290,12 +290,12 @@ pub struct BrushChoice {
 }
 
 fn parse_brush(name: &str) -> Result<BrushChoice, String> {
-    presets::by_name(name)
+    presets::find(name)
         .map(|params| BrushChoice {
             name: name.to_string(),
             params,
         })
-        .ok_or_else(|| format!("unknown brush `{name}`; valid brushes: {}", presets::NAMES))
+        .map_err(|e| e.to_string())
 }
 
 fn parse_px_per_mm(s: &str) -> Result<f64, String> {
@@ -746,7 +746,7 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
 fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<()> {
     let session = crate::gui::session::Session::load(path)?;
     let mut shown = -1i64;
-    let r = session.rerender(|f| {
+    let r = crate::gui::rerender::rerender(&session, |f| {
         let pct = (f * 100.0) as i64;
         if pct / 10 > shown / 10 {
             shown = pct;

@@ -4,12 +4,13 @@
 //! readings computed from the poses the wizard streams, as the QEMU board does). The whole
 //! wizard runs, non-interactively (`--yes`). Not run against a real pen.
 
-use std::io::{ErrorKind, Read, Write};
+use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Outcome, Scripted};
+use maobi::device::endpoint::nothing_to_read_yet;
 use maobi::device::Endpoint;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
@@ -181,7 +182,7 @@ fn serve_turning_away(pen: Pen, turn_away: usize) -> (String, Arc<Mutex<Pen>>) {
             let n = match s.read(&mut buf) {
                 Ok(0) => return,
                 Ok(n) => n,
-                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => 0,
+                Err(e) if nothing_to_read_yet(&e) => 0,
                 Err(_) => return,
             };
             let msgs: Vec<HostMsg> = rx.feed(&buf[..n]).filter_map(Result::ok).collect();

@@ -4,13 +4,14 @@
 //! store is exercised the same way under QEMU in `hil/tests/config.rs`. Not run against a
 //! real pen.
 
-use std::io::{ErrorKind, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpListener;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use maobi::device::endpoint::nothing_to_read_yet;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
     Capabilities, ConfigRejected, ConfigState, DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx,
@@ -41,7 +42,7 @@ fn serve(pen: Pen) -> (String, Arc<Mutex<Pen>>) {
             let n = match s.read(&mut buf) {
                 Ok(0) => return,
                 Ok(n) => n,
-                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => 0,
+                Err(e) if nothing_to_read_yet(&e) => 0,
                 Err(_) => return,
             };
             let msgs: Vec<HostMsg> = rx.feed(&buf[..n]).filter_map(Result::ok).collect();

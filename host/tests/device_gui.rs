@@ -12,22 +12,16 @@ use maobi::device::{Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDevi
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::{start_hand, GuiOptions};
 
+mod common;
+
 fn harness(endpoint: Endpoint) -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
     let device = LinkDevice::new(LinkOptions::new(endpoint, start_hand(40.0))).unwrap();
-    let app = MaobiApp::new(
+    common::harness(common::app_over(
         Box::new(device),
-        opts.frame(),
+        150.0,
+        4.0,
         Automation::default(),
-        Default::default(),
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    ))
 }
 
 /// Steps the UI (in real time: the device runs on its own clock) until `what` holds.
@@ -144,7 +138,7 @@ fn maobi_sim_device_serves_the_protocol() {
         .unwrap_or_else(|| panic!("the address is printed: {line}"))
         .to_string();
     let mut dev = LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr), start_hand(30.0))).unwrap();
-    use maobi::gui::device::Device;
+    use maobi::device::Device;
     let r = dev.connect();
     let small = maobi_shared::presets::by_name("small").unwrap();
     let end = Instant::now() + Duration::from_secs(3);
@@ -162,7 +156,7 @@ fn maobi_sim_device_serves_the_protocol() {
 /// Use); the paper keeps what the simulator drew.
 #[test]
 fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
-    use maobi::gui::builtin::{SimClock, SimDevice};
+    use maobi::device::builtin::{SimClock, SimDevice};
     let srv = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
     let opts = GuiOptions {
         paper_mm: 150.0,

@@ -8,10 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use maobi::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use maobi::device::{
     Endpoint, LinkDevice, LinkOptions, SimDeviceOptions, SimDeviceServer, LINK_TIMEOUT,
 };
-use maobi::gui::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
 use maobi::gui::start_hand;
 use maobi::raster::{Canvas, Frame};
 use maobi::render::Inker;
@@ -20,6 +20,8 @@ use maobi_shared::presets;
 use maobi_shared::protocol::{
     encode_raw, DeviceMsg, Message, CRC_LEN, DEVICE_TO_HOST, PROTOCOL_VERSION,
 };
+
+mod common;
 
 fn length() -> f64 {
     presets::by_name("large").unwrap().length_mm as f64
@@ -398,7 +400,7 @@ fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper
 /// inks the canvas exactly as the built-in simulator does.
 #[test]
 fn replay_over_tcp_inks_like_the_built_in_simulator() {
-    use maobi::gui::builtin::{SimClock, SimDevice};
+    use maobi::device::builtin::{SimClock, SimDevice};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
     let track = || maobi::poses::PoseTrack::from_path(&path).unwrap();
 
@@ -619,8 +621,7 @@ fn guided_writing_streams_the_moving_point_and_frames_show_the_stray() {
     // The pen hangs where it is (the GUI's pointer does not move); the moving point runs a
     // 30 mm line in 0.5 s from 5 mm beside it, in the air (no brush forces but gravity).
     let z = length() + 10.0;
-    let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,0,5,{z},1,0,0,0\n0.5,30,5,{z},1,0,0,0\n");
-    let track = maobi::poses::PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
+    let track = common::guide_line(5.0, z);
     dev.send(DeviceCommand::Hand(HandInput {
         z,
         ..hand(0.0, 0.0)

@@ -10,7 +10,7 @@
 //!
 //! Seed: `MAOBI_FUZZ_SEED` (printed; the same seed gives the same streams).
 
-use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
+use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -19,13 +19,16 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::device::client::host_version;
+use maobi::device::endpoint::nothing_to_read_yet;
+use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
-use maobi::gui::device::Device;
 use maobi::gui::start_hand;
 use maobi_shared::protocol::fuzz::{self, Fuzz, Piece};
 use maobi_shared::protocol::{
     Capabilities, DeviceInfo, DeviceMsg, HostHello, HostMsg, HostRx, Message, Version, DELIMITER,
 };
+
+mod common;
 
 /// Host messages streamed at each server.
 const HOST_MESSAGES: usize = 4000;
@@ -58,20 +61,7 @@ impl Server {
             cmd.env(k, v);
         }
         let mut child = cmd.spawn().expect("maobi starts");
-        let stderr = child.stderr.take().unwrap();
-        let log = Arc::new(Mutex::new(String::new()));
-        let (tx, rx) = std::sync::mpsc::channel();
-        {
-            let log = log.clone();
-            std::thread::spawn(move || {
-                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                    if let Some(a) = find(&line) {
-                        let _ = tx.send(a);
-                    }
-                    log.lock().unwrap().push_str(&(line + "\n"));
-                }
-            });
-        }
+        let (log, rx) = common::collect_stderr(child.stderr.take().unwrap(), find);
         let addr = rx
             .recv_timeout(Duration::from_secs(30))
             .unwrap_or_else(|_| {
@@ -115,7 +105,7 @@ fn stream_host_traffic(addr: &str, fz: &mut Fuzz, n: usize) -> (usize, usize) {
         match s.read(&mut buf) {
             Ok(0) => panic!("the server closed the connection after {sent} messages"),
             Ok(_) => {}
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(e) if nothing_to_read_yet(&e) => {}
             Err(e) => panic!("reading from the server: {e}"),
         }
         if sent % 16 == 0 {
@@ -301,7 +291,7 @@ fn serve_random(mut s: TcpStream, mut fz: Fuzz, stop: &AtomicBool) -> usize {
                     }
                 }
             }
-            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(e) if nothing_to_read_yet(&e) => {}
             Err(_) => break,
         }
         if greeted {

@@ -2,45 +2,25 @@
 //! a stepped clock (each UI frame runs a fixed number of 1 ms model ticks), so every run is
 //! the same.
 
-use std::path::PathBuf;
-
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::SimClock;
 use maobi::gui::app::{Automation, MaobiApp, Outcome};
-use maobi::gui::builtin::{SimClock, SimDevice};
-use maobi::gui::{start_hand, GuiOptions};
 use maobi::poses::PoseTrack;
+
+mod common;
+use common::example;
 
 /// Model ticks per UI frame.
 const TICKS_PER_FRAME: usize = 50;
 
-fn example(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../examples/poses")
-        .join(name)
-}
-
 fn harness() -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
-    let device = SimDevice::new(
+    common::harness(common::app(
         SimClock::Stepped(TICKS_PER_FRAME),
-        "large",
-        start_hand(40.0),
-    )
-    .expect("the simulator starts");
-    let app = MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
+        150.0,
+        4.0,
         Automation::default(),
-        Default::default(),
-    );
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    ))
 }
 
 /// Replays a pose file and steps until the device reports it finished.

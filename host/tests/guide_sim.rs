@@ -3,21 +3,18 @@
 
 use std::sync::Arc;
 
-use maobi::gui::builtin::SimCore;
-use maobi::gui::device::DeviceCommand;
+use maobi::device::builtin::SimCore;
+use maobi::device::DeviceCommand;
 use maobi::gui::start_hand;
-use maobi::poses::PoseTrack;
 use maobi_shared::force::DEFAULT_FORCES;
 use maobi_shared::guide::DEFAULT_GUIDE;
+
+mod common;
 
 #[test]
 fn the_simulator_leads_toward_the_moving_point_and_lets_go() {
     // A 30 mm line in 0.5 s, 10 mm above the paper (no brush forces but gravity).
-    let track = PoseTrack::from_reader(
-        "line.csv",
-        "t,x,y,z,qw,qx,qy,qz\n0,0,0,50,1,0,0,0\n0.5,30,0,50,1,0,0,0\n".as_bytes(),
-    )
-    .unwrap();
+    let track = common::guide_line(0.0, 50.0);
     let mut core = SimCore::new("large", start_hand(44.0)).unwrap();
     core.apply(DeviceCommand::EnableForces(true)).unwrap();
     for _ in 0..600 {

@@ -16,7 +16,7 @@
 //!   until it has been above the paper; a failed setup call is reported by name; libHD is
 //!   loaded once per process.
 
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -31,6 +31,8 @@ use maobi::poses::PoseTrack;
 use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::protocol::{BrushState, DeviceMsg, HostHello, HostMsg, HostRx, Message};
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar};
+
+mod common;
 
 /// The stand-in's state is per process: the in-process tests take turns.
 static STANDIN: Mutex<()> = Mutex::new(());
@@ -179,22 +181,10 @@ fn spawn_bridge(
         .stderr(Stdio::piped())
         .spawn()
         .expect("maobi bridge starts");
-    let stderr = child.stderr.take().unwrap();
-    let log = Arc::new(Mutex::new(String::new()));
-    let (tx, rx) = std::sync::mpsc::channel();
-    {
-        let log = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(rest) = line.split("listening on ").nth(1) {
-                    let addr = rest.split(';').next().unwrap_or("").trim().to_string();
-                    let _ = tx.send(addr);
-                }
-                log.lock().unwrap().push_str(&(line + "\n"));
-            }
-            log.lock().unwrap().push_str(STDERR_CLOSED);
-        });
-    }
+    let (log, rx) = common::collect_stderr(child.stderr.take().unwrap(), |line| {
+        let rest = line.split("listening on ").nth(1)?;
+        Some(rest.split(';').next().unwrap_or("").trim().to_string())
+    });
     let addr = rx
         .recv_timeout(Duration::from_secs(20))
         .unwrap_or_else(|_| {
@@ -207,16 +197,14 @@ fn spawn_bridge(
     (child, addr, log)
 }
 
-/// The last line of a bridge's log: its stderr has been read to the end.
-const STDERR_CLOSED: &str = "(stderr closed)\n";
-
 /// Waits for the bridge to exit, and for its stderr to be read to the end (the reader thread
 /// may still be behind when the process has gone, on a loaded machine).
 fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::ExitStatus {
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         if let Some(s) = child.try_wait().unwrap() {
-            while !log.lock().unwrap().ends_with(STDERR_CLOSED) && Instant::now() < deadline {
+            while !log.lock().unwrap().ends_with(common::STDERR_CLOSED) && Instant::now() < deadline
+            {
                 std::thread::sleep(Duration::from_millis(5));
             }
             return s;
@@ -835,7 +823,7 @@ fn sigint_stops_the_bridge_cleanly() {
 /// come from the servo loop, and its commands reach it.
 #[test]
 fn the_gui_device_runs_the_servo_loop() {
-    use maobi::gui::device::DeviceCommand;
+    use maobi::device::DeviceCommand;
     let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
     let h = std::f64::consts::FRAC_1_SQRT_2;
     let poses = scratch("gui_hold.csv");
@@ -989,7 +977,7 @@ fn the_servo_loop_leads_a_relaxed_hand_along_a_stroke() {
 /// and the device's limits.
 #[test]
 fn the_gui_device_guides_the_stylus() {
-    use maobi::gui::device::DeviceCommand;
+    use maobi::device::DeviceCommand;
     let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
     let h = std::f64::consts::FRAC_1_SQRT_2;
     // The stylus 50 mm above the paper at paper (0, 0), upright (see the test above).
@@ -1020,8 +1008,7 @@ fn the_gui_device_guides_the_stylus() {
         std::thread::sleep(Duration::from_millis(5));
     }
     // A 30 mm line 5 mm beside the stylus (paper +y), in the air, in 0.5 s.
-    let csv = "t,x,y,z,qw,qx,qy,qz\n0,0,5,50,1,0,0,0\n0.5,30,5,50,1,0,0,0\n";
-    let track = PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
+    let track = common::guide_line(5.0, 50.0);
     let empty = PoseTrack::from_reader("empty.csv", "t,x,y,z,qw,qx,qy,qz\n".as_bytes());
     if let Ok(empty) = empty {
         assert!(d.send(DeviceCommand::Guide(Some(Arc::new(empty)))).is_err());
@@ -1469,7 +1456,7 @@ fn libhd_is_loaded_once_per_process() {
     let mut d =
         maobi::phantom::device::PhantomDevice::new(Some(standin()), BridgeOptions::default())
             .unwrap();
-    use maobi::gui::device::Device;
+    use maobi::device::Device;
     for _ in 0..2 {
         d.connect().unwrap();
         d.disconnect();

@@ -6,19 +6,16 @@ use std::time::{Duration, Instant};
 
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::session::Session;
 use maobi::gui::{start_hand, GuiOptions};
 use maobi_shared::ParamId;
 
-const TICKS_PER_FRAME: usize = 50;
+mod common;
+use common::example;
 
-fn example(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../examples/poses")
-        .join(name)
-}
+const TICKS_PER_FRAME: usize = 50;
 
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("maobi-session-test-{}", std::process::id()));
@@ -27,22 +24,9 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 fn harness(clock: SimClock) -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
-    let device = SimDevice::new(clock, "large", start_hand(40.0)).expect("the simulator starts");
-    let mut app = MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
-        Automation::default(),
-        Default::default(),
-    );
+    let mut app = common::app(clock, 150.0, 4.0, Automation::default());
     app.set_session_clock(clock);
-    Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+    common::harness(app)
 }
 
 /// Steps the UI until `done`, for at most `limit` (real-time devices need real time).

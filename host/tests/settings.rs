@@ -5,11 +5,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 mod common;
+use common::example;
 
 use egui_kittest::Harness;
-use maobi::gui::app::{Automation, DeviceKind, MaobiApp};
-use maobi::gui::builtin::SimClock;
-use maobi::gui::files::{FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
+use maobi::device::builtin::SimClock;
+use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::files::{DeviceKind, FileKind, Recent, Settings, RECENT_PER_KIND, SETTINGS_KEY};
 use maobi::gui::DeviceChoice;
 use maobi::tablet::PressureCurve;
 
@@ -31,12 +32,6 @@ impl eframe::Storage for MemoryStorage {
 
 fn harness(automation: Automation) -> Harness<'static, MaobiApp> {
     common::harness(common::app(SimClock::Stepped(10), 100.0, 2.0, automation))
-}
-
-fn example(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../examples/poses")
-        .join(name)
 }
 
 #[test]

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 mod common;
 
 use egui_kittest::Harness;
+use maobi::device::builtin::SimClock;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::SimClock;
 use maobi::gui::start_hand;
 use maobi::tablet::{
     Axes, AxisRange, Decoder, PressureCurve, Reading, Recording, Tablet, ABS_PRESSURE, ABS_TILT_X,

@@ -6,9 +6,10 @@ use std::path::PathBuf;
 
 use egui_kittest::kittest::Queryable;
 use egui_kittest::Harness;
+use maobi::device::builtin::SimClock;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
-use maobi::gui::{start_hand, GuiOptions};
+
+mod common;
 
 const TICKS_PER_FRAME: usize = 50;
 
@@ -17,28 +18,15 @@ fn yong() -> PathBuf {
 }
 
 fn harness() -> Harness<'static, MaobiApp> {
-    let opts = GuiOptions {
-        paper_mm: 150.0,
-        px_per_mm: 4.0,
-        ..GuiOptions::default()
-    };
-    let device = SimDevice::new(
+    let mut app = common::app(
         SimClock::Stepped(TICKS_PER_FRAME),
-        "large",
-        start_hand(40.0),
-    )
-    .unwrap();
-    let mut app = MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
+        150.0,
+        4.0,
         Automation::default(),
-        Default::default(),
     );
     app.show_timeline(true);
     app.timeline_mut().open(&yong()).unwrap();
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1400.0, 1000.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app);
+    let mut h = common::harness_sized(app, 1400.0, 1000.0);
     h.run_steps(2);
     h
 }

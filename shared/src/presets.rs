@@ -24,6 +24,8 @@
 //! * Surface: TF, SDF and RL_max from Liang 2009 3.2; with a wet brush (W = 1) the surface
 //!   does not spread (eq. 3-17), a drier one splays up to RL_max.
 
+use core::fmt;
+
 use crate::params::BrushParams;
 
 /// 大楷: large regular-script brush.
@@ -91,6 +93,23 @@ pub fn by_name(name: &str) -> Option<BrushParams> {
 /// Names for error messages and `--help`.
 pub const NAMES: &str = "large (大楷), small (小楷)";
 
+/// The preset called `name`, or the error that says which names are valid.
+pub fn find(name: &str) -> Result<BrushParams, UnknownPreset<'_>> {
+    by_name(name).ok_or(UnknownPreset(name))
+}
+
+/// A brush name that is no preset (it displays the valid names).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct UnknownPreset<'a>(pub &'a str);
+
+impl fmt::Display for UnknownPreset<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "unknown brush `{}`; valid brushes: {NAMES}", self.0)
+    }
+}
+
+impl core::error::Error for UnknownPreset<'_> {}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -102,5 +121,16 @@ mod tests {
             assert_eq!(by_name(name), Some(*p));
         }
         assert_eq!(by_name("huge"), None);
+        assert_eq!(find("huge"), Err(UnknownPreset("huge")));
+    }
+
+    #[test]
+    fn an_unknown_preset_names_the_valid_ones() {
+        extern crate std;
+        use std::string::ToString;
+        assert_eq!(
+            UnknownPreset("huge").to_string(),
+            "unknown brush `huge`; valid brushes: large (大楷), small (小楷)"
+        );
     }
 }

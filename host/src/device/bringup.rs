@@ -24,7 +24,6 @@
 //! count times `encoder_sign`.
 
 use std::collections::VecDeque;
-use std::io::ErrorKind;
 use std::time::{Duration, Instant};
 
 use maobi_shared::protocol::{
@@ -33,7 +32,7 @@ use maobi_shared::protocol::{
 };
 use maobi_shared::{Pose, Quat, Vec3};
 
-use super::endpoint::{Conn, Endpoint};
+use super::endpoint::{nothing_to_read_yet, Conn, Endpoint};
 
 /// Sensor reports per second asked for while the check runs.
 pub const SENSOR_HZ: u16 = 50;
@@ -366,14 +365,7 @@ impl Wire {
         let n = match self.conn.read(&mut self.buf) {
             Ok(0) => return Err("the device closed the link".into()),
             Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
-                ) =>
-            {
-                0
-            }
+            Err(e) if nothing_to_read_yet(&e) => 0,
             Err(e) => return Err(format!("reading from the device: {e}")),
         };
         for m in self.dec.feed(&self.buf[..n]).flatten() {

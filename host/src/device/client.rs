@@ -1,4 +1,4 @@
-//! [`LinkDevice`]: a device on the other end of a wire-protocol link, behind the GUI's
+//! [`LinkDevice`]: a device on the other end of a wire-protocol link, behind the
 //! [`Device`] trait.
 //!
 //! Two threads per device, neither ever touched by the UI thread except through a mutex held
@@ -25,7 +25,7 @@
 //!   guide's force ([`BrushFrame::guide`]).
 
 use std::collections::VecDeque;
-use std::io::{ErrorKind, Write};
+use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -41,11 +41,11 @@ use maobi_shared::protocol::{
 };
 use maobi_shared::{presets, BrushParams, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
-use super::endpoint::{Conn, Endpoint};
-use crate::gui::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
-use crate::gui::device::{
+use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
 };
+use super::builtin::{FRAME_QUEUE, HAND_SPEED_MM_PER_TICK, HAND_TURN_PER_TICK};
+use super::endpoint::{nothing_to_read_yet, Conn, Endpoint};
 
 /// No good frame for this long: the link is lost.
 pub const LINK_TIMEOUT: Duration = Duration::from_millis(500);
@@ -204,13 +204,7 @@ pub struct LinkDevice {
 
 impl LinkDevice {
     pub fn new(opts: LinkOptions) -> Result<LinkDevice, DeviceError> {
-        let params = presets::by_name(&opts.preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{}`; valid brushes: {}",
-                opts.preset,
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(&opts.preset)?;
         let status = DeviceStatus {
             name: opts.endpoint.to_string(),
             connected: false,
@@ -279,27 +273,6 @@ impl LinkDevice {
             std::thread::sleep(Duration::from_millis(5));
         }
         self.inner.shared().status.connected
-    }
-
-    fn validate(&self, cmd: &DeviceCommand) -> Result<(), DeviceError> {
-        match cmd {
-            DeviceCommand::SetParam(id, v) => {
-                let mut p = self.params;
-                p.set(*id, *v)
-                    .and_then(|()| p.validate())
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))
-            }
-            DeviceCommand::Preset(name) => presets::by_name(name).map(|_| ()).ok_or_else(|| {
-                DeviceError::Rejected(format!(
-                    "unknown brush `{name}`; valid brushes: {}",
-                    presets::NAMES
-                ))
-            }),
-            DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
-                format!("wetness {w} is outside 0 ..= 1"),
-            )),
-            _ => Ok(()),
-        }
     }
 }
 
@@ -396,7 +369,7 @@ impl Device for LinkDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        self.validate(&cmd)?;
+        cmd.validate(&self.params)?;
         let Some(r) = &self.running else {
             return Err(DeviceError::NotConnected);
         };
@@ -527,14 +500,7 @@ fn run_link(inner: &Inner, opts: &LinkOptions) {
 fn read_some(conn: &mut dyn Conn, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
     match conn.read(buf) {
         Ok(n) => Ok(Some(n)),
-        Err(e)
-            if matches!(
-                e.kind(),
-                ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
-            ) =>
-        {
-            Ok(None)
-        }
+        Err(e) if nothing_to_read_yet(&e) => Ok(None),
         Err(e) => Err(e),
     }
 }

@@ -62,6 +62,15 @@ impl FromStr for Endpoint {
     }
 }
 
+/// A read that ended without bytes but without failing: the read timeout ran out, a
+/// non-blocking stream had nothing yet, or a signal interrupted it. The reader reads again.
+pub fn nothing_to_read_yet(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
+    )
+}
+
 /// A bidirectional byte stream to a device; reads time out after [`READ_POLL`].
 pub trait Conn: Read + Write + Send {
     /// A second handle on the same stream (one thread reads, another writes).

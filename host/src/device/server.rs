@@ -29,7 +29,7 @@ use maobi_shared::protocol::{
 use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
 use super::client::host_version;
-use super::endpoint::Conn;
+use super::endpoint::{nothing_to_read_yet, Conn};
 
 /// Options of the simulated device.
 #[derive(Clone, Debug)]
@@ -119,12 +119,7 @@ impl GuideMirror {
 
 impl Model {
     fn new(preset: &str) -> anyhow::Result<Model> {
-        let params = presets::by_name(preset).ok_or_else(|| {
-            anyhow::anyhow!(
-                "unknown brush `{preset}`; valid brushes: {}",
-                presets::NAMES
-            )
-        })?;
+        let params = presets::find(preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         let start = Pose::new(
             Vec3::from_f64([0.0, 0.0, params.length_mm as f64 + 6.0]),
             maobi_shared::Quat::IDENTITY,
@@ -452,14 +447,7 @@ fn connection(
         let n = match rx_stream.read(&mut buf) {
             Ok(0) => return Ok(()),
             Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
-                ) =>
-            {
-                0
-            }
+            Err(e) if nothing_to_read_yet(&e) => 0,
             // A pty master whose other end nobody holds open (yet): no host on the line.
             Err(e) if e.raw_os_error() == Some(EIO) => {
                 std::thread::sleep(Duration::from_millis(1));

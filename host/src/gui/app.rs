@@ -13,14 +13,16 @@ use maobi_shared::force::OutputState;
 use maobi_shared::{presets, ParamId};
 
 use super::brush_view::{self, Orbit};
-use super::builtin::{SimClock, SimDevice};
 use super::canvas::PaperView;
-use super::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
-use super::files::{FileKind, Recent, Settings};
-use super::session::{CanvasOp, InkLog, Rerender, Session};
+use super::choice::{make_device, start_hand, DeviceChoice};
+use super::files::{DeviceKind, FileKind, Recent, Settings};
+use super::rerender::{rerender, Rerender};
+use super::session::{CanvasOp, InkLog, Session};
 use super::timeline::{Timeline, TimelineAction};
-use super::DeviceChoice;
-use crate::device::{serial_ports, Endpoint, PortInfo};
+use crate::device::{
+    serial_ports, BrushFrame, Device, DeviceCommand, DeviceStatus, Endpoint, HandInput, PortInfo,
+    SimClock, SimDevice,
+};
 use crate::poses::PoseTrack;
 use crate::raster::Frame;
 use crate::render::write_png;
@@ -197,27 +199,6 @@ type RerenderSlot = Arc<Mutex<Option<anyhow::Result<Rerender>>>>;
 /// Serial ports and what answered on each (the board, or why not).
 type ProbeResults = Vec<(String, Result<String, String>)>;
 
-/// The kinds of device the chooser offers.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum DeviceKind {
-    Sim,
-    Tcp,
-    Serial,
-    /// A Phantom Omni / Geomagic Touch through OpenHaptics' libHD, in this process.
-    Phantom,
-}
-
-impl DeviceKind {
-    fn label(self) -> &'static str {
-        match self {
-            DeviceKind::Sim => "built-in simulator",
-            DeviceKind::Tcp => "TCP (QEMU board, sim-device, bridge)",
-            DeviceKind::Serial => "serial (the pen on USB)",
-            DeviceKind::Phantom => "Phantom (OpenHaptics libHD)",
-        }
-    }
-}
-
 impl MaobiApp {
     /// The app over `device` (connected here), with a paper of `paper` mapped by `frame`.
     pub fn new(
@@ -349,7 +330,7 @@ impl MaobiApp {
         let spawned = std::thread::Builder::new()
             .name("maobi-session".into())
             .spawn(move || {
-                let r = Session::load(&p).and_then(|s| s.rerender(|_| {}));
+                let r = Session::load(&p).and_then(|s| rerender(&s, |_| {}));
                 if let Ok(mut s) = s2.lock() {
                     *s = Some(r);
                 }
@@ -458,7 +439,7 @@ impl MaobiApp {
             match crate::phantom::device::gui_device(
                 lib,
                 &self.brush_name,
-                super::start_hand(len),
+                start_hand(len),
                 Some(wake),
             ) {
                 Ok(d) => {
@@ -488,7 +469,7 @@ impl MaobiApp {
         };
         let c2 = ctx.clone();
         let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || c2.request_repaint());
-        match super::make_device(&choice, &self.brush_name, Some(wake)) {
+        match make_device(&choice, &self.brush_name, Some(wake)) {
             Ok(mut d) => {
                 self.device.disconnect();
                 self.message = Some(match d.connect() {

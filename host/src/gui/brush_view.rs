@@ -7,7 +7,7 @@ use egui::{Color32, Pos2, Rect, Sense, Shape, Stroke, Vec2};
 use maobi_shared::params::MAX_RING_NODES;
 use maobi_shared::{Scalar, Vec3};
 
-use super::device::BrushFrame;
+use crate::device::BrushFrame;
 
 type V3 = [f64; 3];
 

@@ -10,7 +10,7 @@ use egui::{
 use crate::raster::{Canvas, Frame};
 use crate::render::Inker;
 
-use super::device::BrushFrame;
+use crate::device::BrushFrame;
 
 /// Most strokes undo remembers (each is a full canvas copy).
 pub const UNDO_DEPTH: usize = 8;

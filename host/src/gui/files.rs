@@ -9,8 +9,6 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::app::DeviceKind;
-
 /// The kinds of file the app opens and saves.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FileKind {
@@ -127,6 +125,28 @@ impl Recent {
     /// Forgets files that are gone (shown greyed out would only invite an error).
     pub fn prune_missing(&mut self) {
         self.entries.retain(|(_, p)| p.exists());
+    }
+}
+
+/// The kinds of device the chooser offers (kept between runs).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum DeviceKind {
+    Sim,
+    Tcp,
+    Serial,
+    /// A Phantom Omni / Geomagic Touch through OpenHaptics' libHD, in this process.
+    Phantom,
+}
+
+impl DeviceKind {
+    /// What the chooser calls it.
+    pub fn label(self) -> &'static str {
+        match self {
+            DeviceKind::Sim => "built-in simulator",
+            DeviceKind::Tcp => "TCP (QEMU board, sim-device, bridge)",
+            DeviceKind::Serial => "serial (the pen on USB)",
+            DeviceKind::Phantom => "Phantom (OpenHaptics libHD)",
+        }
     }
 }
 

@@ -1,20 +1,23 @@
 //! The desktop GUI (eframe over glow): the paper with its ink, the brush in 3D, live plots,
-//! controls and a status bar, over a [`device::Device`] (for now the built-in simulator).
+//! controls and a status bar, over a [`Device`](crate::device::Device) (the built-in
+//! simulator, a device over the wire protocol or the Phantom: see [`crate::device`]).
 //!
-//! * [`device`]: the device-backend trait the GUI talks through.
-//! * [`builtin`]: the built-in simulator backend.
+//! * [`choice`]: which device the GUI opens ([`DeviceChoice`]) and opening it.
 //! * [`canvas`]: the paper view (ink, partial texture uploads, zoom, pan, undo).
 //! * [`brush_view`]: the brush in 3D.
 //! * [`app`]: the application and its automation (`--replay`, `--screenshot`).
 //! * [`files`]: file dialogs, recent files and the settings kept between runs.
+//! * [`timeline`]: the stroke editor (keyframed strokes on a timeline, guided writing).
+//! * [`session`]: session files (`.maobi.toml`): the device's journal and the paper's history.
+//! * [`rerender`]: a session run again through the built-in device onto a fresh paper.
 
 pub mod app;
 pub mod brush_view;
-pub mod builtin;
 pub mod canvas;
-pub mod device;
+pub mod choice;
 pub mod files;
 pub mod fonts;
+pub mod rerender;
 pub mod session;
 pub mod timeline;
 
@@ -23,77 +26,14 @@ use std::sync::{Arc, Mutex};
 
 use anyhow::bail;
 
-use crate::device::{Endpoint, LinkDevice, LinkOptions};
 use crate::raster::Frame;
 use app::{Automation, MaobiApp, Outcome};
-use builtin::{SimClock, SimDevice};
-use device::HandInput;
+pub use choice::{make_device, start_hand, DeviceChoice};
 
 /// What the headless commands are, for the error when there is no display.
 pub const HEADLESS_HINT: &str = "without a display, use the headless commands: \
 `maobi render --poses FILE.csv -o OUT.png` (ink to PNG) or `maobi trace --poses FILE.csv -o TRACE.csv`; \
 or run the GUI under a virtual display: `xvfb-run -a maobi gui ...`";
-
-/// Which device the GUI talks to.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub enum DeviceChoice {
-    /// The built-in simulator.
-    #[default]
-    Sim,
-    /// A device over the wire protocol (`tcp:HOST:PORT`, `serial:PATH`).
-    Link(Endpoint),
-}
-
-impl std::str::FromStr for DeviceChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        if s == "sim" {
-            Ok(DeviceChoice::Sim)
-        } else {
-            s.parse().map(DeviceChoice::Link)
-        }
-    }
-}
-
-impl std::fmt::Display for DeviceChoice {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            DeviceChoice::Sim => f.write_str("sim"),
-            DeviceChoice::Link(e) => e.fmt(f),
-        }
-    }
-}
-
-/// The device for `choice` with the brush `preset`, not yet connected; `wake` is called
-/// from its threads when frames arrive.
-pub fn make_device(
-    choice: &DeviceChoice,
-    preset: &str,
-    wake: Option<Arc<dyn Fn() + Send + Sync>>,
-) -> Result<Box<dyn device::Device>, device::DeviceError> {
-    let length = maobi_shared::presets::by_name(preset)
-        .map(|p| p.length_mm as f64)
-        .unwrap_or(50.0);
-    let hand = start_hand(length);
-    Ok(match choice {
-        DeviceChoice::Sim => {
-            let mut d = SimDevice::new(SimClock::RealTime, preset, hand)?;
-            if let Some(w) = wake {
-                d.on_frames(w);
-            }
-            Box::new(d)
-        }
-        DeviceChoice::Link(e) => {
-            let mut opts = LinkOptions::new(e.clone(), hand);
-            opts.preset = preset.to_string();
-            let mut d = LinkDevice::new(opts)?;
-            if let Some(w) = wake {
-                d.on_frames(w);
-            }
-            Box::new(d)
-        }
-    })
-}
 
 /// `--device phantom`: where libHD is (`None`: `$MAOBI_HD_LIB`, the install paths).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -188,17 +128,6 @@ pub fn check_paper(paper_mm: f64, px_per_mm: f64) -> anyhow::Result<Frame> {
     Ok(frame)
 }
 
-/// The hand's start: above the paper's centre, the brush hanging straight down.
-pub fn start_hand(length_mm: f64) -> HandInput {
-    HandInput {
-        x: 0.0,
-        y: 0.0,
-        z: length_mm + 6.0,
-        tilt_x_deg: 0.0,
-        tilt_y_deg: 0.0,
-    }
-}
-
 /// Whether there is a display to open a window on.
 pub fn have_display() -> bool {
     if cfg!(any(target_os = "windows", target_os = "macos")) {
@@ -216,13 +145,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     if let Some(p) = &opts.replay {
         crate::poses::PoseTrack::from_path(p)?;
     }
-    maobi_shared::presets::by_name(&opts.brush).ok_or_else(|| {
-        anyhow::anyhow!(
-            "unknown brush `{}`; valid brushes: {}",
-            opts.brush,
-            maobi_shared::presets::NAMES
-        )
-    })?;
+    maobi_shared::presets::find(&opts.brush).map_err(|e| anyhow::anyhow!("{e}"))?;
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.

@@ -6,12 +6,12 @@
 //! preset, the reset at the start of a replay) with the tick it took effect before, and the
 //! paper's own history: which ticks were inked (live frames a stalled UI dropped were not)
 //! and where undo and clear came between them. Replaying those through the same fixed-point
-//! model ([`SimCore`]) and the same inker gives the same canvas, bit for bit, and leaves the
-//! model in the state it was in, so writing can go on where it stopped.
+//! model and the same inker ([`super::rerender`]) gives the same canvas, bit for bit, and
+//! leaves the model in the state it was in, so writing can go on where it stopped.
 //!
-//! The journal of poses and commands is kept by the simulator itself ([`Journal`], inside
-//! [`SimCore`]), because only it knows at which tick a command took effect; the paper's
-//! history is kept by the app ([`InkLog`]).
+//! The journal of poses and commands is kept by the built-in device itself ([`Journal`],
+//! written by [`SimCore`](crate::device::builtin::SimCore)), because only it knows at which
+//! tick a command took effect; the paper's history is kept by the app ([`InkLog`]).
 //!
 //! # File format (`.maobi.toml`, version 1)
 //!
@@ -29,88 +29,16 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{bail, Context as _};
-use maobi_shared::{presets, BrushParams, ParamId, Pose, Quat, Vec3};
+use maobi_shared::{presets, ParamId, Pose, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
-use super::builtin::SimCore;
-use super::canvas::PaperView;
-use super::device::DeviceError;
+use crate::device::journal::{Journal, JournalEvent, MAX_JOURNAL_POSES};
 use crate::raster::Frame;
 
 /// The `format` key of a session file.
 pub const FORMAT: &str = "maobi-session";
 /// The version this build writes and reads.
 pub const VERSION: u32 = 1;
-/// Pose changes a journal keeps (64 bytes each): 1,000,000 is about 17 minutes of
-/// continuous motion; a hand at rest costs nothing. Past it the journal stops, and saving
-/// says so.
-pub const MAX_JOURNAL_POSES: usize = 1_000_000;
-
-/// A change to the model between ticks.
-#[derive(Clone, Debug, PartialEq)]
-pub enum JournalEvent {
-    Dip(f32),
-    Param(ParamId, f32),
-    /// A preset's parameters, and the brush reset at rest where the hand is.
-    Preset(String),
-    /// The brush (and force model) reset at rest at this pose (a replay's start).
-    Reset(Pose<f64>),
-}
-
-/// What the simulator did, tick by tick, since it started.
-#[derive(Clone, Debug)]
-pub struct Journal {
-    pub preset: String,
-    pub params: BrushParams,
-    /// The brush was created at rest at this pose, before tick 1.
-    pub start: Pose<f64>,
-    /// The last tick run.
-    pub ticks: u64,
-    /// `(tick, pose)` for each tick whose handle pose differs from the previous tick's.
-    pub poses: Vec<(u64, Pose<f64>)>,
-    /// `(tick, event)`: the event took effect before `tick` ran.
-    pub events: Vec<(u64, JournalEvent)>,
-    /// The tick at which [`MAX_JOURNAL_POSES`] ran out, if it did.
-    pub full_at: Option<u64>,
-    last_pose: Pose<f64>,
-}
-
-impl Journal {
-    pub fn new(preset: &str, params: BrushParams, start: Pose<f64>) -> Journal {
-        Journal {
-            preset: preset.to_string(),
-            params,
-            start,
-            ticks: 0,
-            poses: Vec::new(),
-            events: Vec::new(),
-            full_at: None,
-            last_pose: start,
-        }
-    }
-
-    /// Notes that tick `tick` ran with the handle at `pose`.
-    pub fn tick(&mut self, tick: u64, pose: Pose<f64>) {
-        self.ticks = tick;
-        if self.full_at.is_some() || pose == self.last_pose {
-            return;
-        }
-        if self.poses.len() >= MAX_JOURNAL_POSES {
-            self.full_at = Some(tick);
-            return;
-        }
-        self.poses.push((tick, pose));
-        self.last_pose = pose;
-    }
-
-    /// Notes an event that takes effect before the next tick.
-    pub fn event(&mut self, e: JournalEvent) {
-        if self.full_at.is_none() {
-            self.events.push((self.ticks + 1, e));
-        }
-    }
-}
-
 /// A change to the paper that is not ink.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -142,7 +70,8 @@ impl InkLog {
         let after = self.inked.last().map_or(0, |r| r[1]);
         self.ops.push((after, op));
     }
-    fn contains(&self, tick: u64) -> bool {
+    /// The paper inked `tick`.
+    pub fn contains(&self, tick: u64) -> bool {
         self.inked.iter().any(|r| (r[0]..=r[1]).contains(&tick))
     }
 }
@@ -154,13 +83,6 @@ pub struct Session {
     pub device: String,
     pub journal: Journal,
     pub paper: Frame,
-    pub ink: InkLog,
-}
-
-/// What a re-render leaves: the model where the session ended, and the paper.
-pub struct Rerender {
-    pub core: SimCore,
-    pub paper: PaperView,
     pub ink: InkLog,
 }
 
@@ -272,13 +194,7 @@ impl Session {
                 f.version
             );
         }
-        let preset_params = presets::by_name(&f.preset).ok_or_else(|| {
-            anyhow::anyhow!(
-                "unknown brush `{}`; valid brushes: {}",
-                f.preset,
-                presets::NAMES
-            )
-        })?;
+        let preset_params = presets::find(&f.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut params = preset_params;
         for (name, v) in &f.params {
             let id = ParamId::from_name(name)
@@ -387,19 +303,9 @@ impl Session {
             last = c.after_tick;
             ops.push((c.after_tick, c.op));
         }
-        let last_pose = poses.last().map_or(start, |p| p.1);
         Ok(Session {
             device: f.device,
-            journal: Journal {
-                preset: f.preset,
-                params,
-                start,
-                ticks: f.ticks,
-                poses,
-                events,
-                full_at: None,
-                last_pose,
-            },
+            journal: Journal::restored(&f.preset, params, start, f.ticks, poses, events),
             paper,
             ink: InkLog {
                 inked,
@@ -407,70 +313,6 @@ impl Session {
                 foreign: false,
             },
         })
-    }
-
-    /// Runs the session again: the model from its start, the same poses and commands at the
-    /// same ticks, the same ticks inked and the same undo/clear between them. `progress` is
-    /// called now and then with the fraction done.
-    pub fn rerender(&self, mut progress: impl FnMut(f64)) -> anyhow::Result<Rerender> {
-        let j = &self.journal;
-        let mut core = SimCore::at_pose(&j.preset, j.start)
-            .map_err(|e: DeviceError| anyhow::anyhow!("{e}"))?;
-        core.set_params(j.params)
-            .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
-        let mut paper = PaperView::new(self.paper);
-        let mut poses = j.poses.iter().peekable();
-        let mut events = j.events.iter().peekable();
-        let mut ops = self.ink.ops.iter().peekable();
-        let mut pose = j.start;
-        let mut replayed = InkLog::default();
-        while let Some((_, op)) = ops.next_if(|(t, _)| *t == 0) {
-            apply_op(&mut paper, *op);
-        }
-        for tick in 1..=j.ticks {
-            while let Some((_, e)) = events.next_if(|(t, _)| *t == tick) {
-                // A command that failed live was never journaled; one that fails here
-                // means the file was edited by hand.
-                core.replay_event(e)
-                    .map_err(|err| anyhow::anyhow!("tick {tick}: {e:?}: {err}"))?;
-            }
-            if let Some((_, p)) = poses.next_if(|(t, _)| *t == tick) {
-                pose = *p;
-            }
-            let frame = core.step_at(pose);
-            if self.ink.contains(tick) {
-                paper.ink(&frame);
-                replayed.inked(tick);
-            }
-            while let Some((_, op)) = ops.next_if(|(t, _)| *t == tick) {
-                apply_op(&mut paper, *op);
-                replayed.ops.push((tick, *op));
-            }
-            if tick % 4096 == 0 {
-                progress(tick as f64 / j.ticks as f64);
-            }
-        }
-        // Events after the last tick (commands given just before saving).
-        for (_, e) in events {
-            core.replay_event(e)
-                .map_err(|err| anyhow::anyhow!("after the last tick: {e:?}: {err}"))?;
-        }
-        progress(1.0);
-        core.resume_journal(j.clone());
-        Ok(Rerender {
-            core,
-            paper,
-            ink: self.ink.clone(),
-        })
-    }
-}
-
-fn apply_op(paper: &mut PaperView, op: CanvasOp) {
-    match op {
-        CanvasOp::Undo => {
-            paper.undo();
-        }
-        CanvasOp::Clear => paper.clear(),
     }
 }
 
@@ -617,19 +459,5 @@ mod tests {
         assert_eq!(l.inked, vec![[1, 3], [7, 8]]);
         assert_eq!(l.ops, vec![(0, CanvasOp::Clear), (8, CanvasOp::Undo)]);
         assert!(l.contains(2) && !l.contains(5) && l.contains(8));
-    }
-
-    #[test]
-    fn journal_keeps_only_pose_changes_and_stamps_events_on_the_next_tick() {
-        let p0 = Pose::new(Vec3::new(0.0, 0.0, 40.0), Quat::IDENTITY);
-        let p1 = Pose::new(Vec3::new(1.0, 0.0, 40.0), Quat::IDENTITY);
-        let mut j = Journal::new("large", presets::LARGE, p0);
-        j.tick(1, p0);
-        j.tick(2, p1);
-        j.event(JournalEvent::Dip(0.5));
-        j.tick(3, p1);
-        assert_eq!(j.poses, vec![(2, p1)]);
-        assert_eq!(j.events, vec![(3, JournalEvent::Dip(0.5))]);
-        assert_eq!(j.ticks, 3);
     }
 }

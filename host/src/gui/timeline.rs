@@ -20,8 +20,8 @@ use std::path::{Path, PathBuf};
 use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke as Line, Vec2};
 
 use super::canvas::PaperView;
-use super::device::BrushFrame;
 use super::files::FileKind;
+use crate::device::BrushFrame;
 use crate::poses::PoseTrack;
 use crate::strokes::{rows_to_csv, Character, StrokeFile};
 

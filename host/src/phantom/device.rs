@@ -1,6 +1,6 @@
 //! The bridge behind the two ways to run it: the wire protocol over TCP (`maobi bridge`,
-//! [`BridgeModel`] in the same connection loop as `maobi sim-device`) and the GUI's
-//! [`Device`] trait (`maobi --device phantom`, [`PhantomDevice`], with [`gui_device`] falling
+//! [`BridgeModel`] in the same connection loop as `maobi sim-device`) and a
+//! [`Device`] for the GUI (`maobi --device phantom`, [`PhantomDevice`], with [`gui_device`] falling
 //! back to the built-in simulator when there is no library or no device).
 
 use std::path::PathBuf;
@@ -13,9 +13,11 @@ use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
 use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared};
+use crate::device::builtin::{SimClock, SimDevice};
 use crate::device::client::frame_from_state;
+use crate::device::journal::Journal;
 use crate::device::ProtocolModel;
-use crate::gui::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
+use crate::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 
 /// The running bridge as a wire-protocol device: real sensors (the stylus), force output,
 /// buttons; states come from the servo loop at its own pace.
@@ -116,13 +118,7 @@ impl PhantomDevice {
     /// Not yet connected: [`Device::connect`] loads libHD (`hd_lib`, `$MAOBI_HD_LIB`, the
     /// install paths) and starts the servo loop.
     pub fn new(hd_lib: Option<PathBuf>, opts: BridgeOptions) -> Result<PhantomDevice, DeviceError> {
-        let params = presets::by_name(&opts.preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{}`; valid brushes: {}",
-                opts.preset,
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(&opts.preset)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
@@ -265,12 +261,7 @@ impl Device for PhantomDevice {
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let p = presets::by_name(&name).ok_or_else(|| {
-                    DeviceError::Rejected(format!(
-                        "unknown brush `{name}`; valid brushes: {}",
-                        presets::NAMES
-                    ))
-                })?;
+                let p = presets::find(&name)?;
                 self.servo(ServoCommand::SetParams(p))?;
                 self.params = p;
                 self.preset = name;
@@ -331,7 +322,7 @@ impl Device for FallbackDevice {
     fn poll(&mut self, out: &mut Vec<BrushFrame>) {
         self.inner.poll(out)
     }
-    fn journal(&self) -> Option<crate::gui::session::Journal> {
+    fn journal(&self) -> Option<Journal> {
         self.inner.journal()
     }
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
@@ -360,11 +351,7 @@ pub fn gui_device(
         Err(e) => {
             let why = format!("Phantom unavailable, using the built-in simulator: {e}");
             eprintln!("maobi: {why}");
-            let mut sim = crate::gui::builtin::SimDevice::new(
-                crate::gui::builtin::SimClock::RealTime,
-                preset,
-                hand,
-            )?;
+            let mut sim = SimDevice::new(SimClock::RealTime, preset, hand)?;
             if let Some(w) = wake {
                 sim.on_frames(w);
             }

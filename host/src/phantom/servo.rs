@@ -60,7 +60,7 @@ use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
-use crate::gui::device::GuideFrame;
+use crate::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
 pub const STATE_QUEUE: usize = 64;
@@ -1397,13 +1397,7 @@ impl Bridge {
     /// read after every setup call, so a failure is reported by the call that failed (and the
     /// device released) before the servo loop runs.
     pub fn start(lib: Arc<HdLib>, opts: &BridgeOptions) -> anyhow::Result<Bridge> {
-        let params = presets::by_name(&opts.preset).ok_or_else(|| {
-            anyhow::anyhow!(
-                "unknown brush `{}`; valid brushes: {}",
-                opts.preset,
-                presets::NAMES
-            )
-        })?;
+        let params = presets::find(&opts.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         if !(1..=1000).contains(&opts.state_hz) {
             anyhow::bail!("--state-hz must be 1 ..= 1000");
         }

@@ -1,30 +1,92 @@
-//! The app over the built-in simulator for GUI tests (egui_kittest, no window).
+//! What the host's tests share: the app in a kittest harness (no window), the example files,
+//! the guide stroke, and the stderr of a `maobi` server process.
+
+// Each test binary includes this module and uses a part of it.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::ChildStderr;
+use std::sync::mpsc::Receiver;
+use std::sync::{Arc, Mutex};
 
 use egui_kittest::Harness;
+use maobi::device::builtin::{SimClock, SimDevice};
+use maobi::device::Device;
 use maobi::gui::app::{Automation, MaobiApp};
-use maobi::gui::builtin::{SimClock, SimDevice};
 use maobi::gui::{start_hand, GuiOptions};
+use maobi::poses::PoseTrack;
 
 /// The app on the `large` brush's simulator running on `clock`, with a square paper of
 /// `paper_mm` at `px_per_mm`, driven by `automation`.
 pub fn app(clock: SimClock, paper_mm: f64, px_per_mm: f64, automation: Automation) -> MaobiApp {
+    let device = SimDevice::new(clock, "large", start_hand(40.0)).expect("the simulator starts");
+    app_over(Box::new(device), paper_mm, px_per_mm, automation)
+}
+
+/// The app over `device`, with a square paper of `paper_mm` at `px_per_mm`, driven by
+/// `automation`.
+pub fn app_over(
+    device: Box<dyn Device>,
+    paper_mm: f64,
+    px_per_mm: f64,
+    automation: Automation,
+) -> MaobiApp {
     let opts = GuiOptions {
         paper_mm,
         px_per_mm,
         ..GuiOptions::default()
     };
-    let device = SimDevice::new(clock, "large", start_hand(40.0)).expect("the simulator starts");
-    MaobiApp::new(
-        Box::new(device),
-        opts.frame(),
-        automation,
-        Default::default(),
-    )
+    MaobiApp::new(device, opts.frame(), automation, Default::default())
 }
 
 /// `app` in a 1400 x 900 kittest harness.
 pub fn harness(app: MaobiApp) -> Harness<'static, MaobiApp> {
+    harness_sized(app, 1400.0, 900.0)
+}
+
+/// `app` in a kittest harness of `width` x `height`.
+pub fn harness_sized(app: MaobiApp, width: f32, height: f32) -> Harness<'static, MaobiApp> {
     Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
+        .with_size(egui::vec2(width, height))
         .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+}
+
+/// `examples/poses/NAME`.
+pub fn example(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/poses")
+        .join(name)
+}
+
+/// The guide stroke: a 30 mm line along paper +x in 0.5 s, from `(0, y, z)` (mm).
+pub fn guide_line(y: f64, z: f64) -> PoseTrack {
+    let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,0,{y},{z},1,0,0,0\n0.5,30,{y},{z},1,0,0,0\n");
+    PoseTrack::from_reader("line.csv", csv.as_bytes()).expect("the guide line parses")
+}
+
+/// The last line of a server's log: its stderr has been read to the end.
+pub const STDERR_CLOSED: &str = "(stderr closed)\n";
+
+/// Reads a server process's `stderr` on a thread of its own: every line into the log, then
+/// [`STDERR_CLOSED`]; the first address `find` picks out of a line goes to the receiver.
+pub fn collect_stderr(
+    stderr: ChildStderr,
+    find: fn(&str) -> Option<String>,
+) -> (Arc<Mutex<String>>, Receiver<String>) {
+    let log = Arc::new(Mutex::new(String::new()));
+    let (tx, rx) = std::sync::mpsc::channel();
+    {
+        let log = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(a) = find(&line) {
+                    let _ = tx.send(a);
+                }
+                log.lock().unwrap().push_str(&(line + "\n"));
+            }
+            log.lock().unwrap().push_str(STDERR_CLOSED);
+        });
+    }
+    (log, rx)
 }

@@ -1,23 +1,26 @@
-//! What the GUI talks to: "a device" that runs the brush model and sends back its state.
+//! The device seam: "a device" runs the brush model, takes the hand's pose and commands, and
+//! sends back its state.
 //!
 //! The GUI never touches a [`Brush`](maobi_shared::Brush) directly. It sends the hand's pose
 //! and commands through a [`Device`] and draws the [`BrushFrame`]s that come back (one per
 //! 1 ms model tick), so a real pen on a serial link and the built-in simulator look the same
 //! to it.
 //!
-//! Backends:
-//! * [`crate::gui::builtin::SimDevice`]: the built-in simulator (the shared model on the host).
-//! * [`crate::device::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
-//!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, later the Phantom bridge) or a
+//! Devices:
+//! * [`super::builtin::SimDevice`]: the built-in simulator (the shared model on the host).
+//! * [`super::client::LinkDevice`]: a device speaking `maobi_shared::protocol`, over TCP
+//!   (`tcp:HOST:PORT`: the QEMU board, `maobi sim-device`, the Phantom bridge) or a
 //!   serial port (`serial:PATH`: the pen on USB).
+//! * `crate::phantom::device::PhantomDevice`: the Phantom's servo loop in this process.
 
 use std::fmt;
 use std::sync::Arc;
 
 use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
-use maobi_shared::{BrushParams, Fx, Layer, ParamId, Pose, Vec3};
+use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Vec3};
 
+use super::journal::Journal;
 use crate::poses::PoseTrack;
 
 /// The brush's state after one model tick, as a device reports it.
@@ -124,6 +127,30 @@ pub enum DeviceCommand {
     Guide(Option<Arc<PoseTrack>>),
 }
 
+impl DeviceCommand {
+    /// Checks the command against the parameters in force (`params`) with the shared
+    /// model's own checks, as every device does before carrying it out or sending it: a
+    /// parameter the model would refuse, an unknown preset, a wetness outside 0 ..= 1.
+    pub fn validate(&self, params: &BrushParams) -> Result<(), DeviceError> {
+        match self {
+            DeviceCommand::SetParam(id, v) => {
+                let mut p = *params;
+                p.set(*id, *v)
+                    .and_then(|()| p.validate())
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))
+            }
+            DeviceCommand::Preset(name) => {
+                presets::find(name)?;
+                Ok(())
+            }
+            DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
+                format!("wetness {w} is outside 0 ..= 1"),
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// Guided writing at one tick, as the device reports it.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct GuideFrame {
@@ -159,6 +186,12 @@ impl fmt::Display for DeviceError {
 
 impl std::error::Error for DeviceError {}
 
+impl From<presets::UnknownPreset<'_>> for DeviceError {
+    fn from(e: presets::UnknownPreset<'_>) -> DeviceError {
+        DeviceError::Rejected(e.to_string())
+    }
+}
+
 /// What the status bar shows.
 #[derive(Clone, Debug)]
 pub struct DeviceStatus {
@@ -190,7 +223,7 @@ pub struct DeviceStatus {
     pub link: Option<LinkReport>,
 }
 
-/// The state of a wire-protocol link ([`crate::device::LinkDevice`]).
+/// The state of a wire-protocol link ([`super::client::LinkDevice`]).
 #[derive(Clone, Debug, Default)]
 pub struct LinkReport {
     /// "connected to ...", "link lost: ...; reconnecting", "not connected: ...".
@@ -235,8 +268,8 @@ pub trait Device {
     /// anything is sent, so a rejection comes back here.
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError>;
     /// Every pose and brush command since the model started, for saving the session
-    /// ([`super::session`]); `None` from devices that keep no journal (a pen on a link).
-    fn journal(&self) -> Option<super::session::Journal> {
+    /// ([`super::journal`]); `None` from devices that keep no journal (a pen on a link).
+    fn journal(&self) -> Option<Journal> {
         None
     }
 }

@@ -20,10 +20,10 @@ use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI}
 use maobi_shared::guide::{Guide, DEFAULT_GUIDE};
 use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
 
-use super::device::{
+use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput,
 };
-use super::session::{Journal, JournalEvent};
+use super::journal::{Journal, JournalEvent};
 
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
 pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
@@ -58,7 +58,7 @@ pub struct SimCore {
     guide_track: Option<(Vec<Pose<f64>>, usize)>,
     last_anchor: Option<Vec3<Fx>>,
     /// Every pose and brush command since the start, for saving the session
-    /// ([`super::session`]). Shared so the GUI can read it while the model thread runs.
+    /// ([`super::journal`]). Shared so the GUI can read it while the model thread runs.
     journal: Arc<Mutex<Journal>>,
 }
 
@@ -72,12 +72,7 @@ impl SimCore {
 
     /// The brush `preset`, hanging at rest at `pose`; the hand's target is that pose.
     pub fn at_pose(preset: &str, pose: Pose<f64>) -> Result<SimCore, DeviceError> {
-        let params = presets::by_name(preset).ok_or_else(|| {
-            DeviceError::Rejected(format!(
-                "unknown brush `{preset}`; valid brushes: {}",
-                presets::NAMES
-            ))
-        })?;
+        let params = presets::find(preset)?;
         let brush =
             Brush::new(params, pose.cast()).map_err(|e| DeviceError::Rejected(e.to_string()))?;
         let model =
@@ -171,12 +166,7 @@ impl SimCore {
                 self.note(JournalEvent::Dip(w));
             }
             DeviceCommand::Preset(name) => {
-                let p = presets::by_name(&name).ok_or_else(|| {
-                    DeviceError::Rejected(format!(
-                        "unknown brush `{name}`; valid brushes: {}",
-                        presets::NAMES
-                    ))
-                })?;
+                let p = presets::find(&name)?;
                 self.brush
                     .set_params(p)
                     .map_err(|e| DeviceError::Rejected(e.to_string()))?;
@@ -419,24 +409,6 @@ impl SimDevice {
     pub fn on_frames(&mut self, wake: Arc<dyn Fn() + Send + Sync>) {
         self.wake = Some(wake);
     }
-
-    fn validate(&self, cmd: &DeviceCommand) -> Result<(), DeviceError> {
-        match cmd {
-            DeviceCommand::SetParam(id, v) => {
-                let mut p = self.params;
-                p.set(*id, *v)
-                    .and_then(|()| p.validate())
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))
-            }
-            DeviceCommand::Preset(name) => presets::by_name(name).map(|_| ()).ok_or_else(|| {
-                DeviceError::Rejected(format!(
-                    "unknown brush `{name}`; valid brushes: {}",
-                    presets::NAMES
-                ))
-            }),
-            _ => Ok(()),
-        }
-    }
 }
 
 impl Device for SimDevice {
@@ -535,7 +507,7 @@ impl Device for SimDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        self.validate(&cmd)?;
+        cmd.validate(&self.params)?;
         if let Some(r) = &self.running {
             if let DeviceCommand::SetParam(id, v) = cmd {
                 // Keep the local copy current so the next validation sees this change.

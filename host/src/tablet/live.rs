@@ -14,7 +14,8 @@ use std::thread::JoinHandle;
 use evdev::raw_stream::RawDevice;
 use evdev::{AbsoluteAxisCode, KeyCode};
 
-use super::{Axes, AxisRange, Decoder, TabletError, TabletInfo, TabletStatus};
+use super::decode::{Axes, AxisRange, Decoder, TabletInfo, TabletStatus};
+use super::error::TabletError;
 
 /// How long the reader sleeps in `poll` before it looks at the stop flag again.
 const POLL_MS: i32 = 100;

@@ -19,7 +19,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::{Axes, AxisRange, Decoder, TabletStatus, ABS_PRESSURE, ABS_TILT_X, ABS_TILT_Y};
+use super::decode::{Axes, AxisRange, Decoder, TabletStatus, ABS_PRESSURE, ABS_TILT_X, ABS_TILT_Y};
 
 /// One event of a recording.
 #[derive(Copy, Clone, Debug, PartialEq)]

@@ -88,6 +88,32 @@ pub struct TickOut<S> {
     pub faults: Faults,
 }
 
+/// The guide's tick ([`HandGuide::tick`]) as a function pointer.
+pub type GuideTick<S> =
+    fn(&mut HandGuide<S>, Option<GuideInput<S>>, Vec3<S>, bool, bool) -> (Vec3<S>, GuideForce<S>);
+
+/// The parts of a tick that the caller supplies, compiled where it names them: the guide's
+/// tick and the brush's reset (a re-anchor). A caller that builds the tick for speed and the
+/// rest for size (the pen's firmware: its tick in `maobi-fast`) hands in the copies its
+/// size-optimised code already has: the reset's, which a re-anchor tick can afford since it
+/// runs no brush tick, and the guide's, which at speed would cost more flash than the pen has.
+/// [`ForceLoop::tick`] uses its own ([`TickParts::here`]).
+#[derive(Copy, Clone)]
+pub struct TickParts<S: Scalar> {
+    pub guide: GuideTick<S>,
+    pub reset: fn(&mut Brush<S>, Pose<S>),
+}
+
+impl<S: Scalar> TickParts<S> {
+    /// The parts, compiled in the crate that calls this.
+    pub const fn here() -> Self {
+        TickParts {
+            guide: HandGuide::tick,
+            reset: Brush::reset,
+        }
+    }
+}
+
 /// Why a loop could not be built.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub enum LoopError {
@@ -149,7 +175,9 @@ impl<S: Scalar> HandGuide<S> {
 
     /// One tick with the hand at `hand`: its step since the last tick, and the guide's
     /// force. `fresh`: a new pose came (else the guide holds its force); `faulted`: the guide
-    /// is cut and pulls with nothing.
+    /// is cut and pulls with nothing. Never inlined: a caller may hand it to a loop's tick
+    /// built elsewhere ([`TickParts`]), which must call this copy, not grow its own.
+    #[inline(never)]
     pub fn tick(
         &mut self,
         sample: Option<GuideInput<S>>,
@@ -344,11 +372,18 @@ impl<S: Scalar> ForceLoop<S> {
 
     /// One tick (see the module docs).
     pub fn tick(&mut self, input: TickIn<S>) -> TickOut<S> {
+        self.tick_with(input, &TickParts::here())
+    }
+
+    /// [`Self::tick`] with the guide's tick and the brush's reset that `parts` name.
+    pub fn tick_with(&mut self, input: TickIn<S>, parts: &TickParts<S>) -> TickOut<S> {
         let mut raised = Faults::empty();
         let fresh = match input.pose {
             Some(pose) if self.reanchor => {
                 self.reanchor = false;
-                self.reset_brush(pose);
+                (parts.reset)(&mut self.brush, pose);
+                self.restart_forces();
+                self.brush_ticks = 0;
                 self.last_pose = Some(pose);
                 true
             }
@@ -373,7 +408,7 @@ impl<S: Scalar> ForceLoop<S> {
             None => Vec3::ZERO,
         };
         let forces = self.model.tick(&self.brush, hand);
-        let (step, guide) = self.guide.tick(input.guide, hand, fresh, faulted);
+        let (step, guide) = (parts.guide)(&mut self.guide, input.guide, hand, fresh, faulted);
         let wanted = if faulted {
             forces.total
         } else {

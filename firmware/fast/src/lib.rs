@@ -7,28 +7,26 @@
 //! QEMU and `pen` for the Black Pill, at `opt-level = "z"`, this crate at 2);
 //! `#[inline(never)]` keeps link-time optimisation from pulling them back into the
 //! size-optimised callers. The shared force loop's tick ([`force_loop_tick`]: brush, force
-//! model, guide, output stage) is one entry point; its brush reset is another, since the
-//! force loop resets the brush within a tick (new parameters, a reset command), so it must
-//! be as quick as the tick it shares. (The brush's construction and new parameters stay
-//! with their size-optimised callers: built for speed they cost several times the flash.)
-//! The brush's parts have their own entry points for the bench's per-part figures.
+//! model, output stage) is one entry point; the guide's tick and the brush's reset come from
+//! the caller's size-optimised code ([`TickParts`]), as do the brush's construction and new
+//! parameters: built for speed they would cost several times the flash, and the reset runs
+//! only in a tick without a brush tick (a re-anchor) or on a command. The brush's parts
+//! have their own entry points for the bench's per-part figures.
 #![no_std]
 
-use maobi_shared::force_loop::{TickIn, TickOut};
+use maobi_shared::force_loop::{TickIn, TickOut, TickParts};
 use maobi_shared::kinematics::{ArmTrig, Joints, KinematicsError, Pen, RawReadings};
 use maobi_shared::{Brush, ForceLoop, Fx, Pose, Scalar, Vec3};
 
-/// `ForceLoop::tick`: one 1 ms tick of the shared force loop (pose, brush, forces, guide,
-/// output stage, sensor-jump check).
+/// `ForceLoop::tick_with`: one 1 ms tick of the shared force loop (pose, brush, forces,
+/// guide, output stage, sensor-jump check), with the caller's guide tick and brush reset.
 #[inline(never)]
-pub fn force_loop_tick(fl: &mut ForceLoop<Fx>, input: TickIn<Fx>) -> TickOut<Fx> {
-    fl.tick(input)
-}
-
-/// `ForceLoop::reset_brush`: the brush at rest at `pose`, the forces afresh.
-#[inline(never)]
-pub fn force_loop_reset_brush(fl: &mut ForceLoop<Fx>, pose: Pose<Fx>) {
-    fl.reset_brush(pose);
+pub fn force_loop_tick(
+    fl: &mut ForceLoop<Fx>,
+    input: TickIn<Fx>,
+    parts: &TickParts<Fx>,
+) -> TickOut<Fx> {
+    fl.tick_with(input, parts)
 }
 
 /// `Brush::tick`: every substep and the surface update of one 1 ms tick.

@@ -189,9 +189,7 @@ impl Stats {
 fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
     fl: &mut ForceLoop<ScriptPen, M, W>,
 ) {
-    // Through `maobi_fast`, as the force loop does: one copy of the brush's code in the
-    // image, and the bench measures that copy.
-    maobi_fast::force_loop_reset_brush(&mut fl.core, stroke_pose(0));
+    fl.core.reset_brush(stroke_pose(0));
     fl.core.forget_pose();
     fl.pen.restart();
     super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
@@ -337,7 +335,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     );
 
     // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
-    maobi_fast::force_loop_reset_brush(&mut fl.core, stroke_pose(0));
+    fl.core.reset_brush(stroke_pose(0));
     let brush = fl.core.brush_mut();
     for k in 1..=300 {
         maobi_fast::brush_tick(brush, stroke_pose(k));

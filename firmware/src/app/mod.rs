@@ -36,7 +36,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
 use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
-use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::force_loop::{Gate, TickIn, TickParts};
 use maobi_shared::guide::{GuideInput, DEFAULT_GUIDE};
 use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::{BrushState, Faults, Haptics, SensorReport};
@@ -313,6 +313,10 @@ pub fn state_due(now: u32, hz: u32) -> bool {
     n * hz / 1000 != n.wrapping_sub(1) * hz / 1000 || n == 0
 }
 
+/// The parts of the shared loop's tick built here, for size ([`TickParts`]): the guide's
+/// tick and the brush's reset, the same copies the commands use.
+const PARTS: TickParts<Fx> = TickParts::here();
+
 /// The force loop's state. Owned by the highest-priority context.
 ///
 /// The brush, the force model, the guide, the output stage and the sensor-jump check are
@@ -472,7 +476,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         };
         // The guide sample that came with this tick's pose (none on a gap tick).
         let guide = self.pen.take_guide();
-        let out = maobi_fast::force_loop_tick(&mut self.core, TickIn { pose, guide, gate });
+        let out = maobi_fast::force_loop_tick(&mut self.core, TickIn { pose, guide, gate }, &PARTS);
         if !out.faults.is_empty() {
             latch(out.faults);
         }
@@ -538,7 +542,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                     Some(p) => p,
                     None => self.core.brush().handle(),
                 };
-                maobi_fast::force_loop_reset_brush(&mut self.core, pose);
+                self.core.reset_brush(pose);
                 self.core.reanchor();
             }
             Command::Reanchor => self.core.reanchor(),
@@ -564,13 +568,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 }
             }
             Command::SetParams(p) => {
-                // As `maobi_shared::ForceLoop::set_params`, with the reset through
-                // `maobi_fast` (the tick's copy, built for speed).
-                if self.core.brush_mut().set_params(p).is_err() {
+                if self.core.set_params(p).is_err() {
                     latch(Faults::PARAM_REJECTED);
-                } else {
-                    let pose = self.core.brush().handle();
-                    maobi_fast::force_loop_reset_brush(&mut self.core, pose);
                 }
             }
             Command::Dip(w) => self.core.brush_mut().dip(w),

@@ -322,7 +322,11 @@ impl SimCore {
     }
 
     fn status(&self, name: &str, connected: bool) -> DeviceStatus {
-        let faults = self.faults.iter_names().map(|(n, _)| n.to_string()).collect();
+        let faults = self
+            .faults
+            .iter_names()
+            .map(|(n, _)| n.to_string())
+            .collect();
         DeviceStatus {
             name: name.to_string(),
             connected,

@@ -470,3 +470,160 @@ pub fn stored_energy<S: Scalar>(brush: &Brush<S>, model: &ForceModel<S>, hand: V
         + f_n * f_n * extent / (2.0 * w_n)
         + weight * x[2] * 1e-3
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::force::{DEFAULT_FORCES, PHANTOM_OMNI};
+    use crate::guide::DEFAULT_GUIDE;
+    use crate::{presets, Fx, Quat};
+
+    fn at(x: f64, z: f64) -> Pose<Fx> {
+        Pose::new(Vec3::from_f64([x, 0.0, z]), Quat::IDENTITY)
+    }
+
+    fn new_loop() -> ForceLoop<Fx> {
+        ForceLoop::new(
+            presets::LARGE,
+            at(0.0, 45.0),
+            DEFAULT_FORCES,
+            PHANTOM_OMNI,
+            DEFAULT_GUIDE,
+        )
+        .unwrap()
+    }
+
+    const OPEN: Gate = Gate {
+        allowed: true,
+        faulted: false,
+    };
+
+    fn input(pose: Option<Pose<Fx>>, guide: Option<GuideInput<Fx>>) -> TickIn<Fx> {
+        TickIn {
+            pose,
+            guide,
+            gate: OPEN,
+        }
+    }
+
+    #[test]
+    fn built_in_place_is_the_same_loop() {
+        let mut slot = MaybeUninit::uninit();
+        let a = ForceLoop::new_in(
+            &mut slot,
+            presets::LARGE,
+            at(0.0, 45.0),
+            DEFAULT_FORCES,
+            PHANTOM_OMNI,
+            DEFAULT_GUIDE,
+        )
+        .unwrap();
+        let mut b = new_loop();
+        for k in 0..50 {
+            let i = input(Some(at(0.1 * k as f64, 45.0 - 0.2 * k as f64)), None);
+            assert_eq!(a.tick(i), b.tick(i));
+        }
+        assert_eq!(a.brush().spine(), b.brush().spine());
+    }
+
+    #[test]
+    fn a_jump_raises_a_fault_holds_the_forces_and_cuts_the_guide_that_tick() {
+        let mut fl = new_loop();
+        let lead = |x: f64| {
+            Some(GuideInput {
+                anchor: Vec3::from_f64([x, 3.0, 45.0]),
+                on: true,
+            })
+        };
+        for k in 0..400 {
+            let out = fl.tick(input(
+                Some(at(0.01 * k as f64, 45.0)),
+                lead(0.01 * k as f64),
+            ));
+            assert!(out.faults.is_empty());
+        }
+        assert!(fl.guide().active());
+        assert!(fl.output().last_command() != Vec3::ZERO);
+        let out = fl.tick(input(Some(at(20.0, 45.0)), lead(20.0)));
+        assert_eq!(out.faults, Faults::SENSOR_JUMP);
+        assert!(!fl.guide().active(), "the guide is cut at once");
+        assert_eq!(out.guide.force, Vec3::ZERO);
+        assert_eq!(out.wanted, out.forces.total);
+        assert_eq!(
+            out.command,
+            Vec3::ZERO,
+            "the Omni's stage ramps out at once"
+        );
+        // The brush did follow the pose (only the forces are held).
+        assert_eq!(fl.last_pose(), Some(at(20.0, 45.0)));
+        // A step within the limit is no fault.
+        let out = fl.tick(input(Some(at(29.9, 45.0)), None));
+        assert!(out.faults.is_empty());
+    }
+
+    #[test]
+    fn a_reanchor_places_the_brush_at_rest_without_a_jump() {
+        let mut fl = new_loop();
+        for k in 0..100 {
+            fl.tick(input(
+                Some(at(0.05 * k as f64, 45.0 - 0.1 * k as f64)),
+                None,
+            ));
+        }
+        fl.reanchor();
+        assert!(fl.reanchoring());
+        let far = at(60.0, 50.0);
+        let out = fl.tick(input(Some(far), None));
+        assert!(out.faults.is_empty());
+        assert!(!fl.reanchoring());
+        assert_eq!(fl.brush_ticks(), 0);
+        let rest = Brush::<Fx>::new(presets::LARGE, far).unwrap();
+        assert_eq!(fl.brush().spine(), rest.spine());
+    }
+
+    #[test]
+    fn a_tick_without_a_pose_holds_the_brush_and_the_guide() {
+        let mut fl = new_loop();
+        let sample = Some(GuideInput {
+            anchor: Vec3::from_f64([5.0, 0.0, 45.0]),
+            on: true,
+        });
+        for k in 0..100 {
+            fl.tick(input(Some(at(0.01 * k as f64, 45.0)), sample));
+        }
+        let spine = fl.brush().spine().to_vec();
+        let gain = fl.guide().guide().gain();
+        let last = fl.tick(input(Some(at(1.0, 45.0)), sample));
+        for _ in 0..3 * crate::guide::GUIDE_TIMEOUT_TICKS {
+            let out = fl.tick(input(None, None));
+            assert_eq!(out.guide.force, last.guide.force, "the guide's force holds");
+            assert_eq!(out.guide.source_mj, Fx::ZERO);
+        }
+        assert_ne!(
+            fl.brush().spine(),
+            &spine[..],
+            "the pose before did move it"
+        );
+        let held = fl.brush().spine().to_vec();
+        fl.tick(input(None, None));
+        assert_eq!(fl.brush().spine(), &held[..], "no pose, no brush tick");
+        assert!(fl.guide().guide().gain() >= gain);
+    }
+
+    #[test]
+    fn the_stored_energy_counts_the_guides_spring() {
+        let mut fl = new_loop();
+        let sample = Some(GuideInput {
+            anchor: Vec3::from_f64([5.0, 0.0, 45.0]),
+            on: true,
+        });
+        let out = fl.tick(input(Some(at(0.0, 45.0)), None));
+        assert!(out.faults.is_empty());
+        let alone = stored_energy(fl.brush(), fl.model(), Vec3::from_f64([0.0, 0.0, 45.0]));
+        assert_eq!(fl.stored_energy(), alone, "no guide, no spring");
+        for _ in 0..400 {
+            fl.tick(input(Some(at(0.0, 45.0)), sample));
+        }
+        assert!(fl.stored_energy() > alone + 1e-4, "5 mm of guide spring");
+    }
+}

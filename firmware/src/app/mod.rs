@@ -56,9 +56,9 @@ pub const LINK_TIMEOUT_TICKS: u32 = 100;
 /// which is not latched). Set by anyone, cleared only by the force loop on
 /// [`Command::ClearFaults`].
 pub static FAULTS: AtomicU32 = AtomicU32::new(0);
-/// Number of latched fault bits (bits 0 ..= 4 of [`Faults`]: up to
-/// [`Faults::WATCHDOG`]).
-pub const LATCHED_FAULTS: usize = 5;
+/// Number of latched fault bits: the protocol's [`Faults`] up to [`Faults::WATCHDOG`]
+/// (the bit above, [`Faults::NOT_CALIBRATED`], is reported, not latched).
+pub const LATCHED_FAULTS: usize = Faults::WATCHDOG.bits().trailing_zeros() as usize + 1;
 /// The tick at which each fault bit was last raised (for the events the link task sends).
 pub static FAULT_TICKS: [AtomicU32; LATCHED_FAULTS] =
     [const { AtomicU32::new(0) }; LATCHED_FAULTS];

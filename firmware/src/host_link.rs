@@ -256,7 +256,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn heard(&mut self) {
         let now = TICKS.load(Ordering::Relaxed);
         let faults = app::reported_faults();
-        if faults & app::fault::LINK_SILENT != 0 && !self.silence_reported {
+        if faults & LINK_SILENT != 0 && !self.silence_reported {
             self.silence_reported = true;
             let last = app::LAST_RX_TICK.load(Ordering::Relaxed);
             let silent_ms = now.wrapping_sub(last);
@@ -642,13 +642,13 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         let now = TICKS.load(Ordering::Relaxed);
         // NOT_CALIBRATED included: raised at start, cleared by a successful calibration.
         let faults = app::reported_faults();
-        if faults & app::fault::LINK_SILENT == 0 {
+        if faults & LINK_SILENT == 0 {
             self.silence_reported = false;
         }
         let raised = faults & !self.reported_faults;
         // While the link is silent nothing can be delivered: report on reconnection.
-        if raised != 0 && faults & app::fault::LINK_SILENT == 0 {
-            let t = (0..app::fault::COUNT)
+        if raised != 0 && faults & LINK_SILENT == 0 {
+            let t = (0..app::LATCHED_FAULTS)
                 .filter(|i| raised & (1 << i) != 0)
                 .map(|i| app::FAULT_TICKS[i].load(Ordering::Relaxed))
                 .max()
@@ -747,6 +747,9 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         true
     }
 }
+
+/// The link's own fault bit, as the latched bits ([`app::FAULTS`]) hold it.
+const LINK_SILENT: u32 = Faults::LINK_SILENT.bits() as u32;
 
 fn faults_of(bits: u32) -> Faults {
     Faults::from_bits_retain(bits as u16)

@@ -11,14 +11,15 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use maobi::device::endpoint::nothing_to_read_yet;
 use maobi::poses::PoseTrack;
-use maobi_shared::force::{ForceModel, DEFAULT_FORCES};
-use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
+use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::{GuideInput, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
     vec3_bits, BrushState, Buttons, Command, DeviceInfo, DeviceMsg, Event, EventKind, GuideSample,
     HostHello, HostMsg, HostRx, Message, PoseSample, ProtocolError, Telemetry, Vec3Bits, Version,
     DELIMITER,
 };
-use maobi_shared::{Brush, BrushParams, Fx, Scalar, Vec3};
+use maobi_shared::{Brush, BrushParams, ForceLoop, Fx, Scalar, Vec3};
 
 /// A byte stream to the device with a read timeout.
 pub trait Transport: Read + Write {
@@ -448,7 +449,7 @@ pub fn device_timeline(log: &StreamLog, base: u32, n: usize) -> Vec<(u32, Option
 /// The device's force on the hand before the output stage (the state's `haptics.force_n`:
 /// the force model's plus the guide's) at each tick of `timeline` ([`device_timeline`]), with
 /// the guide samples `guide` (by pose index; empty: unguided), as the firmware's force loop
-/// computes it: the first tick places the brush at rest at the first pose and restarts the
+/// computes it, by the same shared [`ForceLoop`]: the first tick places the brush at rest at the first pose and restarts the
 /// forces and the guide; a tick with a pose ticks the brush there and hands the guide that
 /// pose's sample; a tick without one holds the brush, the hand and the guide's force (the
 /// model's filters still tick).
@@ -473,8 +474,8 @@ pub struct MirrorTick {
     pub force_n: Vec3Bits,
     /// Energy the virtual environment stores after this tick (J): the force model's dragged
     /// mass and spring, the paper's penalty spring, the normal force's filter, the brush's
-    /// weight, and the guide's spring (as `maobi-shared`'s tests/guide.rs audits them; the
-    /// stylus's own kinetic energy is the hand simulation's).
+    /// weight, and the guide's spring (`ForceLoop::stored_energy`, as `maobi-shared`'s
+    /// audits count them; the stylus's own kinetic energy is the hand simulation's).
     pub stored_j: f64,
     /// Energy the guide's moving point supplied at this tick (J).
     pub sourced_j: f64,
@@ -491,54 +492,39 @@ pub fn mirror_force_loop(
     timeline: &[(u32, Option<usize>)],
 ) -> Result<BTreeMap<u32, MirrorTick>> {
     let first = *poses.first().context("no poses")?;
-    let mut brush = Brush::<Fx>::new(params, first)?;
-    let mut model = ForceModel::<Fx>::new(DEFAULT_FORCES).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut g = GuideStream::<Fx>::new(DEFAULT_GUIDE).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let k_c = DEFAULT_FORCES.constraint_stiffness as f64;
-    let w_n = DEFAULT_FORCES.normal_weight as f64;
-    let weight =
-        DEFAULT_FORCES.gravity_weight as f64 * DEFAULT_FORCES.brush_mass_g as f64 * 1e-3 * 9.806_65;
+    let mut fl = ForceLoop::<Fx>::new(params, first, DEFAULT_FORCES, PHANTOM_OMNI, DEFAULT_GUIDE)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // The stream's first pose places the brush at rest, as the device's re-anchor does.
+    fl.reanchor();
+    // The firmware's gate while the forces drive; the wanted force, the guide and the
+    // energies do not depend on it.
+    let gate = Gate {
+        allowed: true,
+        faulted: false,
+    };
     let mut out = BTreeMap::new();
-    let mut last: Option<Vec3<Fx>> = None;
-    for (i, &(tick, k)) in timeline.iter().enumerate() {
-        let (hand, sample) = match k {
+    for &(tick, k) in timeline {
+        let (pose, sample) = match k {
             Some(k) => {
                 let p = poses.get(k).context("a pose index past the stroke")?;
-                if i > 0 {
-                    brush.tick(*p);
-                }
-                (p.pos, guide.get(k).copied().flatten())
+                (Some(*p), guide.get(k).copied().flatten())
             }
-            None => (last.unwrap_or(first.pos), None),
+            None => (None, None),
         };
-        let step = last.map_or(Vec3::ZERO, |l| hand - l);
-        last = Some(hand);
-        let total = model.tick(&brush, hand).total;
-        let f = match k {
-            Some(_) => g.tick(sample, hand, step),
-            None => g.hold(),
-        };
-        let x = hand.to_f64();
-        let pen = (-x[2]).max(0.0) * 1e-3;
-        let skel = brush.skeleton();
-        let lowest = skel.iter().map(|v| v.z.to_f64()).fold(f64::MAX, f64::min);
-        let extent = ((skel[0].z.to_f64() - lowest) * 1e-3).max(1e-6);
-        let f_n = model.normal_state().to_f64();
-        let guide_stored = g.anchor().map_or(0.0, |a| g.guide().stored_energy(a, hand));
-        let stored_j = model.inertia_energy(hand)
-            + 0.5 * k_c * pen * pen
-            + f_n * f_n * extent / (2.0 * w_n)
-            + weight * x[2] * 1e-3
-            + guide_stored;
+        let t = fl.tick(TickIn {
+            pose,
+            guide: sample,
+            gate,
+        });
         out.insert(
             tick,
             MirrorTick {
                 pose: k,
-                force_n: vec3_bits(total + f.force),
-                stored_j,
-                sourced_j: f.source_mj.to_f64() * 1e-3,
-                guide_distance_mm: f.distance_mm.to_f64(),
-                guide_gain: g.guide().gain().to_f64(),
+                force_n: vec3_bits(t.wanted),
+                stored_j: fl.stored_energy(),
+                sourced_j: t.guide.source_mj.to_f64() * 1e-3,
+                guide_distance_mm: t.guide.distance_mm.to_f64(),
+                guide_gain: fl.guide().guide().gain().to_f64(),
             },
         );
     }

@@ -1,9 +1,12 @@
-//! Runs the brush model over a resampled pose track, one 1 ms tick at a time.
+//! Runs the brush model over a resampled pose track, one 1 ms tick at a time, in the shared
+//! force loop (`maobi_shared::ForceLoop`) that every device runs.
 
 use std::fmt;
 
-use maobi_shared::force::{ForceModel, Forces, DEFAULT_FORCES};
-use maobi_shared::{Brush, BrushParams, BrushScalar, Fx, Pose, Scalar};
+use maobi_shared::force::{Forces, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::DEFAULT_GUIDE;
+use maobi_shared::{Brush, BrushParams, BrushScalar, ForceLoop, Fx, Pose, Scalar};
 
 use crate::poses::PoseTrack;
 
@@ -58,29 +61,35 @@ pub fn simulate<S: BrushScalar>(
 ) -> anyhow::Result<usize> {
     let mut poses = track.resample();
     let first = poses.next().expect("a pose track has at least one tick");
-    let mut brush = Brush::<S>::new(params, first.cast())?;
-    let mut model = ForceModel::<S>::new(DEFAULT_FORCES)?;
-    let forces = model.tick(&brush, first.pos.cast());
-    on_tick(&Tick {
-        k: 0,
-        t: track.tick_time(0),
-        pose: first,
-        brush: &brush,
-        forces,
-    })?;
+    let mut fl = ForceLoop::<S>::new(
+        params,
+        first.cast(),
+        DEFAULT_FORCES,
+        PHANTOM_OMNI,
+        DEFAULT_GUIDE,
+    )?;
+    // Tick 0 places the brush at rest at the first pose; the forces are the model's alone
+    // (no guide, the output stage never drives).
+    fl.reanchor();
+    let gate = Gate {
+        allowed: false,
+        faulted: false,
+    };
     let mut k = 0;
-    for pose in poses {
-        k += 1;
-        let target: Pose<S> = pose.cast();
-        brush.tick(target);
-        let forces = model.tick(&brush, target.pos);
+    for pose in std::iter::once(first).chain(poses) {
+        let out = fl.tick(TickIn {
+            pose: Some(pose.cast()),
+            guide: None,
+            gate,
+        });
         on_tick(&Tick {
             k,
             t: track.tick_time(k),
             pose,
-            brush: &brush,
-            forces,
+            brush: fl.brush(),
+            forces: out.forces,
         })?;
+        k += 1;
     }
-    Ok(k + 1)
+    Ok(k)
 }

@@ -28,9 +28,11 @@ use maobi::phantom::loader::{default_candidates, HdLib, Source, HD_LIB_NAME};
 use maobi::phantom::servo::{pose_of_transform, transform_of_pose, Mapping, ServoCore};
 use maobi::phantom::{Bridge, BridgeOptions, Stopped};
 use maobi::poses::PoseTrack;
-use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force::{DeviceLimits, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::DEFAULT_GUIDE;
 use maobi_shared::protocol::{BrushState, DeviceMsg, HostHello, HostMsg, HostRx, Message};
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar};
+use maobi_shared::{presets, ForceLoop, Fx, Pose, Quat, Scalar};
 
 mod common;
 
@@ -112,31 +114,34 @@ fn write_pose_csv(rows: &[DevicePose], path: &Path) {
 }
 
 /// The forces the shared model commands for these device poses, tick by tick, computed
-/// here from the model's own types (the stand-in holds the last pose after the script).
+/// here by the shared force loop run directly (the stand-in holds the last pose after the
+/// script).
 fn model_forces(rows: &[DevicePose], limits: DeviceLimits, ticks: usize) -> Vec<[f64; 3]> {
     let params = presets::by_name("large").unwrap();
     let map = Mapping::default();
-    let mut forces = ForceModel::<Fx>::new(DEFAULT_FORCES).unwrap();
-    let mut stage = OutputStage::<Fx>::new(limits).unwrap();
-    stage.enable();
-    let mut brush: Option<Brush<Fx>> = None;
-    let mut last = maobi_shared::Vec3::<Fx>::ZERO;
-    let mut out = Vec::new();
-    for k in 0..ticks {
+    let pose_at = |k: usize| -> Pose<Fx> {
         let (p, q) = rows[k.min(rows.len() - 1)];
         let (p, q) = pose_of_transform(&transform_of_pose(p, q)).unwrap();
-        let pose: Pose<Fx> = map.to_paper(p, q).cast();
-        let b = brush.get_or_insert_with(|| {
-            last = pose.pos;
-            Brush::new(params, pose).unwrap()
-        });
-        b.tick(pose);
-        let f = forces.tick(b, pose.pos);
-        let cmd = stage.apply(f.total, pose.pos - last);
-        last = pose.pos;
-        out.push(Mapping::force_to_device(cmd.to_f64()));
-    }
-    out
+        map.to_paper(p, q).cast()
+    };
+    // The brush placed at rest at the first pose, the forces on from the first tick.
+    let mut fl =
+        ForceLoop::<Fx>::new(params, pose_at(0), DEFAULT_FORCES, limits, DEFAULT_GUIDE).unwrap();
+    fl.reanchor();
+    let gate = Gate {
+        allowed: true,
+        faulted: false,
+    };
+    (0..ticks)
+        .map(|k| {
+            let out = fl.tick(TickIn {
+                pose: Some(pose_at(k)),
+                guide: None,
+                gate,
+            });
+            Mapping::force_to_device(out.command.to_f64())
+        })
+        .collect()
 }
 
 fn read_record(path: &Path) -> Vec<[f64; 3]> {
@@ -678,18 +683,26 @@ fn servo_step_cost() {
     let fx_us = t.elapsed().as_secs_f64() * 1e6 / (reps * transforms.len()) as f64;
 
     let poses: Vec<Pose<f32>> = paper.iter().map(|p| p.cast()).collect();
-    let mut brush = Brush::<f32>::new(params, poses[0]).unwrap();
-    let mut forces = ForceModel::<f32>::new(DEFAULT_FORCES).unwrap();
-    let mut stage = OutputStage::<f32>::new(PHANTOM_OMNI).unwrap();
-    stage.enable();
+    let mut fl = ForceLoop::<f32>::new(
+        params,
+        poses[0],
+        DEFAULT_FORCES,
+        PHANTOM_OMNI,
+        DEFAULT_GUIDE,
+    )
+    .unwrap();
+    let gate = Gate {
+        allowed: true,
+        faulted: false,
+    };
     let t = Instant::now();
     for _ in 0..reps {
-        let mut last = poses[0].pos;
         for p in &poses {
-            brush.tick(*p);
-            let f = forces.tick(&brush, p.pos);
-            std::hint::black_box(stage.apply(f.total, p.pos - last));
-            last = p.pos;
+            std::hint::black_box(fl.tick(TickIn {
+                pose: Some(*p),
+                guide: None,
+                gate,
+            }));
         }
     }
     let f32_us = t.elapsed().as_secs_f64() * 1e6 / (reps * poses.len()) as f64;

@@ -208,8 +208,7 @@ impl<S: BrushScalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
-        b.prepare_pivots();
-        b.reset(pose);
+        b.place(pose);
         Ok(b)
     }
 
@@ -223,16 +222,21 @@ impl<S: BrushScalar> Brush<S> {
         pose: Pose<S>,
     ) -> Result<&mut Self, ParamError> {
         let b = slot.write(Self::unplaced(params, pose)?);
-        b.prepare_pivots();
-        b.reset(pose);
+        b.place(pose);
         Ok(b)
+    }
+
+    /// Places a brush from [`Self::unplaced`] at rest at `pose`.
+    pub(crate) fn place(&mut self, pose: Pose<S>) {
+        self.prepare_pivots();
+        self.reset(pose);
     }
 
     /// The validated parameters and their derived coefficients, everything else zero:
     /// [`Self::reset`] places it. Inlined into both constructors so that `new_in` writes
     /// the fields straight into its slot.
     #[inline(always)]
-    fn unplaced(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
+    pub(crate) fn unplaced(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         params.validate()?;
         Ok(Brush {
             params,

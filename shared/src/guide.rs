@@ -359,6 +359,54 @@ impl<S: Scalar> GuideStream<S> {
     }
 }
 
+/// A stroke's moving point played into a device's guide, one point per tick: each point in
+/// turn (the last one lets go: `on = false`), then the point reached, held with `on = false`
+/// while the guide fades out. The Phantom bridge's servo loop, the GUI's built-in device and
+/// the host streaming to a device play their strokes with it.
+#[derive(Clone, Debug)]
+pub struct GuidePlay<P> {
+    points: P,
+    next: usize,
+}
+
+impl<P> GuidePlay<P> {
+    /// Plays `points` (one per tick) from the next tick.
+    pub fn new(points: P) -> Self {
+        GuidePlay { points, next: 0 }
+    }
+}
+
+impl<P> GuidePlay<P> {
+    /// Stops playing: the point reached is held while the guide fades out.
+    pub fn stop<S>(&mut self)
+    where
+        P: AsRef<[Vec3<S>]>,
+    {
+        self.next = self.points.as_ref().len();
+    }
+
+    /// This tick's sample for a guide now in the state `stream`; `None` once the stroke is
+    /// over and the guide has faded out (the play is done).
+    pub fn next_sample<S: Scalar>(&mut self, stream: &GuideStream<S>) -> Option<GuideInput<S>>
+    where
+        P: AsRef<[Vec3<S>]>,
+    {
+        let points = self.points.as_ref();
+        let k = self.next;
+        if let Some(&anchor) = points.get(k) {
+            self.next += 1;
+            return Some(GuideInput {
+                anchor,
+                on: k + 1 < points.len(),
+            });
+        }
+        match stream.anchor() {
+            Some(anchor) if stream.active() => Some(GuideInput { anchor, on: false }),
+            _ => None,
+        }
+    }
+}
+
 /// `v` scaled down to length `max` if it is longer.
 fn clamp_norm<S: Scalar>(v: Vec3<S>, max: S) -> Vec3<S> {
     let n2 = v.norm2();

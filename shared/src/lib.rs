@@ -12,6 +12,8 @@
 //! * [`footprint`]: the part of the surface that touches the paper, as convex polygons.
 //! * [`energy`]: the brush's mechanical energy, for stability checks.
 //! * [`force`]: the forces for the hand (Liang 4.2.3) and the output stage that keeps them safe.
+//! * [`force_loop`]: the force loop every device runs: pose, brush, force model, guide,
+//!   output stage and the sensor-jump check, one tick at a time.
 //! * [`kinematics`]: the reference pen's arm and gimbal, from raw sensor readings to the pose
 //!   and from forces to motor commands.
 //! * [`pen_io`]: the physical pen's board logic without the hardware: H-bridge duty from a
@@ -37,6 +39,7 @@ pub mod brush;
 pub mod energy;
 pub mod footprint;
 pub mod force;
+pub mod force_loop;
 pub mod guide;
 pub mod hand;
 pub mod kinematics;
@@ -52,6 +55,7 @@ pub mod vec;
 pub mod wide;
 
 pub use brush::{Brush, BrushScalar, Layer};
+pub use force_loop::ForceLoop;
 pub use params::{BrushParams, ParamError, ParamId};
 pub use quat::{Pose, Quat};
 pub use scalar::{Fx, Scalar};

@@ -7,6 +7,7 @@
 //! stage (credited with the guide's source energy), held over the tick on the hand.
 
 use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::stored_energy;
 use maobi_shared::guide::{Guide, DEFAULT_GUIDE};
 use maobi_shared::hand::{HandParams, Script, SimHand};
 use maobi_shared::stroke::orient::from_tilt_azimuth;
@@ -68,11 +69,6 @@ fn run(
     let mut guide = Guide::<Fx>::new(DEFAULT_GUIDE).unwrap();
     let mut hand = SimHand::new(hand_params, p0);
 
-    let k_c = DEFAULT_FORCES.constraint_stiffness as f64;
-    let w_n = DEFAULT_FORCES.normal_weight as f64;
-    let weight =
-        DEFAULT_FORCES.gravity_weight as f64 * DEFAULT_FORCES.brush_mass_g as f64 * 1e-3 * 9.806_65;
-
     let mut cmd = [0.0; 3];
     let mut last_hand = Vec3::<Fx>::from_f64(p0);
     let mut last_anchor = Vec3::<Fx>::from_f64(p0);
@@ -128,16 +124,8 @@ fn run(
         }
 
         // The audit: W_in + sourced >= E(t1) - E(t0) - tol over every window.
-        let pen = (-x[2]).max(0.0) * 1e-3;
-        let skel = brush.skeleton();
-        let lowest = skel.iter().map(|v| v.z.to_f64()).fold(f64::MAX, f64::min);
-        let extent = ((skel[0].z.to_f64() - lowest) * 1e-3).max(1e-6);
-        let f_n = model.normal_state().to_f64();
         let stored = hand.stylus_kinetic_energy()
-            + model.inertia_energy(p)
-            + 0.5 * k_c * pen * pen
-            + f_n * f_n * extent / (2.0 * w_n)
-            + weight * x[2] * 1e-3
+            + stored_energy(&brush, &model, p)
             + guide.stored_energy(anchor, p);
         if k < 600 {
             continue; // the stage's own ramp-in, as in tests/passivity.rs

@@ -26,8 +26,9 @@
 //! clamps only ever scale the force down and are tested on their own in `tests/forces.rs`.
 
 use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::stored_energy;
 use maobi_shared::hand::{HandParams, Script, SimHand};
-use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Vec3};
 
 /// Ticks per preset (1,000 s of writing).
 const TICKS: usize = 1_000_000;
@@ -76,11 +77,6 @@ fn run(name: &str, params: BrushParams, seed: u64, ticks: usize) -> Audit {
     let mut script = Script::new(seed, start, (-3.0, reach + 8.0));
     script.xy_range = 30.0;
 
-    let k_c = DEFAULT_FORCES.constraint_stiffness as f64;
-    let w_n = DEFAULT_FORCES.normal_weight as f64;
-    let weight =
-        DEFAULT_FORCES.gravity_weight as f64 * DEFAULT_FORCES.brush_mass_g as f64 * 1e-3 * 9.806_65;
-
     let mut cmd = [0.0; 3];
     let mut last = Vec3::<Fx>::from_f64(start);
     let mut best = f64::MIN; // running max of W_in - E
@@ -109,17 +105,7 @@ fn run(name: &str, params: BrushParams, seed: u64, ticks: usize) -> Audit {
             .peak_force
             .max((cmd[0] * cmd[0] + cmd[1] * cmd[1] + cmd[2] * cmd[2]).sqrt());
 
-        // Stored energy.
-        let pen = (-s[2]).max(0.0) * 1e-3;
-        let skel = brush.skeleton();
-        let lowest = skel.iter().map(|v| v.z.to_f64()).fold(f64::MAX, f64::min);
-        let extent = ((skel[0].z.to_f64() - lowest) * 1e-3).max(1e-6);
-        let f_n = model.normal_state().to_f64();
-        let stored = hand.stylus_kinetic_energy()
-            + model.inertia_energy(p)
-            + 0.5 * k_c * pen * pen
-            + f_n * f_n * extent / (2.0 * w_n)
-            + weight * s[2] * 1e-3;
+        let stored = hand.stylus_kinetic_energy() + stored_energy(&brush, &model, p);
         if k < AUDIT_FROM {
             continue;
         }

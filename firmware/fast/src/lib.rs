@@ -6,13 +6,28 @@
 //! rest of the image is built for size (`firmware/Cargo.toml`: both images, `release` for
 //! QEMU and `pen` for the Black Pill, at `opt-level = "z"`, this crate at 2);
 //! `#[inline(never)]` keeps link-time optimisation from pulling them back into the
-//! size-optimised callers. `brush_reset` is here too: the force loop resets the brush within
-//! a tick (a re-anchor, new parameters), so it must be as quick as the tick it shares.
+//! size-optimised callers. The shared force loop's tick ([`force_loop_tick`]: brush, force
+//! model, output stage) is one entry point; the guide's tick and the brush's reset come from
+//! the caller's size-optimised code ([`TickParts`]), as do the brush's construction and new
+//! parameters: built for speed they would cost several times the flash, and the reset runs
+//! only in a tick without a brush tick (a re-anchor) or on a command. The brush's parts
+//! have their own entry points for the bench's per-part figures.
 #![no_std]
 
-use maobi_shared::force::{ForceModel, Forces, OutputStage};
+use maobi_shared::force_loop::{TickIn, TickOut, TickParts};
 use maobi_shared::kinematics::{ArmTrig, Joints, KinematicsError, Pen, RawReadings};
-use maobi_shared::{Brush, Fx, Pose, Scalar, Vec3};
+use maobi_shared::{Brush, ForceLoop, Fx, Pose, Scalar, Vec3};
+
+/// `ForceLoop::tick_with`: one 1 ms tick of the shared force loop (pose, brush, forces,
+/// guide, output stage, sensor-jump check), with the caller's guide tick and brush reset.
+#[inline(never)]
+pub fn force_loop_tick(
+    fl: &mut ForceLoop<Fx>,
+    input: TickIn<Fx>,
+    parts: &TickParts<Fx>,
+) -> TickOut<Fx> {
+    fl.tick_with(input, parts)
+}
 
 /// `Brush::tick`: every substep and the surface update of one 1 ms tick.
 #[inline(never)]
@@ -30,35 +45,6 @@ pub fn brush_substep(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
 #[inline(never)]
 pub fn brush_end_tick(brush: &mut Brush<Fx>) {
     brush.end_tick();
-}
-
-/// `Brush::reset`: the brush at rest at `pose`.
-#[inline(never)]
-pub fn brush_reset(brush: &mut Brush<Fx>, pose: Pose<Fx>) {
-    brush.reset(pose);
-}
-
-/// `ForceModel::tick`: the force on the hand for the brush after its tick.
-#[inline(never)]
-pub fn force_model_tick(
-    model: &mut ForceModel<Fx>,
-    brush: &Brush<Fx>,
-    hand: Vec3<Fx>,
-) -> Forces<Fx> {
-    model.tick(brush, hand)
-}
-
-/// `OutputStage::apply_with_source`: passivity, ramps and limits on the wanted force, with
-/// the energy a guide's moving point supplied this tick credited to the passivity observer
-/// (0 when no guide leads).
-#[inline(never)]
-pub fn output_stage_apply(
-    out: &mut OutputStage<Fx>,
-    wanted: Vec3<Fx>,
-    hand_step: Vec3<Fx>,
-    source_mj: Fx,
-) -> Vec3<Fx> {
-    out.apply_with_source(wanted, hand_step, source_mj)
 }
 
 /// `Pen::joints` and `Pen::forward_with_trig`: the ferrule's pose from raw readings, with

@@ -12,7 +12,7 @@
 use core::fmt::Write;
 
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
-use maobi_shared::{presets, Brush, Fx, ParamId, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use maobi_shared::kinematics::{KinematicsError, Pen, PenConfig, RawReadings};
 
@@ -189,11 +189,8 @@ impl Stats {
 fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
     fl: &mut ForceLoop<ScriptPen, M, W>,
 ) {
-    // Through `maobi_fast`, as the force loop does: one copy of the brush's code in the
-    // image, and the bench measures that copy.
-    maobi_fast::brush_reset(&mut fl.brush, stroke_pose(0));
-    fl.forces.reset();
-    fl.last_pose = None;
+    fl.core.reset_brush(stroke_pose(0));
+    fl.core.forget_pose();
     fl.pen.restart();
     super::FAULTS.store(0, core::sync::atomic::Ordering::SeqCst);
     // A configuration that allows forces (the link sets this from the stored one): without
@@ -219,24 +216,27 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     let _ = writeln!(out, "BENCH overhead_counts={overhead}");
 
     let params = presets::LARGE;
-    let Ok(brush) = Brush::<Fx>::new(params, stroke_pose(0)) else {
-        let _ = writeln!(out, "BENCH error=invalid_preset");
-        return;
-    };
     let Some(pen) = ScriptPen::new() else {
         let _ = writeln!(out, "BENCH error=invalid_pen_config");
         return;
     };
-    let Some(mut fl) = ForceLoop::new(brush, pen, NullMotors([Fx::ZERO; 3]), NullWatchdog, rx)
-    else {
-        let _ = writeln!(out, "BENCH error=invalid_force_model");
+    let Some(mut fl) = ForceLoop::new(
+        params,
+        stroke_pose(0),
+        pen,
+        NullMotors([Fx::ZERO; 3]),
+        NullWatchdog,
+        rx,
+    ) else {
+        let _ = writeln!(out, "BENCH error=invalid_preset_or_force_model");
         return;
     };
     super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
 
     for substeps in [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1] {
         if fl
-            .brush
+            .core
+            .brush_mut()
             .set_param(ParamId::SubstepsPerTick, substeps as f32)
             .is_err()
         {
@@ -254,19 +254,19 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
             fl.tick();
             let b = clk.now();
             st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
-            contact_max = contact_max.max(fl.brush.contacts());
+            contact_max = contact_max.max(fl.core.brush().contacts());
             forces_on += u32::from(fl.enabled);
         }
         let _ = writeln!(
             out,
             "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={} forces_on={forces_on}",
-            fl.brush.len(),
+            fl.core.brush().len(),
             st.n,
             st.min,
             st.mean(),
             st.max,
             st.max_at,
-            fl.brush.solves_exactly() as u8,
+            fl.core.brush().solves_exactly() as u8,
             fl.pen.unreachable,
         );
     }
@@ -277,7 +277,8 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     // ticks ahead, so the guide leads from the first tick on). The difference is the guide's
     // cost on the force path.
     let _ = fl
-        .brush
+        .core
+        .brush_mut()
         .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
     let side = Vec3::from_f64([0.0, 3.0, 0.0]);
     let mut base = Stats::default();
@@ -296,7 +297,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
             let b = clk.now();
             let stats = if guided { &mut st } else { &mut base };
             stats.add(k, b.wrapping_sub(a).saturating_sub(overhead));
-            guiding += fl.forces.guiding() as u32;
+            guiding += fl.core.guide().active() as u32;
         }
     }
     // The guide alone (GuideStream::tick with a sample, at full gain after the run above's
@@ -332,21 +333,21 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         base.mean(),
         base.max,
     );
-    fl.forces.reset();
 
     // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
-    maobi_fast::brush_reset(&mut fl.brush, stroke_pose(0));
+    fl.core.reset_brush(stroke_pose(0));
+    let brush = fl.core.brush_mut();
     for k in 1..=300 {
-        maobi_fast::brush_tick(&mut fl.brush, stroke_pose(k));
+        maobi_fast::brush_tick(brush, stroke_pose(k));
     }
     let mut sub = Stats::default();
     let mut end = Stats::default();
     for k in 301..=400 {
         let p = stroke_pose(k);
         let a = clk.now();
-        maobi_fast::brush_substep(&mut fl.brush, p);
+        maobi_fast::brush_substep(brush, p);
         let b = clk.now();
-        maobi_fast::brush_end_tick(&mut fl.brush);
+        maobi_fast::brush_end_tick(brush);
         let c = clk.now();
         sub.add(k, b.wrapping_sub(a).saturating_sub(overhead));
         end.add(k, c.wrapping_sub(b).saturating_sub(overhead));
@@ -358,7 +359,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         sub.max,
         end.mean(),
         end.max,
-        fl.brush.contacts(),
+        brush.contacts(),
     );
     // The pen's kinematics, as a tick on a physical pen runs them: the pose from the sensors'
     // readings (`Pen::joints`, `Pen::forward`) and the torques for a force (`J^T F`), over

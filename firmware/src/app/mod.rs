@@ -22,7 +22,6 @@
 pub mod arith;
 #[cfg(feature = "board-qemu")]
 pub mod bench;
-pub mod force;
 pub mod mailbox;
 // The pose of a pen with its own sensors: compiled (and checked) for every board, used by
 // the physical ones.
@@ -36,10 +35,12 @@ use core::ptr::addr_of_mut;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_sync::waitqueue::AtomicWaker;
-use maobi_shared::guide::GuideInput;
+use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn, TickParts};
+use maobi_shared::guide::{GuideInput, DEFAULT_GUIDE};
 use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::{BrushState, Faults, Haptics, SensorReport};
-use maobi_shared::{Brush, BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
+use maobi_shared::{BrushParams, Fx, ParamId, Pose, Scalar, Vec3};
 
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 pub use mailbox::Mailbox;
@@ -47,38 +48,20 @@ pub use mailbox::Mailbox;
 pub use sensor_pen::SensorPen;
 pub use slot::ForceLoopSlot;
 
-/// Latched fault bits (the same bits as the wire protocol's `Faults`).
-pub mod fault {
-    /// Two consecutive pen poses further apart than [`super::SENSOR_JUMP_MM`].
-    pub const SENSOR_JUMP: u32 = 1 << 0;
-    /// A force-loop tick did not finish before the next one was due.
-    pub const LOOP_OVERRUN: u32 = 1 << 1;
-    /// No valid frame from the host for [`super::LINK_TIMEOUT_TICKS`] ticks.
-    pub const LINK_SILENT: u32 = 1 << 2;
-    /// The force loop's brush rejected a parameter the link task had validated.
-    pub const PARAM_REJECTED: u32 = 1 << 3;
-    /// The force loop stopped (caught by the watchdog or the supervisor task).
-    pub const LOOP_STALLED: u32 = 1 << 4;
-    /// Number of latched fault bits.
-    pub const COUNT: usize = 5;
-    /// Not a latched bit: the pen lacks zeros that hold ([`super::NOT_CALIBRATED`]),
-    /// reported beside the latched bits while that lasts ([`super::reported_faults`]). The
-    /// protocol's `Faults::NOT_CALIBRATED`.
-    pub const NOT_CALIBRATED: u32 = 1 << 5;
-}
-
-/// A pose step larger than this between two ticks is a sensor fault (mm). A 500 mm/s stroke
-/// moves 0.5 mm per tick.
-pub const SENSOR_JUMP_MM: usize = 10;
 /// The link is declared silent after this many ticks without a valid frame (100 ms of
 /// model time).
 pub const LINK_TIMEOUT_TICKS: u32 = 100;
 
-/// Latched faults (bits of [`fault`]). Set by anyone, cleared only by the force loop on
+/// Latched faults (bits of the protocol's [`Faults`], all but [`Faults::NOT_CALIBRATED`],
+/// which is not latched). Set by anyone, cleared only by the force loop on
 /// [`Command::ClearFaults`].
 pub static FAULTS: AtomicU32 = AtomicU32::new(0);
+/// Number of latched fault bits: the protocol's [`Faults`] up to [`Faults::WATCHDOG`]
+/// (the bit above, [`Faults::NOT_CALIBRATED`], is reported, not latched).
+pub const LATCHED_FAULTS: usize = Faults::WATCHDOG.bits().trailing_zeros() as usize + 1;
 /// The tick at which each fault bit was last raised (for the events the link task sends).
-pub static FAULT_TICKS: [AtomicU32; fault::COUNT] = [const { AtomicU32::new(0) }; fault::COUNT];
+pub static FAULT_TICKS: [AtomicU32; LATCHED_FAULTS] =
+    [const { AtomicU32::new(0) }; LATCHED_FAULTS];
 /// Force-loop ticks since boot (the supervisor watches it advance).
 pub static TICKS: AtomicU32 = AtomicU32::new(0);
 /// The tick at which the link task last received a valid frame.
@@ -144,23 +127,24 @@ pub static SENSORS: Mailbox<Option<SensorReport>> = Mailbox::new(None);
 /// The pen lacks zeros that hold (`pen_io::Readiness::not_calibrated`, set by the link task
 /// with [`CONFIG_OK`]): no configuration, none calibrated, or (incremental encoders) not
 /// calibrated since power-on. Set at boot until the link task has loaded the store.
-/// Reported as [`fault::NOT_CALIBRATED`] until `Calibrate` succeeds; `ClearFaults` does not
+/// Reported as [`Faults::NOT_CALIBRATED`] until `Calibrate` succeeds; `ClearFaults` does not
 /// clear it (its cause is not gone). [`CONFIG_OK`], not this flag, keeps the motors off.
 pub static NOT_CALIBRATED: AtomicBool = AtomicBool::new(true);
 
 /// The fault bits the host is told about: the latched [`FAULTS`] and, while it lasts,
-/// [`fault::NOT_CALIBRATED`].
+/// [`Faults::NOT_CALIBRATED`].
 pub fn reported_faults() -> u32 {
     let not_calibrated = if NOT_CALIBRATED.load(Ordering::SeqCst) {
-        fault::NOT_CALIBRATED
+        u32::from(Faults::NOT_CALIBRATED.bits())
     } else {
         0
     };
     FAULTS.load(Ordering::SeqCst) | not_calibrated
 }
 
-/// Latches fault bits (any context) and notes the tick of the newly raised ones.
-pub fn latch(bits: u32) {
+/// Latches faults (any context) and notes the tick of the newly raised ones.
+pub fn latch(faults: Faults) {
+    let bits = u32::from(faults.bits());
     let old = FAULTS.fetch_or(bits, Ordering::SeqCst);
     let new = bits & !old;
     let now = TICKS.load(Ordering::Relaxed);
@@ -329,48 +313,57 @@ pub fn state_due(now: u32, hz: u32) -> bool {
     n * hz / 1000 != n.wrapping_sub(1) * hz / 1000 || n == 0
 }
 
+/// The parts of the shared loop's tick built here, for size ([`TickParts`]): the guide's
+/// tick and the brush's reset, the same copies the commands use.
+const PARTS: TickParts<Fx> = TickParts::here();
+
 /// The force loop's state. Owned by the highest-priority context.
+///
+/// The brush, the force model, the guide, the output stage and the sensor-jump check are
+/// the shared [`maobi_shared::ForceLoop`] (`core`), the same loop the host's simulators and
+/// its mirror of this firmware run; what is the board's and the executor's is here: the pen,
+/// the motors, the watchdog, the command queue, the latched faults and the forces switch it
+/// turns into the core's gate, the snapshot, a bring-up nudge.
 pub struct ForceLoop<P, M, W> {
-    pub brush: Brush<Fx>,
+    pub core: maobi_shared::ForceLoop<Fx>,
     pen: P,
     motors: M,
     watchdog: W,
     cmds: CmdConsumer,
-    brush_tick: u32,
     pose_gaps: u32,
-    last_pose: Option<Pose<Fx>>,
-    /// The next pose places the brush at rest rather than dragging it there.
-    reanchor: bool,
     /// [`Command::InjectOverrun`] arrived: [`run_tick`] overruns this tick.
     #[cfg(feature = "test-hooks")]
     inject_overrun: bool,
-    forces: force::HandForces,
+    /// The wanted force of the last tick (the state frame's `haptics.force_n`).
     force: [Fx; 3],
     enabled: bool,
-    jump2: Fx,
     /// A bring-up nudge in progress: the torques and the ticks left.
     nudge: Option<([Fx; 3], u32)>,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
-    /// None if the shared force model's defaults are invalid (they are tested not to be).
-    /// The boards build theirs in place ([`Self::new_in`]); the bench builds one here.
+    /// None if the parameters or the shared force model's defaults are invalid (they are
+    /// tested not to be). The boards build theirs in place ([`Self::new_in`]); the bench
+    /// builds one here.
     #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))]
-    pub fn new(brush: Brush<Fx>, pen: P, motors: M, watchdog: W, cmds: CmdConsumer) -> Option<Self> {
+    pub fn new(
+        params: BrushParams,
+        pose: Pose<Fx>,
+        pen: P,
+        motors: M,
+        watchdog: W,
+        cmds: CmdConsumer,
+    ) -> Option<Self> {
         let mut slot = MaybeUninit::<Self>::uninit();
-        let p = slot.as_mut_ptr();
-        // SAFETY: a field of the slot's storage; `init_rest` writes all the others.
-        unsafe {
-            addr_of_mut!((*p).brush).write(brush);
-            Self::init_rest(p, pen, motors, watchdog, cmds)?;
-            Some(slot.assume_init())
-        }
+        Self::new_in(&mut slot, params, pose, pen, motors, watchdog, cmds)?;
+        // SAFETY: `new_in` returned `Some`, so it initialised the whole slot.
+        Some(unsafe { slot.assume_init() })
     }
 
-    /// [`Self::new`] with the brush built from `params` at `pose` ([`Brush::new`]), all of
-    /// it built in `slot` (a static's storage): the force loop is kilobytes (its brush most of it), and `new`
-    /// moves it and its brush through the stack, which the board pays for at boot in stack
-    /// it must reserve. None if the parameters or the force model's defaults are invalid.
+    /// [`Self::new`] with the brush built from `params` at `pose`, all of it built in `slot`
+    /// (a static's storage): the force loop is kilobytes (its brush most of it), and moving
+    /// it through the stack costs the board at boot in stack it must reserve. None if the
+    /// parameters or the force model's defaults are invalid.
     pub fn new_in(
         slot: &mut MaybeUninit<Self>,
         params: BrushParams,
@@ -381,30 +374,30 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         cmds: CmdConsumer,
     ) -> Option<&mut Self> {
         let p = slot.as_mut_ptr();
-        // SAFETY: the `brush` field of the slot's storage, seen as the uninitialised brush it
+        // SAFETY: the `core` field of the slot's storage, seen as the uninitialised loop it
         // is (`MaybeUninit<T>` has `T`'s layout); `init_rest` writes all the other fields, so
         // the whole slot is initialised when it is assumed to be.
         unsafe {
-            let brush = &mut *addr_of_mut!((*p).brush).cast::<MaybeUninit<Brush<Fx>>>();
-            Brush::new_in(brush, params, pose).ok()?;
-            Self::init_rest(p, pen, motors, watchdog, cmds)?;
+            let core = &mut *addr_of_mut!((*p).core).cast::<MaybeUninit<maobi_shared::ForceLoop<Fx>>>();
+            maobi_shared::ForceLoop::new_in(
+                core,
+                params,
+                pose,
+                DEFAULT_FORCES,
+                PHANTOM_OMNI,
+                DEFAULT_GUIDE,
+            )
+            .ok()?;
+            Self::init_rest(p, pen, motors, watchdog, cmds);
             Some(slot.assume_init_mut())
         }
     }
 
-    /// Writes every field but the brush, the motors disabled; None (nothing written) if the
-    /// force model's defaults are invalid.
+    /// Writes every field but the core, the motors disabled.
     ///
     /// # Safety
     /// `p` points to storage for a force loop, valid for writes.
-    unsafe fn init_rest(
-        p: *mut Self,
-        pen: P,
-        mut motors: M,
-        watchdog: W,
-        cmds: CmdConsumer,
-    ) -> Option<()> {
-        let forces = force::HandForces::new()?;
+    unsafe fn init_rest(p: *mut Self, pen: P, mut motors: M, watchdog: W, cmds: CmdConsumer) {
         motors.disable();
         // SAFETY: fields of the storage the caller vouches for.
         unsafe {
@@ -412,16 +405,11 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             addr_of_mut!((*p).motors).write(motors);
             addr_of_mut!((*p).watchdog).write(watchdog);
             addr_of_mut!((*p).cmds).write(cmds);
-            addr_of_mut!((*p).brush_tick).write(0);
             addr_of_mut!((*p).pose_gaps).write(0);
-            addr_of_mut!((*p).last_pose).write(None);
-            addr_of_mut!((*p).reanchor).write(false);
             #[cfg(feature = "test-hooks")]
             addr_of_mut!((*p).inject_overrun).write(false);
-            addr_of_mut!((*p).forces).write(forces);
             addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
             addr_of_mut!((*p).enabled).write(false);
-            addr_of_mut!((*p).jump2).write(Fx::from_usize(SENSOR_JUMP_MM * SENSOR_JUMP_MM));
             addr_of_mut!((*p).nudge).write(None);
         }
         // The list above is complete: this pattern names every field (no `..`), so a field
@@ -429,37 +417,32 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         #[allow(clippy::no_effect_underscore_binding)]
         let _every_field = |f: Self| {
             let ForceLoop {
-                brush: _,
+                core: _,
                 pen: _,
                 motors: _,
                 watchdog: _,
                 cmds: _,
-                brush_tick: _,
                 pose_gaps: _,
-                last_pose: _,
-                reanchor: _,
                 #[cfg(feature = "test-hooks")]
                 inject_overrun: _,
-                forces: _,
                 force: _,
                 enabled: _,
-                jump2: _,
                 nudge: _,
             } = f;
         };
-        Some(())
     }
 
     /// The next pose places the brush at rest there (a board whose sensors start the pen
     /// somewhere unknown asks for this at boot).
     #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
     pub fn reanchor(&mut self) {
-        self.reanchor = true;
+        self.core.reanchor();
     }
 
     /// One 1 ms tick, in this order on every board: feed the watchdog, apply the link's
-    /// commands, **read the sensors** (`PoseSource::next_pose`), step the brush, compute the
-    /// force, **write the motors** (`Motors::command` or `disable`), offer the snapshot.
+    /// commands, **read the sensors** (`PoseSource::next_pose`), run the shared loop's tick
+    /// (brush, forces, guide, output stage), **write the motors** (`Motors::command` or
+    /// `disable`), offer the snapshot.
     pub fn tick(&mut self) {
         self.watchdog.feed();
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
@@ -469,59 +452,49 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             self.apply(cmd);
             CMDS_APPLIED.fetch_add(1, Ordering::Release);
         }
-        let fresh = match self.pen.next_pose() {
-            Some(pose) if self.reanchor => {
-                self.reanchor = false;
-                maobi_fast::brush_reset(&mut self.brush, pose);
-                self.forces.reset();
-                self.brush_tick = 0;
-                self.last_pose = Some(pose);
-                true
-            }
-            Some(pose) => {
-                if let Some(prev) = self.last_pose {
-                    if (pose.pos - prev.pos).norm2() > self.jump2 {
-                        latch(fault::SENSOR_JUMP);
-                    }
-                }
-                maobi_fast::brush_tick(&mut self.brush, pose);
-                self.brush_tick = self.brush_tick.wrapping_add(1);
-                self.last_pose = Some(pose);
-                true
-            }
-            None => {
-                self.pose_gaps = self.pose_gaps.wrapping_add(1);
-                false
-            }
-        };
+        let pose = self.pen.next_pose();
+        if pose.is_none() {
+            self.pose_gaps = self.pose_gaps.wrapping_add(1);
+        }
 
         if LINK_ARMED.load(Ordering::Relaxed)
             && now.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed)) > LINK_TIMEOUT_TICKS
         {
-            latch(fault::LINK_SILENT);
+            latch(Faults::LINK_SILENT);
         }
 
-        // Any latched fault switches the forces off (and cuts the guide, and ends a nudge):
-        // the host must clear it and enable again. So does a configuration that does not
-        // allow forces (missing, invalid, not calibrated): a nudge that was running when
-        // such a configuration came into force ends too, since nothing else ends it on a
-        // board whose store writes without a pause.
+        // The gate: the host's switch, no latched fault, a configuration that allows forces,
+        // no deliberate pause (a flash write). A fault the core raises this tick (a sensor
+        // jump) closes it for this tick too, and latches below.
         let faulted = FAULTS.load(Ordering::SeqCst) != 0;
-        if faulted || !CONFIG_OK.load(Ordering::SeqCst) {
+        let gate = Gate {
+            allowed: FORCES_ENABLED.load(Ordering::SeqCst)
+                && !faulted
+                && CONFIG_OK.load(Ordering::SeqCst)
+                && !MAINTENANCE.load(Ordering::SeqCst),
+            faulted,
+        };
+        // The guide sample that came with this tick's pose (none on a gap tick).
+        let guide = self.pen.take_guide();
+        let out = maobi_fast::force_loop_tick(&mut self.core, TickIn { pose, guide, gate }, &PARTS);
+        if !out.faults.is_empty() {
+            latch(out.faults);
+        }
+
+        // Any latched fault switches the forces off (and ends a nudge): the host must clear
+        // it and enable again. So does a configuration that does not allow forces (missing,
+        // invalid, not calibrated): a nudge that was running when such a configuration came
+        // into force ends too, since nothing else ends it on a board whose store writes
+        // without a pause.
+        if FAULTS.load(Ordering::SeqCst) != 0 || !CONFIG_OK.load(Ordering::SeqCst) {
             FORCES_ENABLED.store(false, Ordering::SeqCst);
             self.nudge = None;
         }
-        // A deliberate pause (a flash write) keeps the motors off as well.
-        let allowed = FORCES_ENABLED.load(Ordering::SeqCst) && !MAINTENANCE.load(Ordering::SeqCst);
-        let hand = self.last_pose.map(|p| p.pos).unwrap_or(Vec3::ZERO);
-        // The guide sample that came with this tick's pose (none on a gap tick).
-        let guide = self.pen.take_guide();
-        let cmd = self
-            .forces
-            .tick(&self.brush, hand, guide, fresh, allowed, faulted);
-        let w = self.forces.wanted;
+        let allowed = gate.allowed && out.faults.is_empty();
+        let w = out.wanted;
         self.force = [w.x, w.y, w.z];
-        self.apply_outputs(allowed, cmd);
+        let c = out.command;
+        self.apply_outputs(allowed, [c.x, c.y, c.z]);
         self.enabled = allowed;
 
         if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
@@ -565,13 +538,14 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     fn apply(&mut self, cmd: Command) {
         match cmd {
             Command::ResetBrush => {
-                let pose = self.last_pose.unwrap_or(self.brush.handle());
-                maobi_fast::brush_reset(&mut self.brush, pose);
-                self.forces.reset();
-                self.brush_tick = 0;
-                self.reanchor = true;
+                let pose = match self.core.last_pose() {
+                    Some(p) => p,
+                    None => self.core.brush().handle(),
+                };
+                self.core.reset_brush(pose);
+                self.core.reanchor();
             }
-            Command::Reanchor => self.reanchor = true,
+            Command::Reanchor => self.core.reanchor(),
             Command::EnableForces => {
                 if FAULTS.load(Ordering::SeqCst) == 0 && CONFIG_OK.load(Ordering::SeqCst) {
                     FORCES_ENABLED.store(true, Ordering::SeqCst);
@@ -589,20 +563,16 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 core::hint::spin_loop();
             },
             Command::SetParam(id, v) => {
-                if self.brush.set_param(id, v).is_err() {
-                    latch(fault::PARAM_REJECTED);
+                if self.core.brush_mut().set_param(id, v).is_err() {
+                    latch(Faults::PARAM_REJECTED);
                 }
             }
             Command::SetParams(p) => {
-                if self.brush.set_params(p).is_err() {
-                    latch(fault::PARAM_REJECTED);
-                } else {
-                    let pose = self.brush.handle();
-                    maobi_fast::brush_reset(&mut self.brush, pose);
-                    self.forces.reset();
+                if self.core.set_params(p).is_err() {
+                    latch(Faults::PARAM_REJECTED);
                 }
             }
-            Command::Dip(w) => self.brush.dip(w),
+            Command::Dip(w) => self.core.brush_mut().dip(w),
             Command::Configure => {
                 let cfg = critical_section::with(|cs| CONFIG.borrow(cs).get());
                 self.motors.disable();
@@ -611,12 +581,12 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 // The link task validated the whole configuration before storing it, so
                 // its limits are accepted; if not, the old ones stay and nothing is driven
                 // beyond them.
-                let _ = self.forces.set_limits(cfg.limits);
+                let _ = self.core.set_limits(cfg.limits);
                 if P::POSES_FOLLOW_CONFIG {
                     // New geometry or zeros move the pose at once: not a sensor jump, and
                     // the brush starts at rest where the pen now says it is.
-                    self.reanchor = true;
-                    self.last_pose = None;
+                    self.core.reanchor();
+                    self.core.forget_pose();
                 }
             }
             Command::Nudge {
@@ -636,7 +606,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     fn snapshot(&self, now: u32, s: &mut Snapshot) {
-        s.brush_tick = self.brush_tick;
+        s.brush_tick = self.core.brush_ticks();
         s.pose_gaps = self.pose_gaps;
         let f = self.force;
         let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
@@ -644,14 +614,14 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         // In place: the slot is a static, so a `BrushState` built and then moved there would
         // be a temporary of the state's whole size on the force-tick interrupt's stack.
         s.state
-            .fill_from_brush(&self.brush, now, self.pen.pose_seq(), haptics, faults);
+            .fill_from_brush(self.core.brush(), now, self.pen.pose_seq(), haptics, faults);
     }
 }
 
 /// The board's force-tick interrupt, the same on every board: runs one [`ForceLoop::tick`],
 /// records its period and busy time with the board's counter (`counts_per_us` counts per
 /// microsecond), and if `overran()` says the next tick fell due meanwhile, counts the
-/// overrun, latches [`fault::LOOP_OVERRUN`] and turns the motors off.
+/// overrun, latches [`Faults::LOOP_OVERRUN`] and turns the motors off.
 pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
     fl: &mut ForceLoop<P, M, W>,
     clock: &C,
@@ -682,12 +652,12 @@ pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
     // A pause the board made on purpose (motors off) is not an overrun.
     if overran() && !MAINTENANCE.load(Ordering::SeqCst) {
         OVERRUNS.fetch_add(1, Ordering::Relaxed);
-        latch(fault::LOOP_OVERRUN);
+        latch(Faults::LOOP_OVERRUN);
         fl.motors_off();
     }
 }
 
-/// Force-loop ticks that overran (each also latched [`fault::LOOP_OVERRUN`]).
+/// Force-loop ticks that overran (each also latched [`Faults::LOOP_OVERRUN`]).
 pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 
 /// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
@@ -717,7 +687,7 @@ pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize))
         let now = TICKS.load(Ordering::Relaxed);
         if now == last && !MAINTENANCE.load(Ordering::SeqCst) {
             motors_off();
-            latch(fault::LOOP_STALLED);
+            latch(Faults::WATCHDOG);
         }
         last = now;
         looks = looks.wrapping_add(1);

@@ -321,7 +321,7 @@ fn start() -> (
             Some(REASON_HARDFAULT) => defmt::error!("reset by the watchdog after a HardFault"),
             _ => defmt::error!("reset by the watchdog: the force loop had stopped"),
         }
-        app::latch(app::fault::LOOP_STALLED);
+        app::latch(maobi_shared::protocol::Faults::WATCHDOG);
     }
 
     // The cycle counter for the tick timing.

@@ -330,7 +330,7 @@ fn on_force_tick() {
 
 fn on_watchdog() -> ! {
     motors_off();
-    app::latch(app::fault::LOOP_STALLED);
+    app::latch(maobi_shared::protocol::Faults::WATCHDOG);
     semihosting::fatal("watchdog: the force loop stopped for 20 ms or 5 ticks; motors off", 3)
 }
 

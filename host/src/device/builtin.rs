@@ -1,5 +1,5 @@
-//! The built-in simulated device: the shared brush model (`Brush<Fx>`, the device's number
-//! type), the force model and an output stage, ticking at 1 kHz.
+//! The built-in simulated device: the shared force loop (`ForceLoop<Fx>`, the device's
+//! number type: brush, force model, guide, output stage), ticking at 1 kHz.
 //!
 //! Two clocks:
 //! * [`SimClock::RealTime`]: a background thread runs the ticks that are due by the wall
@@ -16,9 +16,11 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
-use maobi_shared::guide::{Guide, DEFAULT_GUIDE};
-use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::{GuidePlay, DEFAULT_GUIDE};
+use maobi_shared::protocol::Faults;
+use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput,
@@ -44,19 +46,19 @@ pub enum SimClock {
 
 /// The model and its inputs; no threads, no clock.
 pub struct SimCore {
-    brush: Brush<Fx>,
-    model: ForceModel<Fx>,
-    stage: OutputStage<Fx>,
+    /// The shared force loop (the pen's): brush, force model, guide, output stage.
+    fl: ForceLoop<Fx>,
+    /// The forces switch, and the faults latched (a sensor jump) until cleared.
+    enabled: bool,
+    faults: Faults,
     preset: String,
     hand: Pose<f64>,
     target: HandInput,
     replay: Option<(Vec<Pose<f64>>, usize)>,
     replays_done: u64,
     tick: u64,
-    /// Guided writing: the coupling and the moving point's poses with the next index.
-    guide: Guide<Fx>,
-    guide_track: Option<(Vec<Pose<f64>>, usize)>,
-    last_anchor: Option<Vec3<Fx>>,
+    /// Guided writing: the stroke being played into the loop's guide.
+    guide_play: Option<GuidePlay<Vec<Vec3<Fx>>>>,
     /// Every pose and brush command since the start, for saving the session
     /// ([`super::journal`]). Shared so the GUI can read it while the model thread runs.
     journal: Arc<Mutex<Journal>>,
@@ -73,25 +75,25 @@ impl SimCore {
     /// The brush `preset`, hanging at rest at `pose`; the hand's target is that pose.
     pub fn at_pose(preset: &str, pose: Pose<f64>) -> Result<SimCore, DeviceError> {
         let params = presets::find(preset)?;
-        let brush =
-            Brush::new(params, pose.cast()).map_err(|e| DeviceError::Rejected(e.to_string()))?;
-        let model =
-            ForceModel::new(DEFAULT_FORCES).map_err(|e| DeviceError::Rejected(e.to_string()))?;
-        let stage =
-            OutputStage::new(PHANTOM_OMNI).map_err(|e| DeviceError::Rejected(e.to_string()))?;
+        let fl = ForceLoop::new(
+            params,
+            pose.cast(),
+            DEFAULT_FORCES,
+            PHANTOM_OMNI,
+            DEFAULT_GUIDE,
+        )
+        .map_err(|e| DeviceError::Rejected(e.to_string()))?;
         Ok(SimCore {
-            brush,
-            model,
-            stage,
+            fl,
+            enabled: false,
+            faults: Faults::empty(),
             preset: preset.to_string(),
             hand: pose,
             target: hand_at(pose),
             replay: None,
             replays_done: 0,
             tick: 0,
-            guide: Guide::new(DEFAULT_GUIDE).map_err(|e| DeviceError::Rejected(e.to_string()))?,
-            guide_track: None,
-            last_anchor: None,
+            guide_play: None,
             journal: Arc::new(Mutex::new(Journal::new(preset, params, pose))),
         })
     }
@@ -116,7 +118,8 @@ impl SimCore {
 
     /// Replaces all parameters (validated by the model).
     pub fn set_params(&mut self, p: BrushParams) -> Result<(), DeviceError> {
-        self.brush
+        self.fl
+            .brush_mut()
             .set_params(p)
             .map_err(|e| DeviceError::Rejected(e.to_string()))
     }
@@ -134,14 +137,16 @@ impl SimCore {
         }
     }
 
+    /// The brush at rest at `p`, the forces afresh; the next pose is not checked for a jump
+    /// from the last.
     fn reset_at(&mut self, p: Pose<f64>) {
-        self.brush.reset(p.cast());
-        self.model.reset();
+        self.fl.reset_brush(p.cast());
+        self.fl.forget_pose();
         self.hand = p;
     }
 
     pub fn params(&self) -> &BrushParams {
-        self.brush.params()
+        self.fl.brush().params()
     }
 
     /// The last tick run.
@@ -158,24 +163,23 @@ impl SimCore {
     pub fn apply(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
         match cmd {
             DeviceCommand::Hand(h) => self.target = h,
-            DeviceCommand::EnableForces(true) => self.stage.enable(),
-            DeviceCommand::EnableForces(false) => self.stage.disable(),
-            DeviceCommand::ClearFault => self.stage.clear_fault(),
+            DeviceCommand::EnableForces(on) => self.enabled = on,
+            DeviceCommand::ClearFault => self.faults = Faults::empty(),
             DeviceCommand::Dip(w) => {
-                self.brush.dip(Fx::from_f32(w));
+                self.fl.brush_mut().dip(Fx::from_f32(w));
                 self.note(JournalEvent::Dip(w));
             }
             DeviceCommand::Preset(name) => {
                 let p = presets::find(&name)?;
-                self.brush
+                self.fl
                     .set_params(p)
                     .map_err(|e| DeviceError::Rejected(e.to_string()))?;
-                self.brush.reset(self.hand.cast());
                 self.note(JournalEvent::Preset(name.clone()));
                 self.preset = name;
             }
             DeviceCommand::SetParam(id, v) => {
-                self.brush
+                self.fl
+                    .brush_mut()
                     .set_param(id, v)
                     .map_err(|e| DeviceError::Rejected(e.to_string()))?;
                 self.note(JournalEvent::Param(id, v));
@@ -188,14 +192,18 @@ impl SimCore {
             }
             DeviceCommand::StopReplay => self.end_replay(),
             DeviceCommand::Guide(Some(track)) => {
-                let poses: Vec<Pose<f64>> = track.resample().collect();
-                if poses.is_empty() {
+                let points: Vec<Vec3<Fx>> = track.resample().map(|p| p.pos.cast()).collect();
+                if points.is_empty() {
                     return Err(DeviceError::Rejected("the stroke is empty".into()));
                 }
-                self.guide_track = Some((poses, 0));
-                self.guide.start();
+                self.guide_play = Some(GuidePlay::new(points));
             }
-            DeviceCommand::Guide(None) => self.guide.stop(),
+            DeviceCommand::Guide(None) => {
+                // Hold the point reached and fade out.
+                if let Some(play) = &mut self.guide_play {
+                    play.stop();
+                }
+            }
         }
         Ok(())
     }
@@ -246,23 +254,30 @@ impl SimCore {
     }
 
     fn run_tick(&mut self, pose: Pose<f64>, replaying: bool) -> BrushFrame {
-        let last = self.hand.pos;
         self.hand = pose;
-        let target: Pose<Fx> = pose.cast();
-        self.brush.tick(target);
-        let forces = self.model.tick(&self.brush, target.pos);
-        let step: Vec3<Fx> = (pose.pos - last).cast();
-        let guide = self.guide_tick(target.pos, step);
-        let (wanted, source) = match &guide {
-            Some((g, _)) => (forces.total + g.force, g.source_mj),
-            None => (forces.total, Fx::ZERO),
+        let guide = match &mut self.guide_play {
+            Some(play) => {
+                let sample = play.next_sample(self.fl.guide());
+                if sample.is_none() {
+                    // The stroke is over and the guide has faded out.
+                    self.guide_play = None;
+                }
+                sample
+            }
+            None => None,
         };
-        let command = self.stage.apply_with_source(wanted, step, source);
+        let out = self.fl.tick(TickIn {
+            pose: Some(pose.cast()),
+            guide,
+            gate: Gate::new(self.enabled, self.faults),
+        });
+        self.faults |= out.faults;
         self.tick += 1;
         if let Ok(mut j) = self.journal.lock() {
             j.tick(self.tick, pose);
         }
-        let b = &self.brush;
+        let b = self.fl.brush();
+        let stream = self.fl.guide();
         BrushFrame {
             tick: self.tick,
             pose,
@@ -272,58 +287,36 @@ impl SimCore {
             in_contact: b.in_contact().to_vec(),
             ring_nodes: b.ring_nodes(),
             eps: Fx::from_f32(b.params().footprint_eps_mm),
-            force_total: forces.total.to_f64(),
-            force_normal: forces.normal.to_f64(),
-            depth_mm: forces.depth_mm.to_f64(),
-            command: command.to_f64(),
-            output: self.stage.state(),
+            force_total: out.forces.total.to_f64(),
+            force_normal: out.forces.normal.to_f64(),
+            depth_mm: out.forces.depth_mm.to_f64(),
+            command: out.command.to_f64(),
+            output: self.fl.output_state(self.enabled, self.faults),
             replaying,
             received: Instant::now(),
-            guide: guide.map(|(g, anchor)| GuideFrame {
-                anchor: anchor.to_f64(),
-                distance_mm: g.distance_mm.to_f64(),
-                gain: self.guide.gain().to_f64(),
-                force: g.force.to_f64(),
-            }),
+            guide: match stream.anchor() {
+                Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
+                    anchor: anchor.to_f64(),
+                    distance_mm: out.guide.distance_mm.to_f64(),
+                    gain: stream.guide().gain().to_f64(),
+                    force: out.guide.force.to_f64(),
+                }),
+                _ => None,
+            },
         }
-    }
-
-    /// The guide's force this tick, and the moving point, while guidance is active. The
-    /// moving point walks the track one pose per tick and holds its last pose while the
-    /// guide fades out.
-    fn guide_tick(
-        &mut self,
-        hand: Vec3<Fx>,
-        hand_step: Vec3<Fx>,
-    ) -> Option<(maobi_shared::guide::GuideForce<Fx>, Vec3<Fx>)> {
-        if !self.guide.active() {
-            self.guide_track = None;
-            self.last_anchor = None;
-            return None;
-        }
-        let (poses, k) = self.guide_track.as_mut()?;
-        let anchor: Vec3<Fx> = poses.get(*k).or(poses.last())?.pos.cast();
-        if *k + 1 < poses.len() {
-            *k += 1;
-        } else {
-            // The stroke is over: let go.
-            self.guide.stop();
-        }
-        let step = self.last_anchor.map_or(Vec3::ZERO, |a| anchor - a);
-        self.last_anchor = Some(anchor);
-        Some((self.guide.tick(anchor, step, hand, hand_step), anchor))
     }
 
     /// Guided writing is on (or fading out).
     pub fn guiding(&self) -> bool {
-        self.guide.active()
+        self.guide_play.is_some()
     }
 
     fn status(&self, name: &str, connected: bool) -> DeviceStatus {
-        let mut faults = Vec::new();
-        if self.stage.faulted() {
-            faults.push("output stage fault latched".to_string());
-        }
+        let faults = self
+            .faults
+            .iter_names()
+            .map(|(n, _)| n.to_string())
+            .collect();
         DeviceStatus {
             name: name.to_string(),
             connected,
@@ -333,12 +326,9 @@ impl SimCore {
             frames_dropped: 0,
             ticks_late: 0,
             tick_period_ms: None,
-            params: *self.brush.params(),
+            params: *self.fl.brush().params(),
             preset: self.preset.clone(),
-            forces_enabled: !matches!(
-                self.stage.state(),
-                maobi_shared::force::OutputState::Disabled
-            ),
+            forces_enabled: self.enabled,
             replaying: self.replay.is_some(),
             replays_done: self.replays_done,
             link: None,

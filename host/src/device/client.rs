@@ -16,11 +16,11 @@
 //!   replay's poses; for a device with its own sensors it pings. It also turns the GUI's
 //!   commands into [`HostMsg`]s.
 //! * **Guided writing** ([`DeviceCommand::Guide`]): the writer plays the stroke's moving
-//!   point one resampled pose per tick, as a [`GuideSample`] sent just before the pose of the
-//!   same `seq` (the device applies it at the tick that consumes that pose); after the
-//!   stroke's end, or when the GUI stops it, it holds the last point with `on = false` until
-//!   the guide has faded out. It mirrors the device's guide ([`GuideStream`] fed exactly what
-//!   the device gets), so each received state's frame carries the anchor sent for its tick,
+//!   point one resampled pose per tick ([`GuidePlay`]), as a [`GuideSample`] sent just
+//!   before the pose of the same `seq` (the device applies it at the tick that consumes that
+//!   pose); after the stroke's end, or when the GUI stops it, it holds the last point with
+//!   `on = false` until the guide has faded out. It mirrors the device's guide (the force
+//!   loop's own [`HandGuide`], fed exactly what the device gets), so each received state's frame carries the anchor sent for its tick,
 //!   the stylus's distance from it (how far the writer strayed), the fade gain and the
 //!   guide's force ([`BrushFrame::guide`]).
 
@@ -33,7 +33,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::OutputState;
-use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
+use maobi_shared::force_loop::HandGuide;
+use maobi_shared::guide::{GuideForce, GuidePlay, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
     bounded_str, param_id, BrushState, Buttons, Capabilities, Command, DeviceInfo, DeviceMsg,
     GuideSample, HostHello, HostMsg, HostRx, Message, PoseSample, PresetRef, ProtocolError,
@@ -963,8 +964,11 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     let mut was_up = false;
     let mut syncing: Option<Instant> = None;
     // Guided writing: the stroke being played and the device's guide as mirrored here.
-    let mut guide: Option<GuidePlay> = None;
-    let mut mirror = GuideMirror::new();
+    let mut guide: Option<GuidePlay<Vec<Vec3<Fx>>>> = None;
+    // The device's guide, fed what the device gets: the samples sent and the poses they ride
+    // with (the virtual pen's hand is the pose sent), so its gain and force are the device's.
+    // The shared defaults are valid (tested in maobi-shared).
+    let mut mirror = HandGuide::<Fx>::new(DEFAULT_GUIDE).expect("the default guide is valid");
     loop {
         if inner.stop.load(Ordering::SeqCst) {
             return;
@@ -1004,14 +1008,14 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                     let points: Vec<Vec3<Fx>> =
                         track.resample().map(|p| p.pos.cast::<Fx>()).collect();
                     if !points.is_empty() {
-                        guide = Some(GuidePlay { points, next: 0 });
+                        guide = Some(GuidePlay::new(points));
                     }
                     None
                 }
                 DeviceCommand::Guide(None) => {
                     // Hold the point reached and fade out.
                     if let Some(g) = &mut guide {
-                        g.next = g.points.len();
+                        g.stop();
                     }
                     None
                 }
@@ -1160,22 +1164,23 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
             hand = pose;
             let pos: Vec3<Fx> = pose.pos.cast();
             // The moving point for this tick goes just before its pose.
-            let g = guide.as_mut().and_then(|g| g.next_point(&mirror));
-            if let Some((anchor, on)) = g {
+            let g = guide.as_mut().and_then(|g| g.next_sample(mirror.stream()));
+            if let Some(g) = g {
                 let n = encode(
-                    &HostMsg::Guide(GuideSample::new(seq, anchor, on)),
+                    &HostMsg::Guide(GuideSample::new(seq, g.anchor, g.on)),
                     &mut frame,
                 );
                 batch.extend_from_slice(&frame[..n]);
             }
-            if let Some(f) = mirror.tick(g, pos) {
+            let (_, force) = mirror.tick(g, pos, true, false);
+            if let Some(f) = mirrored_guide_frame(&mirror, &force) {
                 let mut s = inner.shared();
                 if s.guide_sent.len() >= GUIDE_SENT_KEPT {
                     s.guide_sent.pop_front();
                 }
                 s.guide_sent.push_back((seq, f));
             }
-            if g.is_none() && !mirror.stream.active() {
+            if g.is_none() && !mirror.stream().active() {
                 guide = None;
             }
             let sample = PoseSample::new(seq, pose.cast(), Buttons::empty());
@@ -1189,71 +1194,17 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     }
 }
 
-/// A stroke being played as the guide's moving point.
-struct GuidePlay {
-    /// The ferrule's position at each tick (the track resampled per 1 ms).
-    points: Vec<Vec3<Fx>>,
-    /// The next point's index; at or past the end the last point is held, fading out.
-    next: usize,
-}
-
-impl GuidePlay {
-    /// This tick's point and whether to lead; `None` once the device's guide has faded out
-    /// after the end (nothing more to send).
-    fn next_point(&mut self, mirror: &GuideMirror) -> Option<(Vec3<Fx>, bool)> {
-        let k = self.next;
-        if k < self.points.len() {
-            self.next += 1;
-            // As the built-in simulator: the last point lets go.
-            Some((self.points[k], k + 1 < self.points.len()))
-        } else if mirror.stream.active() {
-            let held = mirror.stream.anchor().or(self.points.last().copied())?;
-            Some((held, false))
-        } else {
-            None
-        }
-    }
-}
-
-/// The device's guide, fed what the device gets: the samples sent and the poses they ride
-/// with (the virtual pen's hand is the pose sent), so its gain and force are the device's.
-struct GuideMirror {
-    stream: GuideStream<Fx>,
-    last_hand: Option<Vec3<Fx>>,
-}
-
-impl GuideMirror {
-    fn new() -> GuideMirror {
-        GuideMirror {
-            // The shared defaults are valid (tested in maobi-shared).
-            stream: GuideStream::new(DEFAULT_GUIDE).expect("the default guide is valid"),
-            last_hand: None,
-        }
-    }
-
-    /// The device restarted its forces: the guide from zero, the hand's step too.
-    fn restart(&mut self) {
-        self.stream.cut();
-        self.last_hand = None;
-    }
-
-    /// One tick; the frame to show while the guide is active.
-    fn tick(&mut self, sample: Option<(Vec3<Fx>, bool)>, hand: Vec3<Fx>) -> Option<GuideFrame> {
-        let step = self.last_hand.map_or(Vec3::ZERO, |l| hand - l);
-        self.last_hand = Some(hand);
-        let g = self.stream.tick(
-            sample.map(|(anchor, on)| GuideInput { anchor, on }),
-            hand,
-            step,
-        );
-        let anchor = self.stream.anchor()?;
-        (self.stream.active() || g.force != Vec3::ZERO).then(|| GuideFrame {
-            anchor: anchor.to_f64(),
-            distance_mm: g.distance_mm.to_f64(),
-            gain: self.stream.guide().gain().to_f64(),
-            force: g.force.to_f64(),
-        })
-    }
+/// What the GUI shows of the device's guide after a tick with the guide's force `f`, while
+/// the guide is active (or its force not yet zero).
+fn mirrored_guide_frame(mirror: &HandGuide<Fx>, f: &GuideForce<Fx>) -> Option<GuideFrame> {
+    let stream = mirror.stream();
+    let anchor = stream.anchor()?;
+    (stream.active() || f.force != Vec3::ZERO).then(|| GuideFrame {
+        anchor: anchor.to_f64(),
+        distance_mm: f.distance_mm.to_f64(),
+        gain: stream.guide().gain().to_f64(),
+        force: f.force.to_f64(),
+    })
 }
 
 fn encode(msg: &HostMsg, out: &mut [u8]) -> usize {

@@ -3,11 +3,12 @@
 //!
 //! It behaves as the QEMU board does, from the link's side: a virtual-pen device
 //! ([`Capabilities::VIRTUAL_PEN`]) that answers `Hello`, `Ping`, parameter reads and writes
-//! and commands, runs one `Brush<Fx>` tick (with the force model and the output stage) per
-//! [`HostMsg::Pose`] sample, in arrival order, and sends the brush's [`BrushState`] at
-//! `state_hz` (120 by default; 1000 sends every tick), plus [`Telemetry`] once a second.
-//! Guided writing: a [`HostMsg::Guide`] sample rides with the pose of its `seq` and the
-//! shared [`GuideStream`] adds its pull to the force, as the firmware does (`GuideMirror`).
+//! and commands, runs one tick of the shared force loop ([`ForceLoop`]: brush, force model,
+//! guide, output stage, sensor-jump check; the firmware's) per [`HostMsg::Pose`] sample, in
+//! arrival order, and sends the brush's [`BrushState`] at `state_hz` (120 by default; 1000
+//! sends every tick), plus [`Telemetry`] once a second. Guided writing: a [`HostMsg::Guide`]
+//! sample rides with the pose of its `seq` into the loop's guide, as the firmware's link task
+//! hands it to its force loop.
 //! With no pose samples arriving it keeps sending its state at `state_hz`, so the host can tell
 //! the link is up. One host at a time; the brush lives on between connections, as a
 //! device's would.
@@ -19,14 +20,15 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use maobi_shared::force::{ForceModel, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI};
-use maobi_shared::guide::{GuideForce, GuideInput, GuideStream, DEFAULT_GUIDE};
+use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::{GuideInput, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
     param_id, BrushState, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
     DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, Haptics, HostMsg,
     Message, ParamReply, PoseSample, Telemetry,
 };
-use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
+use maobi_shared::{presets, BrushParams, ForceLoop, Fx, ParamError, ParamId, Pose, Scalar, Vec3};
 
 use super::client::host_version;
 use super::endpoint::{nothing_to_read_yet, Conn};
@@ -52,69 +54,21 @@ impl Default for SimDeviceOptions {
     }
 }
 
-/// The model the device runs.
+/// The model the device runs: the shared force loop, with the forces switch and the latched
+/// faults that make its gate.
 struct Model {
-    brush: Brush<Fx>,
-    forces: ForceModel<Fx>,
-    stage: OutputStage<Fx>,
+    fl: ForceLoop<Fx>,
+    /// The host's switch for the forces (EnableForces / DisableForces).
+    enabled: bool,
     /// Brush ticks run (one per pose sample).
     tick: u32,
     pose_seq: u32,
-    last_pos: Vec3<Fx>,
+    /// The wanted force of the last tick (the state's `haptics.force_n`).
     force: Vec3<Fx>,
     faults: Faults,
-    guide: GuideMirror,
-}
-
-/// Guided writing as the firmware does it: the link task keeps the last [`GuideSample`] and
-/// hands it to the force loop with the pose of the same `seq` ([`GuideMirror::take`]); the
-/// force loop's [`GuideStream`] ticks with it (or without a sample), is cut while a fault is
-/// latched and when the brush restarts, and its force joins the model's before the output
-/// stage, which is credited with its source energy.
-struct GuideMirror {
-    stream: GuideStream<Fx>,
-    pending: Option<GuideSample>,
-}
-
-impl GuideMirror {
-    fn new() -> anyhow::Result<GuideMirror> {
-        Ok(GuideMirror {
-            stream: GuideStream::new(DEFAULT_GUIDE).map_err(|e| anyhow::anyhow!("{e}"))?,
-            pending: None,
-        })
-    }
-
-    /// The sample that rides with the pose `seq`, if the host sent one for it.
-    fn take(&mut self, seq: u32) -> Option<GuideInput<Fx>> {
-        match self.pending {
-            Some(g) if g.seq == seq => {
-                self.pending = None;
-                Some(GuideInput {
-                    anchor: g.anchor(),
-                    on: g.on,
-                })
-            }
-            _ => None,
-        }
-    }
-
-    fn tick(
-        &mut self,
-        sample: Option<GuideInput<Fx>>,
-        hand: Vec3<Fx>,
-        hand_step: Vec3<Fx>,
-        faulted: bool,
-    ) -> GuideForce<Fx> {
-        if faulted {
-            self.stream.cut();
-            return GuideForce {
-                force: Vec3::ZERO,
-                distance_mm: Fx::ZERO,
-                source_mj: Fx::ZERO,
-            };
-        }
-        self.stream.tick(sample, hand, hand_step)
-    }
+    /// The last guide sample, for the pose of its `seq` (as the firmware's link task keeps
+    /// it for its force loop).
+    pending_guide: Option<GuideSample>,
 }
 
 impl Model {
@@ -125,48 +79,49 @@ impl Model {
             maobi_shared::Quat::IDENTITY,
         );
         Ok(Model {
-            brush: Brush::new(params, start).map_err(|e| anyhow::anyhow!("{e}"))?,
-            forces: ForceModel::new(DEFAULT_FORCES).map_err(|e| anyhow::anyhow!("{e}"))?,
-            stage: OutputStage::new(PHANTOM_OMNI).map_err(|e| anyhow::anyhow!("{e}"))?,
+            fl: ForceLoop::new(params, start, DEFAULT_FORCES, PHANTOM_OMNI, DEFAULT_GUIDE)
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
+            enabled: false,
             tick: 0,
             pose_seq: 0,
-            last_pos: start.pos,
             force: Vec3::ZERO,
             faults: Faults::empty(),
-            guide: GuideMirror::new()?,
+            pending_guide: None,
         })
     }
 
-    fn step(&mut self, pose: Pose<Fx>, seq: u32) {
-        // As the firmware does: a sample further than a pen can move in a tick from where
-        // the pen was is a sensor fault (latched; forces held at zero until cleared).
-        let jump = (pose.pos - self.last_pos).to_f64();
-        if jump.iter().map(|d| d * d).sum::<f64>() > SENSOR_JUMP_MM * SENSOR_JUMP_MM {
-            self.faults |= Faults::SENSOR_JUMP;
-            self.stage.fault();
+    /// The guide sample that rides with the pose `seq`, if the host sent one for it.
+    fn take_guide(&mut self, seq: u32) -> Option<GuideInput<Fx>> {
+        match self.pending_guide {
+            Some(g) if g.seq == seq => {
+                self.pending_guide = None;
+                Some(GuideInput {
+                    anchor: g.anchor(),
+                    on: g.on,
+                })
+            }
+            _ => None,
         }
-        self.brush.tick(pose);
-        let f = self.forces.tick(&self.brush, pose.pos);
-        let step = pose.pos - self.last_pos;
-        let sample = self.guide.take(seq);
-        let g = self
-            .guide
-            .tick(sample, pose.pos, step, !self.faults.is_empty());
-        self.force = self
-            .stage
-            .apply_with_source(f.total + g.force, step, g.source_mj);
-        self.last_pos = pose.pos;
+    }
+
+    fn step(&mut self, pose: Pose<Fx>, seq: u32) {
+        let guide = self.take_guide(seq);
+        let out = self.fl.tick(TickIn {
+            pose: Some(pose),
+            guide,
+            gate: Gate::new(self.enabled, self.faults),
+        });
+        // A sensor jump latches (forces held at zero until cleared).
+        self.faults |= out.faults;
+        self.force = out.wanted;
         self.tick = self.tick.wrapping_add(1);
         self.pose_seq = seq;
     }
 
     fn state(&self) -> BrushState {
-        let enabled = !matches!(
-            self.stage.state(),
-            OutputState::Disabled | OutputState::Faulted
-        );
+        let enabled = self.enabled && self.faults.is_empty();
         BrushState::from_brush(
-            &self.brush,
+            self.fl.brush(),
             self.tick,
             self.pose_seq,
             Haptics::new(self.force, [Fx::ZERO; 3], enabled),
@@ -179,30 +134,23 @@ impl Model {
             Command::EnableForces if !self.faults.is_empty() => {
                 return Err(CommandError::FaultsLatched(self.faults));
             }
-            Command::EnableForces => self.stage.enable(),
-            Command::DisableForces => self.stage.disable(),
+            Command::EnableForces => self.enabled = true,
+            Command::DisableForces => self.enabled = false,
             Command::Calibrate => return Err(CommandError::Unsupported),
             Command::DipInk { wetness } => {
                 let w = Ord::clamp(Fx::from_bits(*wetness), Fx::ZERO, Fx::ONE);
-                self.brush.dip(w);
+                self.fl.brush_mut().dip(w);
             }
             Command::ChoosePreset(r) => {
                 let p = r.resolve().ok_or(CommandError::UnknownPreset)?;
-                self.brush
+                self.fl
                     .set_params(p)
                     .map_err(|_| CommandError::UnknownPreset)?;
-                self.brush.reset(self.brush.handle());
-                self.forces.reset();
-                self.guide.stream.cut();
             }
-            Command::ClearFaults => {
-                self.faults = Faults::empty();
-                self.stage.clear_fault();
-            }
+            Command::ClearFaults => self.faults = Faults::empty(),
             Command::ResetBrush => {
-                self.brush.reset(self.brush.handle());
-                self.forces.reset();
-                self.guide.stream.cut();
+                let pose = self.fl.brush().handle();
+                self.fl.reset_brush(pose);
             }
             // Test hooks of the firmware (and commands newer than this device).
             #[allow(unreachable_patterns)]
@@ -211,10 +159,6 @@ impl Model {
         Ok(())
     }
 }
-
-/// Consecutive pose samples further apart than this are a sensor fault (the firmware's
-/// threshold).
-pub const SENSOR_JUMP_MM: f64 = 10.0;
 
 /// `EIO`, as Linux and the BSDs number it.
 const EIO: i32 = 5;
@@ -261,16 +205,16 @@ impl ProtocolModel for Model {
         true
     }
     fn guide(&mut self, sample: &GuideSample) {
-        self.guide.pending = Some(*sample);
+        self.pending_guide = Some(*sample);
     }
     fn poll_state(&mut self, due: bool) -> Option<BrushState> {
         due.then(|| self.state())
     }
     fn params(&self) -> BrushParams {
-        *self.brush.params()
+        *self.fl.brush().params()
     }
     fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), ParamError> {
-        self.brush.set_param(id, value)
+        self.fl.brush_mut().set_param(id, value)
     }
     fn command(&mut self, c: &Command) -> Result<(), CommandError> {
         Model::command(self, c)

@@ -53,10 +53,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::DEFAULT_FORCES;
-use maobi_shared::force::{DeviceLimits, ForceModel, OutputStage, OutputState, PHANTOM_OMNI};
-use maobi_shared::guide::{GuideForce, GuideInput, GuideStream, DEFAULT_GUIDE};
+use maobi_shared::force::{DeviceLimits, OutputState, PHANTOM_OMNI};
+use maobi_shared::force_loop::{Gate, TickIn};
+use maobi_shared::guide::{GuidePlay, DEFAULT_GUIDE};
 use maobi_shared::protocol::{BrushState, Faults, Haptics};
-use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3};
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
@@ -65,9 +66,6 @@ use crate::device::GuideFrame;
 /// States the handoff queue holds (half a second at 120 Hz).
 pub const STATE_QUEUE: usize = 64;
 
-/// Consecutive device poses further apart than this (paper mm) are a sensor fault, as in the
-/// firmware and `maobi sim-device` (a Phantom's hand cannot move 10 mm in 1 ms).
-pub const SENSOR_JUMP_MM: f64 = 10.0;
 /// Device positions beyond this (mm) are garbage, not a pose (the Omni's workspace is about
 /// 160 x 120 x 70 mm).
 pub const MAX_DEVICE_MM: f64 = 2000.0;
@@ -322,7 +320,7 @@ pub enum ServoCommand {
     ResetBrush,
     /// Guided writing: the stroke's moving point, one position per servo tick (paper frame,
     /// mm, the pose track resampled at 1 kHz), played from the next tick; the shared
-    /// [`GuideStream`] pulls the stylus toward it inside the output stage. `None` stops it:
+    /// force loop's guide pulls the stylus toward it inside the output stage. `None` stops it:
     /// the point reached is held while the guide fades out.
     Guide(Option<GuidePoints>),
 }
@@ -330,16 +328,16 @@ pub enum ServoCommand {
 /// A guide stroke's moving point, one per servo tick, in the paper frame (mm).
 pub type GuidePoints = Arc<[Vec3<Fx>]>;
 
-/// The servo loop's model, with no HD calls.
+/// The servo loop's model, with no HD calls: the shared force loop, with the forces switch,
+/// the safe start and the latched faults that make its gate.
 pub struct ServoCore {
-    params: BrushParams,
-    /// Created at the first valid pose (the brush starts at rest where the hand is).
-    brush: Option<Brush<Fx>>,
-    forces: ForceModel<Fx>,
-    stage: OutputStage<Fx>,
+    /// Re-anchored until the first valid pose (the brush starts at rest where the hand is),
+    /// and again after every restart of the brush.
+    fl: ForceLoop<Fx>,
     mapping: Mapping,
     buttons: Buttons,
-    last_pos: Vec3<Fx>,
+    /// The forces switch (the user's, or the safe start's).
+    enabled: bool,
     /// Latched faults (cleared by [`ServoCommand::ClearFaults`]).
     faults: Faults,
     /// The safe start: forces are asked for but held until the stylus has been seen with the
@@ -353,10 +351,9 @@ pub struct ServoCore {
     device_cal_requested: bool,
     tick: u32,
     command: Vec3<Fx>,
-    /// Guided writing: the coupling, the stroke being played (points, next index; at or past
-    /// the end the last point is held, fading out) and this tick's figures for the state.
-    guide: GuideStream<Fx>,
-    guide_play: Option<(GuidePoints, usize)>,
+    /// Guided writing: the stroke being played into the loop's guide, and this tick's
+    /// figures for the state.
+    guide_play: Option<GuidePlay<GuidePoints>>,
     guide_frame: Option<GuideFrame>,
 }
 
@@ -370,17 +367,17 @@ impl ServoCore {
         mapping: Mapping,
         forces_on: bool,
     ) -> Result<ServoCore, String> {
-        params.validate().map_err(|e| e.to_string())?;
         mapping.validate()?;
-        let stage = OutputStage::new(limits).map_err(|e| e.to_string())?;
+        // Placed at the first valid pose.
+        let nowhere = Pose::new(Vec3::ZERO, Quat::IDENTITY);
+        let mut fl = ForceLoop::new(params, nowhere, DEFAULT_FORCES, limits, DEFAULT_GUIDE)
+            .map_err(|e| e.to_string())?;
+        fl.reanchor();
         Ok(ServoCore {
-            params,
-            brush: None,
-            forces: ForceModel::new(DEFAULT_FORCES).map_err(|e| e.to_string())?,
-            stage,
+            fl,
             mapping,
             buttons: Buttons::default(),
-            last_pos: Vec3::ZERO,
+            enabled: false,
             faults: Faults::empty(),
             await_lift: forces_on,
             uncalibrated: false,
@@ -388,7 +385,6 @@ impl ServoCore {
             device_cal_requested: false,
             tick: 0,
             command: Vec3::ZERO,
-            guide: GuideStream::new(DEFAULT_GUIDE).map_err(|e| e.to_string())?,
             guide_play: None,
             guide_frame: None,
         })
@@ -401,10 +397,10 @@ impl ServoCore {
         self.mapping
     }
     pub fn params(&self) -> &BrushParams {
-        &self.params
+        self.fl.brush().params()
     }
     pub fn output_state(&self) -> OutputState {
-        self.stage.state()
+        self.fl.output_state(self.enabled, self.faults)
     }
     /// The faults to report: the latched ones, and [`Faults::NOT_CALIBRATED`] while the
     /// library asks for the inkwell.
@@ -420,10 +416,7 @@ impl ServoCore {
         self.await_lift
     }
     pub fn forces_enabled(&self) -> bool {
-        !matches!(
-            self.stage.state(),
-            OutputState::Disabled | OutputState::Faulted
-        )
+        self.enabled && self.faults.is_empty()
     }
 
     pub fn apply(&mut self, cmd: ServoCommand) {
@@ -436,28 +429,24 @@ impl ServoCore {
                     self.await_lift = true;
                 } else {
                     self.await_lift = false;
-                    self.stage.enable();
+                    self.enabled = true;
                 }
             }
             // With faults latched, enabling waits for ClearFaults (as the firmware does).
             ServoCommand::EnableForces(true) => {}
             ServoCommand::EnableForces(false) => {
                 self.await_lift = false;
-                self.stage.disable();
+                self.enabled = false;
             }
-            ServoCommand::ClearFaults => {
-                self.faults = Faults::empty();
-                self.stage.clear_fault();
-            }
+            ServoCommand::ClearFaults => self.faults = Faults::empty(),
             ServoCommand::Dip(w) => {
-                if let Some(b) = &mut self.brush {
-                    let w = if w.is_finite() {
-                        w.clamp(0.0, 1.0)
-                    } else {
-                        0.0
-                    };
-                    b.dip(Fx::from_f32(w));
-                }
+                // (A brush waiting for its first pose is placed wet as configured.)
+                let w = if w.is_finite() {
+                    w.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                self.fl.brush_mut().dip(Fx::from_f32(w));
             }
             ServoCommand::Calibrate => {
                 // The device's calibration is checked first (by the servo callback, before
@@ -466,34 +455,34 @@ impl ServoCore {
                 self.device_cal_requested = true;
             }
             ServoCommand::SetParams(p) => {
-                if p.validate().is_ok() {
-                    self.params = p;
-                    self.brush = None;
-                    self.forces.reset();
-                    self.cut_guide();
+                if self.fl.brush_mut().set_params(p).is_ok() {
+                    self.restart_brush();
                 }
             }
-            ServoCommand::ResetBrush => {
-                self.brush = None;
-                self.forces.reset();
-                self.cut_guide();
-            }
+            ServoCommand::ResetBrush => self.restart_brush(),
             ServoCommand::Guide(Some(points)) => {
                 if !points.is_empty() {
-                    self.guide_play = Some((points, 0));
+                    self.guide_play = Some(GuidePlay::new(points));
                 }
             }
             ServoCommand::Guide(None) => {
-                if let Some((points, next)) = &mut self.guide_play {
-                    *next = points.len();
+                if let Some(play) = &mut self.guide_play {
+                    play.stop();
                 }
             }
         }
     }
 
+    /// The brush starts afresh, at rest, at the next pose (no sensor-jump check), the forces
+    /// from zero, the guide cut.
+    fn restart_brush(&mut self) {
+        self.fl.reanchor();
+        self.fl.restart_forces();
+        self.cut_guide();
+    }
+
     /// Drops the guidance at once (faults, a new brush): no guide force from this tick.
     fn cut_guide(&mut self) {
-        self.guide.cut();
         self.guide_play = None;
         self.guide_frame = None;
     }
@@ -501,55 +490,6 @@ impl ServoCore {
     /// Guided writing is on (or fading out).
     pub fn guiding(&self) -> bool {
         self.guide_play.is_some()
-    }
-
-    /// This tick's guide sample: the stroke's next point (the last one lets go), then the
-    /// point reached, held with `on = false` until the guide has faded out.
-    fn next_guide_sample(&mut self) -> Option<GuideInput<Fx>> {
-        let (points, next) = self.guide_play.as_mut()?;
-        let k = *next;
-        if let Some(&anchor) = points.get(k) {
-            *next += 1;
-            return Some(GuideInput {
-                anchor,
-                on: k + 1 < points.len(),
-            });
-        }
-        match self.guide.anchor() {
-            Some(anchor) if self.guide.active() => Some(GuideInput { anchor, on: false }),
-            _ => {
-                self.guide_play = None;
-                None
-            }
-        }
-    }
-
-    /// The guide's pull at this tick for the stylus at `hand` (moved `step` since the last
-    /// tick); none while a fault is latched (the guide is cut, as the firmware does).
-    fn guide_tick(&mut self, hand: Vec3<Fx>, step: Vec3<Fx>) -> GuideForce<Fx> {
-        if !self.faults.is_empty() {
-            self.cut_guide();
-        }
-        let sample = self.next_guide_sample();
-        let g = if self.guide_play.is_some() {
-            self.guide.tick(sample, hand, step)
-        } else {
-            GuideForce {
-                force: Vec3::ZERO,
-                distance_mm: Fx::ZERO,
-                source_mj: Fx::ZERO,
-            }
-        };
-        self.guide_frame = match self.guide.anchor() {
-            Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
-                anchor: anchor.to_f64(),
-                distance_mm: g.distance_mm.to_f64(),
-                gain: self.guide.guide().gain().to_f64(),
-                force: g.force.to_f64(),
-            }),
-            _ => None,
-        };
-        g
     }
 
     /// Guided writing at the last tick, while it is on.
@@ -567,7 +507,7 @@ impl ServoCore {
     /// inkwell. Forces asked for then wait for the calibration and the stylus above the paper.
     pub fn set_uncalibrated(&mut self, uncalibrated: bool) {
         if uncalibrated && !self.uncalibrated && self.forces_enabled() {
-            self.stage.disable();
+            self.enabled = false;
             self.await_lift = true;
         }
         self.uncalibrated = uncalibrated;
@@ -580,23 +520,18 @@ impl ServoCore {
     pub fn device_recalibrated(&mut self) {
         self.uncalibrated = false;
         if self.forces_enabled() {
-            self.stage.disable();
+            self.enabled = false;
             self.await_lift = true;
         }
-        self.brush = None;
-        self.forces.reset();
-        self.cut_guide();
+        self.restart_brush();
     }
 
     /// A device warning from the library (see [`ErrorClass::Warning`]): zero force, the
     /// brush at rest (started afresh at the next pose), a fault latched until cleared.
     pub fn device_warning(&mut self) {
         self.faults |= Faults::DEVICE_WARNING;
-        self.stage.fault();
-        self.brush = None;
-        self.forces.reset();
-        self.cut_guide();
-        self.command = self.stage.apply(Vec3::ZERO, Vec3::ZERO);
+        self.restart_brush();
+        self.command = self.tick_without_pose();
     }
 
     /// A tick without a usable reading (the one in which the calibration was updated): the
@@ -631,56 +566,75 @@ impl ServoCore {
             return self.fault();
         };
         if paper_cal {
-            let length = self.params.length_mm as f64;
+            let length = self.params().length_mm as f64;
             self.mapping.calibrate(pos[1], length);
             // The paper moved under the hand: start the brush afresh where it now is.
-            self.brush = None;
-            self.forces.reset();
-            self.cut_guide();
+            self.restart_brush();
         }
         let pose: Pose<Fx> = self.mapping.to_paper(pos, rot).cast();
-        let brush = match &mut self.brush {
-            Some(b) => b,
-            None => match Brush::new(self.params, pose) {
-                Ok(b) => {
-                    self.last_pos = pose.pos;
-                    self.brush.insert(b)
-                }
-                Err(_) => return self.fault(),
-            },
-        };
-        let jump = (pose.pos - self.last_pos).to_f64();
-        if jump.iter().map(|d| d * d).sum::<f64>() > SENSOR_JUMP_MM * SENSOR_JUMP_MM {
-            self.faults |= Faults::SENSOR_JUMP;
-            self.stage.fault();
-        }
         // The safe start: the brush (hanging at most its length below the ferrule) clear of
         // the paper, the device calibrated, no fault.
         if self.await_lift
             && !self.uncalibrated
             && self.faults.is_empty()
-            && pose.pos.z.to_f64() > self.params.length_mm as f64
+            && pose.pos.z.to_f64() > self.params().length_mm as f64
         {
             self.await_lift = false;
-            self.stage.enable();
+            self.enabled = true;
         }
-        brush.tick(pose);
-        let f = self.forces.tick(brush, pose.pos);
-        let step = pose.pos - self.last_pos;
-        let g = self.guide_tick(pose.pos, step);
-        self.command = self
-            .stage
-            .apply_with_source(f.total + g.force, step, g.source_mj);
-        self.last_pos = pose.pos;
+        // A fault latched cuts the guide (as the firmware does).
+        if !self.faults.is_empty() {
+            self.cut_guide();
+        }
+        let guide = match &mut self.guide_play {
+            Some(play) => {
+                let sample = play.next_sample(self.fl.guide());
+                if sample.is_none() {
+                    self.guide_play = None;
+                }
+                sample
+            }
+            None => None,
+        };
+        let out = self.fl.tick(TickIn {
+            pose: Some(pose),
+            guide,
+            gate: Gate::new(self.enabled, self.faults),
+        });
+        // A sensor jump latches (the loop held the forces this tick already).
+        self.faults |= out.faults;
+        let stream = self.fl.guide();
+        self.guide_frame = match stream.anchor() {
+            Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
+                anchor: anchor.to_f64(),
+                distance_mm: out.guide.distance_mm.to_f64(),
+                gain: stream.guide().gain().to_f64(),
+                force: out.guide.force.to_f64(),
+            }),
+            _ => None,
+        };
+        self.command = out.command;
         self.device_force()
     }
 
+    /// A garbage pose: a sensor fault latched, the guide cut, the command ramped out.
     fn fault(&mut self) -> [f64; 3] {
         self.faults |= Faults::SENSOR_JUMP;
-        self.stage.fault();
         self.cut_guide();
-        self.command = self.stage.apply(Vec3::ZERO, Vec3::ZERO);
+        self.command = self.tick_without_pose();
         self.device_force()
+    }
+
+    /// A tick of the loop without a pose, under the gate in force (held while a fault is
+    /// latched): the brush holds, the output stage ramps out.
+    fn tick_without_pose(&mut self) -> Vec3<Fx> {
+        self.fl
+            .tick(TickIn {
+                pose: None,
+                guide: None,
+                gate: Gate::new(self.enabled, self.faults),
+            })
+            .command
     }
 
     /// The stage's command in device axes, guarded once more against the peak force: the
@@ -688,7 +642,7 @@ impl ServoCore {
     /// maximum must not reach the motors.
     fn device_force(&self) -> [f64; 3] {
         let f = self.command.to_f64();
-        let peak = self.stage.limits().peak_n as f64;
+        let peak = self.fl.output().limits().peak_n as f64;
         let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
         let f = if n.is_finite() && n <= peak {
             f
@@ -701,11 +655,14 @@ impl ServoCore {
         Mapping::force_to_device(f)
     }
 
-    /// The wire-protocol state of the brush now (`None` before the first valid pose).
+    /// The wire-protocol state of the brush now (`None` before the first valid pose, and
+    /// after a restart of the brush until the next).
     pub fn state(&self) -> Option<BrushState> {
-        let brush = self.brush.as_ref()?;
+        if self.fl.reanchoring() {
+            return None;
+        }
         Some(BrushState::from_brush(
-            brush,
+            self.fl.brush(),
             self.tick,
             0,
             Haptics::new(self.command, [Fx::ZERO; 3], self.forces_enabled()),

@@ -65,7 +65,8 @@ pub struct Faults(u16);
 
 bitflags::bitflags! {
     impl Faults: u16 {
-        /// Consecutive sensor readings (or pose samples) further apart than the pen can move.
+        /// Consecutive sensor readings (or pose samples) further apart than the pen can move
+        /// ([`crate::force_loop::SENSOR_JUMP_MM`]).
         const SENSOR_JUMP = 1 << 0;
         /// A 1 ms tick did not finish in time.
         const LOOP_OVERRUN = 1 << 1;
@@ -73,7 +74,8 @@ bitflags::bitflags! {
         const LINK_SILENT = 1 << 2;
         /// A parameter write was rejected.
         const PARAM_REJECTED = 1 << 3;
-        /// The watchdog reset the board.
+        /// The force loop stopped: caught by the supervisor task or the watchdog (which
+        /// resets the board).
         const WATCHDOG = 1 << 4;
         /// The sensors are not calibrated: no configuration, none calibrated, or (a pen with
         /// [`Capabilities::NEEDS_CALIBRATION`]) not since power-on. Not latched: set while it

@@ -16,7 +16,7 @@ fn main() {
     let src = match (qemu, blackpill) {
         (true, false) => PathBuf::from("boards/qemu-mps2-an386/memory.x"),
         (false, true) => PathBuf::from("../memory.x"),
-        // main.rs says why with a compile_error!; the build script only must not hide it.
+        // lib.rs says why with a compile_error!; the build script only must not hide it.
         _ => {
             println!("cargo:rerun-if-changed=build.rs");
             return;

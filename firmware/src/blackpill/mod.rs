@@ -155,8 +155,9 @@ fn TIM1_BRK_TIM9() {
 use embassy_stm32::interrupt as irq;
 use embassy_stm32::pac::interrupt;
 
-#[cortex_m_rt::entry]
-fn main() -> ! {
+/// The board's `main`, called by the entry point of the bin `maobi-pen`: the board brought
+/// up, then the tasks, for ever.
+pub fn main() -> ! {
     // Everything built at boot is built in `start`'s frame, which is gone before the executor
     // runs: `main` never returns, so what its own frame held (the peripherals' drivers and
     // the USB builder, kilobytes) would sit under the tasks' and the interrupts' stack for

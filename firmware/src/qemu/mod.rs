@@ -29,6 +29,8 @@ pub mod semihosting;
 pub mod time_driver;
 pub mod uart;
 
+pub use boot::main;
+
 use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -319,7 +321,7 @@ pub fn start(
 
     Parts {
         uart,
-        config: config_store::RamConfigStore::new(),
+        config: config_store::RamConfigStore::open(),
         poses: pose_tx,
         cmds: cmd_tx,
     }

@@ -51,10 +51,9 @@ use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::pen_io::{self, DeviceConfig, Readiness, ZeroHold, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
-    param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState,
-    DeviceInfo, DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, HostMsg,
-    Message, Nudge, ParamRejected, ParamReply, SensorReport, Telemetry, Version,
-    SENSOR_RATE_MAX_HZ,
+    param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState, DeviceInfo,
+    DeviceMsg, DeviceRx, Event, EventKind, Faults, GuideSample, HostMsg, Message, Nudge,
+    ParamRejected, ParamReply, SensorReport, Telemetry, Version, SENSOR_RATE_MAX_HZ,
 };
 use maobi_shared::{BrushParams, Fx};
 

@@ -60,8 +60,7 @@ pub static FAULTS: AtomicU32 = AtomicU32::new(0);
 /// (the bit above, [`Faults::NOT_CALIBRATED`], is reported, not latched).
 pub const LATCHED_FAULTS: usize = Faults::WATCHDOG.bits().trailing_zeros() as usize + 1;
 /// The tick at which each fault bit was last raised (for the events the link task sends).
-pub static FAULT_TICKS: [AtomicU32; LATCHED_FAULTS] =
-    [const { AtomicU32::new(0) }; LATCHED_FAULTS];
+pub static FAULT_TICKS: [AtomicU32; LATCHED_FAULTS] = [const { AtomicU32::new(0) }; LATCHED_FAULTS];
 /// Force-loop ticks since boot (the supervisor watches it advance).
 pub static TICKS: AtomicU32 = AtomicU32::new(0);
 /// The tick at which the link task last received a valid frame.
@@ -378,7 +377,8 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         // is (`MaybeUninit<T>` has `T`'s layout); `init_rest` writes all the other fields, so
         // the whole slot is initialised when it is assumed to be.
         unsafe {
-            let core = &mut *addr_of_mut!((*p).core).cast::<MaybeUninit<maobi_shared::ForceLoop<Fx>>>();
+            let core =
+                &mut *addr_of_mut!((*p).core).cast::<MaybeUninit<maobi_shared::ForceLoop<Fx>>>();
             maobi_shared::ForceLoop::new_in(
                 core,
                 params,
@@ -424,7 +424,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 cmds: _,
                 pose_gaps: _,
                 #[cfg(feature = "test-hooks")]
-                inject_overrun: _,
+                    inject_overrun: _,
                 force: _,
                 enabled: _,
                 nudge: _,
@@ -609,7 +609,11 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         s.brush_tick = self.core.brush_ticks();
         s.pose_gaps = self.pose_gaps;
         let f = self.force;
-        let haptics = Haptics::new(Vec3::new(f[0], f[1], f[2]), self.motors.applied(), self.enabled);
+        let haptics = Haptics::new(
+            Vec3::new(f[0], f[1], f[2]),
+            self.motors.applied(),
+            self.enabled,
+        );
         let faults = Faults::from_bits_retain(reported_faults() as u16);
         // In place: the slot is a static, so a `BrushState` built and then moved there would
         // be a temporary of the state's whole size on the force-tick interrupt's stack.

@@ -16,7 +16,14 @@ pub struct ForceLoopSlot<L> {
 // else that preempts the handler touches it.
 unsafe impl<L: Send> Sync for ForceLoopSlot<L> {}
 
+impl<L> Default for ForceLoopSlot<L> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl<L> ForceLoopSlot<L> {
+    /// An empty slot (`const`, for a `static`).
     pub const fn new() -> Self {
         ForceLoopSlot {
             cell: UnsafeCell::new(MaybeUninit::uninit()),

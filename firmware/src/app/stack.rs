@@ -52,4 +52,3 @@ pub fn new_high_water() -> Option<usize> {
     let prev = HIGH_WATER.fetch_max(used as u32, Ordering::Relaxed);
     (used as u32 > prev).then_some(used)
 }
-

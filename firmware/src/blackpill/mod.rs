@@ -155,8 +155,9 @@ fn TIM1_BRK_TIM9() {
 use embassy_stm32::interrupt as irq;
 use embassy_stm32::pac::interrupt;
 
-#[cortex_m_rt::entry]
-fn main() -> ! {
+/// The board's `main`, called by the entry point of the bin `maobi-pen`: the board brought
+/// up, then the tasks, for ever.
+pub fn main() -> ! {
     // Everything built at boot is built in `start`'s frame, which is gone before the executor
     // runs: `main` never returns, so what its own frame held (the peripherals' drivers and
     // the USB builder, kilobytes) would sit under the tasks' and the interrupts' stack for
@@ -283,7 +284,10 @@ fn start() -> (
     };
 
     // The brush starts at rest wherever the first sensor pose puts it.
-    let start = Pose::new(Vec3::new(Fx::ZERO, Fx::ZERO, Fx::from_usize(44)), Quat::IDENTITY);
+    let start = Pose::new(
+        Vec3::new(Fx::ZERO, Fx::ZERO, Fx::from_usize(44)),
+        Quat::IDENTITY,
+    );
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
     // SAFETY: `main` runs once; the queue is split here and never touched otherwise.
     let (cmd_tx, cmd_rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
@@ -444,7 +448,10 @@ fn fatal(what: &str) -> ! {
     cortex_m::interrupt::disable();
     loop {
         motors::motors_off();
-        defmt::error!("FATAL {=str}; motors off, halted (power-cycle to retry)", what);
+        defmt::error!(
+            "FATAL {=str}; motors off, halted (power-cycle to retry)",
+            what
+        );
         for (on, steps) in FATAL_BLINK {
             if on {
                 led_on();
@@ -481,8 +488,16 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     // the message with `core::fmt` would bring its machinery into an image that has to fit
     // 128 KiB, for a path that runs at most once. A message with arguments shows its location only.
     let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
-    let message = info.message().as_str().unwrap_or("(a message with arguments)");
-    defmt::error!("FATAL panic at {=str}:{=u32}: {=str}; motors off", file, line, message);
+    let message = info
+        .message()
+        .as_str()
+        .unwrap_or("(a message with arguments)");
+    defmt::error!(
+        "FATAL panic at {=str}:{=u32}: {=str}; motors off",
+        file,
+        line,
+        message
+    );
     // With a debugger attached (probe-rs run), stop here so it shows where; without one the
     // watchdog resets the chip and the next boot reports it.
     // SAFETY: reads the debug halting control register.

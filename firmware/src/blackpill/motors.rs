@@ -97,7 +97,9 @@ impl PenMotors {
         in1.set_level(a.into());
         in2.set_level(b.into());
         let channel = [Channel::Ch1, Channel::Ch2, Channel::Ch3][ch];
-        self.pwm.channel(channel).set_duty_cycle(u32::from(out.duty));
+        self.pwm
+            .channel(channel)
+            .set_duty_cycle(u32::from(out.duty));
     }
 }
 

@@ -11,8 +11,8 @@
 use embassy_stm32::gpio::AnyPin;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::{
-    ADC1, FLASH, IWDG, PA1, PA10, PA11, PA12, PA15, PA2, PA3, PA8, PA9, PB3, PB4, PB5, PB6,
-    PB7, TIM1, TIM2, TIM3, TIM4, TIM9, USB_OTG_FS,
+    ADC1, FLASH, IWDG, PA1, PA10, PA11, PA12, PA15, PA2, PA3, PA8, PA9, PB3, PB4, PB5, PB6, PB7,
+    TIM1, TIM2, TIM3, TIM4, TIM9, USB_OTG_FS,
 };
 use embassy_stm32::{Peri, PeripheralType, Peripherals};
 
@@ -45,12 +45,16 @@ impl Gpio {
     /// Drives the pin low from any context: one write to its port's BSRR, no driver (an
     /// output's level; nothing happens while the port is unclocked or the pin an input).
     pub fn set_low(self) {
-        self.block().bsrr().write(|w| w.set_br(usize::from(self.n), true));
+        self.block()
+            .bsrr()
+            .write(|w| w.set_br(usize::from(self.n), true));
     }
 
     /// Drives the pin high from any context, as [`Self::set_low`].
     pub fn set_high(self) {
-        self.block().bsrr().write(|w| w.set_bs(usize::from(self.n), true));
+        self.block()
+            .bsrr()
+            .write(|w| w.set_bs(usize::from(self.n), true));
     }
 
     /// The pin for a driver (`Output`, `Input`).
@@ -97,7 +101,11 @@ pub struct MotorPins {
 }
 
 /// One quadrature encoder: its timer in encoder mode and its A and B inputs (channels 1, 2).
-pub struct EncoderPins<T: PeripheralType + 'static, A: PeripheralType + 'static, B: PeripheralType + 'static> {
+pub struct EncoderPins<
+    T: PeripheralType + 'static,
+    A: PeripheralType + 'static,
+    B: PeripheralType + 'static,
+> {
     pub timer: Peri<'static, T>,
     pub a: Peri<'static, A>,
     pub b: Peri<'static, B>,

@@ -136,10 +136,7 @@ pub fn build(driver: UsbDriver, serial: &'static str) -> UsbParts {
 /// The USB task's body: runs the device (enumeration, control requests) and moves bytes
 /// between the pipes and the bulk endpoints, for ever.
 pub async fn run(parts: UsbParts) -> ! {
-    let UsbParts {
-        mut device,
-        class,
-    } = parts;
+    let UsbParts { mut device, class } = parts;
     let (sender, receiver) = class.split();
     join3(device.run(), receive(receiver), send(sender)).await;
     // Each of the three loops for ever; `join3` returns only if all did.

@@ -96,8 +96,9 @@ fn boot_mode() -> Mode {
     }
 }
 
-#[cortex_m_rt::entry]
-fn main() -> ! {
+/// The board's `main`, called by the entry point of the bins `maobi-fw` and `maobi-fw-hooks`:
+/// the boot mode from the command line, then the force loop and the tasks, for ever.
+pub fn main() -> ! {
     let mode = boot_mode();
     if let Mode::Bench(shift) = mode {
         run_bench(shift);

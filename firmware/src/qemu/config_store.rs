@@ -30,7 +30,7 @@ pub struct RamConfigStore {
 
 impl RamConfigStore {
     /// Looks at the region once: anything but zeros means the host loaded an image.
-    pub fn new() -> Self {
+    pub fn open() -> Self {
         let attached = (0..CONFIG_REGION_LEN).any(|i| read(i) != 0);
         RamConfigStore { attached }
     }

@@ -29,6 +29,8 @@ pub mod semihosting;
 pub mod time_driver;
 pub mod uart;
 
+pub use boot::main;
+
 use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -199,7 +201,10 @@ pub struct TimerWatchdog {
 impl Watchdog for TimerWatchdog {
     #[inline]
     fn feed(&mut self) {
-        wr(t::TIMER1 + t::VALUE, WATCHDOG_RELOAD.load(Ordering::Relaxed));
+        wr(
+            t::TIMER1 + t::VALUE,
+            WATCHDOG_RELOAD.load(Ordering::Relaxed),
+        );
     }
 }
 
@@ -235,7 +240,11 @@ pub struct Parts {
 /// Brings the board up: time driver, UART, the force loop around a brush of `params` at rest
 /// at `pose`, ticking every `tick_us`, the watchdog, and the interrupt priorities. Interrupts
 /// are enabled on return.
-pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, tick_us: u32) -> Parts {
+pub fn start(
+    params: maobi_shared::BrushParams,
+    pose: maobi_shared::Pose<Fx>,
+    tick_us: u32,
+) -> Parts {
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
     let watchdog_counts = WATCHDOG_COUNTS.max(tick_counts.saturating_mul(WATCHDOG_TICKS));
     WATCHDOG_RELOAD.store(watchdog_counts, Ordering::Relaxed);
@@ -270,7 +279,10 @@ pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, ti
         })
     };
     if built.is_none() {
-        semihosting::fatal("the brush preset or the force model's defaults are invalid", 5);
+        semihosting::fatal(
+            "the brush preset or the force model's defaults are invalid",
+            5,
+        );
     }
 
     // TIMER1: watchdog; TIMER0: 1 kHz force tick.
@@ -309,7 +321,7 @@ pub fn start(params: maobi_shared::BrushParams, pose: maobi_shared::Pose<Fx>, ti
 
     Parts {
         uart,
-        config: config_store::RamConfigStore::new(),
+        config: config_store::RamConfigStore::open(),
         poses: pose_tx,
         cmds: cmd_tx,
     }
@@ -331,7 +343,10 @@ fn on_force_tick() {
 fn on_watchdog() -> ! {
     motors_off();
     app::latch(maobi_shared::protocol::Faults::WATCHDOG);
-    semihosting::fatal("watchdog: the force loop stopped for 20 ms or 5 ticks; motors off", 3)
+    semihosting::fatal(
+        "watchdog: the force loop stopped for 20 ms or 5 ticks; motors off",
+        3,
+    )
 }
 
 /// Device interrupts arrive here (no peripheral-access crate): dispatch by number.

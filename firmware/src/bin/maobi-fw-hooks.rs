@@ -1,8 +1,11 @@
 //! `maobi-fw-hooks`: the QEMU image with the firmware's test hooks (feature `test-hooks`:
 //! fault injection over the link, the `crash` boot modes), for the hil tests. The same
-//! modules as `maobi-fw` (`modules.rs`), under its own name so that building it never
-//! replaces the plain image.
+//! boot as `maobi-fw`, under its own name so that building it never replaces the plain
+//! image.
 #![no_std]
 #![no_main]
 
-include!("modules.rs");
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    maobi_firmware::qemu::main()
+}

@@ -405,6 +405,21 @@ impl<P> GuidePlay<P> {
             _ => None,
         }
     }
+    /// [`Self::next_sample`] of a play that may be absent, which ends (becomes `None`) when
+    /// it is done: what a device that plays strokes into its guide calls every tick.
+    pub fn next_sample_of<S: Scalar>(
+        play: &mut Option<Self>,
+        stream: &GuideStream<S>,
+    ) -> Option<GuideInput<S>>
+    where
+        P: AsRef<[Vec3<S>]>,
+    {
+        let sample = play.as_mut()?.next_sample(stream);
+        if sample.is_none() {
+            *play = None;
+        }
+        sample
+    }
 }
 
 /// `v` scaled down to length `max` if it is longer.

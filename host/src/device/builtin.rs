@@ -255,17 +255,7 @@ impl SimCore {
 
     fn run_tick(&mut self, pose: Pose<f64>, replaying: bool) -> BrushFrame {
         self.hand = pose;
-        let guide = match &mut self.guide_play {
-            Some(play) => {
-                let sample = play.next_sample(self.fl.guide());
-                if sample.is_none() {
-                    // The stroke is over and the guide has faded out.
-                    self.guide_play = None;
-                }
-                sample
-            }
-            None => None,
-        };
+        let guide = GuidePlay::next_sample_of(&mut self.guide_play, self.fl.guide());
         let out = self.fl.tick(TickIn {
             pose: Some(pose.cast()),
             guide,

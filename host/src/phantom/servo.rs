@@ -586,16 +586,7 @@ impl ServoCore {
         if !self.faults.is_empty() {
             self.cut_guide();
         }
-        let guide = match &mut self.guide_play {
-            Some(play) => {
-                let sample = play.next_sample(self.fl.guide());
-                if sample.is_none() {
-                    self.guide_play = None;
-                }
-                sample
-            }
-            None => None,
-        };
+        let guide = GuidePlay::next_sample_of(&mut self.guide_play, self.fl.guide());
         let out = self.fl.tick(TickIn {
             pose: Some(pose),
             guide,

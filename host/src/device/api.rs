@@ -18,7 +18,8 @@ use std::sync::Arc;
 
 use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
-use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Vec3};
+use maobi_shared::guide::{GuideForce, GuideStream};
+use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Scalar, Vec3};
 
 use super::journal::Journal;
 use crate::poses::PoseTrack;
@@ -162,6 +163,20 @@ pub struct GuideFrame {
     pub gain: f64,
     /// The guide's force on the hand (N), part of `force_total`.
     pub force: [f64; 3],
+}
+
+impl GuideFrame {
+    /// The frame of a guide `stream` whose tick gave `force`; `None` while it has no moving
+    /// point.
+    pub fn of(stream: &GuideStream<Fx>, force: &GuideForce<Fx>) -> Option<GuideFrame> {
+        let anchor = stream.anchor()?;
+        Some(GuideFrame {
+            anchor: anchor.to_f64(),
+            distance_mm: force.distance_mm.to_f64(),
+            gain: stream.guide().gain().to_f64(),
+            force: force.force.to_f64(),
+        })
+    }
 }
 
 /// Why a command was not carried out.

@@ -284,15 +284,10 @@ impl SimCore {
             output: self.fl.output_state(self.enabled, self.faults),
             replaying,
             received: Instant::now(),
-            guide: match stream.anchor() {
-                Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
-                    anchor: anchor.to_f64(),
-                    distance_mm: out.guide.distance_mm.to_f64(),
-                    gain: stream.guide().gain().to_f64(),
-                    force: out.guide.force.to_f64(),
-                }),
-                _ => None,
-            },
+            guide: self
+                .guide_play
+                .as_ref()
+                .and_then(|_| GuideFrame::of(stream, &out.guide)),
         }
     }
 

@@ -1198,13 +1198,11 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
 /// the guide is active (or its force not yet zero).
 fn mirrored_guide_frame(mirror: &HandGuide<Fx>, f: &GuideForce<Fx>) -> Option<GuideFrame> {
     let stream = mirror.stream();
-    let anchor = stream.anchor()?;
-    (stream.active() || f.force != Vec3::ZERO).then(|| GuideFrame {
-        anchor: anchor.to_f64(),
-        distance_mm: f.distance_mm.to_f64(),
-        gain: stream.guide().gain().to_f64(),
-        force: f.force.to_f64(),
-    })
+    if stream.active() || f.force != Vec3::ZERO {
+        GuideFrame::of(stream, f)
+    } else {
+        None
+    }
 }
 
 fn encode(msg: &HostMsg, out: &mut [u8]) -> usize {

@@ -595,15 +595,10 @@ impl ServoCore {
         // A sensor jump latches (the loop held the forces this tick already).
         self.faults |= out.faults;
         let stream = self.fl.guide();
-        self.guide_frame = match stream.anchor() {
-            Some(anchor) if self.guide_play.is_some() => Some(GuideFrame {
-                anchor: anchor.to_f64(),
-                distance_mm: out.guide.distance_mm.to_f64(),
-                gain: stream.guide().gain().to_f64(),
-                force: out.guide.force.to_f64(),
-            }),
-            _ => None,
-        };
+        self.guide_frame = self
+            .guide_play
+            .as_ref()
+            .and_then(|_| GuideFrame::of(stream, &out.guide));
         self.command = out.command;
         self.device_force()
     }

@@ -386,8 +386,8 @@ fn param_long_help() -> String {
         "Set a brush parameter on top of the --brush preset. NAME is the parameter's name as \
          the app's parameter panel and the device protocol spell it; VALUE is a number. \
          Repeatable: the parameters are set in command-line order, each checked as the app \
-         checks it, against its range and the brush as it stands so far (to narrow both the \
-         root and the tip, give the tip first).\n\nParameters (valid range):",
+         checks it, against its range and the brush as it stands so far (to widen both the \
+         root and the tip, give the root first).\n\nParameters (valid range):",
     );
     for p in ParamId::ALL {
         let (lo, hi, whole) = p.range();

@@ -142,9 +142,8 @@ pub struct BridgeArgs {
     pub listen: String,
     #[command(flatten)]
     pub phantom: PhantomArgs,
-    /// Brush preset at start.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Brush state frames per second (1 to 1000).
     #[arg(long, value_name = "HZ", default_value = "120")]
     pub state_hz: u32,
@@ -225,9 +224,8 @@ pub struct SimDeviceArgs {
     /// Address to listen on.
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:7878")]
     pub listen: String,
-    /// Brush preset at start.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Brush state frames per second (1 to 1000).
     #[arg(long, value_name = "HZ", default_value = "120")]
     pub state_hz: u32,
@@ -298,7 +296,8 @@ fn parse_brush(name: &str) -> Result<BrushChoice, String> {
         .map_err(|e| e.to_string())
 }
 
-/// The brush of an offline run (`trace`, `render`): a preset, and parameters set on top of it.
+/// A brush chosen on the command line: a preset, and parameters set on top of it. Every
+/// command that runs a brush of its own takes it (`trace`, `render`, `sim-device`, `bridge`).
 #[derive(Debug, Args)]
 pub struct BrushArgs {
     /// Brush preset.
@@ -503,14 +502,14 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let server = crate::device::SimDeviceServer::spawn(
                 &a.listen,
                 crate::device::SimDeviceOptions {
-                    preset: a.brush.name.clone(),
+                    brush: a.brush.params()?,
                     state_hz: a.state_hz,
                     ..Default::default()
                 },
             )?;
             eprintln!(
                 "maobi sim-device: the {} brush on {} ({} states/s); connect with `maobi gui --device tcp:{}`",
-                a.brush.name,
+                a.brush.describe(),
                 server.addr(),
                 a.state_hz,
                 server.addr()
@@ -592,6 +591,7 @@ fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
 fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     use crate::phantom::device::BridgeModel;
     use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
+    let brush = a.brush.params()?;
     let lib = HdLib::find(a.phantom.hd_lib.as_deref())?;
     eprintln!(
         "maobi bridge: loaded {} (from {})",
@@ -599,7 +599,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         lib.source()
     );
     let opts = BridgeOptions {
-        preset: a.brush.name.clone(),
+        brush,
         mapping: a.phantom.mapping(),
         state_hz: a.state_hz,
         forces_on: !a.no_forces,
@@ -614,7 +614,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         &a.listen,
         Box::new(model),
         crate::device::SimDeviceOptions {
-            preset: a.brush.name.clone(),
+            brush,
             state_hz: a.state_hz,
             board: "maobi-phantom-bridge".into(),
         },
@@ -622,7 +622,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     eprintln!(
         "maobi bridge: the {} brush, device limits {} N peak / {} N continuous, forces {}; \
          listening on {}; connect with `maobi gui --device tcp:{}`",
-        a.brush.name,
+        a.brush.describe(),
         limits.peak_n,
         limits.continuous_n,
         if a.no_forces {

@@ -576,3 +576,77 @@ fn help_lists_every_param_and_session_refuses_them() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
 }
+
+#[test]
+fn sim_device_starts_with_the_params_given() {
+    use maobi::device::{Device, Endpoint, LinkDevice, LinkOptions};
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["sim-device", "--listen", "127.0.0.1:0", "--brush", "small"])
+        .args(["--param", "substeps_per_tick=5", "--param", "wetness=0.25"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split("--device tcp:")
+        .nth(1)
+        .and_then(|s| s.split('`').next())
+        .map(str::to_string);
+    let mut want = maobi_shared::presets::SMALL;
+    want.substeps_per_tick = 5;
+    want.wetness = 0.25;
+    let mut status = None;
+    if let Some(addr) = &addr {
+        let hand = maobi::gui::start_hand(want.length_mm as f64);
+        let mut dev = LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr.clone()), hand)).unwrap();
+        if dev.connect().is_ok() {
+            let end = std::time::Instant::now() + std::time::Duration::from_secs(3);
+            while dev.status().params != want && std::time::Instant::now() < end {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            status = Some(dev.status());
+        }
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        line.contains("the small (substeps_per_tick=5, wetness=0.25) brush"),
+        "{line}"
+    );
+    let status = status.unwrap_or_else(|| panic!("cannot connect to `maobi sim-device`: {line}"));
+    assert_eq!(status.params, want, "the device's parameters");
+}
+
+#[test]
+fn sim_device_and_bridge_refuse_bad_params() {
+    // Checked before anything starts: no port is taken, no libHD looked for.
+    for cmd in ["sim-device", "bridge"] {
+        let o = maobi(&[
+            cmd,
+            "--listen",
+            "127.0.0.1:0",
+            "--param",
+            "substeps_per_tick=0",
+            "--param",
+            "wetness=2",
+        ]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{cmd}: {err}");
+        assert!(
+            err.contains("--param substeps_per_tick=0") && err.contains("1 ..= 100"),
+            "{cmd}: {err}"
+        );
+        let o = maobi(&[cmd, "--param", "stifness=3"]);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{cmd}");
+        assert!(
+            err.contains("unknown brush parameter `stifness`"),
+            "{cmd}: {err}"
+        );
+    }
+}

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use maobi_shared::{presets, BrushParams, BrushScalar, Fx};
+use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
 
 use crate::offline::{simulate, ScalarKind};
 use crate::poses::PoseTrack;
@@ -142,9 +142,8 @@ pub struct BridgeArgs {
     pub listen: String,
     #[command(flatten)]
     pub phantom: PhantomArgs,
-    /// Brush preset at start.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Brush state frames per second (1 to 1000).
     #[arg(long, value_name = "HZ", default_value = "120")]
     pub state_hz: u32,
@@ -225,9 +224,8 @@ pub struct SimDeviceArgs {
     /// Address to listen on.
     #[arg(long, value_name = "HOST:PORT", default_value = "127.0.0.1:7878")]
     pub listen: String,
-    /// Brush preset at start.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Brush state frames per second (1 to 1000).
     #[arg(long, value_name = "HZ", default_value = "120")]
     pub state_hz: u32,
@@ -298,6 +296,110 @@ fn parse_brush(name: &str) -> Result<BrushChoice, String> {
         .map_err(|e| e.to_string())
 }
 
+/// A brush chosen on the command line: a preset, and parameters set on top of it. Every
+/// command that runs a brush of its own takes it (`trace`, `render`, `sim-device`, `bridge`).
+#[derive(Debug, Args)]
+pub struct BrushArgs {
+    /// Brush preset.
+    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    pub brush: BrushChoice,
+    /// Set a brush parameter on top of the preset, by the name the app's parameter panel
+    /// shows (e.g. `substeps_per_tick=2`); repeatable, applied in order (`--help` lists them).
+    #[arg(
+        long = "param",
+        value_name = "NAME=VALUE",
+        value_parser = parse_param_setting,
+        long_help = param_long_help()
+    )]
+    pub params: Vec<ParamSetting>,
+}
+
+impl BrushArgs {
+    /// The preset's parameters with every `--param` set in command-line order, each through
+    /// [`BrushParams::set`], the check the app's parameter panel and the devices make.
+    pub fn params(&self) -> anyhow::Result<BrushParams> {
+        let mut params = self.brush.params;
+        for s in &self.params {
+            params
+                .set(s.id, s.value)
+                .with_context(|| format!("--param {s}"))?;
+        }
+        Ok(params)
+    }
+
+    /// The preset's name and the parameters set on top of it, for the summary line.
+    pub fn describe(&self) -> String {
+        if self.params.is_empty() {
+            return self.brush.name.clone();
+        }
+        let set: Vec<String> = self.params.iter().map(ToString::to_string).collect();
+        format!("{} ({})", self.brush.name, set.join(", "))
+    }
+}
+
+/// One `--param NAME=VALUE`: a known parameter and a number, not yet checked against its
+/// range (that needs the brush it is set on).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct ParamSetting {
+    pub id: ParamId,
+    pub value: f32,
+}
+
+impl std::fmt::Display for ParamSetting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}={}", self.id, self.value)
+    }
+}
+
+/// Every parameter's name, in the order of the app's parameter panel.
+fn param_names() -> String {
+    ParamId::ALL.map(ParamId::name).join(", ")
+}
+
+fn parse_param_setting(s: &str) -> Result<ParamSetting, String> {
+    let Some((name, value)) = s.split_once('=') else {
+        return Err(format!(
+            "`{s}` is not NAME=VALUE (e.g. substeps_per_tick=2)"
+        ));
+    };
+    let (name, value) = (name.trim(), value.trim());
+    let id = ParamId::from_name(name).ok_or_else(|| {
+        format!(
+            "unknown brush parameter `{name}`; valid parameters: {}",
+            param_names()
+        )
+    })?;
+    if value.is_empty() {
+        return Err(format!("{name}: no value after `=`"));
+    }
+    let value = value
+        .parse::<f32>()
+        .map_err(|_| format!("{name}: `{value}` is not a number"))?;
+    Ok(ParamSetting { id, value })
+}
+
+/// `--help` for `--param`: where the names come from, and each one with its range.
+fn param_long_help() -> String {
+    let width = ParamId::ALL.map(|p| p.name().len()).into_iter().max();
+    let mut help = String::from(
+        "Set a brush parameter on top of the --brush preset. NAME is the parameter's name as \
+         the app's parameter panel and the device protocol spell it; VALUE is a number. \
+         Repeatable: the parameters are set in command-line order, each checked as the app \
+         checks it, against its range and the brush as it stands so far (to widen both the \
+         root and the tip, give the root first).\n\nParameters (valid range):",
+    );
+    for p in ParamId::ALL {
+        let (lo, hi, whole) = p.range();
+        let whole = if whole { ", whole number" } else { "" };
+        help += &format!(
+            "\n  {:w$}  {lo} ..= {hi}{whole}",
+            p.name(),
+            w = width.unwrap_or(0)
+        );
+    }
+    help
+}
+
 fn parse_px_per_mm(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -318,9 +420,8 @@ pub struct TraceArgs {
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
     pub stroke: Option<PathBuf>,
-    /// Brush preset.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Number type to run the model in.
     #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
     pub scalar: ScalarKind,
@@ -340,15 +441,18 @@ pub struct RenderArgs {
     )]
     pub poses: Option<PathBuf>,
     /// A session saved from the app (`.maobi.toml`): re-rendered exactly, on its own paper
-    /// (the brush, resolution and scalar options do not apply).
-    #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "stroke")]
+    /// (the brush, resolution and scalar options do not apply; `--param` is refused).
+    #[arg(
+        long,
+        value_name = "SESSION.maobi.toml",
+        conflicts_with_all = ["stroke", "params"]
+    )]
     pub session: Option<PathBuf>,
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
     pub stroke: Option<PathBuf>,
-    /// Brush preset.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
-    pub brush: BrushChoice,
+    #[command(flatten)]
+    pub brush: BrushArgs,
     /// Image resolution.
     #[arg(
         long,
@@ -398,14 +502,14 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let server = crate::device::SimDeviceServer::spawn(
                 &a.listen,
                 crate::device::SimDeviceOptions {
-                    preset: a.brush.name.clone(),
+                    brush: a.brush.params()?,
                     state_hz: a.state_hz,
                     ..Default::default()
                 },
             )?;
             eprintln!(
                 "maobi sim-device: the {} brush on {} ({} states/s); connect with `maobi gui --device tcp:{}`",
-                a.brush.name,
+                a.brush.describe(),
                 server.addr(),
                 a.state_hz,
                 server.addr()
@@ -487,6 +591,7 @@ fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
 fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     use crate::phantom::device::BridgeModel;
     use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
+    let brush = a.brush.params()?;
     let lib = HdLib::find(a.phantom.hd_lib.as_deref())?;
     eprintln!(
         "maobi bridge: loaded {} (from {})",
@@ -494,7 +599,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         lib.source()
     );
     let opts = BridgeOptions {
-        preset: a.brush.name.clone(),
+        brush,
         mapping: a.phantom.mapping(),
         state_hz: a.state_hz,
         forces_on: !a.no_forces,
@@ -509,7 +614,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         &a.listen,
         Box::new(model),
         crate::device::SimDeviceOptions {
-            preset: a.brush.name.clone(),
+            brush,
             state_hz: a.state_hz,
             board: "maobi-phantom-bridge".into(),
         },
@@ -517,7 +622,7 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     eprintln!(
         "maobi bridge: the {} brush, device limits {} N peak / {} N continuous, forces {}; \
          listening on {}; connect with `maobi gui --device tcp:{}`",
-        a.brush.name,
+        a.brush.describe(),
         limits.peak_n,
         limits.continuous_n,
         if a.no_forces {
@@ -773,16 +878,17 @@ fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<(
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
+    let params = a.brush.params()?;
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let ticks = match a.scalar {
-        ScalarKind::Fixed => trace_as::<Fx>(a.brush.params, &track, &a.output)?,
-        ScalarKind::F32 => trace_as::<f32>(a.brush.params, &track, &a.output)?,
-        ScalarKind::F64 => trace_as::<f64>(a.brush.params, &track, &a.output)?,
+        ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
+        ScalarKind::F32 => trace_as::<f32>(params, &track, &a.output)?,
+        ScalarKind::F64 => trace_as::<f64>(params, &track, &a.output)?,
     };
     eprintln!(
         "maobi trace: {ticks} ticks ({:.3} s) of the {} brush in {}, wrote {} in {:.2} s",
         (ticks - 1) as f64 * crate::poses::TICK_S,
-        a.brush.name,
+        a.brush.describe(),
         a.scalar,
         a.output.display(),
         started.elapsed().as_secs_f64()
@@ -816,9 +922,9 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     if let Some(path) = &a.session {
         return render_session(path, &a.output, started);
     }
+    let params = a.brush.params()?;
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
-    let params = a.brush.params;
-    log::debug!("the {} brush: {params:?}", a.brush.name);
+    log::debug!("the {} brush: {params:?}", a.brush.describe());
     let frame = paper_frame(&track, &params, a.px_per_mm)?;
     log::debug!("paper: {frame:?}");
     let (canvas, stats): (_, RenderStats) = match a.scalar {
@@ -832,7 +938,7 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         stats.ticks,
         stats.stamps,
         stats.stamp_seconds * 1e6 / stats.ticks as f64,
-        a.brush.name,
+        a.brush.describe(),
         a.scalar,
         stats.width,
         stats.height,

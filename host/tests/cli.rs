@@ -366,3 +366,287 @@ fn render_with_the_small_brush() {
         "too little ink"
     );
 }
+
+/// Runs `maobi trace` on `poses` with `extra` options; the trace's text, or the failed run.
+fn trace_with(poses: &str, extra: &[&str]) -> Result<String, Output> {
+    let out = Temp::new("trace-param.csv");
+    let mut args = vec!["trace", "--poses", poses, "-o", out.path()];
+    args.extend_from_slice(extra);
+    let o = maobi(&args);
+    if !o.status.success() {
+        assert!(!out.0.exists(), "a failed trace wrote {}", out.path());
+        return Err(o);
+    }
+    Ok(std::fs::read_to_string(&out.0).unwrap())
+}
+
+/// A short press (50 ms) of the large brush: enough ticks for the model's settings to show.
+fn short_press() -> Temp {
+    let csv = format!("{HEADER}0,0,0,45,1,0,0,0\n0.05,0,0,36,1,0,0,0\n");
+    Temp::with("short-press.csv", csv.as_bytes())
+}
+
+#[test]
+fn param_changes_the_trace_and_is_named_in_the_summary() {
+    let input = short_press();
+    let default = trace_with(input.path(), &[]).unwrap();
+    let out = Temp::new("two-substeps.csv");
+    let o = maobi(&[
+        "trace",
+        "--poses",
+        input.path(),
+        "--param",
+        "substeps_per_tick=2",
+        "-o",
+        out.path(),
+    ]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("the large (substeps_per_tick=2) brush"),
+        "{err}"
+    );
+    let two = std::fs::read_to_string(&out.0).unwrap();
+    assert_eq!(two.lines().count(), default.lines().count());
+    assert_eq!(two.lines().next(), default.lines().next(), "the header");
+    assert_ne!(two, default, "2 substeps per tick traced as the default 25");
+    // Another brush shape changes the header: one spine mass fewer, three columns fewer.
+    let layers = trace_with(input.path(), &["--param", "layers=15"]).unwrap();
+    let columns = |t: &str| t.lines().next().unwrap().split(',').count();
+    assert_eq!(columns(&layers) + 3, columns(&default));
+}
+
+#[test]
+fn every_parameter_is_accepted_by_its_name() {
+    // Each parameter set to the preset's own value: accepted, and the trace is unchanged.
+    let input = short_press();
+    let default = trace_with(input.path(), &[]).unwrap();
+    for id in maobi_shared::ParamId::ALL {
+        let value = maobi_shared::presets::LARGE.get(id);
+        let arg = format!("{}={value}", id.name());
+        match trace_with(input.path(), &["--param", &arg]) {
+            Ok(t) => assert!(t == default, "--param {arg} changed the trace"),
+            Err(o) => panic!("--param {arg}: {}", stderr(&o)),
+        }
+    }
+}
+
+#[test]
+fn repeated_params_apply_in_command_line_order() {
+    let input = short_press();
+    let p = input.path();
+    let default = trace_with(p, &[]).unwrap();
+    let two = trace_with(p, &["--param", "substeps_per_tick=2"]).unwrap();
+    let two_then_25 = ["--param", "substeps_per_tick=2"];
+    let then_25 = [&two_then_25[..], &["--param", "substeps_per_tick=25"]].concat();
+    assert!(
+        trace_with(p, &then_25).unwrap() == default,
+        "the last one wins"
+    );
+    let then_2 = [
+        "--param",
+        "substeps_per_tick=25",
+        "--param",
+        "substeps_per_tick=2",
+    ];
+    assert!(trace_with(p, &then_2).unwrap() == two, "the last one wins");
+    // Each is checked against the brush as it stands, on top of the chosen preset: a 4 mm
+    // tip is wider than the small brush's 2.5 mm root (not the large brush's 6 mm), so it is
+    // refused until the root is widened first.
+    let small = ["--brush", "small"];
+    let tip_first = ["--param", "tip_radius_mm=4", "--param", "radius_mm=5"];
+    let o = trace_with(p, &[&small[..], &tip_first].concat()).unwrap_err();
+    let err = stderr(&o);
+    assert!(
+        err.contains("tip_radius_mm=4") && err.contains("the tip cannot be wider than the root"),
+        "{err}"
+    );
+    trace_with(p, &["--param", "tip_radius_mm=4"]).unwrap_or_else(|o| panic!("{}", stderr(&o)));
+    let root_first = ["--param", "radius_mm=5", "--param", "tip_radius_mm=4"];
+    trace_with(p, &[&small[..], &root_first].concat()).unwrap_or_else(|o| panic!("{}", stderr(&o)));
+}
+
+#[test]
+fn rejects_unknown_param_listing_valid_ones() {
+    let input = short_press();
+    let out = Temp::new("out");
+    for cmd in ["trace", "render"] {
+        let o = maobi(&[
+            cmd,
+            "--poses",
+            input.path(),
+            "--param",
+            "stifness=3",
+            "-o",
+            out.path(),
+        ]);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{cmd}");
+        assert!(err.contains("unknown brush parameter `stifness`"), "{err}");
+        for id in maobi_shared::ParamId::ALL {
+            assert!(err.contains(id.name()), "{cmd}: {id} not in {err:?}");
+        }
+        assert!(!out.0.exists(), "{cmd} wrote output");
+    }
+}
+
+#[test]
+fn rejects_bad_param_values_saying_why() {
+    let input = short_press();
+    let out = Temp::new("out");
+    let (lo, hi, _) = maobi_shared::ParamId::SubstepsPerTick.range();
+    let range = format!("{lo} ..= {hi}");
+    let cases: [(&str, &[&str]); 6] = [
+        ("substeps_per_tick=0", &["substeps_per_tick", &range]),
+        ("substeps_per_tick=1000", &["substeps_per_tick", &range]),
+        (
+            "substeps_per_tick=2.5",
+            &["substeps_per_tick", "whole number"],
+        ),
+        (
+            "substeps_per_tick=two",
+            &["substeps_per_tick", "`two` is not a number"],
+        ),
+        (
+            "substeps_per_tick",
+            &["`substeps_per_tick` is not NAME=VALUE"],
+        ),
+        ("wetness=nan", &["wetness", "not a finite number"]),
+    ];
+    for cmd in ["trace", "render"] {
+        for (arg, wants) in cases {
+            let o = maobi(&[
+                cmd,
+                "--poses",
+                input.path(),
+                "--param",
+                arg,
+                "-o",
+                out.path(),
+            ]);
+            let err = stderr(&o);
+            assert!(!o.status.success(), "{cmd} accepted --param {arg}");
+            for w in wants {
+                assert!(err.contains(w), "{cmd} --param {arg}: {w:?} not in {err:?}");
+            }
+            assert!(!out.0.exists(), "{cmd} wrote output for --param {arg}");
+        }
+    }
+}
+
+#[test]
+fn param_changes_the_render() {
+    let p = example("press_lift.csv");
+    let default = render(&p, &[]);
+    let wide = render(&p, &["--param", "footprint_eps_mm=1"]);
+    let dark = |png: &[u8]| decode(png).2.iter().filter(|&&v| v < 128).count();
+    // Surface up to 1 mm above the paper inks, not only what is within 0.1 mm of it.
+    assert!(
+        dark(&wide) > dark(&default),
+        "a wider footprint inked no more"
+    );
+}
+
+#[test]
+fn help_lists_every_param_and_session_refuses_them() {
+    for cmd in ["trace", "render"] {
+        let o = maobi(&[cmd, "--help"]);
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success());
+        assert!(help.contains("--param <NAME=VALUE>"), "{help}");
+        for id in maobi_shared::ParamId::ALL {
+            let (lo, hi, _) = id.range();
+            let line = help.lines().find(|l| l.trim_start().starts_with(id.name()));
+            assert!(
+                line.is_some_and(|l| l.contains(&format!("{lo} ..= {hi}"))),
+                "{cmd}: no line for {id} with its range in {help}"
+            );
+        }
+    }
+    let out = Temp::new("out.png");
+    let o = maobi(&[
+        "render",
+        "--session",
+        "s.maobi.toml",
+        "--param",
+        "layers=4",
+        "-o",
+        out.path(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("cannot be used with"), "{}", stderr(&o));
+}
+
+#[test]
+fn sim_device_starts_with_the_params_given() {
+    use maobi::device::{Device, Endpoint, LinkDevice, LinkOptions};
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["sim-device", "--listen", "127.0.0.1:0", "--brush", "small"])
+        .args(["--param", "substeps_per_tick=5", "--param", "wetness=0.25"])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split("--device tcp:")
+        .nth(1)
+        .and_then(|s| s.split('`').next())
+        .map(str::to_string);
+    let mut want = maobi_shared::presets::SMALL;
+    want.substeps_per_tick = 5;
+    want.wetness = 0.25;
+    let mut status = None;
+    if let Some(addr) = &addr {
+        let hand = maobi::gui::start_hand(want.length_mm as f64);
+        let mut dev = LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr.clone()), hand)).unwrap();
+        if dev.connect().is_ok() {
+            let end = std::time::Instant::now() + std::time::Duration::from_secs(3);
+            while dev.status().params != want && std::time::Instant::now() < end {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+            }
+            status = Some(dev.status());
+        }
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        line.contains("the small (substeps_per_tick=5, wetness=0.25) brush"),
+        "{line}"
+    );
+    let status = status.unwrap_or_else(|| panic!("cannot connect to `maobi sim-device`: {line}"));
+    assert_eq!(status.params, want, "the device's parameters");
+}
+
+#[test]
+fn sim_device_and_bridge_refuse_bad_params() {
+    // Checked before anything starts: no port is taken, no libHD looked for.
+    for cmd in ["sim-device", "bridge"] {
+        let o = maobi(&[
+            cmd,
+            "--listen",
+            "127.0.0.1:0",
+            "--param",
+            "substeps_per_tick=0",
+            "--param",
+            "wetness=2",
+        ]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{cmd}: {err}");
+        assert!(
+            err.contains("--param substeps_per_tick=0") && err.contains("1 ..= 100"),
+            "{cmd}: {err}"
+        );
+        let o = maobi(&[cmd, "--param", "stifness=3"]);
+        let err = stderr(&o);
+        assert!(!o.status.success(), "{cmd}");
+        assert!(
+            err.contains("unknown brush parameter `stifness`"),
+            "{cmd}: {err}"
+        );
+    }
+}

@@ -883,6 +883,38 @@ fn the_gui_device_runs_the_servo_loop() {
     assert_eq!(*got.last().unwrap(), [0.0; 3]);
 }
 
+/// The GUI's Phantom connecting again starts its servo loop with the brush as it stood
+/// (a parameter changed since the preset was chosen is kept), the brush its status shows.
+#[test]
+fn the_gui_device_keeps_its_parameters_across_a_reconnect() {
+    use maobi::device::{Device, DeviceCommand};
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    configure(&lib, "");
+    let mut d = maobi::phantom::device::PhantomDevice::new(
+        Some(standin()),
+        "large",
+        BridgeOptions::default(),
+    )
+    .unwrap();
+    d.connect().unwrap();
+    d.send(DeviceCommand::SetParam(maobi_shared::ParamId::Layers, 8.0))
+        .unwrap();
+    d.disconnect();
+    d.connect().unwrap();
+    let mut frames = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while frames.is_empty() && Instant::now() < deadline {
+        d.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    d.disconnect();
+    drop(lib);
+    assert_eq!(d.status().params.layers, 8);
+    let spine = frames.first().map(|f| f.spine.len());
+    assert_eq!(spine, Some(8), "the servo loop's brush after the reconnect");
+}
+
 /// Guided writing in the servo loop, with the simulated relaxed hand of `maobi-shared`
 /// holding the stylus (no libHD: `ServoCore::step` is the callback's model): the core leads
 /// the hand along the pressed stroke of `maobi-shared`'s tests/guide.rs within the error
@@ -1466,9 +1498,12 @@ fn libhd_is_loaded_once_per_process() {
         .any(|l| std::fs::canonicalize(l.path()).ok() == std::fs::canonicalize(standin()).ok()));
     let lib = HdLib::open(&standin(), Source::Flag).unwrap();
     configure(&lib, "");
-    let mut d =
-        maobi::phantom::device::PhantomDevice::new(Some(standin()), BridgeOptions::default())
-            .unwrap();
+    let mut d = maobi::phantom::device::PhantomDevice::new(
+        Some(standin()),
+        "large",
+        BridgeOptions::default(),
+    )
+    .unwrap();
     use maobi::device::Device;
     for _ in 0..2 {
         d.connect().unwrap();

@@ -36,8 +36,9 @@ use super::endpoint::{nothing_to_read_yet, Conn};
 /// Options of the simulated device.
 #[derive(Clone, Debug)]
 pub struct SimDeviceOptions {
-    /// Brush preset at start.
-    pub preset: String,
+    /// The brush at start (a preset, or one with parameters changed: `maobi sim-device
+    /// --param`); the host can change it over the protocol.
+    pub brush: BrushParams,
     /// State frames per second (1 ..= 1000).
     pub state_hz: u32,
     /// Board name in the handshake.
@@ -47,7 +48,7 @@ pub struct SimDeviceOptions {
 impl Default for SimDeviceOptions {
     fn default() -> Self {
         SimDeviceOptions {
-            preset: "large".into(),
+            brush: presets::LARGE,
             state_hz: 120,
             board: "maobi-sim-device".into(),
         }
@@ -72,8 +73,7 @@ struct Model {
 }
 
 impl Model {
-    fn new(preset: &str) -> anyhow::Result<Model> {
-        let params = presets::find(preset).map_err(|e| anyhow::anyhow!("{e}"))?;
+    fn new(params: BrushParams) -> anyhow::Result<Model> {
         let start = Pose::new(
             Vec3::from_f64([0.0, 0.0, params.length_mm as f64 + 6.0]),
             maobi_shared::Quat::IDENTITY,
@@ -231,11 +231,11 @@ pub struct SimDeviceServer {
 impl SimDeviceServer {
     /// Listens on `addr` (`127.0.0.1:0` picks a free port: see [`SimDeviceServer::addr`]).
     pub fn spawn(addr: &str, opts: SimDeviceOptions) -> anyhow::Result<SimDeviceServer> {
-        let model = Model::new(&opts.preset)?;
+        let model = Model::new(opts.brush)?;
         SimDeviceServer::spawn_model(addr, Box::new(model), opts)
     }
 
-    /// Serves `model` (any [`ProtocolModel`]) on `addr`; `opts.preset` is not used.
+    /// Serves `model` (any [`ProtocolModel`]) on `addr`; `opts.brush` is not used.
     pub fn spawn_model(
         addr: &str,
         mut model: Box<dyn ProtocolModel>,
@@ -329,7 +329,7 @@ pub fn serve_stream(
     opts: &SimDeviceOptions,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    let mut model = Model::new(&opts.preset)?;
+    let mut model = Model::new(opts.brush)?;
     connection(conn, &mut model, opts, stop)?;
     Ok(())
 }

@@ -116,13 +116,18 @@ pub struct PhantomDevice {
 
 impl PhantomDevice {
     /// Not yet connected: [`Device::connect`] loads libHD (`hd_lib`, `$MAOBI_HD_LIB`, the
-    /// install paths) and starts the servo loop.
-    pub fn new(hd_lib: Option<PathBuf>, opts: BridgeOptions) -> Result<PhantomDevice, DeviceError> {
-        let params = presets::find(&opts.preset)?;
+    /// install paths) and starts the servo loop with the brush `preset` (`opts.brush` is
+    /// replaced by it).
+    pub fn new(
+        hd_lib: Option<PathBuf>,
+        preset: &str,
+        opts: BridgeOptions,
+    ) -> Result<PhantomDevice, DeviceError> {
+        let params = presets::find(preset)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
-            preset: opts.preset.clone(),
+            preset: preset.to_string(),
             opts,
             bridge: None,
             params,
@@ -162,8 +167,9 @@ impl Device for PhantomDevice {
             self.last_error = Some(e.to_string());
             e
         })?;
+        // The brush as it stands, with any parameter changed since the preset was chosen.
         let mut opts = self.opts.clone();
-        opts.preset = self.preset.clone();
+        opts.brush = self.params;
         let bridge = Bridge::start(lib, &opts).map_err(|e| {
             let e = DeviceError::Link(format!("{e:#}"));
             self.last_error = Some(e.to_string());
@@ -338,11 +344,7 @@ pub fn gui_device(
     hand: HandInput,
     wake: Option<Arc<dyn Fn() + Send + Sync>>,
 ) -> Result<Box<dyn Device>, DeviceError> {
-    let opts = BridgeOptions {
-        preset: preset.to_string(),
-        ..BridgeOptions::default()
-    };
-    let mut d = PhantomDevice::new(hd_lib, opts)?;
+    let mut d = PhantomDevice::new(hd_lib, preset, BridgeOptions::default())?;
     if let Some(w) = wake.clone() {
         d.on_frames(w);
     }

@@ -660,8 +660,9 @@ impl ServoCore {
 /// Options of the bridge.
 #[derive(Clone, Debug)]
 pub struct BridgeOptions {
-    /// Brush preset.
-    pub preset: String,
+    /// The brush at start (a preset, or one with parameters changed: `maobi bridge --param`);
+    /// the host can change it over the protocol.
+    pub brush: BrushParams,
     pub mapping: Mapping,
     /// States per second to the GUI / TCP side (1 ..= 1000).
     pub state_hz: u32,
@@ -677,7 +678,7 @@ pub struct BridgeOptions {
 impl Default for BridgeOptions {
     fn default() -> Self {
         BridgeOptions {
-            preset: "large".into(),
+            brush: presets::LARGE,
             mapping: Mapping::default(),
             state_hz: 120,
             forces_on: true,
@@ -1340,7 +1341,10 @@ impl Bridge {
     /// read after every setup call, so a failure is reported by the call that failed (and the
     /// device released) before the servo loop runs.
     pub fn start(lib: Arc<HdLib>, opts: &BridgeOptions) -> anyhow::Result<Bridge> {
-        let params = presets::find(&opts.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let params = opts.brush;
+        params
+            .validate()
+            .map_err(|e| anyhow::anyhow!("the brush: {e}"))?;
         if !(1..=1000).contains(&opts.state_hz) {
             anyhow::bail!("--state-hz must be 1 ..= 1000");
         }

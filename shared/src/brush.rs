@@ -204,7 +204,7 @@ pub struct Brush<S: Scalar> {
     substeps_done: u64,
 }
 
-impl<S: BrushScalar> Brush<S> {
+impl<S: Scalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
@@ -437,7 +437,7 @@ impl<S: Scalar> Brush<S> {
     }
 }
 
-impl<S: BrushScalar> Brush<S> {
+impl<S: Scalar> Brush<S> {
     /// Advances one 1 ms tick to the handle pose `target`. Over the tick's substeps each
     /// skeleton node (the ferrule, node 0, with them) moves in equal steps along the straight
     /// line from where the previous tick's pose placed it to where `target` places it; the
@@ -462,19 +462,13 @@ impl<S: BrushScalar> Brush<S> {
             for ((st, e), now) in step.iter_mut().zip(&end).zip(&self.skel) {
                 *st = (*e - *now).scale_coef(self.d.inv_substeps);
             }
-            // Whether the host's wide form may take the steps (see `wide`): once a tick.
-            let wide = S::node_steps_fit(&self.skel[..self.d.n()], &step[..self.d.n()], n);
             for _ in 1..n {
                 self.substep_by(|b| {
                     let n = b.d.n();
-                    if !(wide && S::step_nodes_wide(&mut b.skel[..n], &mut b.skel_vel[..n], &step))
+                    for ((node, vel), st) in b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
                     {
-                        for ((node, vel), st) in
-                            b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
-                        {
-                            *node += *st;
-                            *vel = *st;
-                        }
+                        *node += *st;
+                        *vel = *st;
                     }
                     // The orientation stays the tick's start until its last substep.
                     b.handle.pos = b.skel[0];
@@ -555,24 +549,8 @@ impl<S: BrushScalar> Brush<S> {
         // Segments 2.. have not moved since the surface update measured them (if it did).
         let first_cached = if self.segments_cached { 2 } else { usize::MAX };
         self.segments_cached = false;
-        // With none cached, the host's wide form measures them four at a time where it
-        // applies (see `wide`), the same values: bit j is set for a segment it did.
-        let done = if first_cached == usize::MAX {
-            S::segments_wide(&mut Segments {
-                n,
-                spine: &self.spine,
-                len2: &mut self.seg_len2,
-                rsqrt: &mut self.seg_rsqrt,
-                seg: &mut seg,
-                segment: d.segment,
-                compression_ratio: d.compression_ratio,
-                tiny2: d.tiny2,
-            })
-        } else {
-            0
-        };
-        // The others start their inverse square root from the segment's last one, which is
-        // kept for the next substep.
+        // Each starts its inverse square root from the segment's last one, which is kept for
+        // the next substep.
         for (j, ((f, pair), (len2, r))) in (1..).zip(
             seg[1..n].iter_mut().zip(self.spine[..n].windows(2)).zip(
                 self.seg_len2[1..n]
@@ -580,9 +558,6 @@ impl<S: BrushScalar> Brush<S> {
                     .zip(&mut self.seg_rsqrt[1..n]),
             ),
         ) {
-            if done >> j & 1 != 0 {
-                continue;
-            }
             let v = pair[1] - pair[0];
             if j < first_cached {
                 (*len2, *r) = measure_near(v, *r);
@@ -608,19 +583,7 @@ impl<S: BrushScalar> Brush<S> {
             .iter()
             .all(|c| c.is_coef())
         {
-            let rows = InteriorRows {
-                n,
-                seg: &seg,
-                vel: &self.vel,
-                spine: &self.spine,
-                skel: &self.skel,
-                skel_vel: &self.skel_vel,
-                ties: &ties,
-                coefs: [inner.c_k, inner.c_j, inner.c_t, inner.c_tv],
-            };
-            if !S::interior_rows_wide(&rows, &mut p) {
-                self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
-            }
+            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
         } else {
             self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
         }
@@ -642,22 +605,10 @@ impl<S: BrushScalar> Brush<S> {
         }
         let du = &p;
 
-        // Integrate, paper drag, projection (Fig. 4-5), all per mass: masses 1..from in the
-        // host's wide form where it applies (see `wide`), the same values, the rest here.
+        // Integrate, paper drag, projection (Fig. 4-5), per mass.
         let drag_loss = self.d.drag_loss;
         let tol = self.d.contact_tol;
-        let from = S::integrate_wide(&mut Integration {
-            n,
-            spine: &mut self.spine,
-            vel: &mut self.vel,
-            contact: &mut self.contact,
-            du,
-            ties: &ties,
-            drag_loss,
-            contact_tol: tol,
-        })
-        .max(1)
-        .min(n);
+        let from = 1;
         for ((((x, u), du), w), touching) in self.spine[from..n]
             .iter_mut()
             .zip(&mut self.vel[from..n])
@@ -891,33 +842,13 @@ impl<S: BrushScalar> Brush<S> {
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         let mut prev_dir = Vec3::<S>::ZERO;
-        // The host's wide form measures the segments four at a time first, where it applies
-        // (see `wide`): bit i is set for a segment it did, with the same values.
-        let measured = S::measure_wide(n, &self.spine, &mut self.seg_len2, &mut self.seg_rsqrt);
         // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined (see below).
         let min_cross = self.d.tiny;
-        // The host's wide form also sets the layers' axes four at a time where it applies
-        // (see `wide`), from the short axes of step 1: bit i is set for a layer it did, with
-        // the same values (each layer's axes read only its own short axis and segment).
-        let axes_done = S::layer_axes_wide(&mut LayerAxes {
-            n,
-            spine: &self.spine,
-            len2: &self.seg_len2,
-            rsqrt: &self.seg_rsqrt,
-            measured,
-            layers: &mut self.layers,
-            min_len2,
-            min_cross,
-        });
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
             // Kept for the next substep's springs too (as `measure_segments` does, inline
             // here so the loop reads each segment once).
-            let (len2, r) = if measured >> i & 1 != 0 {
-                (self.seg_len2[i], self.seg_rsqrt[i])
-            } else {
-                measure(v)
-            };
+            let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
             let dir = if len2 > min_len2 {
@@ -930,9 +861,6 @@ impl<S: BrushScalar> Brush<S> {
                 tilt_sum += tilt[i - 1];
             }
             prev_dir = dir;
-            if axes_done >> i & 1 != 0 {
-                continue;
-            }
             let layer = &mut self.layers[i];
             // Unit vectors: coefficient products (the same values), here and below.
             let la = layer.short_axis.cross_coef(dir);
@@ -1012,14 +940,11 @@ const FLAT: usize = 3 * MAX_LAYERS;
 /// per-mass branch or struct shuffling, and for the float types it vectorises. Each entry is
 /// computed with the same operations in the same order as per [`Vec3`], so the results are
 /// the same bits.
-fn jacobi<S: BrushScalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
+fn jacobi<S: Scalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
     // The two coefficients are the same for every sweep: tested once (the presets' are in
     // (-1, 1)), not on each of the sweeps' products; the same values either way.
     if c.is_coef() && c_tip.is_coef() {
-        // The host's wide form where it applies (see `wide`), the same values.
-        if !S::jacobi_wide(p, (c, c_tip), n, iterations) {
-            jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
-        }
+        jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
     } else {
         jacobi_with(p, c, c_tip, n, iterations, S::mul_coef);
     }
@@ -1100,12 +1025,8 @@ fn jacobi_with<S: Scalar>(
 
 /// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6), from the node
 /// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
-fn place_skeleton<S: BrushScalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
+fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
-    // Four nodes at a time in the host's wide form where it applies (see `wide`).
-    if S::place_nodes_wide(pose.pos, offsets, &m, out) {
-        return;
-    }
     // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
     // nine entries tested once for all nodes rather than on each product.
     if m.iter().flatten().all(|c| c.is_coef()) {
@@ -1150,7 +1071,7 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
 /// One mass's integration, paper drag and projection (Fig. 4-5): velocity `u` plus its
 /// change `du`, dragged in proportion to how much the mass lies on the paper (tie weight
 /// `w`), added to the position `x`; whether the mass then touches the paper (z at most
-/// `tol`). Also the reference the host's wide form is tested against (`wide`).
+/// `tol`).
 #[inline(always)]
 pub(crate) fn integrate_mass<S: Scalar>(
     x: &mut Vec3<S>,
@@ -1219,8 +1140,7 @@ fn spring_with<S: Scalar>(dv: &Derived<S>, d: Vec3<S>, len2: S, inv_len: S) -> V
     )
 }
 
-/// [`spring_with`] with the rest length, compression ratio and `tiny2` given: also the
-/// reference the host's wide form of the springs is tested against (`wide`).
+/// [`spring_with`] with the rest length, compression ratio and `tiny2` given.
 #[inline]
 pub(crate) fn spring_term<S: Scalar>(
     d: Vec3<S>,
@@ -1370,182 +1290,6 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     }
 }
 
-/// A number type the brush runs on: a [`Scalar`] with the brush's inner loops, each of which
-/// the type may replace by a wide form that gives the same bits. Every hook has the scalar
-/// default "no wide form" (the brush then runs its own loop); [`Fx`](crate::Fx) on x86-64
-/// hosts with AVX2 takes the wide forms of the host-only module `wide`, which implements this
-/// trait for it. The number type itself knows nothing of the brush: the brush's loops are
-/// the brush's, and a host-only speed-up changes neither `Scalar` nor the device's code.
-pub trait BrushScalar: Scalar {
-    /// The brush's Jacobi sweeps (see `brush::jacobi`) at once, for coefficients whose
-    /// [`Scalar::is_coef`] holds: turns `p` into `du` in place and returns true where the
-    /// implementation has a wide form that applies (the fixed-point one on x86-64 hosts with
-    /// AVX2, see `wide`); returns false, with `p` unchanged, where not (then the brush runs
-    /// its own sweeps).
-    #[doc(hidden)]
-    #[inline]
-    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
-        let _ = (p, coefs, n, iterations);
-        false
-    }
-    /// Measures the brush's spine segments and writes their spring terms (see
-    /// [`Segments`]) where the implementation has a wide form that applies, and
-    /// returns the segments done as bits (bit j: segment j); 0 where it has none.
-    #[doc(hidden)]
-    #[inline]
-    fn segments_wide(segments: &mut Segments<'_, Self>) -> u32 {
-        let _ = segments;
-        0
-    }
-    /// The surface update's layer axes (see [`LayerAxes`]) where the
-    /// implementation has a wide form that applies; the layers done as bits (bit i: layer
-    /// i), 0 where it has none.
-    #[doc(hidden)]
-    #[inline]
-    fn layer_axes_wide(axes: &mut LayerAxes<'_, Self>) -> u32 {
-        let _ = axes;
-        0
-    }
-    /// The substep's integration, paper drag and projection of masses `1..k` (see
-    /// [`Integration`]) where the implementation has a wide form that applies;
-    /// returns `k`, the first mass left for the brush's own loop (1 where it has none).
-    #[doc(hidden)]
-    #[inline]
-    fn integrate_wide(integration: &mut Integration<'_, Self>) -> usize {
-        let _ = integration;
-        1
-    }
-    /// The skeleton's nodes `pos + m offset_i` into `out` where the implementation has a
-    /// wide form that applies (see `wide`); false, having written nothing, where not.
-    #[doc(hidden)]
-    #[inline]
-    fn place_nodes_wide(
-        pos: Vec3<Self>,
-        offsets: &[[Self; MAX_LAYERS]; 3],
-        m: &[[Self; 3]; 3],
-        out: &mut [Vec3<Self>],
-    ) -> bool {
-        let _ = (pos, offsets, m, out);
-        false
-    }
-    /// Whether `substeps` straight-line steps of each node by `step` (a tick's) may be taken
-    /// by [`BrushScalar::step_nodes_wide`]: false where the implementation has no wide form.
-    #[doc(hidden)]
-    #[inline]
-    fn node_steps_fit(nodes: &[Vec3<Self>], step: &[Vec3<Self>], substeps: usize) -> bool {
-        let _ = (nodes, step, substeps);
-        false
-    }
-    /// One of those steps, `node += step`, `vel = step`, where [`BrushScalar::node_steps_fit`]
-    /// said so at the tick's start; false, having changed nothing, where not done.
-    #[doc(hidden)]
-    #[inline]
-    fn step_nodes_wide(
-        nodes: &mut [Vec3<Self>],
-        vel: &mut [Vec3<Self>],
-        step: &[Vec3<Self>],
-    ) -> bool {
-        let _ = (nodes, vel, step);
-        false
-    }
-    /// Each spine segment j in `1..n`: its squared length and [`Scalar::rsqrt`] into `len2[j]`
-    /// and `rsqrt[j]` where the implementation has a wide form that applies (see
-    /// [`crate::wide`]); the segments done as bits (bit j), 0 where none.
-    #[doc(hidden)]
-    #[inline]
-    fn measure_wide(n: usize, spine: &[Vec3<Self>], len2: &mut [Self], rsqrt: &mut [Self]) -> u32 {
-        let _ = (n, spine, len2, rsqrt);
-        0
-    }
-    /// Writes the brush's interior right-hand sides (see [`InteriorRows`]) into
-    /// `p` at once and returns true where the implementation has a wide form that applies;
-    /// returns false, having written nothing, where not (then the brush runs its own loop).
-    #[doc(hidden)]
-    #[inline]
-    fn interior_rows_wide(rows: &InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
-        let _ = (rows, p);
-        false
-    }
-}
-
-impl BrushScalar for f32 {}
-impl BrushScalar for f64 {}
-
-/// What the right-hand side of the interior rows (masses `1..n-1`) reads, as `Brush` holds it:
-/// `p_i = c_k (f_{i+1} - f_i) + c_j ((u_{i-1} - u_i) + (u_{i+1} - u_i))
-///  + w_i (c_t (VS_i - S_i) + c_tv (VU_i - u_i))`,
-/// the tie term only where `w_i > 0` and its product only where `w_i < 1`.
-pub struct InteriorRows<'a, S> {
-    /// The masses (`n <= MAX_LAYERS`).
-    pub n: usize,
-    /// The spring term of segment j (between masses j-1 and j) at j, for j up to n.
-    pub seg: &'a [Vec3<S>],
-    pub vel: &'a [Vec3<S>],
-    pub spine: &'a [Vec3<S>],
-    pub skel: &'a [Vec3<S>],
-    pub skel_vel: &'a [Vec3<S>],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    /// The interior row's c_k, c_j, c_t and c_tv, each with [`Scalar::is_coef`].
-    pub coefs: [S; 4],
-}
-
-/// What the spine's segment springs read and write, as `Brush` holds them: for each segment
-/// j in `1..n` (between masses j-1 and j), `d = S_j - S_{j-1}`, its squared length and
-/// inverse length (the Newton step from the last one, see [`Scalar::rsqrt_near`]), and the
-/// spring term `(1 - L r) d`, the strain times the compression ratio where negative, zero
-/// for a segment no longer than `tiny`.
-pub struct Segments<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a mut [S],
-    /// The last inverse lengths in, the new ones out.
-    pub rsqrt: &'a mut [S],
-    /// The spring terms, at j.
-    pub seg: &'a mut [Vec3<S>],
-    /// The rest length L.
-    pub segment: S,
-    pub compression_ratio: S,
-    pub tiny2: S,
-}
-
-/// What the substep's last step reads and writes, as `Brush` holds it: for each mass i in
-/// `1..n`, `v = u_i + du_i`; where the mass lies on the paper (tie weight `w_i < 1`) its x and
-/// y scaled by `keep = 1 - (1 - w_i) drag_loss`; `S_i + v`, put back onto the paper (z = 0,
-/// a downward v.z removed) where below it; then `S_i`, `u_i` and the contact flag (z at most
-/// `contact_tol`) stored.
-pub struct Integration<'a, S> {
-    pub n: usize,
-    pub spine: &'a mut [Vec3<S>],
-    pub vel: &'a mut [Vec3<S>],
-    pub contact: &'a mut [bool],
-    /// The velocity changes, flattened (mass i at `3i..3i+3`).
-    pub du: &'a [S],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    pub drag_loss: S,
-    pub contact_tol: S,
-}
-
-/// What the surface update's layer axes read and write, as `Brush` holds them: for each
-/// layer i in `1..n` whose segment (masses i-1 and i) has its squared length and inverse
-/// length measured in `len2`, `rsqrt` (bit i of `measured`) and is longer than
-/// `sqrt(min_len2)`, its direction `dir` (the segment normalised), then
-/// the surface update's axes from its short axis `sa`: the long axis `LA = sa x dir`
-/// normalised (`Vec3::normalized_or_none_coef(min_cross)`, where `|sa x dir|` is above
-/// `min_cross`) and the short axis `dir x LA`, as `Vec3::cross_coef` forms them.
-pub struct LayerAxes<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a [S],
-    pub rsqrt: &'a [S],
-    pub measured: u32,
-    /// Their short axes in (step 1's), both axes out.
-    pub layers: &'a mut [Layer<S>],
-    pub min_len2: S,
-    pub min_cross: S,
-}
-
 /// Rate conversion is exposed for tests and documentation.
 pub fn rate_at(rate_at_25khz: f32, substep_hz: f32) -> f32 {
     per_substep_rate(rate_at_25khz, substep_hz)
@@ -1591,45 +1335,13 @@ mod tests {
         )
     }
 
-    /// The host's wide (AVX2) kernels give the scalar loops' bits over whole strokes, at the
-    /// board's rate (one substep: exact solve) and the reference rate (Jacobi sweeps).
-    #[test]
-    fn wide_kernels_change_no_bit() {
-        use crate::scalar::Fx;
-        use crate::wide;
-        for substeps in [1.0, 25.0] {
-            let mut wide_run = Brush::<Fx>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
-            wide_run
-                .set_param(ParamId::SubstepsPerTick, substeps)
-                .unwrap();
-            let mut scalar_run = wide_run.clone();
-            let mut touched = 0;
-            for k in 1..=300 {
-                // Only this test switches them; others run either way with the same results.
-                wide::set_enabled(false);
-                scalar_run.tick(pressed_stroke(k));
-                wide::set_enabled(true);
-                wide_run.tick(pressed_stroke(k));
-                touched = touched.max(wide_run.contacts());
-                assert_eq!(wide_run.spine, scalar_run.spine, "{substeps} tick {k}");
-                assert_eq!(wide_run.vel, scalar_run.vel, "{substeps} tick {k}");
-                assert_eq!(wide_run.layers, scalar_run.layers, "{substeps} tick {k}");
-            }
-            assert!(touched > 0, "{touched}");
-        }
-        if !wide::active() {
-            extern crate std;
-            std::println!("no AVX2 on this CPU: the scalar loops were compared with themselves");
-        }
-    }
-
     /// The segment lengths the surface update leaves for the next substep's springs change
     /// nothing: a brush that never uses them (the cache dropped before every tick) ends a
     /// pressed, dragged and lifted stroke with the same bits, at one substep per tick and
     /// at the presets' 25, in fixed point and in f64.
     #[test]
     fn cached_segment_lengths_change_no_bit() {
-        fn run<S: BrushScalar>(substeps: f32) {
+        fn run<S: Scalar>(substeps: f32) {
             let pose = pressed_stroke::<S>;
             let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
             cached

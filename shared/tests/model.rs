@@ -2,9 +2,7 @@
 
 use maobi_shared::footprint::{convex_hull, for_each_polygon, polygon_area};
 use maobi_shared::params::ParamId;
-use maobi_shared::{
-    presets, Brush, BrushParams, BrushScalar, Fx, ParamError, Pose, Quat, Scalar, Vec2, Vec3,
-};
+use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, Pose, Quat, Scalar, Vec2, Vec3};
 
 /// The handle at (x, y, z) mm, tilted `tilt_deg` about +y (the tip swings toward -x).
 pub fn pose<S: Scalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
@@ -29,7 +27,7 @@ fn deviation_from_rest<S: Scalar>(b: &Brush<S>) -> f64 {
         .fold(0.0, f64::max)
 }
 
-fn ticks<S: BrushScalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {
+fn ticks<S: Scalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {
     for _ in 0..n {
         b.tick(p);
     }
@@ -54,7 +52,7 @@ fn rest_holds_its_shape_for_ten_seconds() {
 
 /// Presses the brush 10 mm into the paper at a slant, holds, lifts; returns the largest
 /// distance of any mass from its rest position after `settle_ms` in the air, and the brush.
-fn press_and_release<S: BrushScalar>(params: BrushParams, settle_ms: usize) -> (f64, Brush<S>) {
+fn press_and_release<S: Scalar>(params: BrushParams, settle_ms: usize) -> (f64, Brush<S>) {
     let tilt = 20.0f64;
     let reach = params.length_mm as f64 * tilt.to_radians().cos();
     let above = pose::<S>(0.0, 0.0, reach + 5.0, tilt);

@@ -60,12 +60,18 @@
 
 use core::mem::MaybeUninit;
 
-use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
+use crate::params::{
+    BrushParams, ParamError, ParamId, INTEGRATOR_BACKWARD_EULER, MAX_LAYERS, REFERENCE_SUBSTEP_HZ,
+    TICK_HZ,
+};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
+mod chain_solve;
 pub mod state_frame;
+
+use chain_solve::{ChainSolve, Sym3};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -101,6 +107,24 @@ struct Row<S> {
     c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
 }
 
+/// Per-substep coefficients of the backward-Euler step (see the module docs), each in units
+/// of the mass it moves: `h^2 k / m` and `h c / m`.
+#[derive(Copy, Clone, Debug)]
+struct Implicit<S> {
+    /// h^2 k_s / m.
+    c_k: S,
+    /// The same in compression (times the compression ratio).
+    c_k_compressed: S,
+    /// h k_d / m.
+    c_d: S,
+    /// h^2 k_t / m.
+    c_t: S,
+    /// (h^2 k_t + h k_dt) / m.
+    c_tv: S,
+    /// h^2 / m in mm per newton: an external force's displacement.
+    c_f: S,
+}
+
 /// Everything derived from the parameters that the substep needs: recomputed by
 /// [`Brush::set_params`], never on the substep path.
 #[derive(Copy, Clone, Debug)]
@@ -110,8 +134,11 @@ struct Derived<S> {
     k: usize,
     iterations: usize,
     substeps: usize,
+    /// Backward Euler (else the thesis's Kang & Cho scheme).
+    backward_euler: bool,
     /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
     exact_solve: bool,
+    implicit: Implicit<S>,
     /// [interior or tip][untied or tied]
     rows: [[Row<S>; 2]; 2],
     /// 1 - 1 / (1 + h C_f / m): the share of in-plane velocity the paper's drag takes.
@@ -531,11 +558,50 @@ impl<S: Scalar> Brush<S> {
     #[inline(never)]
     fn dynamics(&mut self, old_ferrule: Vec3<S>, old_ferrule_vel: Vec3<S>) {
         let n = self.d.n();
-        // The ferrule moves rigidly: its velocity change is prescribed.
+        // The ferrule moves rigidly: its displacement this substep is prescribed. The springs
+        // and the ties are evaluated where the substep starts (the spine, ferrule included,
+        // where it was; the skeleton where it was, `VS - w`), and the prescribed motion
+        // enters once, through the implicit terms.
+        let u0 = self.skel[0] - old_ferrule;
+        // The tie weight of each mass, once: the tie and the paper drag both read it, and both
+        // read it before the mass moves.
+        let mut ties = [S::ZERO; MAX_LAYERS];
+        for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
+            *t = tie_weight_at(&self.d, x.z);
+        }
+        let mut solve = ChainSolve::new();
+        let du = if self.d.backward_euler {
+            self.backward_euler(u0, &ties, &mut solve)
+        } else {
+            self.kang_cho(u0 - old_ferrule_vel, &ties, solve.scratch())
+        };
         self.spine[0] = self.skel[0];
-        self.vel[0] = self.skel[0] - old_ferrule;
-        let du0 = self.vel[0] - old_ferrule_vel;
+        self.vel[0] = u0;
 
+        // Integrate, paper drag, projection (Fig. 4-5), per mass.
+        let drag_loss = self.d.drag_loss;
+        let tol = self.d.contact_tol;
+        for ((((x, u), du), w), touching) in self.spine[1..n]
+            .iter_mut()
+            .zip(&mut self.vel[1..n])
+            .zip(&du[1..n])
+            .zip(&ties[1..n])
+            .zip(&mut self.contact[1..n])
+        {
+            *touching = integrate_mass(x, u, *du, *w, drag_loss, tol);
+        }
+    }
+
+    /// The thesis's step (eqs. 2.19-2.33, Kang & Cho; see the module docs): the velocity
+    /// change of each free mass into `du`, given the ferrule's `du0` and the tie weights.
+    #[inline(always)]
+    fn kang_cho<'a>(
+        &mut self,
+        du0: Vec3<S>,
+        ties: &[S; MAX_LAYERS],
+        du: &'a mut [Vec3<S>; MAX_LAYERS],
+    ) -> &'a [Vec3<S>; MAX_LAYERS] {
+        let n = self.d.n();
         let d = &self.d;
         // Every row includes the tie (see the module docs), so only two rows occur: the
         // interior masses 1..n-1 share one, the tip has its own.
@@ -565,13 +631,6 @@ impl<S: Scalar> Brush<S> {
             *f = spring_with(d, v, *len2, *r);
         }
 
-        // The tie weight of each mass, once: the tie and the paper drag both read it, and both
-        // read it before the mass moves.
-        let mut ties = [S::ZERO; MAX_LAYERS];
-        for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
-            *t = tie_weight_at(d, x.z);
-        }
-
         // p is kept flattened (x_0, y_0, z_0, x_1, ...) for the solve, see [`jacobi`].
         let last = n - 1;
         let mut p = [S::ZERO; FLAT];
@@ -583,9 +642,9 @@ impl<S: Scalar> Brush<S> {
             .iter()
             .all(|c| c.is_coef())
         {
-            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
+            self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_tested_coef);
         } else {
-            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
+            self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_coef);
         }
         let r = self.row_rhs(
             &tip,
@@ -603,22 +662,87 @@ impl<S: Scalar> Brush<S> {
         } else {
             jacobi(&mut p, inner.c_j, tip.c_j, n, d.iterations);
         }
-        let du = &p;
-
-        // Integrate, paper drag, projection (Fig. 4-5), per mass.
-        let drag_loss = self.d.drag_loss;
-        let tol = self.d.contact_tol;
-        let from = 1;
-        for ((((x, u), du), w), touching) in self.spine[from..n]
-            .iter_mut()
-            .zip(&mut self.vel[from..n])
-            .zip(du[3 * from..3 * n].chunks_exact(3))
-            .zip(&ties[from..n])
-            .zip(&mut self.contact[from..n])
-        {
-            let du = Vec3::new(du[0], du[1], du[2]);
-            *touching = integrate_mass(x, u, du, *w, drag_loss, tol);
+        for (out, e) in du[1..n].iter_mut().zip(p[3..].chunks_exact(3)) {
+            *out = Vec3::new(e[0], e[1], e[2]);
         }
+        du
+    }
+
+    /// Backward Euler (see the module docs): linearised about the substep's start with each
+    /// segment's own Jacobian, the spine's block-tridiagonal system solved exactly; the
+    /// velocity change of each free mass, given the ferrule's displacement `u0` in this
+    /// substep and the tie weights.
+    #[inline(always)]
+    fn backward_euler<'a>(
+        &mut self,
+        u0: Vec3<S>,
+        ties: &[S; MAX_LAYERS],
+        solve: &'a mut ChainSolve<S>,
+    ) -> &'a [Vec3<S>; MAX_LAYERS] {
+        let n = self.d.n();
+        let c = self.d.implicit;
+        // Segments 2.. have not moved since the surface update measured them (if it did).
+        let first_cached = if self.segments_cached { 2 } else { usize::MAX };
+        self.segments_cached = false;
+        // Segment j's Jacobian block G_j and its term T_j = c_k f_j + G_j (u_j - u_{j-1}) in
+        // the rows of its two masses (+ in row j-1, - in row j), linearised where the substep
+        // starts; u_0 is the ferrule's new displacement, so its prescribed motion enters
+        // here, once.
+        let mut segment = |j: usize| -> (Sym3<S>, Vec3<S>) {
+            let j = j.clamp(1, MAX_LAYERS - 1);
+            let v = self.spine[j] - self.spine[j - 1];
+            if j < first_cached {
+                (self.seg_len2[j], self.seg_rsqrt[j]) = measure_near(v, self.seg_rsqrt[j]);
+            }
+            let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
+            let g = if len2 > self.d.tiny2 {
+                let strain = S::ONE - self.d.segment * r;
+                if strain >= S::ZERO {
+                    // k (e I + (1 - e) d d^T) with e = 1 - L/|d|: (1 - e) / |d|^2 = L r^3.
+                    let axial = c.c_k * (self.d.segment * r) * (r * r);
+                    Sym3::iso_plus_outer(c.c_k * strain + c.c_d, axial, v)
+                } else {
+                    // Compressed: the transverse term k e (I - d d^T) is negative (the
+                    // hairs buckle); left out, so the matrix stays positive definite and the
+                    // step stable. The force itself keeps it.
+                    Sym3::iso_plus_outer(c.c_d, c.c_k_compressed * (r * r), v)
+                }
+            } else {
+                Sym3::iso(c.c_d)
+            };
+            let f = spring_with(&self.d, v, len2, r);
+            let rel = self.vel[j] - if j == 1 { u0 } else { self.vel[j - 1] };
+            (g, f.scale(c.c_k) + g.mul_vec(rel))
+        };
+        let (mut g, mut t) = segment(1);
+        for i in 1..n {
+            let (g_next, t_next) = if i + 1 < n {
+                segment(i + 1)
+            } else {
+                (Sym3::ZERO, Vec3::ZERO)
+            };
+            let w = ties[i];
+            let mut rhs = t_next - t;
+            let mut diag = S::ONE;
+            if w > S::ZERO {
+                // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
+                // where the substep started.
+                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale(c.c_t)
+                    + (self.skel_vel[i] - self.vel[i]).scale(c.c_tv);
+                let tv = c.c_tv;
+                (rhs, diag) = if w < S::ONE {
+                    (rhs + tie.scale_coef(w), diag + tv.mul_coef(w))
+                } else {
+                    (rhs + tie, diag + tv)
+                };
+            }
+            if i + 1 == n {
+                rhs += self.tip_load.scale(c.c_f);
+            }
+            solve.row(i, Sym3::iso(diag).add(g).add(g_next), &g, rhs);
+            (g, t) = (g_next, t_next);
+        }
+        solve.solve(n)
     }
 
     /// Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs) for mass `i` with tie
@@ -636,7 +760,9 @@ impl<S: Scalar> Brush<S> {
         let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
         let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
         if w > S::ZERO {
-            let tie = scale(self.skel[i] - self.spine[i], row.c_t)
+            // The skeleton where the substep started (VS^t): its motion in the substep, w,
+            // enters through c_tv alone.
+            let tie = scale((self.skel[i] - self.skel_vel[i]) - self.spine[i], row.c_t)
                 + scale(self.skel_vel[i] - self.vel[i], row.c_tv);
             // A mass clear of the paper has weight exactly one, and scaling by one is exact in
             // every scalar type: skip those three multiplies. A weight below one is a
@@ -1263,8 +1389,18 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         [row(2.0, false), row(2.0, true)],
         [row(1.0, false), row(1.0, true)],
     ];
+    let implicit = Implicit {
+        c_k: S::from_f32(h * h * ks / m),
+        c_k_compressed: S::from_f32(h * h * ks * p.compression_ratio / m),
+        c_d: S::from_f32(h * kd / m),
+        c_t: S::from_f32(h * h * kt / m),
+        c_tv: S::from_f32((h * h * kt + h * kdt) / m),
+        c_f: S::from_f32(h * h * 1e3 / m),
+    };
     Derived {
+        backward_euler: p.integrator == INTEGRATOR_BACKWARD_EULER,
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
+        implicit,
         layers: n,
         k: p.ring_nodes as usize,
         iterations: p.jacobi_iterations as usize,

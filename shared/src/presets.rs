@@ -26,7 +26,7 @@
 
 use core::fmt;
 
-use crate::params::BrushParams;
+use crate::params::{BrushParams, INTEGRATOR_BACKWARD_EULER};
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
@@ -38,19 +38,20 @@ pub const LARGE: BrushParams = BrushParams {
     belly: 0.5,
     mass_g: 1.0,
     axial_stiffness: 2000.0,
-    axial_damping: 0.02,
+    axial_damping: 0.06,
     compression_ratio: 0.001,
     tie_stiffness: 1.5,
     tie_damping: 0.01,
     paper_drag: 0.05,
     plasticity: 0.0,
     jacobi_iterations: 4,
-    substeps_per_tick: 25,
+    substeps_per_tick: 1,
     spread_tf: 0.6,
     spread_rate: 0.0005,
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.1,
+    integrator: INTEGRATOR_BACKWARD_EULER,
 };
 
 /// 小楷: small regular-script brush.
@@ -70,12 +71,13 @@ pub const SMALL: BrushParams = BrushParams {
     paper_drag: 0.008,
     plasticity: 0.0,
     jacobi_iterations: 4,
-    substeps_per_tick: 25,
+    substeps_per_tick: 1,
     spread_tf: 0.6,
     spread_rate: 0.0005,
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.05,
+    integrator: INTEGRATOR_BACKWARD_EULER,
 };
 
 /// Presets by the names the CLI and the protocol use.

@@ -60,17 +60,18 @@
 
 use core::mem::MaybeUninit;
 
-use crate::params::{
-    BrushParams, ParamError, ParamId, INTEGRATOR_BACKWARD_EULER, MAX_LAYERS, REFERENCE_SUBSTEP_HZ,
-    TICK_HZ,
-};
+#[cfg(feature = "backward-euler")]
+use crate::params::INTEGRATOR_BACKWARD_EULER;
+use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
+#[cfg(feature = "backward-euler")]
 mod chain_solve;
 pub mod state_frame;
 
+#[cfg(feature = "backward-euler")]
 use chain_solve::{ChainSolve, Sym3};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
@@ -109,6 +110,7 @@ struct Row<S> {
 
 /// Per-substep coefficients of the backward-Euler step (see the module docs), each in units
 /// of the mass it moves: `h^2 k / m` and `h c / m`.
+#[cfg(feature = "backward-euler")]
 #[derive(Copy, Clone, Debug)]
 struct Implicit<S> {
     /// h^2 k_s / m.
@@ -135,9 +137,11 @@ struct Derived<S> {
     iterations: usize,
     substeps: usize,
     /// Backward Euler (else the thesis's Kang & Cho scheme).
+    #[cfg(feature = "backward-euler")]
     backward_euler: bool,
     /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
     exact_solve: bool,
+    #[cfg(feature = "backward-euler")]
     implicit: Implicit<S>,
     /// [interior or tip][untied or tied]
     rows: [[Row<S>; 2]; 2],
@@ -569,12 +573,20 @@ impl<S: Scalar> Brush<S> {
         for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
             *t = tie_weight_at(&self.d, x.z);
         }
+        // A build without the backward-Euler step refuses that parameter (see
+        // `BrushParams::validate`), so `backward_euler` is never set there.
+        #[cfg(feature = "backward-euler")]
         let mut solve = ChainSolve::new();
+        #[cfg(feature = "backward-euler")]
         let du = if self.d.backward_euler {
             self.backward_euler(u0, &ties, &mut solve)
         } else {
             self.kang_cho(u0 - old_ferrule_vel, &ties, solve.scratch())
         };
+        #[cfg(not(feature = "backward-euler"))]
+        let mut scratch = [Vec3::ZERO; MAX_LAYERS];
+        #[cfg(not(feature = "backward-euler"))]
+        let du = self.kang_cho(u0 - old_ferrule_vel, &ties, &mut scratch);
         self.spine[0] = self.skel[0];
         self.vel[0] = u0;
 
@@ -668,6 +680,7 @@ impl<S: Scalar> Brush<S> {
         du
     }
 
+    #[cfg(feature = "backward-euler")]
     /// Backward Euler (see the module docs): linearised about the substep's start with each
     /// segment's own Jacobian, the spine's block-tridiagonal system solved exactly; the
     /// velocity change of each free mass, given the ferrule's displacement `u0` in this
@@ -1389,6 +1402,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         [row(2.0, false), row(2.0, true)],
         [row(1.0, false), row(1.0, true)],
     ];
+    #[cfg(feature = "backward-euler")]
     let implicit = Implicit {
         c_k: S::from_f32(h * h * ks / m),
         c_k_compressed: S::from_f32(h * h * ks * p.compression_ratio / m),
@@ -1398,8 +1412,10 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         c_f: S::from_f32(h * h * 1e3 / m),
     };
     Derived {
+        #[cfg(feature = "backward-euler")]
         backward_euler: p.integrator == INTEGRATOR_BACKWARD_EULER,
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
+        #[cfg(feature = "backward-euler")]
         implicit,
         layers: n,
         k: p.ring_nodes as usize,

@@ -317,6 +317,14 @@ impl BrushParams {
         for id in ParamId::ALL {
             check_value(id, self.get(id))?;
         }
+        #[cfg(not(feature = "backward-euler"))]
+        if self.integrator == INTEGRATOR_BACKWARD_EULER {
+            return Err(ParamError::Inconsistent {
+                param: ParamId::Integrator,
+                // Short: it is flash on the one board that lacks the step.
+                why: "only 1 (Kang & Cho) on this board",
+            });
+        }
         if self.tip_radius_mm > self.radius_mm {
             return Err(ParamError::Inconsistent {
                 param: ParamId::TipRadiusMm,

@@ -74,9 +74,6 @@ pub struct BoardInfo {
     /// the host chooses; the host may still set `SubstepsPerTick` itself (a rate the core
     /// cannot hold latches `LOOP_OVERRUN`, motors off).
     pub substeps_per_tick: Option<u8>,
-    /// The integrator this board runs in place of the preset's (`None`: the preset's); an
-    /// image built without the backward-Euler step must say `INTEGRATOR_KANG_CHO` here.
-    pub integrator: Option<u8>,
 }
 
 impl BoardInfo {
@@ -85,9 +82,6 @@ impl BoardInfo {
         let mut p = preset;
         if let Some(n) = self.substeps_per_tick {
             p.substeps_per_tick = n;
-        }
-        if let Some(i) = self.integrator {
-            p.integrator = i;
         }
         p
     }

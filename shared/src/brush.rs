@@ -108,6 +108,11 @@ struct Row<S> {
     c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
 }
 
+/// Half the band of strain across which the backward-Euler step's axial stiffness goes from
+/// the compression's to the stretch's (see `Brush::backward_euler`).
+#[cfg(feature = "backward-euler")]
+pub const STIFFNESS_BLEND_STRAIN: f64 = 1e-4;
+
 /// Per-substep coefficients of the backward-Euler step (see the module docs), each in units
 /// of the mass it moves: `h^2 k / m` and `h c / m`.
 #[cfg(feature = "backward-euler")]
@@ -117,6 +122,11 @@ struct Implicit<S> {
     c_k: S,
     /// The same in compression (times the compression ratio).
     c_k_compressed: S,
+    /// `c_k - c_k_compressed`: the axial stiffness's step at the rest length.
+    c_k_stretch_step: S,
+    /// [`STIFFNESS_BLEND_STRAIN`], and one over twice it.
+    blend_strain: S,
+    inv_blend_width: S,
     /// h k_d / m.
     c_d: S,
     /// h^2 k_t / m.
@@ -709,17 +719,22 @@ impl<S: Scalar> Brush<S> {
             }
             let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
             let g = if len2 > self.d.tiny2 {
+                // The Jacobian k (e I + (1 - e) d d^T), e = 1 - L/|d| the strain, d the unit
+                // direction. Compressed (e < 0) the transverse term k e (I - d d^T) is
+                // negative (the hairs buckle): left out, so the matrix stays positive
+                // definite and the step stable (the force itself keeps it), and the axial
+                // stiffness is the compression's. The axial stiffness steps from k c_r to k
+                // at the rest length, where a brush at rest sits: blended across a band of
+                // +-STIFFNESS_BLEND_STRAIN so that the step is a continuous function of the
+                // state, and a rounding of the strain across zero (fixed point against f64)
+                // changes it by a rounding, not by the step.
                 let strain = S::ONE - self.d.segment * r;
-                if strain >= S::ZERO {
-                    // k (e I + (1 - e) d d^T) with e = 1 - L/|d|: (1 - e) / |d|^2 = L r^3.
-                    let axial = c.c_k * (self.d.segment * r) * (r * r);
-                    Sym3::iso_plus_outer(c.c_k * strain + c.c_d, axial, v)
-                } else {
-                    // Compressed: the transverse term k e (I - d d^T) is negative (the
-                    // hairs buckle); left out, so the matrix stays positive definite and the
-                    // step stable. The force itself keeps it.
-                    Sym3::iso_plus_outer(c.c_d, c.c_k_compressed * (r * r), v)
-                }
+                let stretched = strain.max(S::ZERO);
+                let blend = ((strain + c.blend_strain) * c.inv_blend_width).clamp(S::ZERO, S::ONE);
+                let axial = c.c_k_compressed + c.c_k_stretch_step * blend;
+                // (1 - e) d d^T with d = v r: (1 - e) r^2 v v^T.
+                let outer = axial * (S::ONE - stretched) * (r * r);
+                Sym3::iso_plus_outer(c.c_k * stretched + c.c_d, outer, v)
             } else {
                 Sym3::iso(c.c_d)
             };
@@ -1406,6 +1421,9 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let implicit = Implicit {
         c_k: S::from_f32(h * h * ks / m),
         c_k_compressed: S::from_f32(h * h * ks * p.compression_ratio / m),
+        c_k_stretch_step: S::from_f32(h * h * ks * (1.0 - p.compression_ratio) / m),
+        blend_strain: S::from_f32(STIFFNESS_BLEND_STRAIN as f32),
+        inv_blend_width: S::from_f32((0.5 / STIFFNESS_BLEND_STRAIN) as f32),
         c_d: S::from_f32(h * kd / m),
         c_t: S::from_f32(h * h * kt / m),
         c_tv: S::from_f32((h * h * kt + h * kdt) / m),

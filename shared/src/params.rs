@@ -125,7 +125,7 @@ impl ParamId {
             ParamId::SpreadMax => (1.0, 4.0, false),
             ParamId::Wetness => (0.0, 1.0, false),
             ParamId::FootprintEpsMm => (0.001, 2.0, false),
-            ParamId::Integrator => (0.0, 1.0, true),
+            ParamId::Integrator => (INTEGRATORS.0 as f32, INTEGRATORS.1 as f32, true),
         }
     }
 }
@@ -247,6 +247,17 @@ pub const INTEGRATOR_BACKWARD_EULER: u8 = 0;
 /// `integrator` 1: the thesis's approximate implicit scheme (Kang & Cho, eqs. 2.19-2.33).
 pub const INTEGRATOR_KANG_CHO: u8 = 1;
 
+/// The integrators this build has, lowest and highest, and the presets' choice: all of them
+/// and backward Euler, except in a build without it (`maobi-shared`'s `backward-euler`
+/// feature: the Black Pill's image, which the step does not fit yet), where `integrator`'s
+/// valid range is the thesis's alone and the presets use that.
+#[cfg(feature = "backward-euler")]
+const INTEGRATORS: (u8, u8) = (INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO);
+#[cfg(not(feature = "backward-euler"))]
+const INTEGRATORS: (u8, u8) = (INTEGRATOR_KANG_CHO, INTEGRATOR_KANG_CHO);
+/// The presets' integrator: the lowest this build has (see `INTEGRATORS`).
+pub const DEFAULT_INTEGRATOR: u8 = INTEGRATORS.0;
+
 impl BrushParams {
     /// Reads one parameter as `f32`.
     pub fn get(&self, id: ParamId) -> f32 {
@@ -316,14 +327,6 @@ impl BrushParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         for id in ParamId::ALL {
             check_value(id, self.get(id))?;
-        }
-        #[cfg(not(feature = "backward-euler"))]
-        if self.integrator == INTEGRATOR_BACKWARD_EULER {
-            return Err(ParamError::Inconsistent {
-                param: ParamId::Integrator,
-                // Short: it is flash on the one board that lacks the step.
-                why: "only 1 (Kang & Cho) on this board",
-            });
         }
         if self.tip_radius_mm > self.radius_mm {
             return Err(ParamError::Inconsistent {

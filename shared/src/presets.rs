@@ -26,7 +26,7 @@
 
 use core::fmt;
 
-use crate::params::{BrushParams, INTEGRATOR_BACKWARD_EULER};
+use crate::params::{BrushParams, DEFAULT_INTEGRATOR};
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
@@ -51,7 +51,7 @@ pub const LARGE: BrushParams = BrushParams {
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.1,
-    integrator: INTEGRATOR_BACKWARD_EULER,
+    integrator: DEFAULT_INTEGRATOR,
 };
 
 /// 小楷: small regular-script brush.
@@ -77,7 +77,7 @@ pub const SMALL: BrushParams = BrushParams {
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.05,
-    integrator: INTEGRATOR_BACKWARD_EULER,
+    integrator: DEFAULT_INTEGRATOR,
 };
 
 /// Presets by the names the CLI and the protocol use.

@@ -112,12 +112,11 @@ static BOARD: BoardInfo = BoardInfo {
     // The thesis's integrator (Kang & Cho) at one substep per 1 ms tick: the presets'
     // backward-Euler step does not fit this core's 50,000-instruction tick or the image's
     // flash yet (`hil bench`, `hil size`; docs/figures.md has the counts), so the image is
-    // built without it (`maobi-shared`'s `backward-euler` feature) and runs the thesis's
-    // step, whose large steps damp the spine: the hairs creep back after a press instead of
+    // built without it (`maobi-shared`'s `backward-euler` feature), where the presets run the
+    // thesis's step, whose large steps damp the spine: the hairs creep back after a press instead of
     // springing back (`shared/tests/convergence.rs` prints both integrators' tables).
     // Not measured on a board yet.
     substeps_per_tick: Some(1),
-    integrator: Some(maobi_shared::params::INTEGRATOR_KANG_CHO),
 };
 
 type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;

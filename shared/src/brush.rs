@@ -8,12 +8,41 @@
 //!    turns with the handle). The ferrule is kept on or above the paper: like the thesis's
 //!    god-object (4.2.3) the drawn brush never enters the paper; how far the *hand* went in is
 //!    the force model's business.
-//! 2. **Dynamics** (eqs. 2.19-2.33, Kang & Cho). Velocities are kept as displacement per
-//!    substep `u = v h` (mm); multiplying eq. 2.33 through by `h` gives, for free mass i,
+//! 2. **Dynamics.** Velocities are kept as displacement per substep `u = v h` (mm). Two
+//!    integrators, chosen by the `integrator` parameter:
+//!
+//!    **Backward Euler** (the default, `Brush::backward_euler`). The forces are linearised
+//!    where the substep starts, each spring with its own Jacobian: for a segment d = S_j -
+//!    S_{j-1} with strain e = 1 - L/|d| and unit direction d^, `k_s (e I + (1 - e) d^ d^T)`
+//!    (the thesis's eq. 2.21 uses `k_s I` in every direction, which acts as a neighbour damper
+//!    of `h k_s` across the chain and makes the brush's response depend on h). In units of
+//!    the mass, per free mass i,
+//!
+//!    ```text
+//!    (1 + t_i c_tv) du_i + sum_j G_j (du_i - du_j)
+//!        = sum_j [c_k f_j + G_j (u_j - u_i)] + t_i [c_t (VS^t_i - S_i) + c_tv (w_i - u_i)]
+//!    G_j = c_k (e+ I + (1 - e+) d^ d^T) + c_d I
+//!    ```
+//!
+//!    over its one or two segments j, with `c_k = h^2 k_s / m`, `c_d = h k_d / m`, `c_t = h^2
+//!    k_t / m`, `c_tv = c_t + h k_dt / m`, `f_j` the spring term `(1 - L/|d|) d` with the
+//!    mass's sign, `e+ = max(e, 0)`: compressed, the negative transverse stiffness (buckling)
+//!    stays in the force but not in the matrix, which keeps the system positive definite and
+//!    the step stable, and the axial stiffness is the compression's (blended with the
+//!    stretch's across [`STIFFNESS_BLEND_STRAIN`] of the rest length, so the step is
+//!    continuous in the state). `VS^t_i` is the skeleton node where the substep started and
+//!    `w_i` its displacement in it; the ferrule's prescribed displacement `u_0` enters as
+//!    the neighbour velocity of mass 1. The prescribed motion so enters once, and a spine
+//!    moving steadily with its skeleton stays where it hangs. The system is block-tridiagonal
+//!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`). One substep
+//!    per tick gives the converged brush within 10% (`tests/convergence.rs`).
+//!
+//!    **Kang & Cho** (eqs. 2.19-2.33, the thesis's, `Brush::kang_cho`). Multiplying eq. 2.33
+//!    through by `h` gives, for free mass i,
 //!
 //!    ```text
 //!    p_i   = c_k sum_j [(1 - L/|d_ij|) d_ij + (u_j - u_i)] + c_d sum_j (u_j - u_i)
-//!          + t_i [c_t (VS_i - S_i) + (c_t + c_dt) (w_i - u_i)]
+//!          + t_i [c_t (VS^t_i - S_i) + (c_t + c_dt) (w_i - u_i)]
 //!    du_i(0) = p_i,   du_i(k) = p_i + (c_k + c_d) sum_j du_j(k-1)
 //!    ```
 //!
@@ -22,13 +51,14 @@
 //!    `t_i` the weight of mass i's tie to the skeleton (0 lying on the paper, 3.1.2, rising
 //!    to 1 at [`TIE_RAMP_MM`]; the implicit rows always include the tie, which changes W' by
 //!    under 0.01% at the presets' stiffness and keeps the solve independent of contact),
-//!    `w_i` the skeleton node's own displacement this substep, and `du_0` the ferrule's
-//!    prescribed velocity change. The coefficients are dimensionless and computed in `f64`
-//!    when a parameter changes, so `h^2` never meets the fixed-point format.
+//!    and `du_0` the ferrule's prescribed velocity change.
 //!
 //!    The iterations are the thesis's method and are used while they converge well; for
 //!    stiffer springs or longer substeps the same system is solved exactly in O(N) (see
 //!    [`JACOBI_LIMIT`] for the stability analysis behind the switch).
+//!
+//!    In both, the coefficients are dimensionless and computed when a parameter changes, so
+//!    `h^2` never meets the fixed-point format.
 //! 3. **Paper.** Viscous drag (eq. 4.1) on masses lying on the paper, applied implicitly
 //!    (`u_par /= 1 + h C_f / m`, stable for any drag). Then `S_i += u_i`, and a mass below the
 //!    paper is projected back onto it with its downward velocity removed (Fig. 4-5).

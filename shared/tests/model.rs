@@ -250,7 +250,10 @@ fn brush_built_in_place_is_the_same() {
 /// scale under a load as at the presets' 25 kHz.
 #[test]
 fn the_boards_one_substep_per_tick_still_behaves() {
+    // The Black Pill's brush: the thesis's integrator (its image lacks the presets'), one
+    // substep per tick.
     let mut params = presets::LARGE;
+    params.integrator = maobi_shared::params::INTEGRATOR_KANG_CHO;
     params.substeps_per_tick = 1;
     params.plasticity = 0.0;
 
@@ -295,7 +298,7 @@ fn the_boards_one_substep_per_tick_still_behaves() {
     let bend = chord[0].atan2(-chord[2]).to_degrees();
 
     println!(
-        "large brush, 1 substep per tick: rest drift {rest:.2e} mm; from rest after a press: \
+        "large brush, thesis integrator, 1 substep per tick: rest drift {rest:.2e} mm; from rest after a press: \
          {back_half:.3} mm at 0.5 s, {back:.3} mm at 3 s; largest move per tick while held \
          pressed {jitter:.2e} mm; 1 N bends the chord {bend:.0} deg"
     );

@@ -613,46 +613,56 @@ impl<S: Scalar> Brush<S> {
         for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
             *t = tie_weight_at(&self.d, x.z);
         }
-        // A build without the backward-Euler step refuses that parameter (see
-        // `BrushParams::validate`), so `backward_euler` is never set there.
+        // A build without the backward-Euler step has only the thesis's in `integrator`'s
+        // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
         #[cfg(feature = "backward-euler")]
-        let mut solve = ChainSolve::new();
-        #[cfg(feature = "backward-euler")]
-        let du = if self.d.backward_euler {
-            self.backward_euler(u0, &ties, &mut solve)
-        } else {
-            self.kang_cho(u0 - old_ferrule_vel, &ties, solve.scratch())
-        };
-        #[cfg(not(feature = "backward-euler"))]
-        let mut scratch = [Vec3::ZERO; MAX_LAYERS];
-        #[cfg(not(feature = "backward-euler"))]
-        let du = self.kang_cho(u0 - old_ferrule_vel, &ties, &mut scratch);
+        if self.d.backward_euler {
+            let mut solve = ChainSolve::new();
+            let du = self.backward_euler(u0, &ties, &mut solve);
+            self.integrate(u0, &ties, du[1..n].iter().copied());
+            return;
+        }
+        let p = self.kang_cho(u0 - old_ferrule_vel, &ties);
+        self.integrate(
+            u0,
+            &ties,
+            p[3..3 * n]
+                .chunks_exact(3)
+                .map(|e| Vec3::new(e[0], e[1], e[2])),
+        );
+    }
+
+    /// The substep's end, once the velocity change `du` of each free mass (from mass 1 on) is
+    /// known: the ferrule moved by `u0`; integration, paper drag and projection (Fig. 4-5), per
+    /// mass, with the tie weights `ties`.
+    #[inline(always)]
+    fn integrate(
+        &mut self,
+        u0: Vec3<S>,
+        ties: &[S; MAX_LAYERS],
+        du: impl Iterator<Item = Vec3<S>>,
+    ) {
+        let n = self.d.n();
         self.spine[0] = self.skel[0];
         self.vel[0] = u0;
-
-        // Integrate, paper drag, projection (Fig. 4-5), per mass.
         let drag_loss = self.d.drag_loss;
         let tol = self.d.contact_tol;
         for ((((x, u), du), w), touching) in self.spine[1..n]
             .iter_mut()
             .zip(&mut self.vel[1..n])
-            .zip(&du[1..n])
+            .zip(du)
             .zip(&ties[1..n])
             .zip(&mut self.contact[1..n])
         {
-            *touching = integrate_mass(x, u, *du, *w, drag_loss, tol);
+            *touching = integrate_mass(x, u, du, *w, drag_loss, tol);
         }
     }
 
     /// The thesis's step (eqs. 2.19-2.33, Kang & Cho; see the module docs): the velocity
-    /// change of each free mass into `du`, given the ferrule's `du0` and the tie weights.
+    /// change of each free mass, flattened (mass i at `3i..3i + 3`), given the ferrule's
+    /// `du0` and the tie weights.
     #[inline(always)]
-    fn kang_cho<'a>(
-        &mut self,
-        du0: Vec3<S>,
-        ties: &[S; MAX_LAYERS],
-        du: &'a mut [Vec3<S>; MAX_LAYERS],
-    ) -> &'a [Vec3<S>; MAX_LAYERS] {
+    fn kang_cho(&mut self, du0: Vec3<S>, ties: &[S; MAX_LAYERS]) -> [S; FLAT] {
         let n = self.d.n();
         let d = &self.d;
         // Every row includes the tie (see the module docs), so only two rows occur: the
@@ -714,10 +724,7 @@ impl<S: Scalar> Brush<S> {
         } else {
             jacobi(&mut p, inner.c_j, tip.c_j, n, d.iterations);
         }
-        for (out, e) in du[1..n].iter_mut().zip(p[3..].chunks_exact(3)) {
-            *out = Vec3::new(e[0], e[1], e[2]);
-        }
-        du
+        p
     }
 
     #[cfg(feature = "backward-euler")]

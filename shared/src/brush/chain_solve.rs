@@ -213,12 +213,6 @@ impl<S: Scalar> ChainSolve<S> {
         self.z[i] = self.inv.mul_vec(y);
     }
 
-    /// Room for a solution found another way (the thesis's scheme), to hand on as this
-    /// solve's would be.
-    pub fn scratch(&mut self) -> &mut [Vec3<S>; MAX_LAYERS] {
-        &mut self.z
-    }
-
     /// The back substitution after rows `1..n` were eliminated: `du_i` of each free mass,
     /// at `i` (entry 0 untouched).
     #[inline]

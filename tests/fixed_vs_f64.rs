@@ -1,9 +1,11 @@
-//! The device's fixed-point model against the f64 reference on every example stroke: every
+//! The device's fixed-point model against the f64 reference on every example stroke and on
+//! the stroke file's 永, at the presets' rate (one substep per tick, what the pen runs): every
 //! spine mass stays within 5 um of the f64 run at every 1 ms tick of the whole stroke.
 
 use maobi::poses::PoseTrack;
+use maobi::strokes::Character;
 use maobi_shared::{presets, Brush, Fx};
-use maobi_tests::example_pose_files;
+use maobi_tests::{example_pose_files, workspace_root};
 
 const TOLERANCE_MM: f64 = 5e-3;
 
@@ -18,8 +20,15 @@ fn fixed_matches_f64_on_every_example() {
     // The example strokes are written for the large brush's 40 mm head (the small one would
     // not reach the paper on them).
     for (name, params) in [("large", &presets::LARGE)] {
-        for file in &files {
-            let track = PoseTrack::from_path(file).unwrap_or_else(|e| panic!("{e}"));
+        let yong = workspace_root().join("examples/strokes/yong.toml");
+        let tracks = files
+            .iter()
+            .map(|f| PoseTrack::from_path(f).unwrap_or_else(|e| panic!("{e}")))
+            .chain([Character::from_path(&yong)
+                .and_then(|c| c.track("yong"))
+                .unwrap_or_else(|e| panic!("{}: {e}", yong.display()))]);
+        for (k_file, track) in tracks.enumerate() {
+            let file = files.get(k_file).cloned().unwrap_or_else(|| yong.clone());
             let mut poses = track.resample();
             let first = poses.next().expect("a track has a first pose");
             let mut fixed = Brush::<Fx>::new(*params, first.cast()).unwrap();
@@ -38,7 +47,7 @@ fn fixed_matches_f64_on_every_example() {
                     }
                 }
             }
-            let stem = file.file_stem().unwrap().to_string_lossy();
+            let stem = file.file_stem().unwrap().to_string_lossy().into_owned();
             println!(
                 "{name:5} {stem:12} {} ticks ({contact_ticks} touching the paper): largest |fixed - f64| = {:.3} um (mass {worst_mass}, tick {worst_tick})",
                 track.ticks(),

@@ -10,6 +10,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
+use maobi_shared::params::{INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO};
+use maobi_shared::presets;
 
 use crate::qemu::{Clock, Run};
 
@@ -19,6 +21,8 @@ pub const BUDGET: u64 = 50_000;
 /// One `BENCH tick ...` line, converted to instructions.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TickCost {
+    /// `params::INTEGRATOR_*` (images that predate the choice ran the thesis's).
+    pub integrator: u64,
     pub substeps: u64,
     pub min: u64,
     pub mean: u64,
@@ -46,15 +50,26 @@ pub struct Report {
 }
 
 impl Report {
-    /// The preset's rate (25 substeps): the number the issue asks for.
+    /// The default brush as the desktop runs it (the large preset's integrator and rate):
+    /// the number the budget is for.
     pub fn per_tick(&self) -> Option<&TickCost> {
-        self.ticks.iter().find(|t| t.substeps == 25)
+        let p = presets::LARGE;
+        self.ticks.iter().find(|t| {
+            t.integrator == u64::from(p.integrator) && t.substeps == u64::from(p.substeps_per_tick)
+        })
     }
-    /// The largest measured substep rate whose worst tick fits [`BUDGET`].
-    pub fn largest_fitting(&self) -> Option<u64> {
+    /// The thesis's integrator at one substep per tick: what an image without the presets'
+    /// integrator (the Black Pill's) runs.
+    pub fn thesis_one_substep(&self) -> Option<&TickCost> {
         self.ticks
             .iter()
-            .filter(|t| t.max <= BUDGET)
+            .find(|t| t.integrator == u64::from(INTEGRATOR_KANG_CHO) && t.substeps == 1)
+    }
+    /// The largest measured substep rate whose worst tick fits [`BUDGET`], with `integrator`.
+    pub fn largest_fitting(&self, integrator: u8) -> Option<u64> {
+        self.ticks
+            .iter()
+            .filter(|t| t.integrator == u64::from(integrator) && t.max <= BUDGET)
             .map(|t| t.substeps)
             .max()
     }
@@ -117,6 +132,11 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
                 );
             }
             r.ticks.push(TickCost {
+                integrator: m
+                    .get("integrator")
+                    .map_or(Ok(u64::from(INTEGRATOR_KANG_CHO)), |_| {
+                        num(&m, "integrator")
+                    })?,
                 substeps: num(&m, "substeps")?,
                 min: to_instr(num(&m, "min_counts")?),
                 mean: to_instr(num(&m, "mean_counts")?),
@@ -124,6 +144,7 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
             });
         } else if rest.starts_with("guided ") {
             r.guided = Some(TickCost {
+                integrator: u64::from(presets::LARGE.integrator),
                 substeps: num(&m, "substeps")?,
                 min: to_instr(num(&m, "min_counts")?),
                 mean: to_instr(num(&m, "mean_counts")?),
@@ -197,13 +218,19 @@ pub fn render(r: &Report) -> String {
     let _ = writeln!(s, "force-loop tick, large brush, 16 layers, bench stroke (hang, press, drag, lift), -icount shift={}", r.shift);
     let _ = writeln!(
         s,
-        "{:>9} {:>12} {:>12} {:>12}  fits {} ?",
-        "substeps", "min", "mean", "max", BUDGET
+        "{:>16} {:>9} {:>12} {:>12} {:>12}  fits {} ?",
+        "integrator", "substeps", "min", "mean", "max", BUDGET
     );
     for t in &r.ticks {
+        let name = if t.integrator == u64::from(INTEGRATOR_KANG_CHO) {
+            "thesis"
+        } else {
+            "backward-euler"
+        };
         let _ = writeln!(
             s,
-            "{:>9} {:>12} {:>12} {:>12}  {}",
+            "{:>16} {:>9} {:>12} {:>12} {:>12}  {}",
+            name,
             t.substeps,
             t.min,
             t.mean,
@@ -246,16 +273,31 @@ pub fn render(r: &Report) -> String {
         "instructions per scalar operation (incl. loop overhead): {}",
         ops.join(", ")
     );
-    match r.largest_fitting() {
-        Some(n) => {
-            let _ = writeln!(s, "largest measured substeps_per_tick within {BUDGET}: {n}");
+    for (integrator, name) in [
+        (INTEGRATOR_BACKWARD_EULER, "backward Euler"),
+        (INTEGRATOR_KANG_CHO, "the thesis's integrator"),
+    ] {
+        match r.largest_fitting(integrator) {
+            Some(n) => {
+                let _ = writeln!(
+                    s,
+                    "largest measured substeps_per_tick within {BUDGET} with {name}: {n}"
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    s,
+                    "no measured substep rate fits {BUDGET} instructions per tick with {name}"
+                );
+            }
         }
-        None => {
-            let _ = writeln!(
-                s,
-                "no measured substep rate fits {BUDGET} instructions per tick"
-            );
-        }
+    }
+    if let Some(t) = r.thesis_one_substep() {
+        let _ = writeln!(
+            s,
+            "the Black Pill's brush (the thesis's integrator, 1 substep): worst tick {}",
+            t.max
+        );
     }
     let worst = r.per_tick().map(|t| t.max).unwrap_or(0);
     let _ = write!(s, "instructions_per_tick={worst}");

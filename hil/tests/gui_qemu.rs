@@ -22,7 +22,7 @@ use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::{start_hand, GuiOptions};
-use maobi_shared::presets;
+use maobi_shared::{presets, ParamId};
 
 fn image() -> Option<PathBuf> {
     firmware::qemu_test_image()
@@ -77,6 +77,21 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
     let sim = SimDevice::new(SimClock::Stepped(20), "large", start_hand(length)).unwrap();
     let mut local = app(Box::new(sim));
     local.run_steps(2);
+    // The emulated pen ticks as fast as QEMU runs it (deterministic time, idle skipped) and,
+    // like a pen, holds its last pose on a tick that none reached; the in-process simulator
+    // ticks once per pose. So that both see every pose on its own tick, the pen must not
+    // outrun the app's stream: 25 substeps per tick (on both) slow its ticks below the
+    // stream's pace under QEMU.
+    let paced = |h: &mut Harness<'static, MaobiApp>| {
+        h.state_mut().set_param(ParamId::SubstepsPerTick, 25.0);
+        let end = Instant::now() + Duration::from_secs(30);
+        while h.state().status().params.substeps_per_tick != 25 {
+            assert!(Instant::now() < end, "the device took the rate");
+            h.run_steps(1);
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    };
+    paced(&mut local);
     replay(&mut local, &hook, Duration::from_secs(120));
 
     // The firmware under QEMU, every tick's state on its UART0 socket.
@@ -113,6 +128,7 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
             .is_some_and(|v| v.contains("qemu")),
         "the handshake names the QEMU board: {status:?}"
     );
+    paced(&mut remote);
     replay(&mut remote, &hook, Duration::from_secs(300));
 
     let (a, b) = (

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use maobi_shared::footprint::{self, Geometry};
-use maobi_shared::{Brush, BrushParams, BrushScalar, Scalar, Vec2};
+use maobi_shared::{Brush, BrushParams, Scalar, Vec2};
 
 use crate::offline::simulate;
 use crate::poses::PoseTrack;
@@ -171,7 +171,7 @@ impl Inker {
 }
 
 /// Simulates `track` in scalar type `S` and inks every tick onto a new canvas.
-pub fn render<S: BrushScalar>(
+pub fn render<S: Scalar>(
     params: BrushParams,
     track: &PoseTrack,
     frame: Frame,

@@ -437,18 +437,18 @@ fn repeated_params_apply_in_command_line_order() {
     let p = input.path();
     let default = trace_with(p, &[]).unwrap();
     let two = trace_with(p, &["--param", "substeps_per_tick=2"]).unwrap();
-    let two_then_25 = ["--param", "substeps_per_tick=2"];
-    let then_25 = [&two_then_25[..], &["--param", "substeps_per_tick=25"]].concat();
+    assert!(two != default, "two substeps change the trace");
+    // The preset's own rate, given after another.
+    let own = format!(
+        "substeps_per_tick={}",
+        maobi_shared::presets::LARGE.substeps_per_tick
+    );
+    let then_own = ["--param", "substeps_per_tick=2", "--param", &own];
     assert!(
-        trace_with(p, &then_25).unwrap() == default,
+        trace_with(p, &then_own).unwrap() == default,
         "the last one wins"
     );
-    let then_2 = [
-        "--param",
-        "substeps_per_tick=25",
-        "--param",
-        "substeps_per_tick=2",
-    ];
+    let then_2 = ["--param", &own, "--param", "substeps_per_tick=2"];
     assert!(trace_with(p, &then_2).unwrap() == two, "the last one wins");
     // Each is checked against the brush as it stands, on top of the chosen preset: a 4 mm
     // tip is wider than the small brush's 2.5 mm root (not the large brush's 6 mm), so it is

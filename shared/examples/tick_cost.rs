@@ -7,8 +7,8 @@
 //! `valgrind --tool=callgrind target/release/examples/tick_cost fixed 1000`, then
 //! `callgrind_annotate --auto=yes callgrind.out.<pid>` for the per-line picture (the substep is
 //! inlined into `Brush::tick`). With `DUMP=1` it prints the final spine, layer radii and
-//! axes, to compare two builds' results; with `SCALAR=1` the host's wide kernels are off.
-use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
+//! axes, to compare two builds' results.
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 use std::hint::black_box;
 
 fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
@@ -21,7 +21,7 @@ fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
     )
 }
 
-fn run<S: BrushScalar>(ticks: usize) {
+fn run<S: Scalar>(ticks: usize) {
     let mut b = Brush::<S>::new(presets::LARGE, stroke_pose(0)).unwrap();
     let poses: Vec<Pose<S>> = (0..ticks).map(stroke_pose).collect();
     let start = std::time::Instant::now();
@@ -49,10 +49,6 @@ fn run<S: BrushScalar>(ticks: usize) {
 }
 
 fn main() {
-    // The host's wide kernels off (the scalar loops, the same bits): to compare the two.
-    if std::env::var_os("SCALAR").is_some() {
-        maobi_shared::wide::set_enabled(false);
-    }
     let args: Vec<String> = std::env::args().collect();
     let ticks = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(2000);
     match args.get(1).map(String::as_str) {

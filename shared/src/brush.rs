@@ -8,12 +8,41 @@
 //!    turns with the handle). The ferrule is kept on or above the paper: like the thesis's
 //!    god-object (4.2.3) the drawn brush never enters the paper; how far the *hand* went in is
 //!    the force model's business.
-//! 2. **Dynamics** (eqs. 2.19-2.33, Kang & Cho). Velocities are kept as displacement per
-//!    substep `u = v h` (mm); multiplying eq. 2.33 through by `h` gives, for free mass i,
+//! 2. **Dynamics.** Velocities are kept as displacement per substep `u = v h` (mm). Two
+//!    integrators, chosen by the `integrator` parameter:
+//!
+//!    **Backward Euler** (the default, `Brush::backward_euler`). The forces are linearised
+//!    where the substep starts, each spring with its own Jacobian: for a segment d = S_j -
+//!    S_{j-1} with strain e = 1 - L/|d| and unit direction d^, `k_s (e I + (1 - e) d^ d^T)`
+//!    (the thesis's eq. 2.21 uses `k_s I` in every direction, which acts as a neighbour damper
+//!    of `h k_s` across the chain and makes the brush's response depend on h). In units of
+//!    the mass, per free mass i,
+//!
+//!    ```text
+//!    (1 + t_i c_tv) du_i + sum_j G_j (du_i - du_j)
+//!        = sum_j [c_k f_j + G_j (u_j - u_i)] + t_i [c_t (VS^t_i - S_i) + c_tv (w_i - u_i)]
+//!    G_j = c_k (e+ I + (1 - e+) d^ d^T) + c_d I
+//!    ```
+//!
+//!    over its one or two segments j, with `c_k = h^2 k_s / m`, `c_d = h k_d / m`, `c_t = h^2
+//!    k_t / m`, `c_tv = c_t + h k_dt / m`, `f_j` the spring term `(1 - L/|d|) d` with the
+//!    mass's sign, `e+ = max(e, 0)`: compressed, the negative transverse stiffness (buckling)
+//!    stays in the force but not in the matrix, which keeps the system positive definite and
+//!    the step stable, and the axial stiffness is the compression's (blended with the
+//!    stretch's across [`STIFFNESS_BLEND_STRAIN`] of the rest length, so the step is
+//!    continuous in the state). `VS^t_i` is the skeleton node where the substep started and
+//!    `w_i` its displacement in it; the ferrule's prescribed displacement `u_0` enters as
+//!    the neighbour velocity of mass 1. The prescribed motion so enters once, and a spine
+//!    moving steadily with its skeleton stays where it hangs. The system is block-tridiagonal
+//!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`). One substep
+//!    per tick gives the converged brush within 10% (`tests/convergence.rs`).
+//!
+//!    **Kang & Cho** (eqs. 2.19-2.33, the thesis's, `Brush::kang_cho`). Multiplying eq. 2.33
+//!    through by `h` gives, for free mass i,
 //!
 //!    ```text
 //!    p_i   = c_k sum_j [(1 - L/|d_ij|) d_ij + (u_j - u_i)] + c_d sum_j (u_j - u_i)
-//!          + t_i [c_t (VS_i - S_i) + (c_t + c_dt) (w_i - u_i)]
+//!          + t_i [c_t (VS^t_i - S_i) + (c_t + c_dt) (w_i - u_i)]
 //!    du_i(0) = p_i,   du_i(k) = p_i + (c_k + c_d) sum_j du_j(k-1)
 //!    ```
 //!
@@ -22,13 +51,14 @@
 //!    `t_i` the weight of mass i's tie to the skeleton (0 lying on the paper, 3.1.2, rising
 //!    to 1 at [`TIE_RAMP_MM`]; the implicit rows always include the tie, which changes W' by
 //!    under 0.01% at the presets' stiffness and keeps the solve independent of contact),
-//!    `w_i` the skeleton node's own displacement this substep, and `du_0` the ferrule's
-//!    prescribed velocity change. The coefficients are dimensionless and computed in `f64`
-//!    when a parameter changes, so `h^2` never meets the fixed-point format.
+//!    and `du_0` the ferrule's prescribed velocity change.
 //!
 //!    The iterations are the thesis's method and are used while they converge well; for
 //!    stiffer springs or longer substeps the same system is solved exactly in O(N) (see
 //!    [`JACOBI_LIMIT`] for the stability analysis behind the switch).
+//!
+//!    In both, the coefficients are dimensionless and computed when a parameter changes, so
+//!    `h^2` never meets the fixed-point format.
 //! 3. **Paper.** Viscous drag (eq. 4.1) on masses lying on the paper, applied implicitly
 //!    (`u_par /= 1 + h C_f / m`, stable for any drag). Then `S_i += u_i`, and a mass below the
 //!    paper is projected back onto it with its downward velocity removed (Fig. 4-5).
@@ -60,12 +90,19 @@
 
 use core::mem::MaybeUninit;
 
+#[cfg(feature = "backward-euler")]
+use crate::params::INTEGRATOR_BACKWARD_EULER;
 use crate::params::{BrushParams, ParamError, ParamId, MAX_LAYERS, REFERENCE_SUBSTEP_HZ, TICK_HZ};
 use crate::quat::{Pose, Quat};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
+#[cfg(feature = "backward-euler")]
+mod chain_solve;
 pub mod state_frame;
+
+#[cfg(feature = "backward-euler")]
+use chain_solve::{ChainSolve, Sym3};
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -101,6 +138,35 @@ struct Row<S> {
     c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
 }
 
+/// Half the band of strain across which the backward-Euler step's axial stiffness goes from
+/// the compression's to the stretch's (see `Brush::backward_euler`).
+#[cfg(feature = "backward-euler")]
+pub const STIFFNESS_BLEND_STRAIN: f64 = 1e-4;
+
+/// Per-substep coefficients of the backward-Euler step (see the module docs), each in units
+/// of the mass it moves: `h^2 k / m` and `h c / m`.
+#[cfg(feature = "backward-euler")]
+#[derive(Copy, Clone, Debug)]
+struct Implicit<S> {
+    /// h^2 k_s / m.
+    c_k: S,
+    /// The same in compression (times the compression ratio).
+    c_k_compressed: S,
+    /// `c_k - c_k_compressed`: the axial stiffness's step at the rest length.
+    c_k_stretch_step: S,
+    /// [`STIFFNESS_BLEND_STRAIN`], and one over twice it.
+    blend_strain: S,
+    inv_blend_width: S,
+    /// h k_d / m.
+    c_d: S,
+    /// h^2 k_t / m.
+    c_t: S,
+    /// (h^2 k_t + h k_dt) / m.
+    c_tv: S,
+    /// h^2 / m in mm per newton: an external force's displacement.
+    c_f: S,
+}
+
 /// Everything derived from the parameters that the substep needs: recomputed by
 /// [`Brush::set_params`], never on the substep path.
 #[derive(Copy, Clone, Debug)]
@@ -110,8 +176,13 @@ struct Derived<S> {
     k: usize,
     iterations: usize,
     substeps: usize,
+    /// Backward Euler (else the thesis's Kang & Cho scheme).
+    #[cfg(feature = "backward-euler")]
+    backward_euler: bool,
     /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
     exact_solve: bool,
+    #[cfg(feature = "backward-euler")]
+    implicit: Implicit<S>,
     /// [interior or tip][untied or tied]
     rows: [[Row<S>; 2]; 2],
     /// 1 - 1 / (1 + h C_f / m): the share of in-plane velocity the paper's drag takes.
@@ -204,7 +275,7 @@ pub struct Brush<S: Scalar> {
     substeps_done: u64,
 }
 
-impl<S: BrushScalar> Brush<S> {
+impl<S: Scalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
@@ -437,7 +508,7 @@ impl<S: Scalar> Brush<S> {
     }
 }
 
-impl<S: BrushScalar> Brush<S> {
+impl<S: Scalar> Brush<S> {
     /// Advances one 1 ms tick to the handle pose `target`. Over the tick's substeps each
     /// skeleton node (the ferrule, node 0, with them) moves in equal steps along the straight
     /// line from where the previous tick's pose placed it to where `target` places it; the
@@ -462,19 +533,13 @@ impl<S: BrushScalar> Brush<S> {
             for ((st, e), now) in step.iter_mut().zip(&end).zip(&self.skel) {
                 *st = (*e - *now).scale_coef(self.d.inv_substeps);
             }
-            // Whether the host's wide form may take the steps (see `wide`): once a tick.
-            let wide = S::node_steps_fit(&self.skel[..self.d.n()], &step[..self.d.n()], n);
             for _ in 1..n {
                 self.substep_by(|b| {
                     let n = b.d.n();
-                    if !(wide && S::step_nodes_wide(&mut b.skel[..n], &mut b.skel_vel[..n], &step))
+                    for ((node, vel), st) in b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
                     {
-                        for ((node, vel), st) in
-                            b.skel[..n].iter_mut().zip(&mut b.skel_vel).zip(&step)
-                        {
-                            *node += *st;
-                            *vel = *st;
-                        }
+                        *node += *st;
+                        *vel = *st;
                     }
                     // The orientation stays the tick's start until its last substep.
                     b.handle.pos = b.skel[0];
@@ -537,11 +602,68 @@ impl<S: BrushScalar> Brush<S> {
     #[inline(never)]
     fn dynamics(&mut self, old_ferrule: Vec3<S>, old_ferrule_vel: Vec3<S>) {
         let n = self.d.n();
-        // The ferrule moves rigidly: its velocity change is prescribed.
-        self.spine[0] = self.skel[0];
-        self.vel[0] = self.skel[0] - old_ferrule;
-        let du0 = self.vel[0] - old_ferrule_vel;
+        // The ferrule moves rigidly: its displacement this substep is prescribed. The springs
+        // and the ties are evaluated where the substep starts (the spine, ferrule included,
+        // where it was; the skeleton where it was, `VS - w`), and the prescribed motion
+        // enters once, through the implicit terms.
+        let u0 = self.skel[0] - old_ferrule;
+        // The tie weight of each mass, once: the tie and the paper drag both read it, and both
+        // read it before the mass moves.
+        let mut ties = [S::ZERO; MAX_LAYERS];
+        for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
+            *t = tie_weight_at(&self.d, x.z);
+        }
+        // A build without the backward-Euler step has only the thesis's in `integrator`'s
+        // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
+        #[cfg(feature = "backward-euler")]
+        if self.d.backward_euler {
+            let mut solve = ChainSolve::new();
+            let du = self.backward_euler(u0, &ties, &mut solve);
+            self.integrate(u0, &ties, du[1..n].iter().copied());
+            return;
+        }
+        let p = self.kang_cho(u0 - old_ferrule_vel, &ties);
+        self.integrate(
+            u0,
+            &ties,
+            p[3..3 * n]
+                .chunks_exact(3)
+                .map(|e| Vec3::new(e[0], e[1], e[2])),
+        );
+    }
 
+    /// The substep's end, once the velocity change `du` of each free mass (from mass 1 on) is
+    /// known: the ferrule moved by `u0`; integration, paper drag and projection (Fig. 4-5), per
+    /// mass, with the tie weights `ties`.
+    #[inline(always)]
+    fn integrate(
+        &mut self,
+        u0: Vec3<S>,
+        ties: &[S; MAX_LAYERS],
+        du: impl Iterator<Item = Vec3<S>>,
+    ) {
+        let n = self.d.n();
+        self.spine[0] = self.skel[0];
+        self.vel[0] = u0;
+        let drag_loss = self.d.drag_loss;
+        let tol = self.d.contact_tol;
+        for ((((x, u), du), w), touching) in self.spine[1..n]
+            .iter_mut()
+            .zip(&mut self.vel[1..n])
+            .zip(du)
+            .zip(&ties[1..n])
+            .zip(&mut self.contact[1..n])
+        {
+            *touching = integrate_mass(x, u, du, *w, drag_loss, tol);
+        }
+    }
+
+    /// The thesis's step (eqs. 2.19-2.33, Kang & Cho; see the module docs): the velocity
+    /// change of each free mass, flattened (mass i at `3i..3i + 3`), given the ferrule's
+    /// `du0` and the tie weights.
+    #[inline(always)]
+    fn kang_cho(&mut self, du0: Vec3<S>, ties: &[S; MAX_LAYERS]) -> [S; FLAT] {
+        let n = self.d.n();
         let d = &self.d;
         // Every row includes the tie (see the module docs), so only two rows occur: the
         // interior masses 1..n-1 share one, the tip has its own.
@@ -555,24 +677,8 @@ impl<S: BrushScalar> Brush<S> {
         // Segments 2.. have not moved since the surface update measured them (if it did).
         let first_cached = if self.segments_cached { 2 } else { usize::MAX };
         self.segments_cached = false;
-        // With none cached, the host's wide form measures them four at a time where it
-        // applies (see `wide`), the same values: bit j is set for a segment it did.
-        let done = if first_cached == usize::MAX {
-            S::segments_wide(&mut Segments {
-                n,
-                spine: &self.spine,
-                len2: &mut self.seg_len2,
-                rsqrt: &mut self.seg_rsqrt,
-                seg: &mut seg,
-                segment: d.segment,
-                compression_ratio: d.compression_ratio,
-                tiny2: d.tiny2,
-            })
-        } else {
-            0
-        };
-        // The others start their inverse square root from the segment's last one, which is
-        // kept for the next substep.
+        // Each starts its inverse square root from the segment's last one, which is kept for
+        // the next substep.
         for (j, ((f, pair), (len2, r))) in (1..).zip(
             seg[1..n].iter_mut().zip(self.spine[..n].windows(2)).zip(
                 self.seg_len2[1..n]
@@ -580,21 +686,11 @@ impl<S: BrushScalar> Brush<S> {
                     .zip(&mut self.seg_rsqrt[1..n]),
             ),
         ) {
-            if done >> j & 1 != 0 {
-                continue;
-            }
             let v = pair[1] - pair[0];
             if j < first_cached {
                 (*len2, *r) = measure_near(v, *r);
             }
             *f = spring_with(d, v, *len2, *r);
-        }
-
-        // The tie weight of each mass, once: the tie and the paper drag both read it, and both
-        // read it before the mass moves.
-        let mut ties = [S::ZERO; MAX_LAYERS];
-        for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
-            *t = tie_weight_at(d, x.z);
         }
 
         // p is kept flattened (x_0, y_0, z_0, x_1, ...) for the solve, see [`jacobi`].
@@ -608,21 +704,9 @@ impl<S: BrushScalar> Brush<S> {
             .iter()
             .all(|c| c.is_coef())
         {
-            let rows = InteriorRows {
-                n,
-                seg: &seg,
-                vel: &self.vel,
-                spine: &self.spine,
-                skel: &self.skel,
-                skel_vel: &self.skel_vel,
-                ties: &ties,
-                coefs: [inner.c_k, inner.c_j, inner.c_t, inner.c_tv],
-            };
-            if !S::interior_rows_wide(&rows, &mut p) {
-                self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_tested_coef);
-            }
+            self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_tested_coef);
         } else {
-            self.interior_rhs(&inner, &seg, &ties, &mut p, S::mul_coef);
+            self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_coef);
         }
         let r = self.row_rhs(
             &tip,
@@ -640,34 +724,90 @@ impl<S: BrushScalar> Brush<S> {
         } else {
             jacobi(&mut p, inner.c_j, tip.c_j, n, d.iterations);
         }
-        let du = &p;
+        p
+    }
 
-        // Integrate, paper drag, projection (Fig. 4-5), all per mass: masses 1..from in the
-        // host's wide form where it applies (see `wide`), the same values, the rest here.
-        let drag_loss = self.d.drag_loss;
-        let tol = self.d.contact_tol;
-        let from = S::integrate_wide(&mut Integration {
-            n,
-            spine: &mut self.spine,
-            vel: &mut self.vel,
-            contact: &mut self.contact,
-            du,
-            ties: &ties,
-            drag_loss,
-            contact_tol: tol,
-        })
-        .max(1)
-        .min(n);
-        for ((((x, u), du), w), touching) in self.spine[from..n]
-            .iter_mut()
-            .zip(&mut self.vel[from..n])
-            .zip(du[3 * from..3 * n].chunks_exact(3))
-            .zip(&ties[from..n])
-            .zip(&mut self.contact[from..n])
-        {
-            let du = Vec3::new(du[0], du[1], du[2]);
-            *touching = integrate_mass(x, u, du, *w, drag_loss, tol);
+    #[cfg(feature = "backward-euler")]
+    /// Backward Euler (see the module docs): linearised about the substep's start with each
+    /// segment's own Jacobian, the spine's block-tridiagonal system solved exactly; the
+    /// velocity change of each free mass, given the ferrule's displacement `u0` in this
+    /// substep and the tie weights.
+    #[inline(always)]
+    fn backward_euler<'a>(
+        &mut self,
+        u0: Vec3<S>,
+        ties: &[S; MAX_LAYERS],
+        solve: &'a mut ChainSolve<S>,
+    ) -> &'a [Vec3<S>; MAX_LAYERS] {
+        let n = self.d.n();
+        let c = self.d.implicit;
+        // Segments 2.. have not moved since the surface update measured them (if it did).
+        let first_cached = if self.segments_cached { 2 } else { usize::MAX };
+        self.segments_cached = false;
+        // Segment j's Jacobian block G_j and its term T_j = c_k f_j + G_j (u_j - u_{j-1}) in
+        // the rows of its two masses (+ in row j-1, - in row j), linearised where the substep
+        // starts; u_0 is the ferrule's new displacement, so its prescribed motion enters
+        // here, once.
+        let mut segment = |j: usize| -> (Sym3<S>, Vec3<S>) {
+            let j = j.clamp(1, MAX_LAYERS - 1);
+            let v = self.spine[j] - self.spine[j - 1];
+            if j < first_cached {
+                (self.seg_len2[j], self.seg_rsqrt[j]) = measure_near(v, self.seg_rsqrt[j]);
+            }
+            let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
+            let g = if len2 > self.d.tiny2 {
+                // The Jacobian k (e I + (1 - e) d d^T), e = 1 - L/|d| the strain, d the unit
+                // direction. Compressed (e < 0) the transverse term k e (I - d d^T) is
+                // negative (the hairs buckle): left out, so the matrix stays positive
+                // definite and the step stable (the force itself keeps it), and the axial
+                // stiffness is the compression's. The axial stiffness steps from k c_r to k
+                // at the rest length, where a brush at rest sits: blended across a band of
+                // +-STIFFNESS_BLEND_STRAIN so that the step is a continuous function of the
+                // state, and a rounding of the strain across zero (fixed point against f64)
+                // changes it by a rounding, not by the step.
+                let strain = S::ONE - self.d.segment * r;
+                let stretched = strain.max(S::ZERO);
+                let blend = ((strain + c.blend_strain) * c.inv_blend_width).clamp(S::ZERO, S::ONE);
+                let axial = c.c_k_compressed + c.c_k_stretch_step * blend;
+                // (1 - e) d d^T with d = v r: (1 - e) r^2 v v^T.
+                let outer = axial * (S::ONE - stretched) * (r * r);
+                Sym3::iso_plus_outer(c.c_k * stretched + c.c_d, outer, v)
+            } else {
+                Sym3::iso(c.c_d)
+            };
+            let f = spring_with(&self.d, v, len2, r);
+            let rel = self.vel[j] - if j == 1 { u0 } else { self.vel[j - 1] };
+            (g, f.scale(c.c_k) + g.mul_vec(rel))
+        };
+        let (mut g, mut t) = segment(1);
+        for i in 1..n {
+            let (g_next, t_next) = if i + 1 < n {
+                segment(i + 1)
+            } else {
+                (Sym3::ZERO, Vec3::ZERO)
+            };
+            let w = ties[i];
+            let mut rhs = t_next - t;
+            let mut diag = S::ONE;
+            if w > S::ZERO {
+                // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
+                // where the substep started.
+                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale(c.c_t)
+                    + (self.skel_vel[i] - self.vel[i]).scale(c.c_tv);
+                let tv = c.c_tv;
+                (rhs, diag) = if w < S::ONE {
+                    (rhs + tie.scale_coef(w), diag + tv.mul_coef(w))
+                } else {
+                    (rhs + tie, diag + tv)
+                };
+            }
+            if i + 1 == n {
+                rhs += self.tip_load.scale(c.c_f);
+            }
+            solve.row(i, Sym3::iso(diag).add(g).add(g_next), &g, rhs);
+            (g, t) = (g_next, t_next);
         }
+        solve.solve(n)
     }
 
     /// Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs) for mass `i` with tie
@@ -685,7 +825,9 @@ impl<S: BrushScalar> Brush<S> {
         let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
         let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
         if w > S::ZERO {
-            let tie = scale(self.skel[i] - self.spine[i], row.c_t)
+            // The skeleton where the substep started (VS^t): its motion in the substep, w,
+            // enters through c_tv alone.
+            let tie = scale((self.skel[i] - self.skel_vel[i]) - self.spine[i], row.c_t)
                 + scale(self.skel_vel[i] - self.vel[i], row.c_tv);
             // A mass clear of the paper has weight exactly one, and scaling by one is exact in
             // every scalar type: skip those three multiplies. A weight below one is a
@@ -891,33 +1033,13 @@ impl<S: BrushScalar> Brush<S> {
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
         let mut prev_dir = Vec3::<S>::ZERO;
-        // The host's wide form measures the segments four at a time first, where it applies
-        // (see `wide`): bit i is set for a segment it did, with the same values.
-        let measured = S::measure_wide(n, &self.spine, &mut self.seg_len2, &mut self.seg_rsqrt);
         // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined (see below).
         let min_cross = self.d.tiny;
-        // The host's wide form also sets the layers' axes four at a time where it applies
-        // (see `wide`), from the short axes of step 1: bit i is set for a layer it did, with
-        // the same values (each layer's axes read only its own short axis and segment).
-        let axes_done = S::layer_axes_wide(&mut LayerAxes {
-            n,
-            spine: &self.spine,
-            len2: &self.seg_len2,
-            rsqrt: &self.seg_rsqrt,
-            measured,
-            layers: &mut self.layers,
-            min_len2,
-            min_cross,
-        });
         for i in 1..n {
             let v = self.spine[i] - self.spine[i - 1];
             // Kept for the next substep's springs too (as `measure_segments` does, inline
             // here so the loop reads each segment once).
-            let (len2, r) = if measured >> i & 1 != 0 {
-                (self.seg_len2[i], self.seg_rsqrt[i])
-            } else {
-                measure(v)
-            };
+            let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
             let dir = if len2 > min_len2 {
@@ -930,9 +1052,6 @@ impl<S: BrushScalar> Brush<S> {
                 tilt_sum += tilt[i - 1];
             }
             prev_dir = dir;
-            if axes_done >> i & 1 != 0 {
-                continue;
-            }
             let layer = &mut self.layers[i];
             // Unit vectors: coefficient products (the same values), here and below.
             let la = layer.short_axis.cross_coef(dir);
@@ -1012,14 +1131,11 @@ const FLAT: usize = 3 * MAX_LAYERS;
 /// per-mass branch or struct shuffling, and for the float types it vectorises. Each entry is
 /// computed with the same operations in the same order as per [`Vec3`], so the results are
 /// the same bits.
-fn jacobi<S: BrushScalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
+fn jacobi<S: Scalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
     // The two coefficients are the same for every sweep: tested once (the presets' are in
     // (-1, 1)), not on each of the sweeps' products; the same values either way.
     if c.is_coef() && c_tip.is_coef() {
-        // The host's wide form where it applies (see `wide`), the same values.
-        if !S::jacobi_wide(p, (c, c_tip), n, iterations) {
-            jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
-        }
+        jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
     } else {
         jacobi_with(p, c, c_tip, n, iterations, S::mul_coef);
     }
@@ -1100,12 +1216,8 @@ fn jacobi_with<S: Scalar>(
 
 /// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6), from the node
 /// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
-fn place_skeleton<S: BrushScalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
+fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
-    // Four nodes at a time in the host's wide form where it applies (see `wide`).
-    if S::place_nodes_wide(pose.pos, offsets, &m, out) {
-        return;
-    }
     // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
     // nine entries tested once for all nodes rather than on each product.
     if m.iter().flatten().all(|c| c.is_coef()) {
@@ -1150,7 +1262,7 @@ fn tie_weight_at<S: Scalar>(d: &Derived<S>, z: S) -> S {
 /// One mass's integration, paper drag and projection (Fig. 4-5): velocity `u` plus its
 /// change `du`, dragged in proportion to how much the mass lies on the paper (tie weight
 /// `w`), added to the position `x`; whether the mass then touches the paper (z at most
-/// `tol`). Also the reference the host's wide form is tested against (`wide`).
+/// `tol`).
 #[inline(always)]
 pub(crate) fn integrate_mass<S: Scalar>(
     x: &mut Vec3<S>,
@@ -1219,8 +1331,7 @@ fn spring_with<S: Scalar>(dv: &Derived<S>, d: Vec3<S>, len2: S, inv_len: S) -> V
     )
 }
 
-/// [`spring_with`] with the rest length, compression ratio and `tiny2` given: also the
-/// reference the host's wide form of the springs is tested against (`wide`).
+/// [`spring_with`] with the rest length, compression ratio and `tiny2` given.
 #[inline]
 pub(crate) fn spring_term<S: Scalar>(
     d: Vec3<S>,
@@ -1343,8 +1454,24 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         [row(2.0, false), row(2.0, true)],
         [row(1.0, false), row(1.0, true)],
     ];
+    #[cfg(feature = "backward-euler")]
+    let implicit = Implicit {
+        c_k: S::from_f32(h * h * ks / m),
+        c_k_compressed: S::from_f32(h * h * ks * p.compression_ratio / m),
+        c_k_stretch_step: S::from_f32(h * h * ks * (1.0 - p.compression_ratio) / m),
+        blend_strain: S::from_f32(STIFFNESS_BLEND_STRAIN as f32),
+        inv_blend_width: S::from_f32((0.5 / STIFFNESS_BLEND_STRAIN) as f32),
+        c_d: S::from_f32(h * kd / m),
+        c_t: S::from_f32(h * h * kt / m),
+        c_tv: S::from_f32((h * h * kt + h * kdt) / m),
+        c_f: S::from_f32(h * h * 1e3 / m),
+    };
     Derived {
+        #[cfg(feature = "backward-euler")]
+        backward_euler: p.integrator == INTEGRATOR_BACKWARD_EULER,
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
+        #[cfg(feature = "backward-euler")]
+        implicit,
         layers: n,
         k: p.ring_nodes as usize,
         iterations: p.jacobi_iterations as usize,
@@ -1368,182 +1495,6 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         tiny: S::from_f32(1e-6),
         tiny2: S::from_f32(1e-12),
     }
-}
-
-/// A number type the brush runs on: a [`Scalar`] with the brush's inner loops, each of which
-/// the type may replace by a wide form that gives the same bits. Every hook has the scalar
-/// default "no wide form" (the brush then runs its own loop); [`Fx`](crate::Fx) on x86-64
-/// hosts with AVX2 takes the wide forms of the host-only module `wide`, which implements this
-/// trait for it. The number type itself knows nothing of the brush: the brush's loops are
-/// the brush's, and a host-only speed-up changes neither `Scalar` nor the device's code.
-pub trait BrushScalar: Scalar {
-    /// The brush's Jacobi sweeps (see `brush::jacobi`) at once, for coefficients whose
-    /// [`Scalar::is_coef`] holds: turns `p` into `du` in place and returns true where the
-    /// implementation has a wide form that applies (the fixed-point one on x86-64 hosts with
-    /// AVX2, see `wide`); returns false, with `p` unchanged, where not (then the brush runs
-    /// its own sweeps).
-    #[doc(hidden)]
-    #[inline]
-    fn jacobi_wide(p: &mut [Self], coefs: (Self, Self), n: usize, iterations: usize) -> bool {
-        let _ = (p, coefs, n, iterations);
-        false
-    }
-    /// Measures the brush's spine segments and writes their spring terms (see
-    /// [`Segments`]) where the implementation has a wide form that applies, and
-    /// returns the segments done as bits (bit j: segment j); 0 where it has none.
-    #[doc(hidden)]
-    #[inline]
-    fn segments_wide(segments: &mut Segments<'_, Self>) -> u32 {
-        let _ = segments;
-        0
-    }
-    /// The surface update's layer axes (see [`LayerAxes`]) where the
-    /// implementation has a wide form that applies; the layers done as bits (bit i: layer
-    /// i), 0 where it has none.
-    #[doc(hidden)]
-    #[inline]
-    fn layer_axes_wide(axes: &mut LayerAxes<'_, Self>) -> u32 {
-        let _ = axes;
-        0
-    }
-    /// The substep's integration, paper drag and projection of masses `1..k` (see
-    /// [`Integration`]) where the implementation has a wide form that applies;
-    /// returns `k`, the first mass left for the brush's own loop (1 where it has none).
-    #[doc(hidden)]
-    #[inline]
-    fn integrate_wide(integration: &mut Integration<'_, Self>) -> usize {
-        let _ = integration;
-        1
-    }
-    /// The skeleton's nodes `pos + m offset_i` into `out` where the implementation has a
-    /// wide form that applies (see `wide`); false, having written nothing, where not.
-    #[doc(hidden)]
-    #[inline]
-    fn place_nodes_wide(
-        pos: Vec3<Self>,
-        offsets: &[[Self; MAX_LAYERS]; 3],
-        m: &[[Self; 3]; 3],
-        out: &mut [Vec3<Self>],
-    ) -> bool {
-        let _ = (pos, offsets, m, out);
-        false
-    }
-    /// Whether `substeps` straight-line steps of each node by `step` (a tick's) may be taken
-    /// by [`BrushScalar::step_nodes_wide`]: false where the implementation has no wide form.
-    #[doc(hidden)]
-    #[inline]
-    fn node_steps_fit(nodes: &[Vec3<Self>], step: &[Vec3<Self>], substeps: usize) -> bool {
-        let _ = (nodes, step, substeps);
-        false
-    }
-    /// One of those steps, `node += step`, `vel = step`, where [`BrushScalar::node_steps_fit`]
-    /// said so at the tick's start; false, having changed nothing, where not done.
-    #[doc(hidden)]
-    #[inline]
-    fn step_nodes_wide(
-        nodes: &mut [Vec3<Self>],
-        vel: &mut [Vec3<Self>],
-        step: &[Vec3<Self>],
-    ) -> bool {
-        let _ = (nodes, vel, step);
-        false
-    }
-    /// Each spine segment j in `1..n`: its squared length and [`Scalar::rsqrt`] into `len2[j]`
-    /// and `rsqrt[j]` where the implementation has a wide form that applies (see
-    /// [`crate::wide`]); the segments done as bits (bit j), 0 where none.
-    #[doc(hidden)]
-    #[inline]
-    fn measure_wide(n: usize, spine: &[Vec3<Self>], len2: &mut [Self], rsqrt: &mut [Self]) -> u32 {
-        let _ = (n, spine, len2, rsqrt);
-        0
-    }
-    /// Writes the brush's interior right-hand sides (see [`InteriorRows`]) into
-    /// `p` at once and returns true where the implementation has a wide form that applies;
-    /// returns false, having written nothing, where not (then the brush runs its own loop).
-    #[doc(hidden)]
-    #[inline]
-    fn interior_rows_wide(rows: &InteriorRows<'_, Self>, p: &mut [Self]) -> bool {
-        let _ = (rows, p);
-        false
-    }
-}
-
-impl BrushScalar for f32 {}
-impl BrushScalar for f64 {}
-
-/// What the right-hand side of the interior rows (masses `1..n-1`) reads, as `Brush` holds it:
-/// `p_i = c_k (f_{i+1} - f_i) + c_j ((u_{i-1} - u_i) + (u_{i+1} - u_i))
-///  + w_i (c_t (VS_i - S_i) + c_tv (VU_i - u_i))`,
-/// the tie term only where `w_i > 0` and its product only where `w_i < 1`.
-pub struct InteriorRows<'a, S> {
-    /// The masses (`n <= MAX_LAYERS`).
-    pub n: usize,
-    /// The spring term of segment j (between masses j-1 and j) at j, for j up to n.
-    pub seg: &'a [Vec3<S>],
-    pub vel: &'a [Vec3<S>],
-    pub spine: &'a [Vec3<S>],
-    pub skel: &'a [Vec3<S>],
-    pub skel_vel: &'a [Vec3<S>],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    /// The interior row's c_k, c_j, c_t and c_tv, each with [`Scalar::is_coef`].
-    pub coefs: [S; 4],
-}
-
-/// What the spine's segment springs read and write, as `Brush` holds them: for each segment
-/// j in `1..n` (between masses j-1 and j), `d = S_j - S_{j-1}`, its squared length and
-/// inverse length (the Newton step from the last one, see [`Scalar::rsqrt_near`]), and the
-/// spring term `(1 - L r) d`, the strain times the compression ratio where negative, zero
-/// for a segment no longer than `tiny`.
-pub struct Segments<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a mut [S],
-    /// The last inverse lengths in, the new ones out.
-    pub rsqrt: &'a mut [S],
-    /// The spring terms, at j.
-    pub seg: &'a mut [Vec3<S>],
-    /// The rest length L.
-    pub segment: S,
-    pub compression_ratio: S,
-    pub tiny2: S,
-}
-
-/// What the substep's last step reads and writes, as `Brush` holds it: for each mass i in
-/// `1..n`, `v = u_i + du_i`; where the mass lies on the paper (tie weight `w_i < 1`) its x and
-/// y scaled by `keep = 1 - (1 - w_i) drag_loss`; `S_i + v`, put back onto the paper (z = 0,
-/// a downward v.z removed) where below it; then `S_i`, `u_i` and the contact flag (z at most
-/// `contact_tol`) stored.
-pub struct Integration<'a, S> {
-    pub n: usize,
-    pub spine: &'a mut [Vec3<S>],
-    pub vel: &'a mut [Vec3<S>],
-    pub contact: &'a mut [bool],
-    /// The velocity changes, flattened (mass i at `3i..3i+3`).
-    pub du: &'a [S],
-    /// The tie weight of each mass.
-    pub ties: &'a [S],
-    pub drag_loss: S,
-    pub contact_tol: S,
-}
-
-/// What the surface update's layer axes read and write, as `Brush` holds them: for each
-/// layer i in `1..n` whose segment (masses i-1 and i) has its squared length and inverse
-/// length measured in `len2`, `rsqrt` (bit i of `measured`) and is longer than
-/// `sqrt(min_len2)`, its direction `dir` (the segment normalised), then
-/// the surface update's axes from its short axis `sa`: the long axis `LA = sa x dir`
-/// normalised (`Vec3::normalized_or_none_coef(min_cross)`, where `|sa x dir|` is above
-/// `min_cross`) and the short axis `dir x LA`, as `Vec3::cross_coef` forms them.
-pub struct LayerAxes<'a, S> {
-    pub n: usize,
-    pub spine: &'a [Vec3<S>],
-    pub len2: &'a [S],
-    pub rsqrt: &'a [S],
-    pub measured: u32,
-    /// Their short axes in (step 1's), both axes out.
-    pub layers: &'a mut [Layer<S>],
-    pub min_len2: S,
-    pub min_cross: S,
 }
 
 /// Rate conversion is exposed for tests and documentation.
@@ -1591,45 +1542,13 @@ mod tests {
         )
     }
 
-    /// The host's wide (AVX2) kernels give the scalar loops' bits over whole strokes, at the
-    /// board's rate (one substep: exact solve) and the reference rate (Jacobi sweeps).
-    #[test]
-    fn wide_kernels_change_no_bit() {
-        use crate::scalar::Fx;
-        use crate::wide;
-        for substeps in [1.0, 25.0] {
-            let mut wide_run = Brush::<Fx>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
-            wide_run
-                .set_param(ParamId::SubstepsPerTick, substeps)
-                .unwrap();
-            let mut scalar_run = wide_run.clone();
-            let mut touched = 0;
-            for k in 1..=300 {
-                // Only this test switches them; others run either way with the same results.
-                wide::set_enabled(false);
-                scalar_run.tick(pressed_stroke(k));
-                wide::set_enabled(true);
-                wide_run.tick(pressed_stroke(k));
-                touched = touched.max(wide_run.contacts());
-                assert_eq!(wide_run.spine, scalar_run.spine, "{substeps} tick {k}");
-                assert_eq!(wide_run.vel, scalar_run.vel, "{substeps} tick {k}");
-                assert_eq!(wide_run.layers, scalar_run.layers, "{substeps} tick {k}");
-            }
-            assert!(touched > 0, "{touched}");
-        }
-        if !wide::active() {
-            extern crate std;
-            std::println!("no AVX2 on this CPU: the scalar loops were compared with themselves");
-        }
-    }
-
     /// The segment lengths the surface update leaves for the next substep's springs change
     /// nothing: a brush that never uses them (the cache dropped before every tick) ends a
     /// pressed, dragged and lifted stroke with the same bits, at one substep per tick and
     /// at the presets' 25, in fixed point and in f64.
     #[test]
     fn cached_segment_lengths_change_no_bit() {
-        fn run<S: BrushScalar>(substeps: f32) {
+        fn run<S: Scalar>(substeps: f32) {
             let pose = pressed_stroke::<S>;
             let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
             cached

@@ -23,16 +23,13 @@
 //! Coordinates: millimetres, the paper is the plane z = 0 with +z up, the pose is the
 //! ferrule's, and the identity orientation holds the brush pointing straight down.
 #![cfg_attr(not(feature = "std"), no_std)]
-// Denied rather than forbidden so that two places (and nothing else) may opt out, each with
-// `#[allow(unsafe_code)]` and SAFETY notes:
-// * the Cortex-M4F's `asm!` blocks in `scalar.rs`: the one-instruction square root
-//   (`sqrt_f32`), which `core` does not offer on stable Rust, and the fixed-point add,
-//   subtract and coefficient multiply (`scalar::raw`), whose compiled forms cost half again
-//   as many instructions. All are register arithmetic; the firmware checks them on the
-//   device against their portable references;
-// * the x86-64 hosts' AVX2 kernels in `wide.rs` (intrinsics, run-time CPU detection), tested
-//   against their scalar loops bit for bit.
-// Anything else unsafe here is still an error.
+// Denied rather than forbidden so that one place (and nothing else) may opt out, with
+// `#[allow(unsafe_code)]` and SAFETY notes: the Cortex-M4F's `asm!` blocks in `scalar.rs`,
+// the one-instruction square root (`sqrt_f32`), which `core` does not offer on stable Rust,
+// and the fixed-point add, subtract and coefficient multiply (`scalar::raw`), whose compiled
+// forms cost half again as many instructions. All are register arithmetic; the firmware
+// checks them on the device against their portable references. Anything else unsafe here
+// is still an error.
 #![deny(unsafe_code)]
 
 pub mod brush;
@@ -51,10 +48,8 @@ pub mod quat;
 pub mod scalar;
 pub mod stroke;
 pub mod vec;
-#[doc(hidden)]
-pub mod wide;
 
-pub use brush::{Brush, BrushScalar, Layer};
+pub use brush::{Brush, Layer};
 pub use force_loop::ForceLoop;
 pub use params::{BrushParams, ParamError, ParamId};
 pub use quat::{Pose, Quat};

@@ -40,10 +40,11 @@ pub enum ParamId {
     SpreadMax,
     Wetness,
     FootprintEpsMm,
+    Integrator,
 }
 
 impl ParamId {
-    pub const ALL: [ParamId; 21] = [
+    pub const ALL: [ParamId; 22] = [
         ParamId::Layers,
         ParamId::RingNodes,
         ParamId::LengthMm,
@@ -65,6 +66,7 @@ impl ParamId {
         ParamId::SpreadMax,
         ParamId::Wetness,
         ParamId::FootprintEpsMm,
+        ParamId::Integrator,
     ];
 
     /// The parameter's name as the CLI, the GUI and the wire protocol spell it.
@@ -91,6 +93,7 @@ impl ParamId {
             ParamId::SpreadMax => "spread_max",
             ParamId::Wetness => "wetness",
             ParamId::FootprintEpsMm => "footprint_eps_mm",
+            ParamId::Integrator => "integrator",
         }
     }
 
@@ -122,6 +125,7 @@ impl ParamId {
             ParamId::SpreadMax => (1.0, 4.0, false),
             ParamId::Wetness => (0.0, 1.0, false),
             ParamId::FootprintEpsMm => (0.001, 2.0, false),
+            ParamId::Integrator => (INTEGRATORS.0 as f32, INTEGRATORS.1 as f32, true),
         }
     }
 }
@@ -217,7 +221,8 @@ pub struct BrushParams {
     pub paper_drag: f32,
     /// D of eq. 3-2, per step at the reference 25 kHz (0: perfectly elastic).
     pub plasticity: f32,
-    /// k: Jacobi iterations of the implicit solve (eq. 2.33).
+    /// k: Jacobi iterations of the thesis's implicit solve (eq. 2.33), when `integrator` is
+    /// [`INTEGRATOR_KANG_CHO`].
     pub jacobi_iterations: u8,
     /// Substeps in each 1 ms tick (25 = the thesis's 25 kHz).
     pub substeps_per_tick: u8,
@@ -231,7 +236,27 @@ pub struct BrushParams {
     pub wetness: f32,
     /// Surface within this height of the paper leaves ink (SPEC D).
     pub footprint_eps_mm: f32,
+    /// How the spine is integrated: [`INTEGRATOR_BACKWARD_EULER`] (the default, whose
+    /// results converge in the substep) or [`INTEGRATOR_KANG_CHO`] (the thesis's, for
+    /// comparison with the paper). See [`crate::brush`].
+    pub integrator: u8,
 }
+
+/// `integrator` 0: backward Euler with each spring's own Jacobian, solved exactly.
+pub const INTEGRATOR_BACKWARD_EULER: u8 = 0;
+/// `integrator` 1: the thesis's approximate implicit scheme (Kang & Cho, eqs. 2.19-2.33).
+pub const INTEGRATOR_KANG_CHO: u8 = 1;
+
+/// The integrators this build has, lowest and highest, and the presets' choice: all of them
+/// and backward Euler, except in a build without it (`maobi-shared`'s `backward-euler`
+/// feature: the Black Pill's image, which the step does not fit yet), where `integrator`'s
+/// valid range is the thesis's alone and the presets use that.
+#[cfg(feature = "backward-euler")]
+const INTEGRATORS: (u8, u8) = (INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO);
+#[cfg(not(feature = "backward-euler"))]
+const INTEGRATORS: (u8, u8) = (INTEGRATOR_KANG_CHO, INTEGRATOR_KANG_CHO);
+/// The presets' integrator: the lowest this build has (see `INTEGRATORS`).
+pub const DEFAULT_INTEGRATOR: u8 = INTEGRATORS.0;
 
 impl BrushParams {
     /// Reads one parameter as `f32`.
@@ -258,6 +283,7 @@ impl BrushParams {
             ParamId::SpreadMax => self.spread_max,
             ParamId::Wetness => self.wetness,
             ParamId::FootprintEpsMm => self.footprint_eps_mm,
+            ParamId::Integrator => self.integrator as f32,
         }
     }
 
@@ -293,6 +319,7 @@ impl BrushParams {
             ParamId::SpreadMax => self.spread_max = v,
             ParamId::Wetness => self.wetness = v,
             ParamId::FootprintEpsMm => self.footprint_eps_mm = v,
+            ParamId::Integrator => self.integrator = v as u8,
         }
     }
 

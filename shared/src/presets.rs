@@ -13,11 +13,16 @@
 //!   across the large brush's tip bends its ferrule-to-tip chord by about 72 degrees and 2 N
 //!   by about 81 (test `large_brush_bends_nearly_flat_under_one_to_two_newtons` in
 //!   `tests/model.rs`). Tie damping is about half of critical.
-//! * Axial springs: hair barely stretches; k_s is set stiff (h^2 k_s / m = 0.05 at 25 kHz)
-//!   while staying well inside the solver's range. The thesis's neighbour damper (eq. 2.27)
-//!   acts on the whole relative velocity, so it also resists bending: k_d = 0.02 N s/m lets the
-//!   large brush spring back from a 10 mm press to within 0.03 mm in 0.5 s (k_d = 0.1 left it
-//!   creeping at 0.11 mm).
+//! * Axial springs: hair barely stretches; k_s is set stiff (h^2 k_s / m = 0.05 at 25 kHz, 30
+//!   at the presets' one substep per 1 ms tick, which the backward-Euler step takes in its
+//!   stride) while staying well inside the solver's range.
+//! * Neighbour damping: the thesis's damper (eq. 2.27) acts on the whole relative velocity, so
+//!   it also resists bending. Its integrator added a step-dependent damping of `h k_s` between
+//!   neighbours on top (0.08 N s/m at its 25 kHz); the backward-Euler step adds none, so the
+//!   brush's feel is a real damper: k_d = 0.06 N s/m on the large brush brings it back from a
+//!   10 mm press to within 0.1 mm in 200 ms (the spring-back between the thesis's at 25 kHz
+//!   and the undamped spine's), and with this much damping one substep per tick gives the
+//!   converged brush within 10% (`tests/convergence.rs`).
 //! * Compression: 0.1% of the stretch stiffness. Hair buckles under compression; with this
 //!   ratio (0.1%) the large brush pressed 10 mm straight down lays four layers on the paper
 //!   instead of standing on its tip like a column (2% left only the tip touching).
@@ -26,7 +31,7 @@
 
 use core::fmt;
 
-use crate::params::BrushParams;
+use crate::params::{BrushParams, DEFAULT_INTEGRATOR};
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
@@ -38,19 +43,20 @@ pub const LARGE: BrushParams = BrushParams {
     belly: 0.5,
     mass_g: 1.0,
     axial_stiffness: 2000.0,
-    axial_damping: 0.02,
+    axial_damping: 0.06,
     compression_ratio: 0.001,
     tie_stiffness: 1.5,
     tie_damping: 0.01,
     paper_drag: 0.05,
     plasticity: 0.0,
     jacobi_iterations: 4,
-    substeps_per_tick: 25,
+    substeps_per_tick: 1,
     spread_tf: 0.6,
     spread_rate: 0.0005,
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.1,
+    integrator: DEFAULT_INTEGRATOR,
 };
 
 /// 小楷: small regular-script brush.
@@ -70,12 +76,13 @@ pub const SMALL: BrushParams = BrushParams {
     paper_drag: 0.008,
     plasticity: 0.0,
     jacobi_iterations: 4,
-    substeps_per_tick: 25,
+    substeps_per_tick: 1,
     spread_tf: 0.6,
     spread_rate: 0.0005,
     spread_max: 1.8,
     wetness: 0.6,
     footprint_eps_mm: 0.05,
+    integrator: DEFAULT_INTEGRATOR,
 };
 
 /// Presets by the names the CLI and the protocol use.

@@ -4,7 +4,7 @@ use maobi_shared::force::{
     ForceModel, Forces, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI,
 };
 use maobi_shared::hand::{HandParams, Script, SimHand};
-use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
 
 fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
     let h = tilt_deg.to_radians() / 2.0;
@@ -15,12 +15,7 @@ fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
 }
 
 /// Runs brush and force model one tick with the hand's ferrule at `p`.
-fn step<S: BrushScalar>(
-    b: &mut Brush<S>,
-    f: &mut ForceModel<S>,
-    p: [f64; 3],
-    tilt: f64,
-) -> Forces<S> {
+fn step<S: Scalar>(b: &mut Brush<S>, f: &mut ForceModel<S>, p: [f64; 3], tilt: f64) -> Forces<S> {
     let target = pose::<S>(p, tilt);
     b.tick(target);
     f.tick(b, target.pos)
@@ -216,7 +211,7 @@ fn a_force_beyond_fixed_points_range_is_still_clamped_to_the_peak() {
 
 /// The command after the passivity controller's ticks (see the test below), and the energy
 /// the observer holds then (J).
-fn passivity_run<S: BrushScalar>(step_mm: f64) -> (f64, f64) {
+fn passivity_run<S: Scalar>(step_mm: f64) -> (f64, f64) {
     let mut s = OutputStage::<S>::new(PHANTOM_OMNI).unwrap();
     s.enable();
     let f = Vec3::<S>::from_f64([0.5, 0.0, 0.0]);

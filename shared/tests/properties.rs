@@ -57,9 +57,10 @@ proptest! {
     /// substep per tick), handle held still after a random jolt, in the air or pressed into
     /// the paper.
     ///
-    /// In the air the energy never rises above what it was just after the jolt and falls on
-    /// every substep. (This needs the exact solve that `JACOBI_LIMIT` switches to: four Jacobi
-    /// iterations alone blow up at this stiffness.)
+    /// In the air the kinetic and tie energy never rise above the energy just after the jolt,
+    /// and the total falls over every [`WINDOW`] substeps. (The thesis's integrator needs the
+    /// exact solve that `JACOBI_LIMIT` switches to: four Jacobi iterations alone blow up at
+    /// this stiffness.)
     ///
     /// On the paper the claim is stability, not decay. The thesis unties masses lying on the
     /// paper (3.1.2), and the tie fades back in over `TIE_RAMP_MM` as a mass leaves it. That
@@ -69,10 +70,12 @@ proptest! {
     /// for by no force. So a stiff brush pressed into the paper can settle into a bounded
     /// two-substep cycle: masses a fraction of a millimetre up with their ties engaged, then
     /// back on the paper, as seen on the large brush at 37.5 degrees pressed 11.1 mm without a
-    /// jolt (where a bound on the energy after the jolt alone fails). Across many thousands of
-    /// random cases the largest energy stayed a small multiple of the energy after the jolt
-    /// plus `press_energy`, well inside the bound of 50; a runaway, like the one four Jacobi
-    /// iterations produce here, exceeds it by orders of magnitude.
+    /// jolt (where a bound on the energy after the jolt alone fails). The tie's weight is
+    /// explicit in the step (its change with height is not in the Jacobian), and backward
+    /// Euler damps that cycle less than the thesis's scheme did, so the bound is 200 times the
+    /// energy after the jolt plus `press_energy` (the small brush jolted 9 mm sideways onto a
+    /// light press, in the regressions file, comes closest); a runaway, like the one four
+    /// Jacobi iterations produce here, exceeds it by orders of magnitude.
     #[test]
     fn stiff_brush_at_the_largest_step_never_gains_energy(
         jolt in (-8.0..8.0f64, -8.0..8.0f64, -8.0..8.0f64),
@@ -90,12 +93,17 @@ proptest! {
         let held = jolt_and_hold(params, jolt, tilt, press, 3000);
         let (start_e, worst, end_e, rise) = (held.start, held.worst, held.end, held.rise);
         if press < 0.0 {
-            prop_assert!(rise <= 1e-9 * start_e + 1e-15, "energy grew by {:e} J in one substep", rise);
-            prop_assert!(worst <= start_e * (1.0 + 1e-9) + 1e-3,
+            prop_assert!(rise <= 1e-9 * start_e + 1e-15,
+                "energy grew by {:e} J over {} substeps", rise, WINDOW);
+            // What may rise for a moment is the stretch of the turning segments (see
+            // `WINDOW`), nothing else.
+            prop_assert!(held.worst_unstretched <= start_e * (1.0 + 1e-9) + 1e-15,
+                "kinetic and tie energy rose from {:e} to {:e} J", start_e, held.worst_unstretched);
+            prop_assert!(worst <= 3.0 * start_e + 1e-3,
                 "energy rose from {:e} to {:e} J", start_e, worst);
         } else {
             let scale = start_e + held.press;
-            prop_assert!(worst <= 50.0 * scale,
+            prop_assert!(worst <= 200.0 * scale,
                 "energy rose from {:e} J (with {:e} J of ties at full weight from the paper) to {:e} J",
                 start_e, held.press, worst);
         }
@@ -107,7 +115,9 @@ proptest! {
         }
     }
 
-    /// At the presets' own stiffness and rate, in the air, energy falls on every substep.
+    /// At the presets' own stiffness and rate, in the air, energy falls over every
+    /// [`WINDOW`] substeps, and only the axial springs' share ever rises above the energy
+    /// just after the jolt.
     #[test]
     fn preset_brush_loses_energy_on_every_substep(
         jolt in (-8.0..8.0f64, -8.0..8.0f64, -8.0..8.0f64),
@@ -120,13 +130,21 @@ proptest! {
         let start = [jolt.0, jolt.1, reach + 20.0 + jolt.2];
         let mut b = Brush::<f64>::new(params, pose(start, tilt, 0.0)).unwrap();
         b.substep(pose(hold, tilt, 0.0));
-        let mut last = energy(&b).total();
+        let start_e = energy(&b).total();
+        let mut recent = [start_e; WINDOW];
         for s in 0..5000 {
             b.substep(pose(hold, tilt, 0.0));
-            let e = energy(&b).total();
-            prop_assert!(e <= last * (1.0 + 1e-9) + 1e-15,
-                "energy grew at substep {}: {:e} -> {:e} J", s, last, e);
-            last = e;
+            let parts = energy(&b);
+            let e = parts.total();
+            let before = recent[s % WINDOW];
+            prop_assert!(s < WINDOW || e <= before * (1.0 + 1e-9) + 1e-15,
+                "energy grew over the {} substeps to substep {}: {:e} -> {:e} J", WINDOW, s, before, e);
+            // What may rise for a moment is the stretch of the turning segments (see
+            // `WINDOW`), nothing else.
+            prop_assert!(parts.kinetic + parts.tie <= start_e * (1.0 + 1e-9) + 1e-15,
+                "kinetic and tie energy rose above the energy after the jolt at substep {}: {:e} -> {:e} J",
+                s, start_e, parts.kinetic + parts.tie);
+            recent[s % WINDOW] = e;
         }
     }
 }
@@ -137,9 +155,11 @@ struct Held {
     start: f64,
     /// Largest energy afterwards.
     worst: f64,
+    /// Largest kinetic and tie energy afterwards (the total less the axial springs').
+    worst_unstretched: f64,
     /// Energy at the end.
     end: f64,
-    /// Largest rise over one substep.
+    /// Largest rise over any [`WINDOW`] substeps.
     rise: f64,
     /// [`press_energy`] just after the jolt.
     press: f64,
@@ -162,19 +182,35 @@ fn jolt_and_hold(
     let mut held = Held {
         start: start_e,
         worst: 0.0,
+        worst_unstretched: 0.0,
         end: start_e,
         rise: 0.0,
         press: press_energy(&b),
     };
-    for _ in 0..substeps {
+    let mut recent = [start_e; WINDOW];
+    for s in 0..substeps {
         b.substep(pose(hold, tilt, 0.0));
-        let next = energy(&b).total();
-        held.rise = held.rise.max(next - held.end);
+        let e = energy(&b);
+        let next = e.total();
+        held.worst_unstretched = held.worst_unstretched.max(e.kinetic + e.tie);
+        let slot = &mut recent[s % WINDOW];
+        if s >= WINDOW {
+            held.rise = held.rise.max(next - *slot);
+        }
+        *slot = next;
         held.end = next;
         held.worst = held.worst.max(next);
     }
     held
 }
+
+/// The energy is compared across this many substeps (10 ms at the presets' one substep per
+/// tick). Backward Euler linearises each spring where the substep starts, so a segment that
+/// turns in a substep ends it a little longer than the step predicted (by `L theta^2 / 2` for
+/// a turn `theta`): a stiff axial spring can hold slightly more energy after a substep than
+/// before, which the following substeps take out again (the axial mode is heavily damped by
+/// the step). Over a window the energy falls.
+const WINDOW: usize = 10;
 
 /// The energy the ties would hold at full weight if every mass lay on the paper straight
 /// above its skeleton node (J): what ties re-engaging as masses leave the paper can add.

@@ -12,6 +12,7 @@
 use core::fmt::Write;
 
 use maobi_shared::guide::{GuideInput, GuideStream, DEFAULT_GUIDE};
+use maobi_shared::params::{INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO};
 use maobi_shared::{presets, Fx, ParamId, Pose, Quat, Scalar, Vec3};
 
 use maobi_shared::kinematics::{KinematicsError, Pen, PenConfig, RawReadings};
@@ -233,11 +234,16 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     };
     super::FORCES_ENABLED.store(true, core::sync::atomic::Ordering::SeqCst);
 
-    for substeps in [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1] {
-        if fl
-            .core
-            .brush_mut()
-            .set_param(ParamId::SubstepsPerTick, substeps as f32)
+    // Each integrator this image has (the thesis's alone where the presets' does not fit,
+    // see `params::INTEGRATOR_KANG_CHO`) at each rate.
+    for (integrator, substeps) in [INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO]
+        .into_iter()
+        .flat_map(|i| [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1].map(|n| (i, n)))
+    {
+        let brush = fl.core.brush_mut();
+        if brush
+            .set_param(ParamId::Integrator, integrator as f32)
+            .and_then(|()| brush.set_param(ParamId::SubstepsPerTick, substeps as f32))
             .is_err()
         {
             continue;
@@ -259,7 +265,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         }
         let _ = writeln!(
             out,
-            "BENCH tick substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={} forces_on={forces_on}",
+            "BENCH tick integrator={integrator} substeps={substeps} layers={} ticks={} min_counts={} mean_counts={} max_counts={} max_at_tick={} max_contacts={contact_max} exact_solve={} unreachable={} forces_on={forces_on}",
             fl.core.brush().len(),
             st.n,
             st.min,
@@ -276,10 +282,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
     // samples, then with one every tick (the moving point 3 mm to the side of the hand and 2
     // ticks ahead, so the guide leads from the first tick on). The difference is the guide's
     // cost on the force path.
-    let _ = fl
-        .core
-        .brush_mut()
-        .set_param(ParamId::SubstepsPerTick, params.substeps_per_tick as f32);
+    let _ = fl.core.brush_mut().set_params(params);
     let side = Vec3::from_f64([0.0, 3.0, 0.0]);
     let mut base = Stats::default();
     let mut st = Stats::default();
@@ -334,7 +337,8 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         base.max,
     );
 
-    // The parts of a tick, at the preset's 25 substeps, in the pressed-and-dragging state.
+    // The parts of a tick, with the preset's integrator and rate, in the pressed-and-dragging
+    // state.
     fl.core.reset_brush(stroke_pose(0));
     let brush = fl.core.brush_mut();
     for k in 1..=300 {

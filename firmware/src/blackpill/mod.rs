@@ -109,14 +109,13 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    // One substep per 1 ms tick: the only rate whose worst tick `hil bench` counts within the
-    // 50,000-instruction budget (half a millisecond of this core, the rest left for USB, the
-    // link and flash wait states); two substeps, and the presets' 25, do not fit
-    // (docs/figures.md has the counts).
-    // The cost of the rate: large steps damp the spine, so the hairs creep back after a
-    // press instead of springing back (`shared/tests/model.rs` prints how far); rest,
-    // stability and the bend under load hold (`shared/tests/model.rs`,
-    // `shared/tests/properties.rs`). Not measured on a board yet.
+    // The thesis's integrator (Kang & Cho) at one substep per 1 ms tick: the presets'
+    // backward-Euler step does not fit this core's 50,000-instruction tick or the image's
+    // flash yet (`hil bench`, `hil size`; docs/figures.md has the counts), so the image is
+    // built without it (`maobi-shared`'s `backward-euler` feature), where the presets run the
+    // thesis's step, whose large steps damp the spine: the hairs creep back after a press instead of
+    // springing back (`shared/tests/convergence.rs` prints both integrators' tables).
+    // Not measured on a board yet.
     substeps_per_tick: Some(1),
 };
 

@@ -43,8 +43,8 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: PHANTOM_OMNI.peak_n,
     force_continuous_n: PHANTOM_OMNI.continuous_n,
-    // The presets' rate (25 kHz): CI checks it bit for bit against the host simulation,
-    // and QEMU has no real-time deadline.
+    // The presets' rate: CI checks it bit for bit against the host simulation, and QEMU has
+    // no real-time deadline.
     substeps_per_tick: None,
 };
 

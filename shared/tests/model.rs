@@ -313,3 +313,43 @@ fn the_boards_one_substep_per_tick_still_behaves() {
     );
     assert!((60.0..85.0).contains(&bend), "1 N bends it {bend} deg");
 }
+
+/// Pressed straight down, the brush lays its belly on the paper: the hair gives (a bundle
+/// carries little compression) and several layers lie on the paper, instead of the brush
+/// standing on its tip like a column. "Straight down" as a hand holds it: two
+/// degrees off the vertical (exactly vertical, the model's symmetry leaves the buckling no
+/// side to go, and the layers pile up on the axis).
+#[test]
+fn pressed_straight_down_the_brush_lays_its_belly_on_the_paper() {
+    let tilt = 2.0;
+    for (name, params) in presets::PRESETS {
+        let length = params.length_mm as f64;
+        let mut b = Brush::new(*params, pose::<Fx>(0.0, 0.0, length + 2.0, tilt)).unwrap();
+        for k in 1..=300 {
+            let z = length + 2.0 - 12.0 * k as f64 / 300.0;
+            b.tick(pose(0.0, 0.0, z, tilt));
+        }
+        ticks(&mut b, 500, pose(0.0, 0.0, length - 10.0, tilt));
+        let on_paper: Vec<[f64; 3]> = b
+            .spine()
+            .iter()
+            .zip(b.in_contact())
+            .filter(|(_, &c)| c)
+            .map(|(s, _)| s.to_f64())
+            .collect();
+        let spread = on_paper
+            .iter()
+            .map(|p| (p[0] * p[0] + p[1] * p[1]).sqrt())
+            .fold(0.0, f64::max);
+        println!(
+            "{name} pressed 10 mm straight down: {} layers on the paper, reaching {spread:.1} mm \
+             from the axis",
+            on_paper.len()
+        );
+        assert!(
+            on_paper.len() >= 3,
+            "{name}: {} layers on the paper",
+            on_paper.len()
+        );
+    }
+}

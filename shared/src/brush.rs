@@ -201,6 +201,13 @@ struct Derived<S> {
     skel_weight: [S; MAX_LAYERS],
     /// i / (N - 1) (eq. 3-17).
     layer_frac: [S; MAX_LAYERS],
+    /// 1 / k for k in 1..N (entry 0 unused): the surface update's divisions by a count of
+    /// layers, as `S::ONE.div` computes them, taken once per parameter change instead of
+    /// once per tick.
+    inv_count: [S; MAX_LAYERS],
+    /// The spread rate times i / (N - 1): the share of the way to the widest radius a
+    /// layer's long radius spreads in a tick (eqs. 3-17..3-19).
+    spread_weight: [S; MAX_LAYERS],
     contact_tol: S,
     /// 1 / TIE_RAMP_MM.
     inv_tie_ramp: S,
@@ -1003,23 +1010,31 @@ impl<S: Scalar> Brush<S> {
 
         // Step 1: short axes. First layer lying on the paper, if any.
         let first_contact = (1..n).find(|&i| self.contact[i]);
+        // The layers from here on have the paper's normal for their short axis.
+        let on_paper_from = first_contact.unwrap_or(n);
         match first_contact {
             Some(c) => {
-                let inv_c = S::ONE.div(S::from_usize(c));
+                // c < n: the entry exists (`get` only spares the force path a panic).
+                let inv_c = self.d.inv_count.get(c).copied().unwrap_or(S::ONE);
                 for i in 1..n {
                     self.layers[i].short_axis = if i >= c {
                         normal
                     } else {
-                        let w = S::from_usize(i) * inv_c;
-                        sa0.scale_coef(S::ONE - w) + normal.scale_coef(w)
+                        // i < c: the weight is below one, and 1/c too unless c is one.
+                        let w = S::from_usize(i).mul_coef(inv_c);
+                        // SA_0 (1 - w) + Z w: Z's products are exact (zero and w), so only
+                        // the z sum is left of the second term.
+                        let sa = sa0.scale_coef(S::ONE - w);
+                        Vec3::new(sa.x, sa.y, sa.z + w)
                     };
                 }
             }
             None => {
-                let end = self.layers[n - 1].short_axis;
+                // SA_0 (1 - w) + SA_end w as SA_0 + (SA_end - SA_0) w: three products a
+                // layer instead of six.
+                let span = self.layers[n - 1].short_axis - sa0;
                 for i in 1..n - 1 {
-                    let w = self.d.layer_frac[i];
-                    self.layers[i].short_axis = sa0.scale_coef(S::ONE - w) + end.scale_coef(w);
+                    self.layers[i].short_axis = sa0 + span.scale_coef(self.d.layer_frac[i]);
                 }
             }
         }
@@ -1054,7 +1069,14 @@ impl<S: Scalar> Brush<S> {
             prev_dir = dir;
             let layer = &mut self.layers[i];
             // Unit vectors: coefficient products (the same values), here and below.
-            let la = layer.short_axis.cross_coef(dir);
+            let la = if i >= on_paper_from {
+                // The short axis is the paper's normal (step 1): Z x V, the value of the
+                // general product (its factors zero and one give exact products), without
+                // its six products.
+                Vec3::new(S::ZERO - dir.y, dir.x, S::ZERO)
+            } else {
+                layer.short_axis.cross_coef(dir)
+            };
             match la.normalized_or_none_coef(min_cross) {
                 Some(la) => {
                     layer.long_axis = la;
@@ -1079,37 +1101,46 @@ impl<S: Scalar> Brush<S> {
         tilt[n - 1] = tilt[n - 2];
         self.segments_cached = true;
         let tilt_all = if n > 2 {
-            tilt_sum.div(S::from_usize(n - 2))
+            // 1 / (N - 2) is below one for N > 3 (a coefficient), one for N = 3.
+            tilt_sum.mul_coef(self.d.inv_count[n - 2])
         } else {
             S::ZERO
         };
 
         // Steps 5-6: target and relaxed radii, area preserved (eqs. 3-17..3-20).
+        // The relaxation `goal rate + RL (1 - rate)` is taken as `RL + (goal - RL) rate`, and
+        // the contact goal's spread is `RL + (max - RL) (1 - W) (i / (N - 1)) bend`: the rate
+        // joins the layer's fraction in `spread_weight` (once per parameter change), one
+        // product a layer instead of three. The bend, `tf tilt + tilt_all (1 - tilt)`, is
+        // `tilt_all + (tf - tilt_all) tilt`: one product.
         let any_contact = first_contact.is_some();
         let rate = self.d.spread_rate;
+        let bend_slope = self.d.spread_tf - tilt_all;
         for i in 1..n {
             let rest = self.d.rest_radius[i];
+            let max = self.d.max_radius[i];
             let layer = &mut self.layers[i];
             let rl = layer.long_radius;
-            let goal = if any_contact {
-                // The factors in [0, 1] (tilts, dryness, layer fraction, rates) are the
-                // coefficients of `mul_coef`: the same products, cheaper in fixed point.
-                let bend = self.d.spread_tf.mul_coef(tilt[i]) + tilt_all.mul_coef(S::ONE - tilt[i]);
-                rl + (self.d.max_radius[i] - rl)
+            // The factors in [0, 1] (tilts, dryness, weights, rates) are the coefficients of
+            // `mul_coef`: the same products, cheaper in fixed point.
+            let step = if any_contact {
+                let bend = tilt_all + bend_slope.mul_coef(tilt[i]);
+                (max - rl)
                     .mul_coef(S::ONE - layer.wetness)
-                    .mul_coef(self.d.layer_frac[i])
+                    .mul_coef(self.d.spread_weight[i])
                     .mul_coef(bend)
             } else {
-                rest
+                (rest - rl).mul_coef(rate)
             };
-            let rl = (goal.mul_coef(rate) + rl.mul_coef(S::ONE - rate))
-                .clamp(rest, self.d.max_radius[i]);
+            let rl = (rl + step).clamp(rest, max);
             layer.long_radius = rl;
             // rl is at least the rest radius and the area its square: the reciprocal's product
             // is within about r0^2 (1 + 1/r0) units of the format's resolution of the
             // quotient ([`Scalar::recip`]), a few tens (1e-8 mm), for one multiply
-            // a layer where the Cortex-M4's 64-bit division takes three and a residual.
-            layer.short_radius = self.d.rest_area[i] * rl.recip();
+            // a layer where the Cortex-M4's 64-bit division takes three and a residual. The
+            // reciprocal is below one for a long radius above a millimetre: the coefficient
+            // product then (the same value).
+            layer.short_radius = self.d.rest_area[i].mul_coef(rl.recip());
         }
     }
 }
@@ -1438,6 +1469,9 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let mut max_radius = [S::ZERO; MAX_LAYERS];
     let mut skel_weight = [S::ZERO; MAX_LAYERS];
     let mut layer_frac = [S::ZERO; MAX_LAYERS];
+    let mut inv_count = [S::ZERO; MAX_LAYERS];
+    let mut spread_weight = [S::ZERO; MAX_LAYERS];
+    let spread_rate = S::from_f32(per_substep_rate(p.spread_rate, TICK_HZ as f32));
     for i in 0..n {
         let r = p.rest_radius_mm(i);
         rest_radius[i] = S::from_f32(r);
@@ -1449,6 +1483,10 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
             0.0
         });
         layer_frac[i] = S::from_f32(i as f32 / (n as f32 - 1.0));
+        spread_weight[i] = spread_rate.mul_coef(layer_frac[i]);
+        if i > 0 {
+            inv_count[i] = S::ONE.div(S::from_usize(i));
+        }
     }
     let rows = [
         [row(2.0, false), row(2.0, true)],
@@ -1481,13 +1519,15 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         segment: S::from_f32(p.segment_mm()),
         compression_ratio: S::from_f32(p.compression_ratio),
         plasticity: S::from_f32(per_substep_rate(p.plasticity, TICK_HZ as f32)),
-        spread_rate: S::from_f32(per_substep_rate(p.spread_rate, TICK_HZ as f32)),
+        spread_rate,
         spread_tf: S::from_f32(p.spread_tf),
         rest_radius,
         rest_area,
         max_radius,
         skel_weight,
         layer_frac,
+        inv_count,
+        spread_weight,
         contact_tol: S::from_f32(CONTACT_TOLERANCE_MM as f32),
         inv_tie_ramp: S::from_f32((1.0 / TIE_RAMP_MM) as f32),
         tie_clear: S::from_f32((2.0 * TIE_RAMP_MM) as f32),

@@ -57,14 +57,16 @@ fn bench_reports_instructions_per_tick() {
     let kinematics = r.kinematics.expect("a kinematics line");
     assert!(kinematics.0 > 1000 && kinematics.1 > 100, "{kinematics:?}");
     // Guided writing's cost on the force path: the guide leads on every tick of its run and
-    // costs more than nothing (it ran) and less than 1% of the tick (its budget).
+    // costs more than nothing (it ran) and little beside the tick. Its budget was 1% of the
+    // presets' tick at 25 substeps; at one substep the tick is a fifth of that and the
+    // guide's own cost unchanged, so 2% of it.
     let g = r.guided.as_ref().expect("a guided line");
     let extra = g.mean as i64 - r.unguided.0 as i64;
     println!(
         "guide: {extra:+} instructions per tick (alone {:?})",
         r.guide_alone
     );
-    assert!(extra > 500 && extra < (g.mean / 100) as i64, "{extra}");
+    assert!(extra > 500 && extra < (g.mean / 50) as i64, "{extra}");
     assert!(
         r.guide_alone.0 > 500 && r.guide_alone.1 < 10_000,
         "{:?}",
@@ -161,16 +163,24 @@ fn the_force_path_holds_no_index_panic() {
     }
 }
 
-/// The targets, 128 KiB of flash and 32 KiB of static RAM, which both images meet
-/// (the Black Pill's is checked by `.ci/run`, `hil size --board blackpill --check`): growth
-/// past them fails here, to be seen and answered, not found later. (The chips have more:
-/// 512 KiB of flash, 128 KiB of RAM.)
+/// The targets are 128 KiB of flash and 32 KiB of static RAM, which the Black Pill's
+/// image meets (checked by `.ci/run`, `hil size --board blackpill --check`). This image also
+/// carries the presets' backward-Euler step, which the Black Pill's leaves out (it does not
+/// fit that board yet): it may exceed the targets by that step's code and its state, and no
+/// more, so growth past that fails here, to be seen and answered, not found later. (The
+/// chips have more: 512 KiB of flash, 128 KiB of RAM; the QEMU board more still.)
 #[test]
 fn image_fits_the_budget() {
     let Some(elf) = image() else { return };
     let s = firmware::size(&elf, 0x2000_0000).unwrap();
     println!("{}", s.report());
-    assert_eq!(s.over_budget(), None, "{s:?}");
+    const BACKWARD_EULER_FLASH: u64 = 8 * 1024;
+    const BACKWARD_EULER_RAM: u64 = 1024;
+    assert!(
+        s.flash <= firmware::Size::FLASH_BUDGET + BACKWARD_EULER_FLASH
+            && s.static_ram <= firmware::Size::STATIC_RAM_BUDGET + BACKWARD_EULER_RAM,
+        "{s:?}"
+    );
 }
 
 /// The image carries its boot line at info level (firmware/.cargo/config.toml's DEFMT_LOG):

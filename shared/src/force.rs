@@ -607,16 +607,25 @@ impl<S: Scalar> ForceModel<S> {
         let x = self.bristle_x - self.k_b * v.x;
         let y = self.bristle_y - self.k_b * v.y;
         let f2 = x * x + y * y;
-        let mu = if self.sliding { self.mu_k } else { self.mu_s };
-        let bound = mu * self.normal;
+        let kinetic = self.mu_k * self.normal;
+        let bound = if self.sliding {
+            kinetic
+        } else {
+            self.mu_s * self.normal
+        };
         // The normal force is never negative, so the bound is not, and comparing squares
         // compares the lengths.
         let (x, y) = if f2 > bound * bound {
-            // Slips along itself to the kinetic bound: a factor in [0, 1], which is what
-            // keeps it passive (hence the clamp: a rounding must not make it exceed one).
-            let s = ((self.mu_k * self.normal) * f2.rsqrt()).min(S::ONE);
+            // Slips along itself to the kinetic bound: a factor in [0, 1], which is what keeps
+            // it passive (hence the clamp: a rounding must not make it exceed one). Below one
+            // it is a coefficient (the cheaper product); at one there is nothing to scale.
+            let s = (kinetic * f2.rsqrt()).min(S::ONE);
             self.sliding = true;
-            (x * s, y * s)
+            if s.is_coef() {
+                (x.mul_tested_coef(s), y.mul_tested_coef(s))
+            } else {
+                (x, y)
+            }
         } else {
             self.sliding = false;
             (x, y)

@@ -1025,8 +1025,7 @@ const AUDIT_TOLERANCE_J: f64 = 2e-3;
 
 /// Guided writing through the firmware in QEMU with a simulated relaxed hand in the loop: the
 /// device leads it along the stroke of `maobi-shared`'s tests/guide.rs within the error
-/// stated there (3 mm RMS, 6 mm at most in the paper plane, the paper's friction's lag
-/// included), its
+/// stated there (2.5 mm RMS, 5 mm at most in the paper plane; 1.93 / 3.6 mm on the host), its
 /// command stays within its limits, the passivity audit holds, and every state is the host
 /// mirror's bit for bit.
 #[test]
@@ -1053,8 +1052,8 @@ fn guided_writing_leads_a_relaxed_hand_through_the_device() {
         r.sourced_j,
         r.device_ticks
     );
-    assert!(r.rms_xy_mm < 3.0, "{:.2} mm RMS", r.rms_xy_mm);
-    assert!(r.max_xy_mm < 6.0, "{:.2} mm", r.max_xy_mm);
+    assert!(r.rms_xy_mm < 2.5, "{:.2} mm RMS", r.rms_xy_mm);
+    assert!(r.max_xy_mm < 5.0, "{:.2} mm", r.max_xy_mm);
     assert!(
         r.rms_mm < 5.0 && r.max_mm < 8.0,
         "{r:?}",

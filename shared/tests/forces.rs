@@ -89,7 +89,7 @@ fn straight_press_of_five_mm_gives_between_a_third_and_three_newtons_monotonic_i
 
 /// The large brush upright with its tip `depth` mm into the paper, held until the normal
 /// force's low-pass has settled: the brush, the model and the ferrule's position.
-fn pressed<S: BrushScalar>(depth: f64) -> (Brush<S>, ForceModel<S>, [f64; 3]) {
+fn pressed<S: Scalar>(depth: f64) -> (Brush<S>, ForceModel<S>, [f64; 3]) {
     let at = [0.0, 0.0, 40.0 - depth];
     let mut b = Brush::<S>::new(presets::LARGE, pose(at, 0.0)).unwrap();
     let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
@@ -182,7 +182,7 @@ fn friction_holds_until_mu_s_then_slides_at_mu_k_against_the_motion() {
 /// `k_b |dx|^2 / 2`, whatever the hand and the normal force do.
 #[test]
 fn the_bristle_never_returns_more_than_the_hand_put_in() {
-    fn check<S: BrushScalar>() -> usize {
+    fn check<S: Scalar>() -> usize {
         let k_b = DEFAULT_FORCES.bristle_stiffness as f64 * 1e-3; // N per mm
         let mut b = Brush::<S>::new(presets::LARGE, pose([0.0, 0.0, 42.0], 20.0)).unwrap();
         let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();

@@ -1164,12 +1164,15 @@ const FLAT: usize = 3 * MAX_LAYERS;
 /// the same bits.
 fn jacobi<S: Scalar>(p: &mut [S; FLAT], c: S, c_tip: S, n: usize, iterations: usize) {
     // The two coefficients are the same for every sweep: tested once (the presets' are in
-    // (-1, 1)), not on each of the sweeps' products; the same values either way.
-    if c.is_coef() && c_tip.is_coef() {
-        jacobi_with(p, c, c_tip, n, iterations, S::mul_tested_coef);
+    // (-1, 1)), not on each of the sweeps' products; the same values either way. One copy of
+    // the sweeps, the product chosen at run time: the thesis's sweeps run only at several
+    // substeps per tick, which the pen's tick cannot afford, and its flash is short.
+    let mul: fn(S, S) -> S = if c.is_coef() && c_tip.is_coef() {
+        S::mul_tested_coef
     } else {
-        jacobi_with(p, c, c_tip, n, iterations, S::mul_coef);
-    }
+        S::mul_coef
+    };
+    jacobi_with(p, c, c_tip, n, iterations, mul);
 }
 
 /// [`jacobi`] with the product by a coefficient `mul`.

@@ -451,8 +451,9 @@ impl<S: Scalar> ForceLoop<S> {
 
 /// Energy the force model's virtual environment stores with the hand's ferrule at `hand`
 /// (J), as the passivity audit counts it: the dragged inertia mass and its spring, the
-/// paper's god-object spring, the normal force as the spring it models
-/// (`F_n^2 L_p / (2 w_n)`), and gravity's potential of the brush's weight.
+/// friction's bristle, the paper's god-object spring, the normal force as the spring it
+/// models (`F_n^2 L_p / (2 w_n)`, with the model's L_p) and gravity's potential of the brush's
+/// weight.
 pub fn stored_energy<S: Scalar>(brush: &Brush<S>, model: &ForceModel<S>, hand: Vec3<S>) -> f64 {
     let p = model.params();
     let k_c = p.constraint_stiffness as f64;
@@ -461,13 +462,18 @@ pub fn stored_energy<S: Scalar>(brush: &Brush<S>, model: &ForceModel<S>, hand: V
     let x = hand.to_f64();
     let pen = (-x[2]).max(0.0) * 1e-3;
     let skel = brush.skeleton();
-    let lowest = skel.iter().map(|v| v.z.to_f64()).fold(f64::MAX, f64::min);
-    let top = skel.first().map_or(0.0, |v| v.z.to_f64());
-    let extent = ((top - lowest) * 1e-3).max(1e-6);
+    let lowest = skel.iter().fold(S::from_f64(f64::MAX), |m, v| m.min(v.z));
+    let top = skel.first().map_or(S::ZERO, |v| v.z);
+    let extent = model.normal_extent(top - lowest).to_f64() * 1e-3;
     let f_n = model.normal_state().to_f64();
     model.inertia_energy(hand)
+        + model.friction_energy()
         + 0.5 * k_c * pen * pen
-        + f_n * f_n * extent / (2.0 * w_n)
+        + if w_n > 0.0 {
+            f_n * f_n * extent / (2.0 * w_n)
+        } else {
+            0.0
+        }
         + weight * x[2] * 1e-3
 }
 

@@ -1,7 +1,7 @@
 //! The force model and the output stage: what the hand feels, and that it is safe.
 
 use maobi_shared::force::{
-    ForceModel, Forces, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI,
+    ForceModel, Forces, FrictionLaw, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI,
 };
 use maobi_shared::hand::{HandParams, Script, SimHand};
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
@@ -85,6 +85,182 @@ fn straight_press_of_five_mm_gives_between_a_third_and_three_newtons_monotonic_i
         }
         last = n;
     }
+}
+
+/// The large brush upright with its tip `depth` mm into the paper, held until the normal
+/// force's low-pass has settled: the brush, the model and the ferrule's position.
+fn pressed<S: Scalar>(depth: f64) -> (Brush<S>, ForceModel<S>, [f64; 3]) {
+    let at = [0.0, 0.0, 40.0 - depth];
+    let mut b = Brush::<S>::new(presets::LARGE, pose(at, 0.0)).unwrap();
+    let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
+    for _ in 0..300 {
+        step(&mut b, &mut f, at, 0.0);
+    }
+    (b, f, at)
+}
+
+#[test]
+fn friction_holds_until_mu_s_then_slides_at_mu_k_against_the_motion() {
+    for scalar in ["fixed", "f64"] {
+        let run = |b: &mut dyn FnMut([f64; 3]) -> (f64, f64)| {
+            // Pulled along +x at 10 mm/s for 0.2 s, held still, then pushed back along -x.
+            let mut x = 0.0;
+            let mut trace = Vec::new();
+            for k in 0..600 {
+                x += match k {
+                    0..200 => 0.01,
+                    200..300 => 0.0,
+                    _ => -0.01,
+                };
+                trace.push(b([x, 0.0, 35.0]));
+            }
+            trace
+        };
+        let trace = match scalar {
+            "fixed" => {
+                let (mut b, mut f, _) = pressed::<Fx>(5.0);
+                run(&mut |p| {
+                    let out = step(&mut b, &mut f, p, 0.0);
+                    (out.friction.x.to_f64(), out.normal.z.to_f64())
+                })
+            }
+            _ => {
+                let (mut b, mut f, _) = pressed::<f64>(5.0);
+                run(&mut |p| {
+                    let out = step(&mut b, &mut f, p, 0.0);
+                    (out.friction.x, out.normal.z)
+                })
+            }
+        };
+        let (mu_s, mu_k) = (
+            DEFAULT_FORCES.static_friction as f64,
+            DEFAULT_FORCES.kinetic_friction as f64,
+        );
+        let k_b = DEFAULT_FORCES.bristle_stiffness as f64 * 1e-3; // N per mm
+        let n = trace[0].1;
+        assert!(n > 0.5, "{scalar}: pressed 5 mm, normal force {n} N");
+        // Sticking: the bristle's spring, k_b per mm of the hand's travel, against it.
+        assert!(
+            (trace[0].0 + k_b * 0.01).abs() < 1e-9,
+            "{scalar}: {:?}",
+            trace[0]
+        );
+        let peak = trace[..200].iter().map(|t| -t.0).fold(0.0, f64::max);
+        assert!(
+            peak <= mu_s * n + 1e-9 && peak > mu_s * n - k_b * 0.01,
+            "{scalar}: breaks away at {peak} N, mu_s F_n = {} N",
+            mu_s * n
+        );
+        // Sliding: mu_k F_n against the motion, then held there while the hand rests.
+        for (k, t) in trace.iter().enumerate().take(300).skip(150) {
+            assert!(
+                (t.0 + mu_k * t.1).abs() < 1e-7,
+                "{scalar}, tick {k}: {} N at F_n = {} N",
+                t.0,
+                t.1
+            );
+        }
+        // Pushed back: the bristle unloads and loads the other way, held by mu_s, then
+        // slides at mu_k.
+        let back = &trace[300..];
+        let most = back.iter().map(|t| t.0).fold(f64::MIN, f64::max);
+        assert!(
+            most <= mu_s * n + 1e-9 && most > mu_s * n - k_b * 0.01,
+            "{scalar}: {most}"
+        );
+        let last = back[back.len() - 1];
+        assert!((last.0 - mu_k * last.1).abs() < 1e-7, "{scalar}: {last:?}");
+        println!(
+            "{scalar}: F_n {n:.4} N, breakaway {peak:.4} N, sliding {:.4} N",
+            -trace[250].0
+        );
+    }
+}
+
+/// The derivation in `force.rs`: over every tick, the bristle's energy rises by at most the
+/// work the hand did against the friction held over the tick plus the zero-order hold's
+/// `k_b |dx|^2 / 2`, whatever the hand and the normal force do.
+#[test]
+fn the_bristle_never_returns_more_than_the_hand_put_in() {
+    fn check<S: Scalar>() -> usize {
+        let k_b = DEFAULT_FORCES.bristle_stiffness as f64 * 1e-3; // N per mm
+        let mut b = Brush::<S>::new(presets::LARGE, pose([0.0, 0.0, 42.0], 20.0)).unwrap();
+        let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut rand = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let (mut p, mut v) = ([0.0, 0.0, 38.0], [0.0; 3]);
+        let mut held = [0.0; 2];
+        let mut energy_mj = 0.0;
+        let mut slips = 0;
+        for k in 0..20_000 {
+            // A wandering hand: jerky steps in the plane, the press changing.
+            for c in &mut v {
+                *c = 0.9 * *c + 0.05 * rand();
+            }
+            let before = p;
+            p = [p[0] + v[0], p[1] + v[1], (p[2] + v[2]).clamp(30.0, 40.0)];
+            let out = step(&mut b, &mut f, p, 20.0);
+            let dx = [p[0] - before[0], p[1] - before[1]];
+            let work_mj = -(held[0] * dx[0] + held[1] * dx[1]);
+            let hold_mj = 0.5 * k_b * (dx[0] * dx[0] + dx[1] * dx[1]);
+            let now_mj = f.friction_energy() * 1e3;
+            assert!(
+                now_mj <= energy_mj + work_mj + hold_mj + 1e-9,
+                "{}, tick {k}: {now_mj} mJ after {energy_mj} mJ, work {work_mj}, hold {hold_mj}",
+                S::NAME
+            );
+            // A slip is where the bristle lost energy to the paper.
+            if now_mj < energy_mj + work_mj + hold_mj - 1e-6 {
+                slips += 1;
+            }
+            let fr = out.friction.to_f64();
+            energy_mj = now_mj;
+            held = [fr[0], fr[1]];
+        }
+        slips
+    }
+    for slips in [check::<Fx>(), check::<f64>()] {
+        assert!(
+            slips > 2_000,
+            "the hand made the brush slide on {slips} ticks only"
+        );
+    }
+}
+
+#[test]
+fn the_viscous_law_is_the_theses_drag() {
+    let mut params = DEFAULT_FORCES;
+    params.friction = FrictionLaw::Viscous;
+    let mut b = Brush::<f64>::new(presets::LARGE, pose([0.0, 0.0, 35.0], 0.0)).unwrap();
+    let mut f = ForceModel::<f64>::new(params).unwrap();
+    let mut moved = 0;
+    for k in 0..400 {
+        let p = [0.05 * k as f64, -0.02 * k as f64, 35.0];
+        let out = step(&mut b, &mut f, p, 0.0);
+        if k == 0 {
+            continue;
+        }
+        // -w_f (n / N) v, with v in mm per tick = m/s.
+        let drag = params.friction_weight as f64 * out.on_paper / b.len() as f64;
+        let want = [-drag * 0.05, drag * 0.02];
+        assert!(
+            (out.friction.x - want[0]).abs() < 1e-12,
+            "tick {k}: {out:?}"
+        );
+        assert!(
+            (out.friction.y - want[1]).abs() < 1e-12,
+            "tick {k}: {out:?}"
+        );
+        if drag > 0.0 {
+            moved += 1;
+        }
+    }
+    assert!(moved > 300, "{moved} ticks with the brush on the paper");
 }
 
 /// A pressed, dragged, lifted script with the stage enabled part-way, already in the paper.

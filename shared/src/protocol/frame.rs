@@ -38,8 +38,11 @@ pub const HEADER_LEN: usize = 2;
 pub const CRC_LEN: usize = 4;
 
 /// CRC-32/ISO-HDLC (the zlib / Ethernet CRC: poly 0x04C11DB7 reflected, init and xor-out
-/// 0xFFFFFFFF), byte-wise with a 1 KiB table in flash.
-static CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// 0xFFFFFFFF), bit by bit: the byte-wise form's 1 KiB table is flash the Black Pill's image
+/// does not have, and the bits cost the link task, not the force loop, a few tens of
+/// instructions a byte.
+static CRC32: crc::Crc<u32, crc::NoTable> =
+    crc::Crc::<u32, crc::NoTable>::new(&crc::CRC_32_ISO_HDLC);
 
 /// CRC-32/ISO-HDLC of `bytes`: what the trailer of a frame holds for the bytes before it.
 pub fn crc32(bytes: &[u8]) -> u32 {
@@ -161,7 +164,7 @@ pub fn encode_raw(
 /// stuffing straight into the output buffer, so encoding needs no scratch buffer.
 struct Framer<'a> {
     cobs: Cobs<Slice<'a>>,
-    digest: crc::Digest<'static, u32>,
+    digest: crc::Digest<'static, u32, crc::NoTable>,
     len: usize,
     max_content: usize,
     /// Set when the content limit (not the output buffer) stopped the encoding.

@@ -39,8 +39,8 @@ echo "      Erasing ✔ [00:00:01] 64.00 KiB/64.00 KiB" >&2
 echo "  Programming ✔ [00:00:02] 60.12 KiB/60.12 KiB" >&2
 echo "     Finished in 3.1s" >&2
 echo "0.000000 INFO  maobi-pen up, config Valid"
-# While the link session runs: about 55 ms against the fake pen since the host's fixed-point
-# simulation got its wide kernels (a few tenths of a second before), so the halt comes early.
+# While the link session runs (the halting test's is long, see `long_poses`), so the halt
+# comes early.
 if [ "$mode" = panic ]; then echo "0.010000 ERROR panicked at src/board.rs:12:5: index out of bounds"; fi
 if [ "$mode" = halt ]; then sleep 0.005; echo "Frame 0: HardFault @ 0x08000400"; echo "Error: the core halted" >&2; exit 1; fi
 while :; do sleep 0.1; done
@@ -72,6 +72,21 @@ fn elf(test: &str, mode: &str) -> PathBuf {
 
 fn poses() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv")
+}
+
+/// Ten seconds of a brush held still above the paper: a link session of most of a second
+/// against the fake pen (which ticks as fast as the poses come, about a hundred times real
+/// time at the presets' one substep), long enough that a probe-rs that halts a few
+/// milliseconds after it starts does so while the session runs, however slowly the machine
+/// starts the fake's shell.
+fn long_poses() -> PathBuf {
+    let path = dir().join("long.csv");
+    let mut csv = String::from("t,x,y,z,qw,qx,qy,qz\n");
+    for k in 0..10_000 {
+        csv.push_str(&format!("{:.3},0,0,60,1,0,0,0\n", k as f64 * 1e-3));
+    }
+    std::fs::write(&path, csv).unwrap();
+    path
 }
 
 fn opts(port: Option<PathBuf>) -> ProbeRsOptions {
@@ -167,8 +182,13 @@ fn a_panic_in_the_log_fails_its_check_and_the_port_is_found_by_usb_ids() {
 #[test]
 fn a_core_that_halts_during_the_run_fails() {
     let Some((port, _keep)) = pen() else { return };
-    let r =
-        run_probe_rs_with(&elf("halt", "halt"), &poses(), &opts(Some(port)), &no_ports).unwrap();
+    let r = run_probe_rs_with(
+        &elf("halt", "halt"),
+        &long_poses(),
+        &opts(Some(port)),
+        &no_ports,
+    )
+    .unwrap();
     println!("{}", r.render());
     assert!(!r.passed());
     let failed: Vec<&str> = r

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use maobi_shared::{presets, BrushParams, Fx, ParamId, Scalar};
+use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
 
 use crate::offline::{simulate, ScalarKind};
 use crate::poses::PoseTrack;
@@ -896,7 +896,7 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn trace_as<S: Scalar>(
+fn trace_as<S: BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
     out: &Path,

@@ -6,7 +6,7 @@ use std::fmt;
 use maobi_shared::force::{Forces, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::force_loop::{Gate, TickIn};
 use maobi_shared::guide::DEFAULT_GUIDE;
-use maobi_shared::{Brush, BrushParams, ForceLoop, Fx, Pose, Scalar};
+use maobi_shared::{Brush, BrushParams, BrushScalar, ForceLoop, Fx, Pose, Scalar};
 
 use crate::poses::PoseTrack;
 
@@ -54,7 +54,7 @@ pub struct Tick<'a, S: Scalar> {
 /// Creates the brush at rest at the track's first pose, calls `on_tick` with that state
 /// (tick 0), then ticks to each following resampled pose and calls `on_tick` after each.
 /// Stops at the first error `on_tick` returns. Returns the number of ticks (tick 0 included).
-pub fn simulate<S: Scalar>(
+pub fn simulate<S: BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
     mut on_tick: impl FnMut(&Tick<'_, S>) -> anyhow::Result<()>,

@@ -171,7 +171,7 @@ impl Inker {
 }
 
 /// Simulates `track` in scalar type `S` and inks every tick onto a new canvas.
-pub fn render<S: Scalar>(
+pub fn render<S: maobi_shared::BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
     frame: Frame,

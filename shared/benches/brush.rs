@@ -7,11 +7,11 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use maobi_shared::footprint::for_each_polygon;
 use maobi_shared::force::{ForceModel, OutputStage, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Vec3};
 use std::hint::black_box;
 
 /// A handle moving along a pressed stroke, so contacts, drag and surface spreading all work.
-fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
+fn stroke_pose<S: BrushScalar>(k: usize) -> Pose<S> {
     let t = (k % 2000) as f64 * 1e-3;
     let x = 80.0 * (t * 0.5 * std::f64::consts::PI).sin();
     let h = 15f64.to_radians() / 2.0;
@@ -21,7 +21,7 @@ fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
     )
 }
 
-fn bench_scalar<S: Scalar>(c: &mut Criterion) {
+fn bench_scalar<S: BrushScalar>(c: &mut Criterion) {
     let mut b = Brush::<S>::new(presets::LARGE, stroke_pose(0)).unwrap();
     for k in 0..200 {
         b.tick(stroke_pose(k));

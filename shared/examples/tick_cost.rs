@@ -8,10 +8,10 @@
 //! `callgrind_annotate --auto=yes callgrind.out.<pid>` for the per-line picture (the substep is
 //! inlined into `Brush::tick`). With `DUMP=1` it prints the final spine, layer radii and
 //! axes, to compare two builds' results.
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Vec3};
 use std::hint::black_box;
 
-fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
+fn stroke_pose<S: BrushScalar>(k: usize) -> Pose<S> {
     let t = (k % 2000) as f64 * 1e-3;
     let x = 80.0 * (t * 0.5 * std::f64::consts::PI).sin();
     let h = 15f64.to_radians() / 2.0;
@@ -21,7 +21,7 @@ fn stroke_pose<S: Scalar>(k: usize) -> Pose<S> {
     )
 }
 
-fn run<S: Scalar>(ticks: usize) {
+fn run<S: BrushScalar>(ticks: usize) {
     let mut b = Brush::<S>::new(presets::LARGE, stroke_pose(0)).unwrap();
     let poses: Vec<Pose<S>> = (0..ticks).map(stroke_pose).collect();
     let start = std::time::Instant::now();

@@ -34,8 +34,10 @@
 //!    `w_i` its displacement in it; the ferrule's prescribed displacement `u_0` enters as
 //!    the neighbour velocity of mass 1. The prescribed motion so enters once, and a spine
 //!    moving steadily with its skeleton stays where it hangs. The system is block-tridiagonal
-//!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`). One substep
-//!    per tick gives the converged brush within 10% (`tests/convergence.rs`).
+//!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`; the
+//!    fixed-point brush in 32-bit formats, `brush/chain_fixed.rs`, chosen by its
+//!    [`BrushScalar`]). One substep per tick gives the converged brush within 10%
+//!    (`tests/convergence.rs`).
 //!
 //!    **Kang & Cho** (eqs. 2.19-2.33, the thesis's, `Brush::kang_cho`). Multiplying eq. 2.33
 //!    through by `h` gives, for free mass i,
@@ -98,11 +100,45 @@ use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
 #[cfg(feature = "backward-euler")]
+#[cfg(feature = "backward-euler")]
+mod chain_fixed;
+#[cfg(feature = "backward-euler")]
 mod chain_solve;
 pub mod state_frame;
 
 #[cfg(feature = "backward-euler")]
-use chain_solve::{ChainSolve, Sym3};
+pub use chain_fixed::MAX_DIAGONAL;
+#[cfg(feature = "backward-euler")]
+use chain_solve::{ChainSolve, SpineChain, Sym3};
+
+use crate::scalar::Fx;
+
+/// A number format the brush runs in: a [`Scalar`], and how the backward-Euler step solves
+/// its spine's chain in it. The float formats solve in their own arithmetic; the fixed-point
+/// format (`Fx`, the pen's) in 32-bit fixed point where the brush's blocks fit it
+/// (`brush/chain_fixed.rs`: its own 64-bit products cost the pen's tick several times as
+/// much), else in its own. Implemented for `f32`, `f64` and `Fx`; sealed (its solver trait
+/// is private to the brush).
+pub trait BrushScalar: Scalar {
+    #[cfg(feature = "backward-euler")]
+    #[doc(hidden)]
+    type Chain: SpineChain<Self>;
+}
+
+impl BrushScalar for f64 {
+    #[cfg(feature = "backward-euler")]
+    type Chain = ChainSolve<f64>;
+}
+
+impl BrushScalar for f32 {
+    #[cfg(feature = "backward-euler")]
+    type Chain = ChainSolve<f32>;
+}
+
+impl BrushScalar for Fx {
+    #[cfg(feature = "backward-euler")]
+    type Chain = chain_fixed::FxChain;
+}
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
 /// truncated Jacobi solve is used. Above it the same linear system is solved exactly.
@@ -165,6 +201,9 @@ struct Implicit<S> {
     c_tv: S,
     /// h^2 / m in mm per newton: an external force's displacement.
     c_f: S,
+    /// Whether the brush's blocks fit the number format's compact chain solve, if it has one
+    /// ([`BrushScalar`]; [`MAX_DIAGONAL`]).
+    fits_format_chain: bool,
 }
 
 /// Everything derived from the parameters that the substep needs: recomputed by
@@ -247,7 +286,7 @@ pub struct Layer<S> {
 
 /// A brush: its parameters and its complete dynamic state.
 #[derive(Clone, Debug)]
-pub struct Brush<S: Scalar> {
+pub struct Brush<S> {
     params: BrushParams,
     d: Derived<S>,
     handle: Pose<S>,
@@ -282,7 +321,7 @@ pub struct Brush<S: Scalar> {
     substeps_done: u64,
 }
 
-impl<S: Scalar> Brush<S> {
+impl<S: BrushScalar> Brush<S> {
     /// A brush at rest, hanging straight along the handle at `pose`.
     pub fn new(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         let mut b = Self::unplaced(params, pose)?;
@@ -515,7 +554,7 @@ impl<S: Scalar> Brush<S> {
     }
 }
 
-impl<S: Scalar> Brush<S> {
+impl<S: BrushScalar> Brush<S> {
     /// Advances one 1 ms tick to the handle pose `target`. Over the tick's substeps each
     /// skeleton node (the ferrule, node 0, with them) moves in equal steps along the straight
     /// line from where the previous tick's pose placed it to where `target` places it; the
@@ -624,9 +663,9 @@ impl<S: Scalar> Brush<S> {
         // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
         #[cfg(feature = "backward-euler")]
         if self.d.backward_euler {
-            let mut solve = ChainSolve::new();
-            let du = self.backward_euler(u0, &ties, &mut solve);
-            self.integrate(u0, &ties, du[1..n].iter().copied());
+            let mut solve = S::Chain::new(self.d.implicit.fits_format_chain);
+            self.backward_euler(u0, &ties, &mut solve);
+            self.integrate(u0, &ties, (1..n).map(|i| solve.du(i)));
             return;
         }
         let p = self.kang_cho(u0 - old_ferrule_vel, &ties);
@@ -736,16 +775,11 @@ impl<S: Scalar> Brush<S> {
 
     #[cfg(feature = "backward-euler")]
     /// Backward Euler (see the module docs): linearised about the substep's start with each
-    /// segment's own Jacobian, the spine's block-tridiagonal system solved exactly; the
-    /// velocity change of each free mass, given the ferrule's displacement `u0` in this
-    /// substep and the tie weights.
+    /// segment's own Jacobian, the spine's block-tridiagonal system solved exactly by
+    /// `solve` (which then holds the velocity change of each free mass), given the
+    /// ferrule's displacement `u0` in this substep and the tie weights.
     #[inline(always)]
-    fn backward_euler<'a>(
-        &mut self,
-        u0: Vec3<S>,
-        ties: &[S; MAX_LAYERS],
-        solve: &'a mut ChainSolve<S>,
-    ) -> &'a [Vec3<S>; MAX_LAYERS] {
+    fn backward_euler(&mut self, u0: Vec3<S>, ties: &[S; MAX_LAYERS], solve: &mut S::Chain) {
         let n = self.d.n();
         let c = self.d.implicit;
         // Segments 2.. have not moved since the surface update measured them (if it did).
@@ -811,10 +845,10 @@ impl<S: Scalar> Brush<S> {
             if i + 1 == n {
                 rhs += self.tip_load.scale(c.c_f);
             }
-            solve.row(i, Sym3::iso(diag).add(g).add(g_next), &g, rhs);
+            solve.row(i, diag, &g, &g_next, rhs);
             (g, t) = (g_next, t_next);
         }
-        solve.solve(n)
+        solve.solve(n);
     }
 
     /// Right-hand side p_i of eq. 2.33 (scaled by h, see the module docs) for mass `i` with tie
@@ -1506,6 +1540,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         c_t: S::from_f32(h * h * kt / m),
         c_tv: S::from_f32((h * h * kt + h * kdt) / m),
         c_f: S::from_f32(h * h * 1e3 / m),
+        fits_format_chain: p.backward_euler_diagonal_bound() < MAX_DIAGONAL,
     };
     Derived {
         #[cfg(feature = "backward-euler")]
@@ -1585,13 +1620,49 @@ mod tests {
         )
     }
 
+    /// The fixed-point brush solves its chain in 32 bits where its blocks fit the format (the
+    /// presets at one substep per tick), and a brush too stiff for it, at its substep rate,
+    /// takes the general solve: both stay within a micrometre of the `f64` brush over a
+    /// pressed, dragged and lifted stroke.
+    #[cfg(feature = "backward-euler")]
+    #[test]
+    fn fixed_point_chain_solve_by_the_brush_s_stiffness() {
+        for (params, fits) in [
+            (crate::presets::LARGE, true),
+            (crate::presets::SMALL, true),
+            (
+                BrushParams {
+                    axial_stiffness: crate::presets::LARGE.axial_stiffness * 20.0,
+                    ..crate::presets::LARGE
+                },
+                false,
+            ),
+        ] {
+            assert_eq!(derive::<Fx>(&params).implicit.fits_format_chain, fits);
+            let mut fixed = Brush::<Fx>::new(params, pressed_stroke(0)).unwrap();
+            let mut float = Brush::<f64>::new(params, pressed_stroke(0)).unwrap();
+            let mut worst = 0.0f64;
+            for k in 1..400 {
+                fixed.tick(pressed_stroke(k));
+                float.tick(pressed_stroke(k));
+                for (a, b) in fixed.spine().iter().zip(float.spine()) {
+                    let (a, b) = (a.to_f64(), b.to_f64());
+                    for c in 0..3 {
+                        worst = worst.max((a[c] - b[c]).abs());
+                    }
+                }
+            }
+            assert!(worst < 1e-3, "fits {fits}: {worst} mm from f64");
+        }
+    }
+
     /// The segment lengths the surface update leaves for the next substep's springs change
     /// nothing: a brush that never uses them (the cache dropped before every tick) ends a
     /// pressed, dragged and lifted stroke with the same bits, at one substep per tick and
     /// at the presets' 25, in fixed point and in f64.
     #[test]
     fn cached_segment_lengths_change_no_bit() {
-        fn run<S: Scalar>(substeps: f32) {
+        fn run<S: BrushScalar>(substeps: f32) {
             let pose = pressed_stroke::<S>;
             let mut cached = Brush::<S>::new(crate::presets::LARGE, pose(0)).unwrap();
             cached

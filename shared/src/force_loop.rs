@@ -25,7 +25,7 @@
 //!    moving point supplied, turns the wanted force into the command. The gate decides
 //!    whether it drives: closed, it ramps out (and in again from zero when it opens).
 
-use crate::brush::Brush;
+use crate::brush::{Brush, BrushScalar};
 use crate::force::{
     DeviceLimits, ForceModel, ForceParams, Forces, LimitError, OutputStage, OutputState, G,
 };
@@ -104,7 +104,7 @@ pub struct TickParts<S: Scalar> {
     pub reset: fn(&mut Brush<S>, Pose<S>),
 }
 
-impl<S: Scalar> TickParts<S> {
+impl<S: BrushScalar> TickParts<S> {
     /// The parts, compiled in the crate that calls this.
     pub const fn here() -> Self {
         TickParts {
@@ -220,7 +220,7 @@ pub struct ForceLoop<S: Scalar> {
     jump2: S,
 }
 
-impl<S: Scalar> ForceLoop<S> {
+impl<S: BrushScalar> ForceLoop<S> {
     /// The brush `params` at rest at `pose`, the force model `forces`, the output stage for
     /// `limits` (disabled until a tick's gate opens), the guide `guide`. No last pose: the
     /// first is not checked for a jump.

@@ -49,7 +49,7 @@ pub mod scalar;
 pub mod stroke;
 pub mod vec;
 
-pub use brush::{Brush, Layer};
+pub use brush::{Brush, BrushScalar, Layer};
 pub use force_loop::ForceLoop;
 pub use params::{BrushParams, ParamError, ParamId};
 pub use quat::{Pose, Quat};

@@ -346,6 +346,20 @@ impl BrushParams {
         1.0 / (TICK_HZ as f32 * self.substeps_per_tick as f32)
     }
 
+    /// The largest entry a diagonal block of the backward-Euler step's system can reach, in
+    /// units of the mass: `1 + c_tv + 2 (c_k + c_d)` (the mass, its tie, and two segments'
+    /// stiffness and damping at the substep; see `crate::brush`). It decides whether the
+    /// fixed-point brush solves its chain in 32 bits (`brush::MAX_DIAGONAL`).
+    #[cfg(feature = "backward-euler")]
+    pub fn backward_euler_diagonal_bound(&self) -> f32 {
+        let h = self.substep_s();
+        let m = self.mass_g * 1e-3 / (self.layers as f32 - 1.0);
+        let c_k = h * h * self.axial_stiffness / m;
+        let c_d = h * self.axial_damping / m;
+        let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping) / m;
+        1.0 + c_tv + 2.0 * (c_k + c_d)
+    }
+
     /// Resting length of one spine segment (mm).
     pub fn segment_mm(&self) -> f32 {
         self.length_mm / (self.layers as f32 - 1.0)

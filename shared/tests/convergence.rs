@@ -5,13 +5,13 @@
 //! `cargo test --release -p maobi-shared --test convergence -- --nocapture` prints the tables.
 
 use maobi_shared::params::{ParamId, INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO};
-use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose, Quat, Vec3};
 
 const RATES: [u8; 5] = [1, 2, 5, 25, 100];
 /// Milliseconds after the lift at which the spring-back is read.
 const AFTER_LIFT_MS: [usize; 4] = [50, 100, 200, 500];
 
-fn pose<S: Scalar>(x: f64, z: f64, tilt_deg: f64) -> Pose<S> {
+fn pose<S: BrushScalar>(x: f64, z: f64, tilt_deg: f64) -> Pose<S> {
     let h = tilt_deg.to_radians() / 2.0;
     Pose::new(
         Vec3::from_f64([x, 0.0, z]),
@@ -20,7 +20,7 @@ fn pose<S: Scalar>(x: f64, z: f64, tilt_deg: f64) -> Pose<S> {
 }
 
 /// Each mass's distance (mm) from where the hanging shape puts it for the current handle.
-fn offsets<S: Scalar>(b: &Brush<S>) -> impl Iterator<Item = f64> + '_ {
+fn offsets<S: BrushScalar>(b: &Brush<S>) -> impl Iterator<Item = f64> + '_ {
     let h = b.handle().cast::<f64>();
     let seg = b.segment_mm();
     b.spine()
@@ -38,7 +38,7 @@ struct Figures {
     moving_tip: f64,
 }
 
-fn measure<S: Scalar>(params: BrushParams) -> Figures {
+fn measure<S: BrushScalar>(params: BrushParams) -> Figures {
     // The model test's press: slanted 20 degrees, down over 200 ms until the hanging tip
     // would be 10 mm below the paper, held 500 ms, lifted over 100 ms.
     let tilt = 20.0f64;

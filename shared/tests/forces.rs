@@ -4,9 +4,9 @@ use maobi_shared::force::{
     ForceModel, Forces, FrictionLaw, OutputStage, OutputState, DEFAULT_FORCES, PHANTOM_OMNI,
 };
 use maobi_shared::hand::{HandParams, Script, SimHand};
-use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
 
-fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
+fn pose<S: BrushScalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
     let h = tilt_deg.to_radians() / 2.0;
     Pose::new(
         Vec3::from_f64(p),
@@ -15,7 +15,12 @@ fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64) -> Pose<S> {
 }
 
 /// Runs brush and force model one tick with the hand's ferrule at `p`.
-fn step<S: Scalar>(b: &mut Brush<S>, f: &mut ForceModel<S>, p: [f64; 3], tilt: f64) -> Forces<S> {
+fn step<S: BrushScalar>(
+    b: &mut Brush<S>,
+    f: &mut ForceModel<S>,
+    p: [f64; 3],
+    tilt: f64,
+) -> Forces<S> {
     let target = pose::<S>(p, tilt);
     b.tick(target);
     f.tick(b, target.pos)
@@ -89,7 +94,7 @@ fn straight_press_of_five_mm_gives_between_a_third_and_three_newtons_monotonic_i
 
 /// The large brush upright with its tip `depth` mm into the paper, held until the normal
 /// force's low-pass has settled: the brush, the model and the ferrule's position.
-fn pressed<S: Scalar>(depth: f64) -> (Brush<S>, ForceModel<S>, [f64; 3]) {
+fn pressed<S: BrushScalar>(depth: f64) -> (Brush<S>, ForceModel<S>, [f64; 3]) {
     let at = [0.0, 0.0, 40.0 - depth];
     let mut b = Brush::<S>::new(presets::LARGE, pose(at, 0.0)).unwrap();
     let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
@@ -182,7 +187,7 @@ fn friction_holds_until_mu_s_then_slides_at_mu_k_against_the_motion() {
 /// `k_b |dx|^2 / 2`, whatever the hand and the normal force do.
 #[test]
 fn the_bristle_never_returns_more_than_the_hand_put_in() {
-    fn check<S: Scalar>() -> usize {
+    fn check<S: BrushScalar>() -> usize {
         let k_b = DEFAULT_FORCES.bristle_stiffness as f64 * 1e-3; // N per mm
         let mut b = Brush::<S>::new(presets::LARGE, pose([0.0, 0.0, 42.0], 20.0)).unwrap();
         let mut f = ForceModel::<S>::new(DEFAULT_FORCES).unwrap();
@@ -387,7 +392,7 @@ fn a_force_beyond_fixed_points_range_is_still_clamped_to_the_peak() {
 
 /// The command after the passivity controller's ticks (see the test below), and the energy
 /// the observer holds then (J).
-fn passivity_run<S: Scalar>(step_mm: f64) -> (f64, f64) {
+fn passivity_run<S: BrushScalar>(step_mm: f64) -> (f64, f64) {
     let mut s = OutputStage::<S>::new(PHANTOM_OMNI).unwrap();
     s.enable();
     let f = Vec3::<S>::from_f64([0.5, 0.0, 0.0]);

@@ -2,10 +2,12 @@
 
 use maobi_shared::footprint::{convex_hull, for_each_polygon, polygon_area};
 use maobi_shared::params::ParamId;
-use maobi_shared::{presets, Brush, BrushParams, Fx, ParamError, Pose, Quat, Scalar, Vec2, Vec3};
+use maobi_shared::{
+    presets, Brush, BrushParams, BrushScalar, Fx, ParamError, Pose, Quat, Vec2, Vec3,
+};
 
 /// The handle at (x, y, z) mm, tilted `tilt_deg` about +y (the tip swings toward -x).
-pub fn pose<S: Scalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
+pub fn pose<S: BrushScalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
     let h = tilt_deg.to_radians() / 2.0;
     Pose::new(
         Vec3::from_f64([x, y, z]),
@@ -14,7 +16,7 @@ pub fn pose<S: Scalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
 }
 
 /// Largest distance (mm) of any mass from where the rest shape puts it for the current handle.
-fn deviation_from_rest<S: Scalar>(b: &Brush<S>) -> f64 {
+fn deviation_from_rest<S: BrushScalar>(b: &Brush<S>) -> f64 {
     let h = b.handle().cast::<f64>();
     let seg = b.segment_mm();
     b.spine()
@@ -27,7 +29,7 @@ fn deviation_from_rest<S: Scalar>(b: &Brush<S>) -> f64 {
         .fold(0.0, f64::max)
 }
 
-fn ticks<S: Scalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {
+fn ticks<S: BrushScalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {
     for _ in 0..n {
         b.tick(p);
     }
@@ -52,7 +54,7 @@ fn rest_holds_its_shape_for_ten_seconds() {
 
 /// Presses the brush 10 mm into the paper at a slant, holds, lifts; returns the largest
 /// distance of any mass from its rest position after `settle_ms` in the air, and the brush.
-fn press_and_release<S: Scalar>(params: BrushParams, settle_ms: usize) -> (f64, Brush<S>) {
+fn press_and_release<S: BrushScalar>(params: BrushParams, settle_ms: usize) -> (f64, Brush<S>) {
     let tilt = 20.0f64;
     let reach = params.length_mm as f64 * tilt.to_radians().cos();
     let above = pose::<S>(0.0, 0.0, reach + 5.0, tilt);
@@ -120,7 +122,7 @@ fn large_brush_bends_nearly_flat_under_one_to_two_newtons() {
 }
 
 /// Area (mm^2) and x / y extents (mm) of the convex hull of all footprint polygons.
-fn footprint_hull<S: Scalar>(b: &Brush<S>) -> (f64, f64, f64) {
+fn footprint_hull<S: BrushScalar>(b: &Brush<S>) -> (f64, f64, f64) {
     let mut pts: Vec<Vec2<f64>> = Vec::new();
     for_each_polygon(b, |_, poly| {
         pts.extend(poly.iter().map(|p| Vec2::new(p.x.to_f64(), p.y.to_f64())))

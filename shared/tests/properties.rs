@@ -1,10 +1,10 @@
 //! Property tests over random handle paths: invariants that must hold for every input.
 
 use maobi_shared::energy::energy;
-use maobi_shared::{presets, Brush, BrushParams, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
 use proptest::prelude::*;
 
-fn pose<S: Scalar>(p: [f64; 3], tilt_deg: f64, azimuth_deg: f64) -> Pose<S> {
+fn pose<S: BrushScalar>(p: [f64; 3], tilt_deg: f64, azimuth_deg: f64) -> Pose<S> {
     // Tilt about a horizontal axis at `azimuth` from +y.
     let (h, a) = (tilt_deg.to_radians() / 2.0, azimuth_deg.to_radians());
     Pose::new(

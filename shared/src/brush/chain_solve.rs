@@ -25,7 +25,7 @@ use crate::vec::Vec3;
 
 /// A symmetric 3x3 matrix: its six distinct entries.
 #[derive(Copy, Clone, Debug, PartialEq)]
-pub(crate) struct Sym3<S> {
+pub struct Sym3<S> {
     pub xx: S,
     pub yy: S,
     pub zz: S,
@@ -139,7 +139,7 @@ impl<S: Scalar> Sym3<S> {
     /// why not the adjugate over the determinant: in fixed point the reciprocal of a large
     /// determinant keeps few significant bits).
     #[inline]
-    fn inverse_spd(&self) -> Self {
+    pub(super) fn inverse_spd(&self) -> Self {
         let r1 = self.xx.recip();
         let l21 = self.xy * r1;
         let l31 = self.xz * r1;
@@ -176,8 +176,49 @@ impl<S: Scalar> Mat3<S> {
     }
 }
 
+/// How a number format solves one substep's chain: the elimination row by row
+/// ([`SpineChain::row`]), then the back substitution ([`SpineChain::solve`]). The float
+/// formats use [`ChainSolve`] in their own arithmetic; the fixed-point brush uses
+/// [`FixedChain`](super::chain_fixed::FixedChain), in 32-bit formats, where the brush's
+/// blocks fit them. Chosen by the brush's
+/// number format ([`BrushScalar`](super::BrushScalar)).
+pub trait SpineChain<S> {
+    /// A solve for one substep; `compact`: whether the brush's blocks fit the format's
+    /// compact solve, if it has one (the fixed-point format's, see
+    /// [`super::chain_fixed::MAX_DIAGONAL`]).
+    fn new(compact: bool) -> Self;
+    /// Eliminates row `i` (from 1 up, in order), given `a_i` (the mass and its tie, in units
+    /// of the mass), the segments' blocks `G_i` (the coupling to the row before; for row
+    /// 1, to the prescribed ferrule, whose term is in the right-hand side) and `G_{i+1}`
+    /// (zero for the tip: the next row's `G_i`, which an implementation may keep from this
+    /// call), and its right-hand side. The diagonal block is `a_i I + G_i + G_{i+1}`.
+    fn row(&mut self, i: usize, a: S, g: &Sym3<S>, g_next: &Sym3<S>, rhs: Vec3<S>);
+    /// The back substitution after rows `1..n` were eliminated.
+    fn solve(&mut self, n: usize);
+    /// Then: `du_i` of free mass `i` (`1..n`).
+    fn du(&self, i: usize) -> Vec3<S>;
+}
+
+impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
+    fn new(_compact: bool) -> Self {
+        ChainSolve::new()
+    }
+    #[inline(always)]
+    fn row(&mut self, i: usize, a: S, g: &Sym3<S>, g_next: &Sym3<S>, rhs: Vec3<S>) {
+        ChainSolve::row(self, i, Sym3::iso(a).add(*g).add(*g_next), g, rhs)
+    }
+    #[inline(always)]
+    fn solve(&mut self, n: usize) {
+        ChainSolve::solve(self, n);
+    }
+    #[inline(always)]
+    fn du(&self, i: usize) -> Vec3<S> {
+        self.z[i.min(MAX_LAYERS - 1)]
+    }
+}
+
 /// The block elimination of one substep's system, row by row, then its back substitution.
-pub(crate) struct ChainSolve<S> {
+pub struct ChainSolve<S> {
     /// `P_i = D_{i-1}^-1 G_i` of each row from the second.
     p: [Mat3<S>; MAX_LAYERS],
     /// `z_i = D_i^-1 y_i`, `y_i` the eliminated right-hand side; the solution after

@@ -1,0 +1,390 @@
+//! The spine's block-tridiagonal solve ([`super::chain_solve`]) in 32-bit fixed point: the
+//! fixed-point brush's kernel, on the pen and on the host alike.
+//!
+//! The same elimination and back substitution as [`ChainSolve`](super::chain_solve::ChainSolve),
+//! with the model's `I32F32` replaced by three 32-bit formats chosen for what each quantity
+//! can be:
+//!
+//! * **blocks** (`G_j`, the diagonal blocks and their Schur complements `D_i`): `Q11.20`,
+//!   for diagonals up to [`MAX_DIAGONAL`] (a stiffer brush, at its substep rate, takes the
+//!   model's general solve in `I32F32`), and
+//!   `P_i = D_{i-1}^-1 G_i` in `Q6.25` ([`P_FRAC`]);
+//! * **inverses** (`E_i = D_i^-1`): `Q0.31`. Every `D_i` is at least
+//!   the identity (see `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1);
+//! * **vectors** (right-hand sides, eliminated `y_i`, solutions `z_i`: millimetres per
+//!   substep): the model's own `I32F32` bits ([`mat_vec`]): a chain of segments in
+//!   different directions multiplies a vector's rounding by the stiffness, row after row.
+//!
+//! A product of two 32-bit numbers is one `SMULL` (and a sum of three one `SMULL` and two
+//! `SMLAL`) on the Cortex-M4, where `I32F32`'s is a 64 x 64-bit product of about thirty
+//! instructions: the reason this kernel exists. Each sum of products is formed exactly in
+//! 64 bits and rounded once, to nearest. The host runs this same code for the fixed-point
+//! brush, so the pen and the host compute the same bits (hil's link tests), and
+//! `tests/fixed_vs_f64.rs` bounds its distance from the `f64` brush.
+//!
+//! Where values enter (the model's blocks and vectors) and where the inverse leaves its
+//! `I32F32` computation they are clamped to their formats' range. Inside, the bounds hold
+//! by construction and are not tested again, which would double the kernel's cost: every
+//! block is symmetric positive semi-definite with diagonal entries below [`MAX_DIAGONAL`]
+//! (the brush checks its bound before it chooses this solve), so the Schur complements stay
+//! below that bound, `P`'s entries below its square root, the inverse's below one, and
+//! every sum of three products below `2^63`. Out of those bounds (no brush that takes this
+//! solve reaches them) the arithmetic wraps, as `wrapping_*` says, and panics in no build;
+//! the vectors stay clamped.
+
+use super::chain_solve::{ChainSolve, SpineChain, Sym3};
+use crate::params::MAX_LAYERS;
+use crate::scalar::Fx;
+use crate::vec::Vec3;
+
+/// Fractional bits of the inverses (`Q0.31`).
+const INV_FRAC: u32 = 31;
+/// The bound of every stored block and vector entry: `2^30` units.
+const LIMIT: i64 = 1 << 30;
+/// Fractional bits of the blocks (`Q11.20`): constant, so that every shift in the kernel
+/// is (a variable 64-bit shift is a library call on the Cortex-M4).
+const BLOCK_FRAC: u32 = 20;
+/// Fractional bits of `P_i = D_{i-1}^-1 G_i` (`Q6.25`). `P`'s norm is below `sqrt(cond D)`,
+/// at most the square root of the diagonal's bound, so half the blocks' integer bits hold
+/// it; its precision matters more than theirs, since the next row's Schur complement
+/// multiplies it by a stiff segment's block.
+const P_FRAC: u32 = (BLOCK_FRAC + 30) / 2;
+
+/// The largest diagonal entry the blocks' format holds with room for rounding: the bound
+/// on `1 + c_tv + 2 (c_k + c_d)` (`BrushParams::backward_euler_diagonal_bound`) below which
+/// the fixed-point brush solves its chain here; above it (a brush several times stiffer
+/// than the presets at one substep per tick) it takes the general `I32F32` solve. The
+/// presets sit at about a fifth and a quarter of it.
+pub const MAX_DIAGONAL: f32 = (LIMIT >> (BLOCK_FRAC + 1)) as f32;
+
+/// `v >> shift`, rounded to nearest (ties up), clamped to `+-limit`.
+#[inline(always)]
+fn round_clamp(v: i64, shift: u32, limit: i64) -> i32 {
+    let r = if shift == 0 {
+        v
+    } else {
+        (v + (1 << (shift - 1))) >> shift
+    };
+    r.clamp(-limit, limit) as i32
+}
+
+/// `v >> shift` rounded to nearest (ties up), for a result the formats' bounds keep within
+/// `i32` (see the module docs); out of them it wraps, and panics in no build.
+#[inline(always)]
+fn round_shift(v: i64, shift: u32) -> i32 {
+    (v.wrapping_add(1 << (shift - 1)) >> shift) as i32
+}
+
+/// A sum of three exact products (wrapping only outside the formats' bounds).
+#[inline(always)]
+fn dot(a: [i32; 3], b: [i32; 3]) -> i64 {
+    let p = |k: usize| (a[k] as i64).wrapping_mul(b[k] as i64);
+    p(0).wrapping_add(p(1)).wrapping_add(p(2))
+}
+
+/// The model's vectors' bound: `2^30` mm, so the high words of a vector's entries stay below
+/// `2^30` (see [`mat_vec`]).
+const VEC_LIMIT: i64 = 1 << 62;
+
+/// A block row (`shift` fractional bits) times a vector in the model's `I32F32` bits: the
+/// vector's entries split into their high words (signed) and their low words less the last
+/// bit (below `2^31`), each sum of three 32 x 32-bit products exact in 64 bits (rows below
+/// `2^31` in sum of magnitudes, high words below `2^30`), recombined and rounded once.
+/// Dropping the vector's last bit (`2^-32` mm) is the only other rounding.
+#[inline(always)]
+fn mat_vec(row: [i32; 3], v: [i64; 3], shift: u32) -> i64 {
+    let hi = v.map(|e| (e >> 32) as i32);
+    let lo = v.map(|e| ((e as u32) >> 1) as i32);
+    let high = dot(row, hi);
+    let low = dot(row, lo);
+    // (high 2^32 + low 2^1) >> shift, rounded on the low part.
+    let low = low.wrapping_add(1 << (shift - 2)) >> (shift - 1);
+    (high << (32 - shift))
+        .wrapping_add(low)
+        .clamp(-VEC_LIMIT, VEC_LIMIT)
+}
+
+/// A symmetric 3x3 block in one of the formats: `[xx, yy, zz, xy, xz, yz]`.
+#[derive(Copy, Clone, Debug, PartialEq)]
+struct QSym([i32; 6]);
+
+impl QSym {
+    const ZERO: Self = QSym([0; 6]);
+
+    #[inline(always)]
+    fn row(&self, r: usize) -> [i32; 3] {
+        let [xx, yy, zz, xy, xz, yz] = self.0;
+        match r {
+            0 => [xx, xy, xz],
+            1 => [xy, yy, yz],
+            _ => [xz, yz, zz],
+        }
+    }
+
+    /// The block of a model [`Sym3`] (`I32F32`) in the blocks' format.
+    #[inline(always)]
+    fn from_fx(s: &Sym3<Fx>) -> Self {
+        let q = |v: Fx| round_clamp(v.to_bits(), 32 - BLOCK_FRAC, LIMIT);
+        QSym([q(s.xx), q(s.yy), q(s.zz), q(s.xy), q(s.xz), q(s.yz)])
+    }
+
+    /// The inverse (`Q0.31`) of a block that is at least the identity, in the
+    /// model's `I32F32` ([`Sym3::inverse_spd`]): the stiff brush's blocks are ill-conditioned
+    /// (a segment's axial stiffness against the mass), and the `L D L^T` factors' products
+    /// cancel to the soft directions' pivots, so the factors need the model's 32 fractional
+    /// bits; with fewer, the inverse's error in the stiff direction, magnified by the
+    /// stiffness twice in the next row's Schur complement, swamps its soft directions.
+    #[inline(always)]
+    fn inverse_spd(&self) -> Self {
+        let fx = |q: i32| Fx::from_bits((q as i64) << (32 - BLOCK_FRAC));
+        let [xx, yy, zz, xy, xz, yz] = self.0.map(fx);
+        let e = Sym3 {
+            xx,
+            yy,
+            zz,
+            xy,
+            xz,
+            yz,
+        }
+        .inverse_spd();
+        let q31 = |v: Fx| round_clamp(v.to_bits(), 32 - INV_FRAC, i32::MAX as i64);
+        QSym([
+            q31(e.xx),
+            q31(e.yy),
+            q31(e.zz),
+            q31(e.xy),
+            q31(e.xz),
+            q31(e.yz),
+        ])
+    }
+}
+
+/// A general 3x3 block by rows, in the blocks' format.
+#[derive(Copy, Clone, Debug)]
+struct QMat([[i32; 3]; 3]);
+
+/// The fixed-point brush's chain solve: [`ChainSolve`](super::chain_solve::ChainSolve)'s
+/// interface, its arithmetic in the formats of the module docs.
+pub struct FixedChain {
+    /// `P_i` of each row from the second.
+    p: [QMat; MAX_LAYERS],
+    /// `z_i` in the model's `I32F32` bits, the solution after [`Self::solve`].
+    z: [[i64; 3]; MAX_LAYERS],
+    /// The last row's `D^-1` (`Q0.31`).
+    inv: QSym,
+    /// The last row's `G_{i+1}` in the blocks' format: the next row's `G_i`.
+    g_next: QSym,
+}
+
+/// The fixed-point brush's chain solve: [`FixedChain`] for a brush whose blocks fit its
+/// formats, the model's own `I32F32` [`ChainSolve`] for a stiffer one.
+pub enum FxChain {
+    Compact(FixedChain),
+    General(ChainSolve<Fx>),
+}
+
+impl SpineChain<Fx> for FxChain {
+    fn new(compact: bool) -> Self {
+        if compact {
+            FxChain::Compact(FixedChain::new(true))
+        } else {
+            FxChain::General(ChainSolve::new())
+        }
+    }
+
+    #[inline(always)]
+    fn row(&mut self, i: usize, a: Fx, g: &Sym3<Fx>, g_next: &Sym3<Fx>, rhs: Vec3<Fx>) {
+        match self {
+            FxChain::Compact(c) => c.row(i, a, g, g_next, rhs),
+            FxChain::General(c) => SpineChain::row(c, i, a, g, g_next, rhs),
+        }
+    }
+
+    #[inline(always)]
+    fn solve(&mut self, n: usize) {
+        match self {
+            FxChain::Compact(c) => c.solve(n),
+            FxChain::General(c) => SpineChain::solve(c, n),
+        }
+    }
+
+    #[inline(always)]
+    fn du(&self, i: usize) -> Vec3<Fx> {
+        match self {
+            FxChain::Compact(c) => c.du(i),
+            FxChain::General(c) => SpineChain::du(c, i),
+        }
+    }
+}
+
+impl SpineChain<Fx> for FixedChain {
+    fn new(_compact: bool) -> Self {
+        FixedChain {
+            p: [QMat([[0; 3]; 3]); MAX_LAYERS],
+            z: [[0; 3]; MAX_LAYERS],
+            inv: QSym::ZERO,
+            g_next: QSym::ZERO,
+        }
+    }
+
+    #[inline(always)]
+    fn row(&mut self, i: usize, a: Fx, g: &Sym3<Fx>, g_next: &Sym3<Fx>, rhs: Vec3<Fx>) {
+        let i = i.clamp(1, MAX_LAYERS - 1);
+        let f = BLOCK_FRAC;
+        let vec = |v: Fx| v.to_bits().clamp(-VEC_LIMIT, VEC_LIMIT);
+        let rhs = [vec(rhs.x), vec(rhs.y), vec(rhs.z)];
+        // Each segment's block is converted once: row i's G_{i+1} is row i+1's G_i.
+        let g = if i == 1 {
+            QSym::from_fx(g)
+        } else {
+            self.g_next
+        };
+        self.g_next = QSym::from_fx(g_next);
+        // a I + G_i + G_{i+1}, in the blocks' format (each below the diagonal's bound).
+        let a = round_clamp(a.to_bits(), 32 - BLOCK_FRAC, LIMIT);
+        let diag = QSym(core::array::from_fn(|k| {
+            let sum = g.0[k].wrapping_add(self.g_next.0[k]);
+            if k < 3 {
+                sum.wrapping_add(a)
+            } else {
+                sum
+            }
+        }));
+        let (d, y) = if i == 1 {
+            (diag, rhs)
+        } else {
+            // P = E g: E in Q0.31, g in the blocks' format: a block.
+            let cols = [0, 1, 2].map(|c| g.row(c));
+            let pf = P_FRAC;
+            let p = QMat([0, 1, 2].map(|r| {
+                cols.map(|col| round_shift(dot(self.inv.row(r), col), INV_FRAC + f - pf))
+            }));
+            self.p[i] = p;
+            // D = diag - g P (symmetric: six entries), y = rhs + g z_{i-1}.
+            let col = |c: usize| [p.0[0][c], p.0[1][c], p.0[2][c]];
+            let gp = |r: usize, c: usize| round_shift(dot(g.row(r), col(c)), pf);
+            let [xx, yy, zz, xy, xz, yz] = diag.0;
+            let sub = |a: i32, b: i32| a.wrapping_sub(b);
+            let d = QSym([
+                sub(xx, gp(0, 0)),
+                sub(yy, gp(1, 1)),
+                sub(zz, gp(2, 2)),
+                sub(xy, gp(0, 1)),
+                sub(xz, gp(0, 2)),
+                sub(yz, gp(1, 2)),
+            ]);
+            let z = self.z[i - 1];
+            let y =
+                [0, 1, 2].map(|r| (rhs[r] + mat_vec(g.row(r), z, f)).clamp(-VEC_LIMIT, VEC_LIMIT));
+            (d, y)
+        };
+        self.inv = d.inverse_spd();
+        let inv = self.inv;
+        self.z[i] = [0, 1, 2].map(|r| mat_vec(inv.row(r), y, INV_FRAC));
+    }
+
+    #[inline(always)]
+    fn solve(&mut self, n: usize) {
+        let n = n.clamp(2, MAX_LAYERS);
+        let pf = P_FRAC;
+        for i in (1..n - 1).rev() {
+            let next = self.z[i + 1];
+            let p = &self.p[i + 1].0;
+            for r in 0..3 {
+                self.z[i][r] =
+                    (self.z[i][r] + mat_vec(p[r], next, pf)).clamp(-VEC_LIMIT, VEC_LIMIT);
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn du(&self, i: usize) -> Vec3<Fx> {
+        let [x, y, z] = self.z[i.min(MAX_LAYERS - 1)];
+        Vec3::new(Fx::from_bits(x), Fx::from_bits(y), Fx::from_bits(z))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::chain_solve::ChainSolve;
+    use super::*;
+    use crate::scalar::Scalar;
+
+    fn fx(v: f64) -> Fx {
+        Fx::from_f64(v)
+    }
+
+    /// The 32-bit solve is within 4 nm of the `f64` solve of the same system (solutions of
+    /// a millimetre or two: the blocks' resolution, 2^-20, relative to them), from soft
+    /// brushes to six times the presets' stiffness (near the format's [`MAX_DIAGONAL`]), for systems shaped like a brush's (stiff along
+    /// each segment, soft across it, masses tied or free, the segments in any direction) at
+    /// the block formats their stiffness calls for.
+    #[test]
+    fn fixed_chain_matches_the_f64_solve() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut rounded = false;
+        for trial in 0..200 {
+            let n = 3 + trial % 22;
+            let c_k = [0.05, 2.0, 32.0, 200.0][trial % 4];
+            let c_d = c_k * 0.03;
+            // Segment blocks k (e I + (1 - e) d d^T) + c_d I, e a small strain.
+            let blocks: [Sym3<f64>; MAX_LAYERS + 1] = core::array::from_fn(|j| {
+                if j == 0 || j >= n {
+                    return Sym3::ZERO;
+                }
+                let v = Vec3::new(rnd(), rnd(), rnd() - 1.5);
+                let e = (rnd() * 1e-3).max(0.0);
+                Sym3::iso_plus_outer(c_k * e + c_d, c_k * (1.0 - e) / v.norm2(), v)
+            });
+            let a: [f64; MAX_LAYERS] = core::array::from_fn(|_| 1.0 + 0.2 * rnd().abs());
+            let rhs: [Vec3<f64>; MAX_LAYERS] =
+                core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(2.0));
+            let to_fx = |s: Sym3<f64>| Sym3 {
+                xx: fx(s.xx),
+                yy: fx(s.yy),
+                zz: fx(s.zz),
+                xy: fx(s.xy),
+                xz: fx(s.xz),
+                yz: fx(s.yz),
+            };
+            let mut exact = ChainSolve::<f64>::new();
+            let mut model = ChainSolve::<Fx>::new();
+            let mut fixed = FixedChain::new(true);
+            for i in 1..n {
+                let g = blocks[i];
+                let diag = Sym3::iso(a[i]).add(g).add(blocks[i + 1]);
+                let r = rhs[i];
+                let r_fx = Vec3::new(fx(r.x), fx(r.y), fx(r.z));
+                exact.row(i, diag, &g, r);
+                model.row(i, to_fx(diag), &to_fx(g), r_fx);
+                fixed.row(i, fx(a[i]), &to_fx(g), &to_fx(blocks[i + 1]), r_fx);
+            }
+            let want = *exact.solve(n);
+            let own = *model.solve(n);
+            fixed.solve(n);
+            let off = |v: Vec3<Fx>, w: Vec3<f64>| {
+                let v = v.to_f64();
+                [v[0] - w.x, v[1] - w.y, v[2] - w.z]
+                    .iter()
+                    .fold(0.0f64, |m, e| m.max(e.abs()))
+            };
+            for i in 1..n {
+                let (d, d_own) = (off(fixed.du(i), want[i]), off(own[i], want[i]));
+                rounded |= d > 0.0;
+                let limit = 4e-6;
+                assert!(
+                    d <= limit,
+                    "trial {trial} (n {n}, c_k {c_k}) mass {i}: {d:e} mm off, \
+                     the I32F32 solve {d_own:e}"
+                );
+            }
+        }
+        assert!(rounded, "the comparison saw no rounding at all");
+    }
+}

@@ -202,7 +202,21 @@ fn restart<M: crate::board::Motors, W: crate::board::Watchdog>(
 }
 
 /// Runs the bench and writes `BENCH ...` lines to `out`. Call with interrupts masked.
-pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
+/// What [`run`] measures.
+#[derive(Copy, Clone, PartialEq, Eq)]
+pub enum BenchScope {
+    /// Everything: each integrator at each substep rate, guided writing, the parts.
+    Full,
+    /// The presets' brush alone over the first [`PROFILE_TICKS`] ticks of the stroke (hang,
+    /// press, the start of the drag), then exit: a run short enough to log every executed
+    /// instruction for a profile (`scripts/profile-tick`).
+    Profile,
+}
+
+/// Ticks of the [`BenchScope::Profile`] run.
+pub const PROFILE_TICKS: u32 = 300;
+
+pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write, scope: BenchScope) {
     static mut CMDS: CmdQueue = CmdQueue::new();
     // SAFETY: the bench runs once, before anything else uses this queue.
     let (_tx, rx) = unsafe { (*core::ptr::addr_of_mut!(CMDS)).split() };
@@ -236,10 +250,17 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
 
     // Each integrator this image has (the thesis's alone where the presets' does not fit,
     // see `params::INTEGRATOR_KANG_CHO`) at each rate.
-    for (integrator, substeps) in [INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO]
+    let runs = [INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO]
         .into_iter()
-        .flat_map(|i| [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1].map(|n| (i, n)))
-    {
+        .flat_map(|i| [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1].map(|n| (i, n)));
+    let (profile, ticks) = match scope {
+        BenchScope::Full => (None, STROKE_TICKS),
+        BenchScope::Profile => (
+            Some((params.integrator, params.substeps_per_tick)),
+            PROFILE_TICKS,
+        ),
+    };
+    for (integrator, substeps) in runs.filter(|run| profile.is_none_or(|p| p == *run)) {
         let brush = fl.core.brush_mut();
         if brush
             .set_param(ParamId::Integrator, integrator as f32)
@@ -254,7 +275,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
         // Ticks that drove the motors: all of them, unless a fault (a sensor jump) switched
         // the forces off and the rest of the run went uncounted.
         let mut forces_on = 0u32;
-        for k in 1..=STROKE_TICKS {
+        for k in 1..=ticks {
             fl.pen.feed(&stroke_pose(k));
             let a = clk.now();
             fl.tick();
@@ -275,6 +296,10 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write) {
             fl.core.brush().solves_exactly() as u8,
             fl.pen.unreachable,
         );
+    }
+
+    if scope == BenchScope::Profile {
+        return;
     }
 
     // Guided writing: the same stroke at the preset's substeps twice from the same start

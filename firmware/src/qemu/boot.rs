@@ -51,7 +51,8 @@ static BOARD: BoardInfo = BoardInfo {
 enum Mode {
     Run,
     Selftest(u32),
-    Bench(u32),
+    /// `bench SHIFT [profile]`.
+    Bench(u32, bench::BenchScope),
     Arith,
     /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
     #[cfg(feature = "test-hooks")]
@@ -83,7 +84,14 @@ fn boot_mode() -> Mode {
     let mut words = line.split_ascii_whitespace().skip(1);
     let num = |w: Option<&str>, d: u32| w.and_then(|s| s.parse().ok()).unwrap_or(d);
     match words.next() {
-        Some("bench") => Mode::Bench(num(words.next(), 0)),
+        Some("bench") => {
+            let shift = num(words.next(), 0);
+            let scope = match words.next() {
+                Some("profile") => bench::BenchScope::Profile,
+                _ => bench::BenchScope::Full,
+            };
+            Mode::Bench(shift, scope)
+        }
         Some("arith") => Mode::Arith,
         Some("selftest") => Mode::Selftest(num(words.next(), bench::STROKE_TICKS)),
         #[cfg(feature = "test-hooks")]
@@ -100,8 +108,8 @@ fn boot_mode() -> Mode {
 /// the boot mode from the command line, then the force loop and the tasks, for ever.
 pub fn main() -> ! {
     let mode = boot_mode();
-    if let Mode::Bench(shift) = mode {
-        run_bench(shift);
+    if let Mode::Bench(shift, scope) = mode {
+        run_bench(shift, scope);
     }
     if let Mode::Arith = mode {
         let mismatches = app::arith::run(&mut Stdout);
@@ -129,13 +137,13 @@ pub fn main() -> ! {
     })
 }
 
-/// `bench SHIFT`: the per-tick counts, interrupts masked, then exit.
+/// `bench SHIFT [profile]`: the per-tick counts, interrupts masked, then exit.
 #[inline(never)]
-fn run_bench(shift: u32) -> ! {
+fn run_bench(shift: u32, scope: bench::BenchScope) -> ! {
     let clk = qemu::IcountCounter;
     let _ = writeln!(Stdout, "BENCH icount_shift={shift}");
     qemu::time_driver::init();
-    cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout));
+    cortex_m::interrupt::free(|_| bench::run(&clk, &mut Stdout, scope));
     let _ = writeln!(Stdout, "BENCH done");
     semihosting::exit(0);
 }

@@ -53,6 +53,35 @@ proptest! {
         }
     }
 
+    /// A fixed-point brush teleported between poses anywhere in its range and beyond (a
+    /// hostile or broken pose stream: jumps of up to 10 m, any orientation, any stiffness the
+    /// parameters allow) never panics, in any build: the 32-bit chain solve's formats hold
+    /// or wrap, and the model's sums saturate. What the brush then does is not judged; that
+    /// the next tick runs is.
+    #[test]
+    fn fixed_point_brush_survives_teleports(
+        jumps in prop::collection::vec(
+            ((-1e4..1e4f64, -1e4..1e4f64, -1e4..1e4f64), 0.0..180.0f64, 0.0..360.0f64),
+            2..8,
+        ),
+        small in any::<bool>(),
+        stiffer in prop_oneof![Just(1.0f32), Just(20.0f32), Just(1000.0f32)],
+    ) {
+        let base = if small { presets::SMALL } else { presets::LARGE };
+        let params = BrushParams {
+            axial_stiffness: base.axial_stiffness * stiffer,
+            ..base
+        };
+        let ((x, y, z), t, a) = jumps[0];
+        let mut b = Brush::<Fx>::new(params, pose([x, y, z], t, a)).unwrap();
+        for &((x, y, z), t, a) in &jumps {
+            for _ in 0..20 {
+                b.tick(pose([x, y, z], t, a));
+            }
+        }
+        prop_assert_eq!(b.substeps_done(), 20 * jumps.len() as u64);
+    }
+
     /// Every spring 1000x stiffer than the preset, at the largest substep offered (1 ms, one
     /// substep per tick), handle held still after a random jolt, in the air or pressed into
     /// the paper.

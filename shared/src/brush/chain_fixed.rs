@@ -57,15 +57,13 @@ const P_FRAC: u32 = (BLOCK_FRAC + 30) / 2;
 /// presets sit at about a fifth and a quarter of it.
 pub const MAX_DIAGONAL: f32 = (LIMIT >> (BLOCK_FRAC + 1)) as f32;
 
-/// `v >> shift`, rounded to nearest (ties up), clamped to `+-limit`.
+/// `v >> shift` (`shift >= 1`), rounded to nearest (ties up), clamped to `+-limit`: where the
+/// model's values enter the formats. Shifting first leaves room for the rounding bit, so no
+/// value wraps, except `i64::MAX` at a shift of one (a saturated inverse entry), which
+/// becomes `-limit`: never a panic.
 #[inline(always)]
 fn round_clamp(v: i64, shift: u32, limit: i64) -> i32 {
-    let r = if shift == 0 {
-        v
-    } else {
-        (v + (1 << (shift - 1))) >> shift
-    };
-    r.clamp(-limit, limit) as i32
+    ((v >> (shift - 1)).wrapping_add(1) >> 1).clamp(-limit, limit) as i32
 }
 
 /// `v >> shift` rounded to nearest (ties up), for a result the formats' bounds keep within
@@ -178,6 +176,8 @@ pub struct FixedChain {
 
 /// The fixed-point brush's chain solve: [`FixedChain`] for a brush whose blocks fit its
 /// formats, the model's own `I32F32` [`ChainSolve`] for a stiffer one.
+// Lives on the stack for one substep, and the pen has no allocator to box the larger one.
+#[allow(clippy::large_enum_variant)]
 pub enum FxChain {
     Compact(FixedChain),
     General(ChainSolve<Fx>),

@@ -1,7 +1,7 @@
 //! The spine's block-tridiagonal solve ([`super::chain_solve`]) in 32-bit fixed point: the
 //! fixed-point brush's kernel, on the pen and on the host alike.
 //!
-//! The same elimination and back substitution as [`ChainSolve`](super::chain_solve::ChainSolve),
+//! The same elimination and back substitution as [`ChainSolve`],
 //! with the model's `I32F32` replaced by three 32-bit formats chosen for what each quantity
 //! can be:
 //!
@@ -9,8 +9,9 @@
 //!   for diagonals up to [`MAX_DIAGONAL`] (a stiffer brush, at its substep rate, takes the
 //!   model's general solve in `I32F32`), and
 //!   `P_i = D_{i-1}^-1 G_i` in `Q6.25` ([`P_FRAC`]);
-//! * **inverses** (`E_i = D_i^-1`): `Q0.31`. Every `D_i` is at least
-//!   the identity (see `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1);
+//! * **inverses** (`E_i = D_i^-1`): `Q0.31`. Every `D_i` is at least the identity (see
+//!   `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1). They are computed in
+//!   `I32F32` ([`QSym::inverse_spd`]: the factors need its 32 fractional bits);
 //! * **vectors** (right-hand sides, eliminated `y_i`, solutions `z_i`: millimetres per
 //!   substep): the model's own `I32F32` bits ([`mat_vec`]): a chain of segments in
 //!   different directions multiplies a vector's rounding by the stiffness, row after row.
@@ -39,7 +40,7 @@ use crate::vec::Vec3;
 
 /// Fractional bits of the inverses (`Q0.31`).
 const INV_FRAC: u32 = 31;
-/// The bound of every stored block and vector entry: `2^30` units.
+/// The bound of every block entry where it enters the format: `2^30` units.
 const LIMIT: i64 = 1 << 30;
 /// Fractional bits of the blocks (`Q11.20`): constant, so that every shift in the kernel
 /// is (a variable 64-bit shift is a library call on the Cortex-M4).
@@ -161,7 +162,7 @@ impl QSym {
 #[derive(Copy, Clone, Debug)]
 struct QMat([[i32; 3]; 3]);
 
-/// The fixed-point brush's chain solve: [`ChainSolve`](super::chain_solve::ChainSolve)'s
+/// The fixed-point brush's chain solve: [`ChainSolve`]'s
 /// interface, its arithmetic in the formats of the module docs.
 pub struct FixedChain {
     /// `P_i` of each row from the second.

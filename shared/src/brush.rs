@@ -109,7 +109,7 @@ pub mod state_frame;
 #[cfg(feature = "backward-euler")]
 pub use chain_fixed::MAX_DIAGONAL;
 #[cfg(feature = "backward-euler")]
-use chain_solve::{ChainSolve, SpineChain, Sym3};
+use chain_solve::{ChainSolve, SpineChain};
 
 use crate::scalar::Fx;
 
@@ -789,14 +789,18 @@ impl<S: BrushScalar> Brush<S> {
         // the rows of its two masses (+ in row j-1, - in row j), linearised where the substep
         // starts; u_0 is the ferrule's new displacement, so its prescribed motion enters
         // here, once.
-        let mut segment = |j: usize| -> (Sym3<S>, Vec3<S>) {
+        // Each segment's parts: its block's isotropic stiffness `iso` and its axial
+        // stiffness `axial` along the unit direction `dir` (the solve builds the block
+        // `iso I + axial dir dir^T` in its own format and keeps it for the rows on either
+        // side), its spring term c_k f_j, and the relative velocity of its masses.
+        let mut segment = |j: usize| -> (S, S, Vec3<S>, Vec3<S>, Vec3<S>) {
             let j = j.clamp(1, MAX_LAYERS - 1);
             let v = self.spine[j] - self.spine[j - 1];
             if j < first_cached {
                 (self.seg_len2[j], self.seg_rsqrt[j]) = measure_near(v, self.seg_rsqrt[j]);
             }
             let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
-            let g = if len2 > self.d.tiny2 {
+            let (iso, axial, dir) = if len2 > self.d.tiny2 {
                 // The Jacobian k (e I + (1 - e) d d^T), e = 1 - L/|d| the strain, d the unit
                 // direction. Compressed (e < 0) the transverse term k e (I - d d^T) is
                 // negative (the hairs buckle): left out, so the matrix stays positive
@@ -810,22 +814,32 @@ impl<S: BrushScalar> Brush<S> {
                 let stretched = strain.max(S::ZERO);
                 let blend = ((strain + c.blend_strain) * c.inv_blend_width).clamp(S::ZERO, S::ONE);
                 let axial = c.c_k_compressed + c.c_k_stretch_step * blend;
-                // (1 - e) d d^T with d = v r: (1 - e) r^2 v v^T.
-                let outer = axial * (S::ONE - stretched) * (r * r);
-                Sym3::iso_plus_outer(c.c_k * stretched + c.c_d, outer, v)
+                (
+                    c.c_k * stretched + c.c_d,
+                    axial * (S::ONE - stretched),
+                    v.scale(r),
+                )
             } else {
-                Sym3::iso(c.c_d)
+                (c.c_d, S::ZERO, Vec3::ZERO)
             };
             let f = spring_with(&self.d, v, len2, r);
             let rel = self.vel[j] - if j == 1 { u0 } else { self.vel[j - 1] };
-            (g, f.scale(c.c_k) + g.mul_vec(rel))
+            (iso, axial, dir, f.scale(c.c_k), rel)
         };
-        let (mut g, mut t) = segment(1);
+        // T_j, with G_j handed to the solve.
+        let term = |solve: &mut S::Chain, (iso, axial, dir, spring, rel)| {
+            spring + solve.segment(iso, axial, dir, rel)
+        };
+        let mut t = term(solve, segment(1));
         for i in 1..n {
-            let (g_next, t_next) = if i + 1 < n {
-                segment(i + 1)
+            let t_next = if i + 1 < n {
+                term(solve, segment(i + 1))
             } else {
-                (Sym3::ZERO, Vec3::ZERO)
+                // Beyond the tip: no segment, a zero block.
+                term(
+                    solve,
+                    (S::ZERO, S::ZERO, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO),
+                )
             };
             let w = ties[i];
             let mut rhs = t_next - t;
@@ -845,8 +859,8 @@ impl<S: BrushScalar> Brush<S> {
             if i + 1 == n {
                 rhs += self.tip_load.scale(c.c_f);
             }
-            solve.row(i, diag, &g, &g_next, rhs);
-            (g, t) = (g_next, t_next);
+            solve.row(i, diag, rhs);
+            t = t_next;
         }
         solve.solve(n);
     }

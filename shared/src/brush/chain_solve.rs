@@ -187,12 +187,16 @@ pub trait SpineChain<S> {
     /// compact solve, if it has one (the fixed-point format's, see
     /// [`super::chain_fixed::MAX_DIAGONAL`]).
     fn new(compact: bool) -> Self;
-    /// Eliminates row `i` (from 1 up, in order), given `a_i` (the mass and its tie, in units
-    /// of the mass), the segments' blocks `G_i` (the coupling to the row before; for row
-    /// 1, to the prescribed ferrule, whose term is in the right-hand side) and `G_{i+1}`
-    /// (zero for the tip: the next row's `G_i`, which an implementation may keep from this
-    /// call), and its right-hand side. The diagonal block is `a_i I + G_i + G_{i+1}`.
-    fn row(&mut self, i: usize, a: S, g: &Sym3<S>, g_next: &Sym3<S>, rhs: Vec3<S>);
+    /// The next segment's Jacobian block `G_j = iso I + axial dir dir^T` (`dir` a unit
+    /// vector or zero; the segments in order from the first, then a zero block for beyond
+    /// the tip), kept for the rows on either side of it; returns `G_j rel`.
+    fn segment(&mut self, iso: S, axial: S, dir: Vec3<S>, rel: Vec3<S>) -> Vec3<S>;
+    /// Eliminates row `i` (from 1 up, in order, each after the segment below it), given
+    /// `a_i` (the mass and its tie, in units of the mass) and its right-hand side. Its
+    /// blocks are the last two segments given: `G_i` (the coupling to the row before; for
+    /// row 1, to the prescribed ferrule, whose term is in the right-hand side) and
+    /// `G_{i+1}`; the diagonal block is `a_i I + G_i + G_{i+1}`.
+    fn row(&mut self, i: usize, a: S, rhs: Vec3<S>);
     /// The back substitution after rows `1..n` were eliminated.
     fn solve(&mut self, n: usize);
     /// Then: `du_i` of free mass `i` (`1..n`).
@@ -204,8 +208,15 @@ impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
         ChainSolve::new()
     }
     #[inline(always)]
-    fn row(&mut self, i: usize, a: S, g: &Sym3<S>, g_next: &Sym3<S>, rhs: Vec3<S>) {
-        ChainSolve::row(self, i, Sym3::iso(a).add(*g).add(*g_next), g, rhs)
+    fn segment(&mut self, iso: S, axial: S, dir: Vec3<S>, rel: Vec3<S>) -> Vec3<S> {
+        self.g_below = self.g_above;
+        self.g_above = Sym3::iso_plus_outer(iso, axial, dir);
+        self.g_above.mul_vec(rel)
+    }
+    #[inline(always)]
+    fn row(&mut self, i: usize, a: S, rhs: Vec3<S>) {
+        let (g, g_next) = (self.g_below, self.g_above);
+        ChainSolve::row(self, i, Sym3::iso(a).add(g).add(g_next), &g, rhs)
     }
     #[inline(always)]
     fn solve(&mut self, n: usize) {
@@ -226,6 +237,9 @@ pub struct ChainSolve<S> {
     z: [Vec3<S>; MAX_LAYERS],
     /// The last row's `D^-1`.
     inv: Sym3<S>,
+    /// The last two segments' blocks ([`SpineChain::segment`]), the upper the latest.
+    g_below: Sym3<S>,
+    g_above: Sym3<S>,
 }
 
 impl<S: Scalar> ChainSolve<S> {
@@ -234,6 +248,8 @@ impl<S: Scalar> ChainSolve<S> {
             p: [Mat3::ZERO; MAX_LAYERS],
             z: [Vec3::ZERO; MAX_LAYERS],
             inv: Sym3::ZERO,
+            g_below: Sym3::ZERO,
+            g_above: Sym3::ZERO,
         }
     }
 

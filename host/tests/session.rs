@@ -93,7 +93,7 @@ fn open(path: &Path, clock: SimClock) -> Harness<'static, MaobiApp> {
 }
 
 fn coverage(h: &Harness<'static, MaobiApp>) -> Vec<f32> {
-    h.state().paper().canvas().coverage().to_vec()
+    h.state().paper().canvas().ink().to_vec()
 }
 
 /// Replays, dips, changes a parameter, draws with the pointer, undoes, clears and undoes

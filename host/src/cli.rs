@@ -258,6 +258,9 @@ pub struct GuiArgs {
     /// Brush preset (default: the one used last, else `large`).
     #[arg(long, value_name = "NAME", value_parser = parse_brush)]
     pub brush: Option<BrushChoice>,
+    /// The paper at start: `sized` (熟宣) or `raw` (生宣); the app's paper choice changes it.
+    #[arg(long, value_name = "NAME", value_parser = parse_paper, default_value = "sized")]
+    pub paper: PaperKind,
     /// Paper size: a square of this many millimetres centred on the origin (default: as last
     /// used, else 200).
     #[arg(long, value_name = "MM", value_parser = parse_px_per_mm)]
@@ -560,6 +563,7 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
             .brush
             .as_ref()
             .map_or(defaults.brush.clone(), |b| b.name.clone()),
+        paper_kind: a.paper,
         replay: a.replay,
         screenshot: a.screenshot,
         session: a.session,

@@ -37,11 +37,11 @@ const DIFFUSION: f32 = 0.2;
 /// non-negative: a pixel has two edges per pass).
 const MAX_SHARE: f32 = 0.25;
 /// Share of a pixel's water the fibres absorb per step.
-const ABSORB: f32 = 0.025;
+const ABSORB: f32 = 0.03;
 /// Share of the carried pigment that settles per step on top of what leaves with the water.
 const SETTLE: f32 = 0.01;
 /// Below this much water a pixel counts as dry: its pigment settles, its water is gone.
-const DRY: f32 = 5e-3;
+const DRY: f32 = 0.02;
 
 /// The paper's kinds, by the names the command line, the app and the files use.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]

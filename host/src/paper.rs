@@ -153,6 +153,19 @@ impl Canvas {
         }
     }
 
+    /// A copy for undo: the same ink, taken as dry (the water's pigment stays where it is and
+    /// the water is left out), so keeping it costs the ink alone.
+    pub fn dry_copy(&self) -> Canvas {
+        Canvas {
+            width: self.width,
+            height: self.height,
+            ink: self.ink.clone(),
+            spec: self.spec,
+            wet: self.wet.as_ref().map(|w| Wet::new(w.fibres.clone())),
+            ticks: self.ticks,
+        }
+    }
+
     /// Blank paper like this one (the same fibres).
     pub fn blank_like(&self) -> Canvas {
         Canvas {
@@ -627,6 +640,16 @@ mod tests {
         };
         assert_eq!(run(7), run(7));
         assert_ne!(run(7), run(8));
+    }
+
+    #[test]
+    fn a_dry_copy_keeps_the_ink_and_drops_the_water() {
+        let mut c = Canvas::with_paper(60, 60, PaperSpec::new(PaperKind::Raw));
+        blob(&mut c, 30, 30, 5, 2.0);
+        c.step();
+        let d = c.dry_copy();
+        assert!(c.is_wet() && !d.is_wet());
+        assert_eq!(c.ink(), d.ink());
     }
 
     #[test]

@@ -93,7 +93,7 @@ impl PaperView {
     /// A fresh sheet of `spec`: blank, with nothing to undo.
     pub fn set_paper(&mut self, spec: PaperSpec) {
         self.canvas = Canvas::with_paper(self.frame.width, self.frame.height, spec);
-        self.settled = self.canvas.clone();
+        self.settled = self.canvas.dry_copy();
         self.undo.clear();
         self.in_stroke = false;
         self.full_upload = true;
@@ -130,7 +130,9 @@ impl PaperView {
             }
         } else if self.in_stroke {
             self.in_stroke = false;
-            self.settled = self.canvas.clone();
+            // Undo brings the paper back with its ink dry: the snapshot leaves out raw
+            // paper's water, which would double its cost at every stroke's end.
+            self.settled = self.canvas.dry_copy();
         }
     }
 
@@ -161,7 +163,7 @@ impl PaperView {
         match self.undo.pop() {
             Some(c) => {
                 self.canvas = c;
-                self.settled = self.canvas.clone();
+                self.settled = self.canvas.dry_copy();
                 self.in_stroke = false;
                 self.full_upload = true;
                 true
@@ -175,7 +177,7 @@ impl PaperView {
         let blank = self.canvas.blank_like();
         let old = std::mem::replace(&mut self.canvas, blank);
         self.push_undo(old);
-        self.settled = self.canvas.clone();
+        self.settled = self.canvas.dry_copy();
         self.in_stroke = false;
         self.full_upload = true;
     }

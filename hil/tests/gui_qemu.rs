@@ -132,8 +132,8 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
     replay(&mut remote, &hook, Duration::from_secs(300));
 
     let (a, b) = (
-        remote.state().paper().canvas().coverage(),
-        local.state().paper().canvas().coverage(),
+        remote.state().paper().canvas().ink(),
+        local.state().paper().canvas().ink(),
     );
     assert_eq!(a.len(), b.len(), "same paper");
     let ink = local.state().paper().canvas().ink_fraction();

@@ -9,6 +9,7 @@ use clap::{Args, Parser, Subcommand};
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
 
 use crate::offline::{simulate, ScalarKind};
+use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
 use crate::render::{paper_frame, render, write_png, RenderStats};
 use crate::strokes::Character;
@@ -257,6 +258,9 @@ pub struct GuiArgs {
     /// Brush preset (default: the one used last, else `large`).
     #[arg(long, value_name = "NAME", value_parser = parse_brush)]
     pub brush: Option<BrushChoice>,
+    /// The paper at start: `sized` (熟宣) or `raw` (生宣); the app's paper choice changes it.
+    #[arg(long, value_name = "NAME", value_parser = parse_paper, default_value = "sized")]
+    pub paper: PaperKind,
     /// Paper size: a square of this many millimetres centred on the origin (default: as last
     /// used, else 200).
     #[arg(long, value_name = "MM", value_parser = parse_px_per_mm)]
@@ -400,6 +404,10 @@ fn param_long_help() -> String {
     help
 }
 
+fn parse_paper(s: &str) -> Result<PaperKind, String> {
+    PaperKind::from_name(s)
+}
+
 fn parse_px_per_mm(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -465,6 +473,12 @@ pub struct RenderArgs {
     /// Number type to run the model in (the device runs fixed).
     #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
     pub scalar: ScalarKind,
+    /// The paper: `sized` (熟宣, the ink stays where the brush laid it) or `raw` (生宣, the ink
+    /// wicks outward along the fibres). Default: the stroke file's `paper`, else `sized`, since
+    /// sized paper shows the brush's own deposit, which is what a render is mostly for
+    /// (judging the brush model), and it is the faster; raw paper adds the paper's spread.
+    #[arg(long, value_name = "NAME", value_parser = parse_paper, conflicts_with = "session")]
+    pub paper: Option<PaperKind>,
     /// Output PNG.
     #[arg(short = 'o', long = "output", value_name = "OUT.png")]
     pub output: PathBuf,
@@ -549,6 +563,7 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
             .brush
             .as_ref()
             .map_or(defaults.brush.clone(), |b| b.name.clone()),
+        paper_kind: a.paper,
         replay: a.replay,
         screenshot: a.screenshot,
         session: a.session,
@@ -923,23 +938,27 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         return render_session(path, &a.output, started);
     }
     let params = a.brush.params()?;
-    let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
+    let (track, file_paper) = load_track_and_paper(a.poses.as_deref(), a.stroke.as_deref())?;
+    let paper = PaperSpec::new(a.paper.or(file_paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
     let frame = paper_frame(&track, &params, a.px_per_mm)?;
-    log::debug!("paper: {frame:?}");
+    log::debug!("paper: {frame:?}, {paper:?}");
     let (canvas, stats): (_, RenderStats) = match a.scalar {
-        ScalarKind::Fixed => render::<Fx>(params, &track, frame)?,
-        ScalarKind::F32 => render::<f32>(params, &track, frame)?,
-        ScalarKind::F64 => render::<f64>(params, &track, frame)?,
+        ScalarKind::Fixed => render::<Fx>(params, &track, frame, paper)?,
+        ScalarKind::F32 => render::<f32>(params, &track, frame, paper)?,
+        ScalarKind::F64 => render::<f64>(params, &track, frame, paper)?,
     };
     write_png(&canvas, &a.output)?;
     eprintln!(
-        "maobi render: {} ticks ({} inking, {:.1} us/tick stamping) of the {} brush in {}, {} x {} px at {} px/mm, ink {:.2}%, wrote {} in {:.2} s",
+        "maobi render: {} ticks ({} inking, {:.1} us/tick stamping, {:.1} us/tick paper, {} drying steps) of the {} brush in {} on {} paper, {} x {} px at {} px/mm, ink {:.2}%, wrote {} in {:.2} s",
         stats.ticks,
         stats.stamps,
         stats.stamp_seconds * 1e6 / stats.ticks as f64,
+        stats.paper_seconds * 1e6 / stats.ticks as f64,
+        stats.drying_steps,
         a.brush.describe(),
         a.scalar,
+        paper.kind,
         stats.width,
         stats.height,
         a.px_per_mm,
@@ -952,9 +971,20 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
 
 /// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly one).
 fn load_track(poses: Option<&Path>, stroke: Option<&Path>) -> anyhow::Result<PoseTrack> {
-    let track = match (poses, stroke) {
-        (Some(p), None) => PoseTrack::from_path(p)?,
-        (None, Some(s)) => Character::from_path(s)?.track(&s.display().to_string())?,
+    Ok(load_track_and_paper(poses, stroke)?.0)
+}
+
+/// [`load_track`], and the paper a stroke file names.
+fn load_track_and_paper(
+    poses: Option<&Path>,
+    stroke: Option<&Path>,
+) -> anyhow::Result<(PoseTrack, Option<PaperKind>)> {
+    let (track, paper) = match (poses, stroke) {
+        (Some(p), None) => (PoseTrack::from_path(p)?, None),
+        (None, Some(s)) => {
+            let c = Character::from_path(s)?;
+            (c.track(&s.display().to_string())?, c.paper)
+        }
         _ => anyhow::bail!("give exactly one of --poses and --stroke"),
     };
     log::debug!(
@@ -965,7 +995,7 @@ fn load_track(poses: Option<&Path>, stroke: Option<&Path>) -> anyhow::Result<Pos
         track.ticks(),
         track.start()
     );
-    Ok(track)
+    Ok((track, paper))
 }
 
 #[derive(Debug, Subcommand)]

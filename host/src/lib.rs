@@ -6,7 +6,8 @@
 //! * [`offline`]: running the shared brush model offline over a pose track, tick by tick.
 //! * [`trace`]: the per-tick trace CSV.
 //! * [`strokes`]: keyframed stroke files (TOML): reading, sampling to poses, fitting.
-//! * [`raster`]: the paper canvas and the anti-aliased polygon stamper.
+//! * [`paper`]: the paper: ink per pixel shown as tone, sized and raw paper.
+//! * [`raster`]: the anti-aliased polygon stamper.
 //! * [`render`]: inking a simulated stroke and writing it as PNG.
 //! * [`device`]: devices over the wire protocol (TCP, serial) and the simulated protocol device.
 //! * [`gui`]: the desktop GUI (`maobi`, `maobi gui`) and its device backends.
@@ -17,6 +18,7 @@ pub mod cli;
 pub mod device;
 pub mod gui;
 pub mod offline;
+pub mod paper;
 pub mod phantom;
 pub mod poses;
 pub mod raster;

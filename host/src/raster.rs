@@ -1,10 +1,10 @@
-//! The paper canvas and the anti-aliased polygon stamper.
+//! The anti-aliased polygon stamper, and the frame from paper millimetres to pixels.
 //!
-//! The canvas holds ink coverage in [0, 1] per pixel. Ink is laid down in *stamps*: a stamp is
-//! a set of convex polygons (one tick's footprint, one polygon per brush band). Within a stamp
-//! the polygons' coverages are **summed** and clamped to 1, so two polygons sharing an edge
-//! leave no seam; a stamp then combines with the canvas by `max`, so painting the same place
-//! again does not darken it further.
+//! Ink is laid down in *stamps*: a stamp is a set of convex polygons (one band's footprint at
+//! one moment). Within a stamp the polygons' coverages are **summed** and clamped to 1, so
+//! two polygons sharing an edge leave no seam; the stamp then adds its coverage times an
+//! amount of ink to the [`Canvas`] (see [`crate::paper`]), so inking the same place again
+//! darkens it.
 //!
 //! Coverage is computed on 4 sub-scanlines per pixel row (each weighing 1/4) with exact
 //! horizontal coverage: each polygon's span on a sub-scanline is added to a per-row
@@ -54,54 +54,7 @@ impl Frame {
     }
 }
 
-/// Ink coverage per pixel, row-major, row 0 at the top.
-#[derive(Clone, Debug)]
-pub struct Canvas {
-    width: usize,
-    height: usize,
-    cov: Vec<f32>,
-}
-
-impl Canvas {
-    pub fn new(width: usize, height: usize) -> Canvas {
-        Canvas {
-            width,
-            height,
-            cov: vec![0.0; width * height],
-        }
-    }
-    pub fn width(&self) -> usize {
-        self.width
-    }
-    pub fn height(&self) -> usize {
-        self.height
-    }
-    pub fn coverage(&self) -> &[f32] {
-        &self.cov
-    }
-    pub fn at(&self, x: usize, y: usize) -> f32 {
-        self.cov[y * self.width + x]
-    }
-    /// Sum of the coverage over all pixels (pixel units of area).
-    pub fn ink_area_px(&self) -> f64 {
-        self.cov.iter().map(|&c| c as f64).sum()
-    }
-    /// Inked fraction of the canvas, in [0, 1].
-    pub fn ink_fraction(&self) -> f64 {
-        if self.cov.is_empty() {
-            0.0
-        } else {
-            self.ink_area_px() / self.cov.len() as f64
-        }
-    }
-    /// 8-bit grey per pixel: `round(255 * (1 - coverage))`, black where fully inked.
-    pub fn to_gray8(&self) -> Vec<u8> {
-        self.cov
-            .iter()
-            .map(|&c| (255.0 * (1.0 - c.clamp(0.0, 1.0))).round() as u8)
-            .collect()
-    }
-}
+pub use crate::paper::Canvas;
 
 /// Rasterises stamps onto a [`Canvas`]; keeps its buffers between stamps so the hot loop
 /// does not allocate once they have grown to the largest stamp.
@@ -111,11 +64,15 @@ pub struct Stamper {
     pts: Vec<[f64; 2]>,
     /// End index in `pts` of each polygon.
     ends: Vec<usize>,
+    /// Ink per unit of coverage of each polygon.
+    weights: Vec<f32>,
     /// Difference accumulator over the stamp's bounding box, `stride` per row. All zero
     /// between stamps (each stamp zeroes what it touched), so its layout can change freely.
     acc: Vec<f32>,
     /// Per row of the box: the first and last index of `acc` that the stamp touched.
     touched: Vec<(usize, usize)>,
+    /// One row's coverage, handed to the canvas.
+    row: Vec<f32>,
 }
 
 impl Stamper {
@@ -127,6 +84,7 @@ impl Stamper {
     pub fn begin(&mut self) {
         self.pts.clear();
         self.ends.clear();
+        self.weights.clear();
     }
 
     /// Adds a convex polygon (pixel coordinates, either orientation) to the current stamp.
@@ -138,12 +96,24 @@ impl Stamper {
             self.pts.truncate(start);
         } else {
             self.ends.push(self.pts.len());
+            self.weights.push(1.0);
         }
     }
 
-    /// Rasterises the current stamp and combines it into `canvas` by `max`; returns the
-    /// stamp's own coverage sum (pixel units of area, after the clamp to 1), for tests and
-    /// statistics. The stamp is cleared.
+    /// Adds a convex polygon that lays down `ink` per unit of its coverage.
+    pub fn add_weighted_polygon<I: IntoIterator<Item = [f64; 2]>>(&mut self, pts: I, ink: f32) {
+        let n = self.ends.len();
+        self.add_polygon(pts);
+        if self.ends.len() > n {
+            self.weights[n] = ink;
+        }
+    }
+
+    /// Rasterises the current stamp and adds its ink to `canvas`: each polygon's coverage
+    /// times its ink ([`Stamper::add_weighted_polygon`]; 1 for [`Stamper::add_polygon`]),
+    /// summed, and clamped to the largest ink of the stamp where polygons overlap. Returns the
+    /// ink laid down (pixel units of area times ink), for tests and statistics. The stamp is
+    /// cleared.
     pub fn finish(&mut self, canvas: &mut Canvas) -> f64 {
         if self.ends.is_empty() {
             return 0.0;
@@ -158,12 +128,12 @@ impl Stamper {
         // Bounding box in whole pixels, clipped to the canvas.
         let clip = |v: f64, max: usize| v.clamp(0.0, max as f64) as usize;
         let (x0, x1) = (
-            clip(lo[0].floor(), canvas.width),
-            clip(hi[0].ceil(), canvas.width),
+            clip(lo[0].floor(), canvas.width()),
+            clip(hi[0].ceil(), canvas.width()),
         );
         let (y0, y1) = (
-            clip(lo[1].floor(), canvas.height),
-            clip(hi[1].ceil(), canvas.height),
+            clip(lo[1].floor(), canvas.height()),
+            clip(hi[1].ceil(), canvas.height()),
         );
         if x0 >= x1 || y0 >= y1 {
             self.begin();
@@ -178,12 +148,13 @@ impl Stamper {
         self.touched.resize(bh, (usize::MAX, 0));
 
         let mut start = 0;
-        for &end in &self.ends {
+        let top = self.weights.iter().fold(0.0f32, |a, &w| a.max(w));
+        for (&end, &w) in self.ends.iter().zip(&self.weights) {
             scan_polygon(
                 &self.pts[start..end],
+                w,
                 [x0 as f64, y0 as f64],
-                bw,
-                bh,
+                [bw, bh],
                 stride,
                 &mut self.acc,
                 &mut self.touched,
@@ -199,18 +170,16 @@ impl Stamper {
             let acc = &mut self.acc[row * stride..(row + 1) * stride];
             // Past the last touched index every span has ended: the coverage is zero there.
             let end = hi.min(bw);
-            let base = (y0 + row) * canvas.width + x0;
-            let dst = &mut canvas.cov[base + lo..base + end];
+            self.row.clear();
             let mut sum = 0.0f32;
             let mut row_total = 0.0f32;
-            for (d, &a) in dst.iter_mut().zip(&acc[lo..end]) {
+            for &a in &acc[lo..end] {
                 sum += a;
-                let c = sum.clamp(0.0, 1.0);
+                let c = sum.clamp(0.0, top);
                 row_total += c;
-                if c > *d {
-                    *d = c;
-                }
+                self.row.push(c);
             }
+            canvas.deposit_row(y0 + row, x0 + lo, &self.row);
             acc[lo..=hi].fill(0.0);
             total += row_total as f64;
         }
@@ -219,13 +188,13 @@ impl Stamper {
     }
 }
 
-/// Adds the coverage of one convex polygon to the difference rows `acc` of a `bw` x `bh`
-/// pixel box whose top-left pixel corner is `origin`.
+/// Adds the coverage of one convex polygon, times `weight`, to the difference rows `acc` of a `bw` x `bh`
+/// pixel box (`[bw, bh]`) whose top-left pixel corner is `origin`.
 fn scan_polygon(
     pts: &[[f64; 2]],
+    weight: f32,
     origin: [f64; 2],
-    bw: usize,
-    bh: usize,
+    [bw, bh]: [usize; 2],
     stride: usize,
     acc: &mut [f32],
     touched: &mut [(usize, usize)],
@@ -274,8 +243,8 @@ fn scan_polygon(
         }
         let r = q / SUB;
         let row = &mut acc[r * stride..(r + 1) * stride];
-        let first = add_edge(row, xl, SUB_WEIGHT);
-        let last = add_edge(row, xr, -SUB_WEIGHT) + 1;
+        let first = add_edge(row, xl, SUB_WEIGHT * weight);
+        let last = add_edge(row, xr, -SUB_WEIGHT * weight) + 1;
         let t = &mut touched[r];
         *t = (t.0.min(first), t.1.max(last));
     }
@@ -303,6 +272,11 @@ fn add_edge(row: &mut [f32], x: f64, w: f32) -> usize {
 mod tests {
     use super::*;
 
+    /// Ink at pixel (x, y): with an amount of 1, the stamps' summed coverage.
+    fn ink_at(c: &Canvas, x: usize, y: usize) -> f32 {
+        c.ink()[y * c.width() + x]
+    }
+
     fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> [[f64; 2]; 4] {
         [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
     }
@@ -315,15 +289,15 @@ mod tests {
         s.add_polygon(rect(3.3, 4.1, 4.3, 5.1));
         let stamped = s.finish(&mut c);
         assert!((stamped - 1.0).abs() < 1e-6, "{stamped}");
-        assert!((c.ink_area_px() - 1.0).abs() < 1e-6);
+        assert!((c.total_ink() - 1.0).abs() < 1e-6);
         // Horizontal coverage is exact: 0.7 of pixel 3, 0.3 of pixel 4.
-        let col3: f32 = (0..20).map(|y| c.at(3, y)).sum();
-        let col4: f32 = (0..20).map(|y| c.at(4, y)).sum();
+        let col3: f32 = (0..20).map(|y| ink_at(&c, 3, y)).sum();
+        let col4: f32 = (0..20).map(|y| ink_at(&c, 4, y)).sum();
         assert!(
             (col3 - 0.7).abs() < 1e-6 && (col4 - 0.3).abs() < 1e-6,
             "{col3} {col4}"
         );
-        assert_eq!(c.at(10, 10), 0.0);
+        assert_eq!(ink_at(&c, 10, 10), 0.0);
     }
 
     #[test]
@@ -337,15 +311,11 @@ mod tests {
         let mm = [[2.0, 2.0], [3.0, 2.0], [3.0, 3.0], [2.0, 3.0]];
         s.add_polygon(mm.iter().map(|p| f.to_px(p[0], p[1])));
         s.finish(&mut c);
-        assert!(
-            (c.ink_area_px() - 100.0).abs() < 1e-3,
-            "{}",
-            c.ink_area_px()
-        );
+        assert!((c.total_ink() - 100.0).abs() < 1e-3, "{}", c.total_ink());
         // Paper +y is up: the square (y 2..3 mm) lies in image rows (6 - 3)*10 .. (6 - 2)*10.
-        assert_eq!(c.at(35, 35), 1.0);
-        assert_eq!(c.at(35, 29), 0.0);
-        assert_eq!(c.at(35, 40), 0.0);
+        assert_eq!(ink_at(&c, 35, 35), 1.0);
+        assert_eq!(ink_at(&c, 35, 29), 0.0);
+        assert_eq!(ink_at(&c, 35, 40), 0.0);
     }
 
     #[test]
@@ -357,9 +327,9 @@ mod tests {
         s.finish(&mut c);
         let area: f64 = 0.5 * ((40.9 - 5.2) * (44.6 - 3.7) - (12.4 - 5.2) * (10.1 - 3.7));
         assert!(
-            (c.ink_area_px() - area).abs() < 0.05 * area.sqrt(),
+            (c.total_ink() - area).abs() < 0.05 * area.sqrt(),
             "{}",
-            c.ink_area_px()
+            c.total_ink()
         );
     }
 
@@ -387,11 +357,11 @@ mod tests {
         s.add_polygon(left);
         s.add_polygon(right);
         s.finish(&mut b);
-        for (p, q) in a.coverage().iter().zip(b.coverage()) {
+        for (p, q) in a.ink().iter().zip(b.ink()) {
             assert!((p - q).abs() < 1e-5, "{p} vs {q}");
         }
         // The inside is solid black, seam included.
-        assert_eq!(b.at(13, 12), 1.0);
+        assert_eq!(ink_at(&b, 13, 12), 1.0);
     }
 
     #[test]
@@ -403,20 +373,21 @@ mod tests {
         s.add_polygon(rect(3.0, 3.0, 7.0, 7.0));
         let area = s.finish(&mut c);
         assert!((area - 28.0).abs() < 1e-5, "{area}");
-        assert_eq!(c.at(4, 4), 1.0);
+        assert_eq!(ink_at(&c, 4, 4), 1.0);
     }
 
     #[test]
-    fn stamps_combine_by_max() {
+    fn stamps_add_their_ink() {
         let mut c = Canvas::new(10, 10);
         let mut s = Stamper::new();
         for _ in 0..3 {
             s.begin();
-            s.add_polygon(rect(2.0, 2.0, 4.5, 4.0));
+            s.add_weighted_polygon(rect(2.0, 2.0, 4.5, 4.0), 0.5);
             s.finish(&mut c);
         }
-        assert!((c.ink_area_px() - 5.0).abs() < 1e-6);
-        assert!((c.at(4, 2) - 0.5).abs() < 1e-6);
+        assert!((c.total_ink() - 7.5).abs() < 1e-5, "{}", c.total_ink());
+        assert!((ink_at(&c, 4, 2) - 0.75).abs() < 1e-6);
+        assert!((ink_at(&c, 3, 3) - 1.5).abs() < 1e-6);
     }
 
     #[test]
@@ -428,7 +399,7 @@ mod tests {
         s.add_polygon(rect(8.0, 8.0, 15.0, 15.0));
         s.add_polygon(rect(20.0, 20.0, 25.0, 25.0));
         s.finish(&mut c);
-        assert!((c.ink_area_px() - (2.5 * 3.0 + 4.0)).abs() < 1e-5);
+        assert!((c.total_ink() - (2.5 * 3.0 + 4.0)).abs() < 1e-5);
         // Entirely outside: nothing.
         s.begin();
         s.add_polygon(rect(-9.0, 2.0, -1.0, 4.0));
@@ -513,7 +484,7 @@ mod tests {
                         .map(|p| reference_coverage(p, x, y))
                         .sum::<f64>()
                         .min(1.0);
-                    let got = c.at(x, y) as f64;
+                    let got = ink_at(&c, x, y) as f64;
                     assert!(
                         (got - want).abs() < 1e-5,
                         "round {round}, pixel ({x}, {y}): {got} vs {want}, {polys:?}"
@@ -530,7 +501,7 @@ mod tests {
         s.begin();
         s.add_polygon(rect(1.0, 0.0, 2.5, 1.0));
         s.finish(&mut c);
-        assert_eq!(c.to_gray8(), [255, 0, 128, 255]);
-        assert!((c.ink_fraction() - 1.5 / 4.0).abs() < 1e-7);
+        // Ink 1 shows 1 - e^-1 dark; half of it, 1 - e^-0.5.
+        assert_eq!(c.to_gray8(), [255, 94, 155, 255]);
     }
 }

@@ -1,21 +1,25 @@
 //! Rendering a simulated stroke to a PNG: the footprint of every tick inked onto paper.
 //!
 //! At 500 mm/s the brush moves 0.5 mm per tick (5 px at 10 px/mm), so stamping each tick's
-//! footprint alone would leave gaps. Each band is therefore stamped as the convex hull of its
-//! polygon at the previous tick and at this tick (the area it swept, for the small motion of
-//! one tick), or its polygon alone when it did not touch the paper at the previous tick.
+//! footprint alone would leave gaps, and stamping the area it swept would sum to a tone that
+//! steps with the ticks (scallops). Ink is laid down per unit of travel instead ([`Inker`]):
+//! each band's footprint is stamped at positions a pixel or less apart along its way since
+//! the previous tick, each giving the band's ink per mm ([`ink_per_mm`]) times the travel it
+//! stands for. The ink lands on the paper ([`crate::paper`]), which takes a step every few
+//! ticks.
 
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use maobi_shared::footprint::{self, Geometry};
-use maobi_shared::{Brush, BrushParams, Scalar, Vec2};
+use maobi_shared::footprint::Geometry;
+use maobi_shared::{Brush, BrushParams, Scalar};
 
 use crate::offline::simulate;
+use crate::paper::{Canvas, PaperSpec};
 use crate::poses::PoseTrack;
-use crate::raster::{Canvas, Frame, Stamper};
+use crate::raster::{Frame, Stamper};
 
 /// Paper margin beyond the ferrule's extent, on top of the brush length (mm).
 pub const EXTRA_MARGIN_MM: f64 = 10.0;
@@ -37,6 +41,10 @@ pub struct RenderStats {
     /// Wall-clock time spent computing footprints and stamping them (s); for the summary
     /// only, it never reaches the image.
     pub stamp_seconds: f64,
+    /// Wall-clock time the paper's steps took (s), for the summary only.
+    pub paper_seconds: f64,
+    /// Paper steps after the last tick until the paper was dry.
+    pub drying_steps: usize,
 }
 
 /// The paper for `track`: the ferrule's x-y extent plus the brush length and
@@ -63,17 +71,52 @@ pub fn paper_frame(
     Ok(frame)
 }
 
-/// Inks a brush's footprint onto a canvas, tick after tick.
+/// Longest step (pixels) between two positions of a band's footprint stamped within one
+/// tick: ink is laid down per unit of travel by stamping the footprint at positions this
+/// close along its path, so overlapping stamps sum to a tone that does not depend on where
+/// the ticks fell (no periodic scallops at the tick spacing).
+pub const MAX_STEP_PX: f64 = 1.0;
+
+/// Travel (mm) a band counts per tick on top of its motion: a brush held still keeps giving
+/// ink, and a slow stroke lays down more ink than a fast one (as if every stroke moved this
+/// much faster, here 30 mm/s at the 1 ms tick).
+pub const DWELL_MM_PER_TICK: f64 = 0.03;
+
+/// Ink (optical depth) a band of the footprint lays down per mm it travels, from the layer
+/// state the footprint carries: `wetness` W_i in [0, 1] and `press_mm`, how far the band's
+/// lowest surface point is below the footprint threshold.
+///
+/// This is the one place the brush's ink feeds the paper: the amount per band (layer) per
+/// tick. The brush's own finite ink load (issue 23, item 1) is to feed it here, in place of
+/// (or scaling) the wetness.
+pub fn ink_per_mm(wetness: f64, press_mm: f64) -> f32 {
+    // A wet brush gives most of its ink; pressing harder opens the hairs and gives more.
+    let wet = wetness.clamp(0.0, 1.0);
+    let press = press_mm.max(0.0);
+    (0.15 + 0.35 * wet * (0.4 + 0.6 * press / (press + 1.0))) as f32
+}
+
+/// Per band of the footprint: its polygon (pixels) and the ink it gives per mm.
+#[derive(Clone, Debug, Default)]
+struct BandStamp {
+    poly: Vec<[f64; 2]>,
+    centroid: [f64; 2],
+    ink_per_mm: f32,
+}
+
+/// Inks a brush's footprint onto a canvas, tick after tick, per unit of travel: each band's
+/// footprint is stamped at positions at most [`MAX_STEP_PX`] apart along the way its centroid
+/// moved since the previous tick, each laying down the band's ink per mm times the travel
+/// it stands for.
 pub struct Inker {
     frame: Frame,
     stamper: Stamper,
-    /// Per band: its footprint at the previous tick (pixels), if it had one.
-    prev: Vec<Option<Vec<[f64; 2]>>>,
-    cur: Vec<Option<Vec<[f64; 2]>>>,
-    /// Spare polygon buffers, so bands that come and go do not allocate.
-    spare: Vec<Vec<[f64; 2]>>,
-    union: Vec<Vec2<f64>>,
-    hull: Vec<Vec2<f64>>,
+    /// Per band: its centroid (pixels) at the previous tick, if it touched the paper then.
+    prev: Vec<Option<[f64; 2]>>,
+    /// This tick's bands.
+    bands: Vec<(usize, BandStamp)>,
+    /// Spare band buffers, so bands that come and go do not allocate.
+    spare: Vec<BandStamp>,
     /// Pixel bounds `[x0, y0, x1, y1]` of what the last stamp could have touched.
     last_bounds: Option<[f64; 4]>,
 }
@@ -84,10 +127,8 @@ impl Inker {
             frame,
             stamper: Stamper::new(),
             prev: vec![None; bands],
-            cur: vec![None; bands],
+            bands: Vec::new(),
             spare: Vec::new(),
-            union: Vec::new(),
-            hull: Vec::new(),
             last_bounds: None,
         }
     }
@@ -96,7 +137,7 @@ impl Inker {
         &self.frame
     }
 
-    /// Stamps the brush's current footprint (swept from the previous call's) onto `canvas`.
+    /// Stamps the brush's current footprint (from the previous call's) onto `canvas`.
     /// Returns whether anything touched the paper.
     pub fn stamp<S: Scalar>(&mut self, brush: &Brush<S>, canvas: &mut Canvas) -> bool {
         self.stamp_geometry(&Geometry::of(brush), canvas)
@@ -119,75 +160,143 @@ impl Inker {
             frame,
             stamper,
             prev,
-            cur,
+            bands,
             spare,
-            union,
-            hull,
             last_bounds,
         } = self;
-        stamper.begin();
-        let mut any = false;
         *last_bounds = None;
+        let eps = geometry.eps.to_f64();
+        let lowest = |i: usize| {
+            let (c, l) = (geometry.spine[i], geometry.layers[i]);
+            let (a, b) = (
+                l.long_radius.to_f64() * l.long_axis.z.to_f64(),
+                l.short_radius.to_f64() * l.short_axis.z.to_f64(),
+            );
+            c.z.to_f64() - (a * a + b * b).sqrt()
+        };
         geometry.for_each_polygon(|band, poly| {
-            any = true;
-            let mut buf = spare.pop().unwrap_or_default();
-            buf.clear();
-            buf.extend(poly.iter().map(|p| frame.to_px(p.x.to_f64(), p.y.to_f64())));
-            let olds = prev[band].as_deref().unwrap_or(&[]);
-            for p in buf.iter().chain(olds) {
-                let b = last_bounds.get_or_insert([p[0], p[1], p[0], p[1]]);
-                *b = [
-                    b[0].min(p[0]),
-                    b[1].min(p[1]),
-                    b[2].max(p[0]),
-                    b[3].max(p[1]),
-                ];
-            }
-            match &prev[band] {
-                Some(old) => {
-                    union.clear();
-                    union.extend(old.iter().chain(buf.iter()).map(|p| Vec2::new(p[0], p[1])));
-                    hull.clear();
-                    hull.resize(union.len() + 1, Vec2::new(0.0, 0.0));
-                    let h = footprint::convex_hull(&mut union[..], &mut hull[..]);
-                    stamper.add_polygon(hull[..h].iter().map(|p| [p.x, p.y]));
-                }
-                None => stamper.add_polygon(buf.iter().copied()),
-            }
-            if let Some(old) = cur[band].replace(buf) {
-                spare.push(old);
-            }
+            let mut b = spare.pop().unwrap_or_default();
+            b.poly.clear();
+            b.poly
+                .extend(poly.iter().map(|p| frame.to_px(p.x.to_f64(), p.y.to_f64())));
+            b.centroid = centroid(&b.poly);
+            let wet = 0.5
+                * (geometry.layers[band].wetness.to_f64()
+                    + geometry.layers[band + 1].wetness.to_f64());
+            let press = eps - lowest(band).min(lowest(band + 1));
+            b.ink_per_mm = ink_per_mm(wet, press);
+            bands.push((band, b));
         });
-        stamper.finish(canvas);
-        // This tick's polygons become the previous ones; bands absent now are forgotten.
-        for (p, c) in prev.iter_mut().zip(cur.iter_mut()) {
-            if let Some(old) = p.take() {
-                spare.push(old);
+        let needed = bands.iter().map(|(i, _)| i + 1).max().unwrap_or(0);
+        if prev.len() < needed {
+            prev.resize(needed, None);
+        }
+        // How far each band moved since the previous tick, and the steps that covers.
+        let mut steps = 1usize;
+        for (i, b) in bands.iter() {
+            if let Some(p) = prev.get(*i).copied().flatten() {
+                let d = (b.centroid[0] - p[0]).hypot(b.centroid[1] - p[1]);
+                steps = steps.max((d / MAX_STEP_PX).ceil() as usize);
             }
-            *p = c.take();
+        }
+        for k in 0..steps {
+            // Position k + 1 of `steps` along the way from the previous tick to this one.
+            let back = (steps - 1 - k) as f64 / steps as f64;
+            stamper.begin();
+            for (i, b) in bands.iter() {
+                let (d, travel_mm) = match prev.get(*i).copied().flatten() {
+                    Some(p) => {
+                        let d = [b.centroid[0] - p[0], b.centroid[1] - p[1]];
+                        (d, d[0].hypot(d[1]) / frame.px_per_mm)
+                    }
+                    None => ([0.0; 2], 0.0),
+                };
+                let ink = b.ink_per_mm as f64 * (travel_mm + DWELL_MM_PER_TICK) / steps as f64;
+                let off = [-d[0] * back, -d[1] * back];
+                stamper.add_weighted_polygon(
+                    b.poly.iter().map(|p| [p[0] + off[0], p[1] + off[1]]),
+                    ink as f32,
+                );
+                if k == 0 {
+                    for p in &b.poly {
+                        for q in [*p, [p[0] + off[0], p[1] + off[1]]] {
+                            let r = last_bounds.get_or_insert([q[0], q[1], q[0], q[1]]);
+                            *r = [
+                                r[0].min(q[0]),
+                                r[1].min(q[1]),
+                                r[2].max(q[0]),
+                                r[3].max(q[1]),
+                            ];
+                        }
+                    }
+                }
+            }
+            stamper.finish(canvas);
+        }
+        // This tick's centroids become the previous ones; bands absent now are forgotten.
+        prev.iter_mut().for_each(|p| *p = None);
+        let any = !bands.is_empty();
+        for (i, b) in bands.drain(..) {
+            prev[i] = Some(b.centroid);
+            spare.push(b);
         }
         any
     }
 }
 
+/// Area centroid of a convex polygon (its vertex mean if it has no area).
+fn centroid(poly: &[[f64; 2]]) -> [f64; 2] {
+    let (mut a, mut cx, mut cy) = (0.0, 0.0, 0.0);
+    let n = poly.len();
+    for i in 0..n {
+        let (p, q) = (poly[i], poly[(i + 1) % n]);
+        let c = p[0] * q[1] - q[0] * p[1];
+        a += c;
+        cx += (p[0] + q[0]) * c;
+        cy += (p[1] + q[1]) * c;
+    }
+    if a.abs() < 1e-12 {
+        let m = n.max(1) as f64;
+        let (sx, sy) = poly
+            .iter()
+            .fold((0.0, 0.0), |s, p| (s.0 + p[0], s.1 + p[1]));
+        return [sx / m, sy / m];
+    }
+    [cx / (3.0 * a), cy / (3.0 * a)]
+}
+
 /// Simulates `track` in scalar type `S` and inks every tick onto a new canvas.
+/// Most paper steps a render waits, after the last tick, for raw paper to dry.
+pub const MAX_DRYING_STEPS: usize = 100_000;
+
+/// Simulates `track` in scalar type `S` and inks every tick onto new paper of `paper`; the
+/// paper takes its step every [`crate::paper::TICKS_PER_STEP`] ticks, as in the app, and
+/// after the last tick it is left to dry.
 pub fn render<S: maobi_shared::BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
     frame: Frame,
+    paper: PaperSpec,
 ) -> anyhow::Result<(Canvas, RenderStats)> {
-    let mut canvas = Canvas::new(frame.width, frame.height);
+    let mut canvas = Canvas::with_paper(frame.width, frame.height, paper);
     let mut inker = Inker::new(frame, params.layers as usize - 1);
     let mut stamps = 0;
     let mut stamp_time = Duration::ZERO;
+    let mut paper_time = Duration::ZERO;
     let ticks = simulate::<S>(params, track, |tick| {
         let started = Instant::now();
         if inker.stamp(tick.brush, &mut canvas) {
             stamps += 1;
         }
-        stamp_time += started.elapsed();
+        let stamped = Instant::now();
+        stamp_time += stamped - started;
+        canvas.tick();
+        paper_time += stamped.elapsed();
         Ok(())
     })?;
+    let started = Instant::now();
+    let drying_steps = canvas.dry(MAX_DRYING_STEPS);
+    paper_time += started.elapsed();
     let stats = RenderStats {
         ticks,
         stamps,
@@ -195,6 +304,8 @@ pub fn render<S: maobi_shared::BrushScalar>(
         height: frame.height,
         ink_fraction: canvas.ink_fraction(),
         stamp_seconds: stamp_time.as_secs_f64(),
+        paper_seconds: paper_time.as_secs_f64(),
+        drying_steps,
     };
     Ok((canvas, stats))
 }
@@ -246,7 +357,7 @@ mod tests {
         let p = presets::by_name("large").unwrap();
         let up = track("t,x,y,z,qw,qx,qy,qz\n0,0,0,45,1,0,0,0\n0.05,0,0,45,1,0,0,0\n");
         let f = paper_frame(&up, &p, 5.0).unwrap();
-        let (c, stats) = render::<Fx>(p, &up, f).unwrap();
+        let (c, stats) = render::<Fx>(p, &up, f, PaperSpec::default()).unwrap();
         assert_eq!(stats.ticks, 51);
         assert_eq!(stats.stamps, 0);
         assert_eq!(c.ink_area_px(), 0.0);
@@ -259,10 +370,11 @@ mod tests {
             c = q[0],
             s = q[1]
         ));
-        let (c, stats) = render::<Fx>(p, &down, f).unwrap();
+        let (c, stats) = render::<Fx>(p, &down, f, PaperSpec::default()).unwrap();
         assert!(stats.stamps > 0);
+        // Darkness-weighted: a brush held still gives its ink slowly.
         let area_mm2 = c.ink_area_px() / 25.0;
-        assert!(area_mm2 > 20.0, "{area_mm2}");
+        assert!(area_mm2 > 10.0, "{area_mm2}");
         let (mut sx, mut sy) = (0.0, 0.0);
         for y in 0..f.height {
             for x in 0..f.width {
@@ -297,6 +409,6 @@ mod tests {
         let mut buf = vec![0; r.output_buffer_size().unwrap()];
         let info = r.next_frame(&mut buf).unwrap();
         assert_eq!((info.width, info.height), (7, 3));
-        assert_eq!(&buf[..7], &[255, 0, 0, 0, 128, 255, 255]);
+        assert_eq!(&buf[..7], &[255, 94, 94, 94, 155, 255, 255]);
     }
 }

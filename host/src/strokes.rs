@@ -14,6 +14,8 @@
 //! speed_mm_s = 60.0           # speed for keyframes without a time (default 60)
 //! tilt_deg = 10.0             # default handle tilt from vertical (default 0)
 //! azimuth_deg = -90.0         # default direction the handle top leans, CCW from +x (default 0)
+//! paper = "raw"               # the paper `maobi render` inks: "sized" or "raw" (optional;
+//!                             # `--paper` overrides it)
 //!
 //! [[stroke]]
 //! name = "horizontal"         # optional, used in messages
@@ -59,6 +61,7 @@ use maobi_shared::stroke::orient::{self, Q};
 use maobi_shared::stroke::{KeyMovingPoint, Keyframe, Stop, Stroke};
 use serde::{Deserialize, Serialize};
 
+use crate::paper::PaperKind;
 use crate::poses::{PoseRow, PoseTrack};
 
 pub const FORMAT: &str = "maobi-stroke";
@@ -86,6 +89,9 @@ pub struct StrokeFile {
     pub tilt_deg: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub azimuth_deg: Option<f64>,
+    /// The paper's name ([`PaperKind`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paper: Option<String>,
     #[serde(default)]
     pub stroke: Vec<StrokeSpec>,
 }
@@ -152,6 +158,8 @@ pub struct Segment {
 #[derive(Clone, Debug)]
 pub struct Character {
     pub name: Option<String>,
+    /// The paper the file asks for, if it names one.
+    pub paper: Option<PaperKind>,
     pub segments: Vec<Segment>,
     /// (start, end) time of each of the file's strokes.
     pub stroke_times: Vec<(f64, f64)>,
@@ -186,7 +194,25 @@ impl Character {
     /// Parses and validates stroke TOML; `file` names it in errors.
     pub fn from_toml(file: &str, text: &str) -> anyhow::Result<Character> {
         let f: StrokeFile = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
-        Self::from_file(&f).map_err(|e| anyhow!("{file}: {e:#}"))
+        let paper = match &f.paper {
+            None => None,
+            Some(name) => Some(PaperKind::from_name(name).map_err(|e| {
+                // The top-level key's line (before the first table), so the error points at it.
+                let line = text
+                    .lines()
+                    .take_while(|l| !l.trim_start().starts_with('['))
+                    .position(|l| {
+                        l.trim_start()
+                            .strip_prefix("paper")
+                            .is_some_and(|r| r.trim_start().starts_with('='))
+                    })
+                    .map_or(String::new(), |i| format!(", line {}", i + 1));
+                anyhow!("{file}{line}: `paper`: {e}")
+            })?),
+        };
+        let mut c = Self::from_file(&f).map_err(|e| anyhow!("{file}: {e:#}"))?;
+        c.paper = paper;
+        Ok(c)
     }
 
     fn from_file(f: &StrokeFile) -> anyhow::Result<Character> {
@@ -268,6 +294,7 @@ impl Character {
         }
         Ok(Character {
             name: f.name.clone(),
+            paper: None,
             segments,
             stroke_times,
         })

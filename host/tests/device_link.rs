@@ -431,7 +431,7 @@ fn replay_over_tcp_inks_like_the_built_in_simulator() {
             "geometry at replay tick {k}"
         );
     }
-    let (a, b) = (remote.canvas.coverage(), local.canvas.coverage());
+    let (a, b) = (remote.canvas.ink(), local.canvas.ink());
     assert_eq!(a.len(), b.len());
     let differ = a.iter().zip(b).filter(|(x, y)| x != y).count();
     let worst = a

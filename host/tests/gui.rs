@@ -91,7 +91,7 @@ fn undo_takes_back_the_last_stroke_and_clear_is_undoable() {
     let mut h = harness();
     h.run_steps(2);
     replay(&mut h, "hook.csv");
-    let first = h.state().paper().canvas().coverage().to_vec();
+    let first = h.state().paper().canvas().ink().to_vec();
     let after_one = ink(&h);
     assert!(after_one > 0.0);
     replay(&mut h, "shu.csv");
@@ -100,14 +100,14 @@ fn undo_takes_back_the_last_stroke_and_clear_is_undoable() {
 
     h.get_by_label("Undo stroke").click();
     h.run_steps(2);
-    assert_eq!(h.state().paper().canvas().coverage(), &first[..]);
+    assert_eq!(h.state().paper().canvas().ink(), &first[..]);
 
     h.get_by_label("Clear").click();
     h.run_steps(2);
     assert_eq!(ink(&h), 0.0);
     h.get_by_label("Undo stroke").click();
     h.run_steps(2);
-    assert_eq!(h.state().paper().canvas().coverage(), &first[..]);
+    assert_eq!(h.state().paper().canvas().ink(), &first[..]);
     h.get_by_label("Undo stroke").click();
     h.run_steps(2);
     assert_eq!(ink(&h), 0.0);

@@ -10,6 +10,7 @@ use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::session::Session;
 use maobi::gui::{start_hand, GuiOptions};
+use maobi::paper::PaperKind;
 use maobi_shared::ParamId;
 
 mod common;
@@ -93,7 +94,7 @@ fn open(path: &Path, clock: SimClock) -> Harness<'static, MaobiApp> {
 }
 
 fn coverage(h: &Harness<'static, MaobiApp>) -> Vec<f32> {
-    h.state().paper().canvas().coverage().to_vec()
+    h.state().paper().canvas().ink().to_vec()
 }
 
 /// Replays, dips, changes a parameter, draws with the pointer, undoes, clears and undoes
@@ -227,16 +228,20 @@ fn bad_session_files_say_what_is_wrong() {
     assert_eq!(h.state().paper().canvas().ink_fraction(), ink);
 }
 
-/// `maobi render --session` re-renders a saved session headless: the PNG is the app's paper.
+/// `maobi render --session` re-renders a saved session headless: the PNG is the app's paper,
+/// here raw paper, whose ink the app spread live while the strokes were written.
 #[test]
 fn maobi_render_session_writes_the_apps_paper() {
     let mut h = harness(SimClock::Stepped(TICKS_PER_FRAME));
     h.run_steps(2);
+    h.state_mut().set_paper(PaperKind::Raw);
     replay(&mut h, "hook.csv");
     h.state_mut().set_param(ParamId::Wetness, 0.5);
     replay(&mut h, "shu.csv");
     let path = tmp("cli.maobi.toml");
     h.state_mut().save_session(&path).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains("kind = \"raw\""), "{text}");
     let png = tmp("cli.png");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
         .args(["render", "--session"])

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use maobi::offline::simulate;
+use maobi::paper::PaperSpec;
 use maobi::raster::Canvas;
 use maobi::render::{encode_png, paper_frame, render, Inker};
 use maobi::strokes::{fit_track, Character};
@@ -29,7 +30,7 @@ fn yong_renders_byte_identically_twice() {
     let png = || {
         let track = ch.track("yong").unwrap();
         let frame = paper_frame(&track, &params, PX_PER_MM).unwrap();
-        let (canvas, _) = render::<Fx>(params, &track, frame).unwrap();
+        let (canvas, _) = render::<Fx>(params, &track, frame, PaperSpec::default()).unwrap();
         let mut bytes = Vec::new();
         encode_png(&canvas, &mut bytes).unwrap();
         bytes

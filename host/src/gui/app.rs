@@ -23,6 +23,7 @@ use crate::device::{
     serial_ports, BrushFrame, Device, DeviceCommand, DeviceStatus, Endpoint, HandInput, PortInfo,
     SimClock, SimDevice,
 };
+use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
 use crate::raster::Frame;
 use crate::render::write_png;
@@ -219,7 +220,7 @@ impl MaobiApp {
         let shot = automation.screenshot.as_ref().map(|_| Shot::Waiting(0));
         MaobiApp {
             device,
-            paper: PaperView::new(frame),
+            paper: PaperView::new(frame, PaperSpec::default()),
             orbit: Orbit::default(),
             scratch: Vec::new(),
             latest: None,
@@ -308,6 +309,7 @@ impl MaobiApp {
             device: self.status.name.clone(),
             journal,
             paper: *self.paper.frame(),
+            paper_spec: self.paper.paper(),
             ink: self.ink_log.clone(),
         })
     }
@@ -582,6 +584,17 @@ impl MaobiApp {
     pub fn clear(&mut self) {
         self.paper.clear();
         self.ink_log.op(CanvasOp::Clear);
+    }
+
+    /// A fresh sheet of `kind`, blank and with nothing to undo. The paper's history starts
+    /// again with it (a session holds one paper), while the device's journal goes on.
+    pub fn set_paper(&mut self, kind: PaperKind) {
+        if kind == self.paper.paper().kind {
+            return;
+        }
+        self.paper.set_paper(PaperSpec::new(kind));
+        self.restart_ink_log();
+        self.message = Some((format!("paper: {kind} (a fresh sheet)"), false));
     }
 
     /// Polls the device and inks what arrived.
@@ -976,6 +989,20 @@ impl MaobiApp {
                     Err(e) => self.message = Some((e.to_string(), true)),
                 }
             }
+            let mut paper = self.paper.paper().kind;
+            egui::ComboBox::from_label("paper")
+                .selected_text(paper.name())
+                .show_ui(ui, |ui| {
+                    for k in PaperKind::ALL {
+                        ui.selectable_value(&mut paper, k, k.name());
+                    }
+                })
+                .response
+                .on_hover_text(
+                    "sized (熟宣): the ink stays where it fell; raw (生宣): it wicks outward \
+                     along the fibres. Changing it starts a fresh sheet",
+                );
+            self.set_paper(paper);
             let l = ui.label("ink load");
             ui.add(
                 egui::DragValue::new(&mut self.ink_load)

@@ -1,13 +1,16 @@
-//! The paper: ink coverage ([`Canvas`]) inked tick by tick from the device's frames
-//! ([`Inker`]), shown as a texture over a paper tone, with zoom, pan, per-stroke undo and clear.
+//! The paper: ink per pixel ([`Canvas`]) inked tick by tick from the device's frames
+//! ([`Inker`]), stepped with them (raw paper spreads live), shown as a texture over a paper
+//! tone, with zoom, pan, per-stroke undo and clear.
 //!
-//! Only the region the last frames inked is re-uploaded ([`TextureHandle::set_partial`]).
+//! Only the region the last frames inked or the paper's steps changed is re-uploaded
+//! ([`TextureHandle::set_partial`]).
 
 use egui::{
     Color32, ColorImage, Pos2, Rect, Response, Sense, Stroke, TextureHandle, TextureOptions, Vec2,
 };
 
-use crate::raster::{Canvas, Frame};
+use crate::paper::{darkness, Canvas, PaperSpec};
+use crate::raster::Frame;
 use crate::render::Inker;
 
 use crate::device::BrushFrame;
@@ -53,11 +56,10 @@ pub struct PaperView {
 }
 
 impl PaperView {
-    /// A blank paper mapped by `frame`; `bands` is the brush's layer count minus one (the
-    /// inker grows as needed when the brush changes).
-    pub fn new(frame: Frame) -> PaperView {
+    /// A blank paper of `spec` mapped by `frame`.
+    pub fn new(frame: Frame, spec: PaperSpec) -> PaperView {
         let (w, h) = (frame.width, frame.height);
-        let canvas = Canvas::new(w, h);
+        let canvas = Canvas::with_paper(w, h, spec);
         PaperView {
             settled: canvas.clone(),
             canvas,
@@ -83,6 +85,19 @@ impl PaperView {
     pub fn frame(&self) -> &Frame {
         &self.frame
     }
+    /// The paper's kind and fibres.
+    pub fn paper(&self) -> PaperSpec {
+        self.canvas.paper()
+    }
+
+    /// A fresh sheet of `spec`: blank, with nothing to undo.
+    pub fn set_paper(&mut self, spec: PaperSpec) {
+        self.canvas = Canvas::with_paper(self.frame.width, self.frame.height, spec);
+        self.settled = self.canvas.dry_copy();
+        self.undo.clear();
+        self.in_stroke = false;
+        self.full_upload = true;
+    }
     /// Strokes that can be undone.
     pub fn undo_depth(&self) -> usize {
         self.undo.len()
@@ -95,10 +110,14 @@ impl PaperView {
         self.in_stroke
     }
 
-    /// Inks one device frame. A stroke begins with the first frame that touches the paper
-    /// and ends with the first that does not.
+    /// Inks one device frame, and lets the paper take its step when one is due. A stroke
+    /// begins with the first frame that touches the paper and ends with the first that does
+    /// not.
     pub fn ink(&mut self, f: &BrushFrame) {
         let touched = self.inker.stamp_geometry(&f.geometry(), &mut self.canvas);
+        if let Some(r) = self.canvas.tick() {
+            self.mark_dirty([r[0] as f64, r[1] as f64, r[2] as f64, r[3] as f64]);
+        }
         if touched {
             if let Some(b) = self.inker.last_bounds() {
                 self.mark_dirty(b);
@@ -111,7 +130,9 @@ impl PaperView {
             }
         } else if self.in_stroke {
             self.in_stroke = false;
-            self.settled = self.canvas.clone();
+            // Undo brings the paper back with its ink dry: the snapshot leaves out raw
+            // paper's water, which would double its cost at every stroke's end.
+            self.settled = self.canvas.dry_copy();
         }
     }
 
@@ -142,7 +163,7 @@ impl PaperView {
         match self.undo.pop() {
             Some(c) => {
                 self.canvas = c;
-                self.settled = self.canvas.clone();
+                self.settled = self.canvas.dry_copy();
                 self.in_stroke = false;
                 self.full_upload = true;
                 true
@@ -153,16 +174,16 @@ impl PaperView {
 
     /// Blank paper; undoable.
     pub fn clear(&mut self) {
-        let blank = Canvas::new(self.frame.width, self.frame.height);
+        let blank = self.canvas.blank_like();
         let old = std::mem::replace(&mut self.canvas, blank);
         self.push_undo(old);
-        self.settled = self.canvas.clone();
+        self.settled = self.canvas.dry_copy();
         self.in_stroke = false;
         self.full_upload = true;
     }
 
     fn pixel(&self, i: usize) -> Color32 {
-        let c = self.canvas.coverage()[i].clamp(0.0, 1.0);
+        let c = darkness(self.canvas.ink()[i]);
         let t = self.tone[i] as f32;
         let paper = [t, t * 0.975, t * 0.91];
         let mix = |k: usize| (paper[k] + (INK[k] - paper[k]) * c) as u8;

@@ -55,6 +55,8 @@ pub struct GuiOptions {
     pub screenshot: Option<PathBuf>,
     /// A session file to open at start.
     pub session: Option<PathBuf>,
+    /// The paper's kind at start.
+    pub paper_kind: crate::paper::PaperKind,
     /// Paper size (mm, square, centred on the origin) and resolution.
     pub paper_mm: f64,
     pub px_per_mm: f64,
@@ -84,6 +86,7 @@ impl Default for GuiOptions {
             device: DeviceChoice::Sim,
             phantom: None,
             brush: "large".into(),
+            paper_kind: crate::paper::PaperKind::Sized,
             replay: None,
             screenshot: None,
             session: None,
@@ -161,6 +164,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let choice = opts.device.clone();
     let phantom = opts.phantom.clone();
     let brush = opts.brush.clone();
+    let paper_kind = opts.paper_kind;
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let automation = Automation {
         replay: opts.replay.clone(),
@@ -222,6 +226,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
                 _ => frame,
             };
             let mut app = MaobiApp::new(device, frame, automation, out2);
+            app.set_paper(paper_kind);
             app.set_device_choice(&choice, &brush);
             if let Some(s) = &saved {
                 app.restore(s, given.tablet);

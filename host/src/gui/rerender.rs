@@ -29,7 +29,7 @@ pub fn rerender(session: &Session, mut progress: impl FnMut(f64)) -> anyhow::Res
         SimCore::at_pose(&j.preset, j.start).map_err(|e: DeviceError| anyhow::anyhow!("{e}"))?;
     core.set_params(j.params)
         .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
-    let mut paper = PaperView::new(session.paper);
+    let mut paper = PaperView::new(session.paper, session.paper_spec);
     let mut poses = j.poses.iter().peekable();
     let mut events = j.events.iter().peekable();
     let mut ops = session.ink.ops.iter().peekable();

@@ -18,7 +18,9 @@
 //! TOML, so it can be read and diffed: `format = "maobi-session"`, `version`, the `device`
 //! it was recorded on, `preset`, `ticks` (the last tick), `start` (the rest pose before tick
 //! 1: `[x, y, z, qw, qx, qy, qz]`, mm and a unit quaternion), `inked` (inclusive tick
-//! ranges), a `[paper]` table (the canvas frame), a `[params]` table (every parameter by its
+//! ranges), a `[paper]` table (the canvas frame, and the paper's `kind`, `"sized"` or
+//! `"raw"`, and the `seed` of its fibres: both optional, files written before papers had
+//! kinds are sized paper with the default seed), a `[params]` table (every parameter by its
 //! `maobi` name), `[[events]]` (`tick` and one of `dip`, `param` + `value`, `preset`,
 //! `reset`), `[[canvas]]` (`after_tick` and `op` = `"undo"` or `"clear"`), and `poses`: a
 //! CSV text with the header `tick,x,y,z,qw,qx,qy,qz`, one row per tick at which the pose
@@ -33,6 +35,7 @@ use maobi_shared::{presets, ParamId, Pose, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::device::journal::{Journal, JournalEvent, MAX_JOURNAL_POSES};
+use crate::paper::{PaperKind, PaperSpec, DEFAULT_SEED};
 use crate::raster::Frame;
 
 /// The `format` key of a session file.
@@ -83,6 +86,8 @@ pub struct Session {
     pub device: String,
     pub journal: Journal,
     pub paper: Frame,
+    /// The paper's kind and fibres.
+    pub paper_spec: PaperSpec,
     pub ink: InkLog,
 }
 
@@ -140,6 +145,8 @@ impl Session {
                 px_per_mm: self.paper.px_per_mm,
                 width: self.paper.width as u64,
                 height: self.paper.height as u64,
+                kind: Some(self.paper_spec.kind.name().to_string()),
+                seed: Some(self.paper_spec.seed),
             },
             params: ParamId::ALL
                 .iter()
@@ -219,6 +226,15 @@ impl Session {
                 p.height
             );
         }
+        let paper_spec = PaperSpec {
+            kind: match &p.kind {
+                None => PaperKind::default(),
+                Some(k) => PaperKind::from_name(k).map_err(|e| {
+                    anyhow::anyhow!("[paper] kind{}: {e}", table_key_line(text, "paper", "kind"))
+                })?,
+            },
+            seed: p.seed.unwrap_or(DEFAULT_SEED),
+        };
         let paper = Frame {
             x0_mm: p.x0_mm,
             y_top_mm: p.y_top_mm,
@@ -307,6 +323,7 @@ impl Session {
             device: f.device,
             journal: Journal::restored(&f.preset, params, start, f.ticks, poses, events),
             paper,
+            paper_spec,
             ink: InkLog {
                 inked,
                 ops,
@@ -314,6 +331,24 @@ impl Session {
             },
         })
     }
+}
+
+/// `, line N` of `key` in the TOML table `[table]` of `text`, or nothing if not found.
+fn table_key_line(text: &str, table: &str, key: &str) -> String {
+    let header = format!("[{table}]");
+    let mut inside = false;
+    for (i, l) in text.lines().enumerate() {
+        let l = l.trim_start();
+        if l.starts_with('[') {
+            inside = l.starts_with(&header);
+        } else if inside
+            && l.strip_prefix(key)
+                .is_some_and(|r| r.trim_start().starts_with('='))
+        {
+            return format!(", line {}", i + 1);
+        }
+    }
+    String::new()
 }
 
 fn pose_values(p: &Pose<f64>) -> [f64; 7] {
@@ -419,6 +454,12 @@ struct PaperFile {
     px_per_mm: f64,
     width: u64,
     height: u64,
+    /// The paper's name; absent in files from before papers had kinds (sized).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    kind: Option<String>,
+    /// The seed of the paper's fibres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    seed: Option<u64>,
 }
 
 #[derive(Serialize, Deserialize, Default)]
@@ -459,5 +500,42 @@ mod tests {
         assert_eq!(l.inked, vec![[1, 3], [7, 8]]);
         assert_eq!(l.ops, vec![(0, CanvasOp::Clear), (8, CanvasOp::Undo)]);
         assert!(l.contains(2) && !l.contains(5) && l.contains(8));
+    }
+
+    fn file(paper: &str) -> String {
+        format!(
+            "format = \"maobi-session\"\nversion = 1\ndevice = \"built-in simulator\"\n\
+             preset = \"large\"\nticks = 2\nstart = [0.0, 0.0, 50.0, 1.0, 0.0, 0.0, 0.0]\n\
+             inked = []\nposes = \"tick,x,y,z,qw,qx,qy,qz\"\n\n[paper]\nx0_mm = -10.0\n\
+             y_top_mm = 10.0\npx_per_mm = 2.0\nwidth = 40\nheight = 40\n{paper}\n\
+             [params]\n"
+        )
+    }
+
+    #[test]
+    fn the_paper_kind_is_optional_and_checked() {
+        let old = Session::from_toml(&file("")).unwrap();
+        assert_eq!(old.paper_spec, PaperSpec::default());
+        let raw = Session::from_toml(&file("kind = \"raw\"\nseed = 9")).unwrap();
+        assert_eq!(
+            raw.paper_spec,
+            PaperSpec {
+                kind: PaperKind::Raw,
+                seed: 9
+            }
+        );
+        // Saved and read back, the paper comes back.
+        let again = Session::from_toml(&raw.to_toml().unwrap()).unwrap();
+        assert_eq!(again.paper_spec, raw.paper_spec);
+        let e = format!(
+            "{:#}",
+            Session::from_toml(&file("kind = \"washi\"")).unwrap_err()
+        );
+        assert!(
+            e.contains("[paper] kind, line 16")
+                && e.contains("`washi`")
+                && e.contains("sized, raw"),
+            "{e}"
+        );
     }
 }

@@ -55,7 +55,7 @@ proptest! {
 
     /// A fixed-point brush teleported between poses anywhere in its range and beyond (a
     /// hostile or broken pose stream: jumps of up to 10 m, any orientation, any stiffness the
-    /// parameters allow) never panics, in any build: the 32-bit chain solve's formats hold
+    /// parameters allow, with any mass, tie and damping) never panics, in any build: the 32-bit chain solve's formats hold
     /// or wrap, and the model's sums saturate. What the brush then does is not judged; that
     /// the next tick runs is.
     #[test]
@@ -66,12 +66,21 @@ proptest! {
         ),
         small in any::<bool>(),
         stiffer in prop_oneof![Just(1.0f32), Just(20.0f32), Just(1000.0f32)],
+        mass_g in prop_oneof![Just(None), (0.005..50.0f32).prop_map(Some)],
+        tie in prop_oneof![Just(None), (0.01..1.0e6f32).prop_map(Some)],
+        damping in prop_oneof![Just(None), (0.0..1.0e4f32).prop_map(Some)],
     ) {
         let base = if small { presets::SMALL } else { presets::LARGE };
-        let params = BrushParams {
+        let mut params = BrushParams {
             axial_stiffness: base.axial_stiffness * stiffer,
             ..base
         };
+        // Any valid values of the parameters that scale the step's matrix, as a buggy host
+        // may send them.
+        params.mass_g = mass_g.unwrap_or(params.mass_g);
+        params.tie_stiffness = tie.unwrap_or(params.tie_stiffness);
+        params.axial_damping = damping.unwrap_or(params.axial_damping);
+        prop_assume!(params.validate().is_ok());
         let ((x, y, z), t, a) = jumps[0];
         let mut b = Brush::<Fx>::new(params, pose([x, y, z], t, a)).unwrap();
         for &((x, y, z), t, a) in &jumps {

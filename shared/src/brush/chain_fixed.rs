@@ -83,9 +83,10 @@ fn dot(a: [i32; 3], b: [i32; 3]) -> i64 {
     p(0).wrapping_add(p(1)).wrapping_add(p(2))
 }
 
-/// The model's vectors' bound: `2^30` mm, so the high words of a vector's entries stay below
-/// `2^30` (see [`mat_vec`]).
-const VEC_LIMIT: i64 = 1 << 62;
+/// The model's vectors' bound: just under `2^30` mm, so the high words of a vector's entries
+/// stay below `2^30` (see [`mat_vec`]) and a sum of two bounded vectors (a right-hand side
+/// and a product) cannot overflow before it is clamped again.
+const VEC_LIMIT: i64 = (1 << 62) - 1;
 
 /// A block row (`shift` fractional bits) times a vector in the model's `I32F32` bits: the
 /// vector's entries split into their high words (signed) and their low words less the last
@@ -432,5 +433,32 @@ mod tests {
             }
         }
         assert!(rounded, "the comparison saw no rounding at all");
+    }
+
+    /// Vectors at the ends of their range (a brush flung by a hostile stream) saturate through
+    /// the elimination and the back substitution: no overflow, in a build that checks.
+    #[test]
+    fn saturated_vectors_do_not_overflow() {
+        for big in [Fx::from_bits(i64::MAX), Fx::from_bits(-i64::MAX)] {
+            let mut fixed = FixedChain::new(true);
+            let n = 6;
+            fixed.segment(
+                fx(1.0),
+                fx(30.0),
+                Vec3::new(fx(0.0), fx(0.0), fx(1.0)),
+                Vec3::ZERO,
+            );
+            for i in 1..n {
+                let rel = Vec3::new(big, big, big);
+                let axial = if i + 1 < n { fx(30.0) } else { fx(0.0) };
+                fixed.segment(fx(1.0), axial, Vec3::new(fx(0.6), fx(0.0), fx(0.8)), rel);
+                fixed.row(i, fx(1.0), Vec3::new(big, big, big));
+            }
+            fixed.solve(n);
+            for i in 1..n {
+                let du = fixed.du(i).to_f64();
+                assert!(du.iter().all(|e| e.abs() <= (1u64 << 30) as f64), "{du:?}");
+            }
+        }
     }
 }

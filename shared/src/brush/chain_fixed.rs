@@ -10,8 +10,8 @@
 //!   model's general solve in `I32F32`), and
 //!   `P_i = D_{i-1}^-1 G_i` in `Q6.25` ([`P_FRAC`]);
 //! * **inverses** (`E_i = D_i^-1`): `Q0.31`. Every `D_i` is at least the identity (see
-//!   `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1). They are computed in
-//!   `I32F32` ([`QSym::inverse_spd`]: the factors need its 32 fractional bits);
+//!   `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1). They are computed
+//!   from exact integer cofactors and determinant ([`QSym::inverse_spd`]);
 //! * **vectors** (right-hand sides, eliminated `y_i`, solutions `z_i`: millimetres per
 //!   substep): the model's own `I32F32` bits ([`mat_vec`]): a chain of segments in
 //!   different directions multiplies a vector's rounding by the stiffness, row after row.
@@ -24,7 +24,7 @@
 //! `tests/fixed_vs_f64.rs` bounds its distance from the `f64` brush.
 //!
 //! Where values enter (the model's blocks and vectors) and where the inverse leaves its
-//! `I32F32` computation they are clamped to their formats' range. Inside, the bounds hold
+//! exact computation they are clamped to their formats' range. Inside, the bounds hold
 //! by construction and are not tested again, which would double the kernel's cost: every
 //! block is symmetric positive semi-definite with diagonal entries below [`MAX_DIAGONAL`]
 //! (the brush checks its bound before it chooses this solve), so the Schur complements stay
@@ -33,7 +33,7 @@
 //! solve reaches them) the arithmetic wraps, as `wrapping_*` says, and panics in no build;
 //! the vectors stay clamped.
 
-use super::chain_solve::{ChainSolve, SpineChain, Sym3};
+use super::chain_solve::{ChainSolve, SpineChain};
 use crate::params::MAX_LAYERS;
 use crate::scalar::Fx;
 use crate::vec::Vec3;
@@ -123,35 +123,93 @@ impl QSym {
         }
     }
 
-    /// The inverse (`Q0.31`) of a block that is at least the identity, in the
-    /// model's `I32F32` ([`Sym3::inverse_spd`]): the stiff brush's blocks are ill-conditioned
-    /// (a segment's axial stiffness against the mass), and the `L D L^T` factors' products
-    /// cancel to the soft directions' pivots, so the factors need the model's 32 fractional
-    /// bits; with fewer, the inverse's error in the stiff direction, magnified by the
-    /// stiffness twice in the next row's Schur complement, swamps its soft directions.
+    /// The inverse (`Q0.31`) of a block that is at least the identity, as its adjugate
+    /// over its determinant, both exact in integers: the six cofactors of the `Q11.20`
+    /// entries are exact in 64 bits, the determinant in 93, and only the quotient is
+    /// rounded, with one 64-bit division for the block (the reciprocal of the
+    /// determinant's leading 32 bits) instead of a reciprocal per pivot.
+    ///
+    /// Exactness is the point: a stiff brush's blocks are ill-conditioned (a segment's
+    /// axial stiffness against the mass), and an elimination in fixed point loses the soft
+    /// directions' pivots to cancellation (with 20 fractional bits in the `L D L^T`
+    /// factors, the inverse's error in the stiff direction, magnified by the stiffness
+    /// twice in the next row's Schur complement, swamped the soft directions). Exact
+    /// cofactors cancel without loss, and the quotient's relative error, a few parts in
+    /// `2^31` of entries below one, is the format's own resolution.
+    ///
+    /// A block that is not at least the identity (only a rounding away from one, for a
+    /// brush that takes this solve) has its determinant raised to one's; entries clamp to
+    /// the format. Never a panic.
     #[inline(always)]
     fn inverse_spd(&self) -> Self {
-        let fx = |q: i32| Fx::from_bits((q as i64) << (32 - BLOCK_FRAC));
-        let [xx, yy, zz, xy, xz, yz] = self.0.map(fx);
-        let e = Sym3 {
-            xx,
-            yy,
-            zz,
-            xy,
-            xz,
-            yz,
-        }
-        .inverse_spd();
-        let q31 = |v: Fx| round_clamp(v.to_bits(), 32 - INV_FRAC, i32::MAX as i64);
-        QSym([
-            q31(e.xx),
-            q31(e.yy),
-            q31(e.zz),
-            q31(e.xy),
-            q31(e.xz),
-            q31(e.yz),
-        ])
+        let [a, b, c, d, e, f] = self.0.map(|v| v as i64);
+        let m = |x: i64, y: i64| x.wrapping_mul(y);
+        // Cofactors in Q22.40: entries below 2^30 in magnitude, each below 2^61.
+        let cof = [
+            m(b, c).wrapping_sub(m(f, f)),
+            m(a, c).wrapping_sub(m(e, e)),
+            m(a, b).wrapping_sub(m(d, d)),
+            m(e, f).wrapping_sub(m(d, c)),
+            m(d, f).wrapping_sub(m(b, e)),
+            m(d, e).wrapping_sub(m(a, f)),
+        ];
+        // det = a C_xx + d C_xy + e C_xz (Q33.60), each cofactor split at bit 31 into a
+        // signed high part (below 2^30) and a low part below 2^31, so every sum of three
+        // 32 x 32-bit products fits 64 bits; then shifted by 29 bits, which keeps a
+        // determinant of at least one (2^60) to 2^-31 relative, and holds up to the
+        // diagonal bound cubed (2^58 here).
+        let (hi, lo) = (|k: usize| cof[k] >> 31, |k: usize| cof[k] & 0x7fff_ffff);
+        let high = m(a, hi(0))
+            .wrapping_add(m(d, hi(3)))
+            .wrapping_add(m(e, hi(4)));
+        let low = m(a, lo(0))
+            .wrapping_add(m(d, lo(3)))
+            .wrapping_add(m(e, lo(4)));
+        let one = 1i64 << (60 - 29);
+        let det = high.wrapping_mul(4).wrapping_add(low >> 29).max(one);
+        // det = mant 2^(bits - 32), mant in [2^31, 2^32); its reciprocal 2^63 / mant in
+        // (2^31, 2^32).
+        let bits = 64 - det.leading_zeros();
+        let recip = recip_q63((det >> (bits - 32)) as u32);
+        // E = C 2^51 / det_60 = C 2^51 / (mant 2^(bits - 3)) = (C >> (bits - 22)) recip >> 31;
+        // the cofactor's shift leaves it below 2^31 for |E| <= 1, so the product is below
+        // 2^62. Both shifts round to nearest.
+        let shift = bits - 22;
+        let q31 = |v: i64| {
+            let c = (v >> (shift - 1)).wrapping_add(1) >> 1;
+            let e = c.wrapping_mul(recip).wrapping_add(1 << 30) >> 31;
+            // Saturated by its sign when it leaves i32 (one comparison of words, where a
+            // clamp of a 64-bit value takes four).
+            let word = e as i32;
+            if word as i64 == e {
+                word
+            } else if e < 0 {
+                -i32::MAX
+            } else {
+                i32::MAX
+            }
+        };
+        QSym(cof.map(q31))
     }
+}
+
+/// `2^63 / x` for `x` in `[2^31, 2^32)`, to within a few units (of about `2^32`): a
+/// 16-bit estimate from the hardware's 32-bit division, then two Newton steps
+/// `r += r (2^63 - x r) / 2^63`, each squaring the relative error. The Cortex-M4 has no
+/// 64-bit division: the library's takes some hundreds of instructions, this some tens.
+#[inline(always)]
+fn recip_q63(x: u32) -> i64 {
+    let x = x.max(1 << 31);
+    // The estimate overshoots by less than 2^-15 relative (the divisor's dropped bits),
+    // so x r stays below 2^64, and the residual within +-2^48.
+    let mut r = ((u32::MAX / (x >> 16)) as i64) << 15;
+    for _ in 0..2 {
+        let residual = (1u64 << 63).wrapping_sub((x as u64).wrapping_mul(r as u64)) as i64;
+        // r (residual / 2^63), the residual's low 18 bits dropped (2^-13 of a unit of r) so
+        // that the product stays within 2^63.
+        r = r.wrapping_add(r.wrapping_mul(residual >> 18) >> 45);
+    }
+    r
 }
 
 /// A general 3x3 block by rows, in the blocks' format.
@@ -335,7 +393,7 @@ impl SpineChain<Fx> for FixedChain {
 
 #[cfg(test)]
 mod tests {
-    use super::super::chain_solve::ChainSolve;
+    use super::super::chain_solve::{ChainSolve, Sym3};
     use super::*;
     use crate::scalar::Scalar;
 
@@ -433,6 +491,22 @@ mod tests {
             }
         }
         assert!(rounded, "the comparison saw no rounding at all");
+    }
+
+    /// The reciprocal is within two units of `2^63 / x` across its domain.
+    #[test]
+    fn reciprocal_of_a_normalised_word() {
+        let mut x = 1u64 << 31;
+        while x < 1 << 32 {
+            for x in [x, x + 1, x | 0xffff, (x + (x >> 7)).min(u32::MAX as u64)] {
+                let want = (1u128 << 63) as f64 / x as f64;
+                let got = recip_q63(x as u32) as f64;
+                assert!((got - want).abs() <= 2.0, "x {x:#x}: {got} against {want}");
+            }
+            x += x >> 9;
+        }
+        let want = (1u128 << 63) as f64 / u32::MAX as f64;
+        assert!((recip_q63(u32::MAX) as f64 - want).abs() <= 2.0);
     }
 
     /// Vectors at the ends of their range (a brush flung by a hostile stream) saturate through

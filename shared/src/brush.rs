@@ -800,7 +800,7 @@ impl<S: BrushScalar> Brush<S> {
                 (self.seg_len2[j], self.seg_rsqrt[j]) = measure_near(v, self.seg_rsqrt[j]);
             }
             let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
-            let (iso, axial, dir) = if len2 > self.d.tiny2 {
+            let (iso, axial, dir, spring) = if len2 > self.d.tiny2 {
                 // The Jacobian k (e I + (1 - e) d d^T), e = 1 - L/|d| the strain, d the unit
                 // direction. Compressed (e < 0) the transverse term k e (I - d d^T) is
                 // negative (the hairs buckle): left out, so the matrix stays positive
@@ -810,21 +810,32 @@ impl<S: BrushScalar> Brush<S> {
                 // +-STIFFNESS_BLEND_STRAIN so that the step is a continuous function of the
                 // state, and a rounding of the strain across zero (fixed point against f64)
                 // changes it by a rounding, not by the step.
-                let strain = S::ONE - self.d.segment * r;
+                // The factors in [0, 1] (the stretch, the blend, 1/|d| for a segment over a
+                // millimetre) are the coefficients of `mul_coef`: the same products, cheaper
+                // in fixed point.
+                let strain = S::ONE - self.d.segment.mul_coef(r);
                 let stretched = strain.max(S::ZERO);
                 let blend = ((strain + c.blend_strain) * c.inv_blend_width).clamp(S::ZERO, S::ONE);
-                let axial = c.c_k_compressed + c.c_k_stretch_step * blend;
+                let axial = c.c_k_compressed + c.c_k_stretch_step.mul_coef(blend);
+                // The spring term c_k f_j = c_k (1 - L/|d|) d (`spring_term`'s strain, the
+                // compression's ratio applied when compressed), as one scale of d.
+                let spring_strain = if strain < S::ZERO {
+                    strain.mul_coef(self.d.compression_ratio)
+                } else {
+                    strain
+                };
                 (
-                    c.c_k * stretched + c.c_d,
-                    axial * (S::ONE - stretched),
-                    v.scale(r),
+                    c.c_k.mul_coef(stretched) + c.c_d,
+                    axial.mul_coef(S::ONE - stretched),
+                    v.scale_coef(r),
+                    v.scale(c.c_k.mul_coef(spring_strain)),
                 )
             } else {
-                (c.c_d, S::ZERO, Vec3::ZERO)
+                // Coincident masses (piled on the paper): no direction, no spring force.
+                (c.c_d, S::ZERO, Vec3::ZERO, Vec3::ZERO)
             };
-            let f = spring_with(&self.d, v, len2, r);
             let rel = self.vel[j] - if j == 1 { u0 } else { self.vel[j - 1] };
-            (iso, axial, dir, f.scale(c.c_k), rel)
+            (iso, axial, dir, spring, rel)
         };
         // T_j, with G_j handed to the solve.
         let term = |solve: &mut S::Chain, (iso, axial, dir, spring, rel)| {
@@ -847,8 +858,8 @@ impl<S: BrushScalar> Brush<S> {
             if w > S::ZERO {
                 // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
                 // where the substep started.
-                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale(c.c_t)
-                    + (self.skel_vel[i] - self.vel[i]).scale(c.c_tv);
+                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c.c_t)
+                    + (self.skel_vel[i] - self.vel[i]).scale_coef(c.c_tv);
                 let tv = c.c_tv;
                 (rhs, diag) = if w < S::ONE {
                     (rhs + tie.scale_coef(w), diag + tv.mul_coef(w))

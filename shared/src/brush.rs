@@ -663,8 +663,17 @@ impl<S: BrushScalar> Brush<S> {
         // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
         #[cfg(feature = "backward-euler")]
         if self.d.backward_euler {
-            let mut solve = S::Chain::new(self.d.implicit.fits_format_chain);
-            self.backward_euler(u0, &ties, &mut solve);
+            let mut compact = self.d.implicit.fits_format_chain;
+            // A compact solve whose values left its formats (a pose that flings the brush)
+            // is done again by the general one: one call site, so one inlined copy.
+            let solve = loop {
+                let mut solve = S::Chain::new(compact);
+                self.backward_euler(u0, &ties, &mut solve);
+                if !(compact && solve.saturated()) {
+                    break solve;
+                }
+                compact = false;
+            };
             self.integrate(u0, &ties, (1..n).map(|i| solve.du(i)));
             return;
         }
@@ -1678,6 +1687,37 @@ mod tests {
                 }
             }
             assert!(worst < 1e-3, "fits {fits}: {worst} mm from f64");
+        }
+    }
+
+    /// A pose that jumps (the hand's first reading far from where the brush was made, a
+    /// tracker's glitch) moves the brush further in one substep than the 32-bit solve's
+    /// vectors hold: that substep is solved again by the general solve, and the brush
+    /// stays with the `f64` brush, in free air and pressed onto the paper after the jump.
+    #[cfg(feature = "backward-euler")]
+    #[test]
+    fn a_jump_beyond_the_compact_solve_s_range_is_solved_exactly() {
+        let at = |k: u32, jump: [f64; 3]| -> [f64; 3] {
+            let p = pressed_stroke::<f64>(k).pos;
+            [p.x + jump[0], p.y + jump[1], p.z + jump[2]]
+        };
+        let rot = pressed_stroke::<f64>(0).rot.to_f64();
+        for jump in [[30.0, 0.0, 0.0], [0.0, -25.0, 20.0], [-40.0, 40.0, 5.0]] {
+            let mut fixed = Brush::<Fx>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
+            let mut float = Brush::<f64>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
+            let mut worst = 0.0f64;
+            for k in 1..200 {
+                let p = at(k, jump);
+                fixed.tick(Pose::new(Vec3::from_f64(p), Quat::from_f64(rot)));
+                float.tick(Pose::new(Vec3::from_f64(p), Quat::from_f64(rot)));
+                for (a, b) in fixed.spine().iter().zip(float.spine()) {
+                    let (a, b) = (a.to_f64(), b.to_f64());
+                    for c in 0..3 {
+                        worst = worst.max((a[c] - b[c]).abs());
+                    }
+                }
+            }
+            assert!(worst < 1e-3, "jump {jump:?}: {worst} mm from f64");
         }
     }
 

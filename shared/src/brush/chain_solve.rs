@@ -201,6 +201,12 @@ pub trait SpineChain<S> {
     fn solve(&mut self, n: usize);
     /// Then: `du_i` of free mass `i` (`1..n`).
     fn du(&self, i: usize) -> Vec3<S>;
+    /// Whether a value left the solve's formats in this substep (a compact format's range,
+    /// under a pose that flings the brush): its `du` is then not the system's solution, and
+    /// the substep is solved again with the general solve (`new(false)`).
+    fn saturated(&self) -> bool {
+        false
+    }
 }
 
 impl<S: Scalar> SpineChain<S> for ChainSolve<S> {

@@ -100,11 +100,11 @@ use crate::scalar::Scalar;
 use crate::vec::Vec3;
 
 #[cfg(feature = "backward-euler")]
-#[cfg(feature = "backward-euler")]
 mod chain_fixed;
 #[cfg(feature = "backward-euler")]
 mod chain_solve;
 pub mod state_frame;
+mod unit_fixed;
 
 #[cfg(feature = "backward-euler")]
 pub use chain_fixed::MAX_DIAGONAL;
@@ -123,6 +123,18 @@ pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
+    /// `a x b` for unit vectors (the surface's axes).
+    #[doc(hidden)]
+    #[inline(always)]
+    fn unit_cross(a: Vec3<Self>, b: Vec3<Self>) -> Vec3<Self> {
+        a.cross_coef(b)
+    }
+    /// `v / |v|` for a vector with components within one, if longer than `min_len`.
+    #[doc(hidden)]
+    #[inline(always)]
+    fn unit_normalized_or_none(v: Vec3<Self>, min_len: Self) -> Option<Vec3<Self>> {
+        v.normalized_or_none_coef(min_len)
+    }
 }
 
 impl BrushScalar for f64 {
@@ -138,6 +150,16 @@ impl BrushScalar for f32 {
 impl BrushScalar for Fx {
     #[cfg(feature = "backward-euler")]
     type Chain = chain_fixed::FxChain;
+    // In 32-bit words (`brush/unit_fixed.rs`): a surface update's worth of 64-bit products
+    // saved on the pen's every tick.
+    #[inline(always)]
+    fn unit_cross(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3<Fx> {
+        unit_fixed::cross(a, b)
+    }
+    #[inline(always)]
+    fn unit_normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
+        unit_fixed::normalized_or_none(v, min_len)
+    }
 }
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
@@ -1143,14 +1165,14 @@ impl<S: BrushScalar> Brush<S> {
                 // its six products.
                 Vec3::new(S::ZERO - dir.y, dir.x, S::ZERO)
             } else {
-                layer.short_axis.cross_coef(dir)
+                S::unit_cross(layer.short_axis, dir)
             };
-            match la.normalized_or_none_coef(min_cross) {
+            match S::unit_normalized_or_none(la, min_cross) {
                 Some(la) => {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
-                    layer.short_axis = dir.cross_coef(la);
+                    layer.short_axis = S::unit_cross(dir, la);
                 }
                 // The ellipse plane undefined: keep the old long axis, made perpendicular to
                 // the segment, and rebuild the short one.

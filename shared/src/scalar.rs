@@ -701,7 +701,7 @@ float_scalar!(f32, "f32", sqrt_f32, libm::sincosf, libm::atan2f);
 /// FPSCR (round to nearest, no flush-to-zero) is what cortex-m-rt leaves, and nothing here
 /// changes it.
 #[inline]
-fn sqrt_f32(x: f32) -> f32 {
+pub(crate) fn sqrt_f32(x: f32) -> f32 {
     #[cfg(arm_asm)]
     {
         let root: u32;

@@ -36,6 +36,7 @@
 //! the vectors stay clamped.
 
 use super::chain_solve::{ChainSolve, SpineChain};
+use super::unit_fixed::saturated_word;
 use crate::params::MAX_LAYERS;
 use crate::scalar::Fx;
 use crate::vec::Vec3;
@@ -43,7 +44,7 @@ use crate::vec::Vec3;
 /// Fractional bits of the inverses (`Q0.31`).
 const INV_FRAC: u32 = 31;
 /// The bound of every block entry where it enters the format: `2^30` units.
-const LIMIT: i64 = 1 << 30;
+const LIMIT: i32 = 1 << 30;
 /// Fractional bits of the blocks (`Q11.20`): constant, so that every shift in the kernel
 /// is (a variable 64-bit shift is a library call on the Cortex-M4).
 const BLOCK_FRAC: u32 = 20;
@@ -67,8 +68,8 @@ pub const MAX_DIAGONAL: f32 = (LIMIT >> (BLOCK_FRAC + 1)) as f32;
 /// value wraps, except `i64::MAX` at a shift of one (a saturated inverse entry), which
 /// becomes `-limit`: never a panic.
 #[inline(always)]
-fn round_clamp(v: i64, shift: u32, limit: i64) -> i32 {
-    ((v >> (shift - 1)).wrapping_add(1) >> 1).clamp(-limit, limit) as i32
+fn round_clamp(v: i64, shift: u32, limit: i32) -> i32 {
+    saturated_word((v >> (shift - 1)).wrapping_add(1) >> 1).clamp(-limit, limit)
 }
 
 /// `v >> shift` rounded to nearest (ties up), for a result the formats' bounds keep within
@@ -104,11 +105,7 @@ fn to_vec_from(v: i64, shift: u32, saturated: &mut bool) -> i32 {
         word
     } else {
         *saturated = true;
-        if r < 0 {
-            -i32::MAX
-        } else {
-            i32::MAX
-        }
+        saturated_word(r)
     }
 }
 
@@ -203,16 +200,7 @@ impl QSym {
         let q31 = |v: i64| {
             let c = (v >> (shift - 1)).wrapping_add(1) >> 1;
             let e = c.wrapping_mul(recip).wrapping_add(1 << 30) >> 31;
-            // Saturated by its sign when it leaves i32 (one comparison of words, where a
-            // clamp of a 64-bit value takes four).
-            let word = e as i32;
-            if word as i64 == e {
-                word
-            } else if e < 0 {
-                -i32::MAX
-            } else {
-                i32::MAX
-            }
+            saturated_word(e)
         };
         QSym(cof.map(q31))
     }

@@ -1,0 +1,153 @@
+//! The surface update's unit-vector arithmetic for the fixed-point brush in 32-bit words:
+//! the layers' axes are unit vectors (components within one), so their cross products and
+//! normalisations need neither `I32F32`'s range nor its 64 x 64-bit products.
+//!
+//! Components enter as `Q1.30` (`i32`); a product of two is one `SMULL` on the Cortex-M4,
+//! exact in 64 bits, and a cross product's component (a difference of two) is rounded once
+//! back into the model's format. A normalisation takes the squared length exactly in 64
+//! bits, its reciprocal root from the hardware's correctly rounded `f32` square root and
+//! division of the length's leading 32 bits (IEEE operations: the host computes the same
+//! bits, as for [`crate::scalar::Scalar::rsqrt`]'s estimate), and scales in integers. The
+//! result is a unit vector to `f32`'s precision, about `1e-7` relative: an ellipse's axis,
+//! whose length the footprint and the drawing multiply by a radius of a few millimetres.
+//!
+//! [`super::BrushScalar`] hooks these in for `Fx`; the float formats keep their own
+//! arithmetic.
+
+use crate::scalar::{sqrt_f32, Fx};
+use crate::vec::Vec3;
+
+/// Fractional bits of a unit vector's components (`Q1.30`).
+const UNIT_FRAC: u32 = 30;
+/// Fractional bits of the reciprocal root's integer form (`Q8.24`): roots of squared
+/// lengths down to `2^-16` fit (a normalisation's threshold is far above that).
+const ROOT_FRAC: u32 = 24;
+
+/// A component in `Q1.30`, rounded, saturated (a unit vector's are within one; a vector
+/// that is not, for a caller's bug, saturates and never wraps).
+#[inline(always)]
+fn q30(v: Fx) -> i32 {
+    let shift = 32 - UNIT_FRAC;
+    saturated_word(((v.to_bits() >> (shift - 1)).wrapping_add(1)) >> 1)
+}
+
+/// `v` as an `i32`, saturated to `+-i32::MAX` by its sign when it does not fit: one
+/// comparison of words (a clamp of a 64-bit value takes four on the Cortex-M4). Every
+/// 64-bit result of the brush's 32-bit kernels enters its format through here.
+#[inline(always)]
+pub(super) fn saturated_word(v: i64) -> i32 {
+    let word = v as i32;
+    if word as i64 == v {
+        word
+    } else if v < 0 {
+        -i32::MAX
+    } else {
+        i32::MAX
+    }
+}
+
+#[inline(always)]
+fn q30_vec(v: Vec3<Fx>) -> [i64; 3] {
+    [q30(v.x) as i64, q30(v.y) as i64, q30(v.z) as i64]
+}
+
+/// `a x b` for vectors with components within one (unit vectors), each component the exact
+/// difference of two `Q1.30` products rounded once into the model's format.
+#[inline(always)]
+pub(super) fn cross(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3<Fx> {
+    let ([ax, ay, az], [bx, by, bz]) = (q30_vec(a), q30_vec(b));
+    // Products in Q2.60, below 2^62 in magnitude, so their difference fits.
+    let shift = 2 * UNIT_FRAC - 32;
+    let fx = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
+    Vec3::new(
+        fx((ay * bz).wrapping_sub(az * by)),
+        fx((az * bx).wrapping_sub(ax * bz)),
+        fx((ax * by).wrapping_sub(ay * bx)),
+    )
+}
+
+/// `v / |v|` for a vector with components within one, if `|v| > min_len` (else `None`): the
+/// squared length exact in 64 bits, the reciprocal root from `f32` (see the module docs).
+#[inline(always)]
+pub(super) fn normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
+    let q = q30_vec(v);
+    // Q2.60, each square below 2^62: the sum below 2^64 as unsigned.
+    let n2 = q.iter().fold(0u64, |s, &c| s.wrapping_add((c * c) as u64));
+    let min = q30(min_len) as i64;
+    // Below 2^-8 in length the root leaves its format: too short to normalise, whatever
+    // the caller's threshold.
+    if n2 <= ((min * min) as u64).max(1 << 44) {
+        return None;
+    }
+    // n2 = m 2^(32 - s), m in [2^30, 2^32) its leading bits (s even, so the root's power
+    // of two is whole); |v|^-1 = (n2 2^-60)^-1/2 = m^-1/2 2^(14 + s/2).
+    let s = n2.leading_zeros() & !1;
+    let m = ((n2 << s) >> 32) as u32;
+    let root = 1.0 / sqrt_f32(m as f32);
+    // Scaled by 2^(14 + s/2 + ROOT_FRAC) (exact: a power of two), then to an integer.
+    let scale = f32::from_bits((127 + 14 + ROOT_FRAC + s / 2) << 23);
+    // Below 2^32 for a length above 2^-8 (a float-to-u32 conversion is one instruction).
+    let r = (root * scale) as u32 as i64;
+    // Component (Q1.30) times the root (Q8.24) into the model's format (32 fractional bits).
+    let shift = UNIT_FRAC + ROOT_FRAC - 32;
+    let fx = |c: i64| Fx::from_bits((c * r).wrapping_add(1 << (shift - 1)) >> shift);
+    Some(Vec3::new(fx(q[0]), fx(q[1]), fx(q[2])))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scalar::Scalar;
+
+    fn random_unit(next: &mut impl FnMut() -> f64) -> [f64; 3] {
+        loop {
+            let v = [next(), next(), next()];
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if n > 0.1 && n < 1.0 {
+                return v.map(|c| c / n);
+            }
+        }
+    }
+
+    /// Cross products of unit vectors within `2^-29` of the exact ones, and normalisations
+    /// of short and long vectors within `3e-7` of unit and of the exact direction; below the
+    /// threshold, none.
+    #[test]
+    fn unit_vector_arithmetic_matches_f64() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let fx = |v: [f64; 3]| Vec3::<Fx>::from_f64(v);
+        let min_len = Fx::from_f64(0.0087);
+        for _ in 0..20_000 {
+            let (a, b) = (random_unit(&mut next), random_unit(&mut next));
+            let want = [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ];
+            let got = cross(fx(a), fx(b)).to_f64();
+            for k in 0..3 {
+                assert!((got[k] - want[k]).abs() < 2f64.powi(-29), "{a:?} x {b:?}");
+            }
+            // The cross product's length spans (0, 1]: normalise it.
+            let len = (want[0] * want[0] + want[1] * want[1] + want[2] * want[2]).sqrt();
+            match normalized_or_none(fx(want), min_len) {
+                Some(u) => {
+                    assert!(len > 0.0087 * 0.999, "{len}");
+                    let u = u.to_f64();
+                    for k in 0..3 {
+                        let exact = want[k] / len;
+                        assert!((u[k] - exact).abs() < 3e-7, "{want:?}: {u:?}");
+                    }
+                }
+                None => assert!(len <= 0.0087 * 1.001, "{len}"),
+            }
+        }
+        assert_eq!(normalized_or_none(Vec3::ZERO, min_len), None);
+    }
+}

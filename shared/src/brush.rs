@@ -685,17 +685,17 @@ impl<S: BrushScalar> Brush<S> {
         // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
         #[cfg(feature = "backward-euler")]
         if self.d.backward_euler {
-            let mut compact = self.d.implicit.fits_format_chain;
+            let mut solve = S::Chain::new(self.d.implicit.fits_format_chain);
             // A compact solve whose values left its formats (a pose that flings the brush)
-            // is done again by the general one: one call site, so one inlined copy.
-            let solve = loop {
-                let mut solve = S::Chain::new(compact);
+            // is done again by the general one, which never saturates: one call site, so
+            // one inlined copy, and the solve built in place (a move copies kilobytes).
+            loop {
                 self.backward_euler(u0, &ties, &mut solve);
-                if !(compact && solve.saturated()) {
-                    break solve;
+                if !solve.saturated() {
+                    break;
                 }
-                compact = false;
-            };
+                solve = S::Chain::new(false);
+            }
             self.integrate(u0, &ties, (1..n).map(|i| solve.du(i)));
             return;
         }

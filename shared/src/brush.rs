@@ -859,7 +859,9 @@ impl<S: BrushScalar> Brush<S> {
                     c.c_k.mul_coef(stretched) + c.c_d,
                     axial.mul_coef(S::ONE - stretched),
                     v.scale_coef(r),
-                    v.scale(c.c_k.mul_coef(spring_strain)),
+                    // c_k times a strain is small (a coefficient) but for a segment
+                    // stretched far: `scale_coef` tests it.
+                    v.scale_coef(c.c_k.mul_coef(spring_strain)),
                 )
             } else {
                 // Coincident masses (piled on the paper): no direction, no spring force.

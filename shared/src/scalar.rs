@@ -742,47 +742,61 @@ fn recip_nonzero(b: Fx) -> Fx {
     y * (two - b * y)
 }
 
-/// `±2^32 / n` rounded to nearest (the sign of `n`): the Taylor coefficients below.
-const fn inverse_of(n: i64) -> Fx {
+/// `±2^31 / n` rounded to nearest (the sign of `n`), in `Q0.31`: the Taylor coefficients
+/// below.
+const fn q31_inverse_of(n: i64) -> i32 {
     let m = n.unsigned_abs() as i64;
-    let q = ((1 << 32) + m / 2) / m;
-    Fx::from_bits(if n < 0 { -q } else { q })
+    let q = ((1 << 31) + m / 2) / m;
+    (if n < 0 { -q } else { q }) as i32
 }
 
 /// The Taylor coefficients of sin r / r and cos r in z = r^2, highest first:
 /// `(-1)^k / (2k+1)!` for k = 5..1 and `(-1)^k / (2k)!` for k = 5..1 (the constant terms,
 /// one, are added last). Computed at compile time.
-const SIN_SERIES: [Fx; 5] = [
-    inverse_of(-39_916_800),
-    inverse_of(362_880),
-    inverse_of(-5_040),
-    inverse_of(120),
-    inverse_of(-6),
+const SIN_SERIES: [i32; 5] = [
+    q31_inverse_of(-39_916_800),
+    q31_inverse_of(362_880),
+    q31_inverse_of(-5_040),
+    q31_inverse_of(120),
+    q31_inverse_of(-6),
 ];
-const COS_SERIES: [Fx; 5] = [
-    inverse_of(-3_628_800),
-    inverse_of(40_320),
-    inverse_of(-720),
-    inverse_of(24),
-    inverse_of(-2),
+const COS_SERIES: [i32; 5] = [
+    q31_inverse_of(-3_628_800),
+    q31_inverse_of(40_320),
+    q31_inverse_of(-720),
+    q31_inverse_of(24),
+    q31_inverse_of(-2),
 ];
+
+/// `a b` of two `Q0.31` values, rounded to nearest, in `Q0.31`: one `SMULL` and a shift on the
+/// Cortex-M4 (its magnitude below one, as its factors' are).
+#[inline(always)]
+fn q31_mul(a: i32, b: i32) -> i32 {
+    ((a as i64 * b as i64 + (1 << 30)) >> 31) as i32
+}
 
 /// sin and cos of `r`, |r| <= pi/4 (a little more is harmless), by their Taylor series to
 /// r^11 and r^10 (truncation below 2e-11 and 2e-10 there) in Horner form in `z = r^2`:
-/// `1 + z (c1 + z (c2 + ...))`. Every product is of a partial sum (below one in magnitude)
-/// and `z <= 0.62` or `r`, so each is a coefficient product
-/// ([`Scalar::mul_tested_coef`]): 11 of them and one for `z`. Rounding: each product floors
-/// by under 2^-32, and later products shrink what earlier ones lost; within 1e-9 in all.
+/// `1 + z (c1 + z (c2 + ...))`. Every partial sum, `z <= 0.62` and `r` lie within one, so
+/// the series runs in 32-bit `Q0.31` words (a product is one `SMULL`, where an `I32F32`
+/// product takes a dozen instructions and its saturating sum as many): the kinematics take
+/// six of these in every force-loop tick. Each product rounds to nearest (under 2^-32),
+/// later products shrink what earlier ones lost, and the last terms (`1 +`, `r +`) are added
+/// exactly in the model's format: within 1e-9 in all.
 #[inline]
 fn sin_cos_near_zero(r: Fx) -> (Fx, Fx) {
-    // z = r^2 with |r| < 1: r is itself a coefficient.
-    let z = r.mul_tested_coef(r);
-    // The highest coefficient starts the sum (indices into constant arrays: checked by the
-    // compiler).
-    let horner = |top: Fx, rest: &[Fx]| rest.iter().fold(top, |acc, &c| c + acc.mul_tested_coef(z));
-    let sin_over_r = Fx::ONE + horner(SIN_SERIES[0], &SIN_SERIES[1..]).mul_tested_coef(z);
-    let cos = Fx::ONE + horner(COS_SERIES[0], &COS_SERIES[1..]).mul_tested_coef(z);
-    (sin_over_r.mul_tested_coef(r), cos)
+    // |r| < 1: Q0.31 rounded (its last bit is the model's).
+    let r_bits = r.to_bits();
+    let r31 = ((r_bits + 1) >> 1).clamp(-(i32::MAX as i64), i32::MAX as i64) as i32;
+    let z = q31_mul(r31, r31);
+    let horner = |c: &[i32; 5]| c[1..].iter().fold(c[0], |acc, &k| k + q31_mul(acc, z));
+    // sin r = r + r z h_s and cos r = 1 + z h_c: the last products taken to 62 fractional
+    // bits and rounded once into the model's 32.
+    let tail = |h: i32, f: i32| (h as i64 * f as i64 + (1 << 29)) >> 30;
+    let zs = q31_mul(horner(&SIN_SERIES), z);
+    let sin = r_bits + tail(zs, r31);
+    let cos = (1i64 << 32) + ((horner(&COS_SERIES) as i64 * z as i64 + (1 << 29)) >> 30);
+    (Fx::from_bits(sin), Fx::from_bits(cos))
 }
 
 /// `x / 2` rounded toward -inf: the same bits as `x * 0.5` (the product `floor(x 2^31 / 2^32)`

@@ -135,6 +135,19 @@ pub trait BrushScalar: Scalar {
     fn unit_normalized_or_none(v: Vec3<Self>, min_len: Self) -> Option<Vec3<Self>> {
         v.normalized_or_none_coef(min_len)
     }
+    /// The skeleton's nodes `pos + m offset_i` into `out` by the format's own means, if it
+    /// has them (`true`); else [`place_skeleton`]'s generic products.
+    #[doc(hidden)]
+    #[inline(always)]
+    fn place_nodes(
+        pos: Vec3<Self>,
+        offsets: &Offsets<Self>,
+        m: &[[Self; 3]; 3],
+        out: &mut [Vec3<Self>],
+    ) -> bool {
+        let _ = (pos, offsets, m, out);
+        false
+    }
 }
 
 impl BrushScalar for f64 {
@@ -159,6 +172,16 @@ impl BrushScalar for Fx {
     #[inline(always)]
     fn unit_normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
         unit_fixed::normalized_or_none(v, min_len)
+    }
+    #[inline(always)]
+    fn place_nodes(
+        pos: Vec3<Fx>,
+        offsets: &Offsets<Fx>,
+        m: &[[Fx; 3]; 3],
+        out: &mut [Vec3<Fx>],
+    ) -> bool {
+        unit_fixed::place_nodes(pos, offsets, m, out);
+        true
     }
 }
 
@@ -1342,8 +1365,11 @@ fn jacobi_with<S: Scalar>(
 
 /// Where the handle at `pose` places the skeleton nodes VS_i (eqs. 3-5, 3-6), from the node
 /// offsets ([`Brush::skeleton_offsets`]), into `out` (one per node).
-fn place_skeleton<S: Scalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
+fn place_skeleton<S: BrushScalar>(pose: Pose<S>, offsets: &Offsets<S>, out: &mut [Vec3<S>]) {
     let m = RotMat::from_quat(pose.rot).m;
+    if S::place_nodes(pose.pos, offsets, &m, out) {
+        return;
+    }
     // A rotation's entries are in [-1, 1]: coefficient products (the same values), the
     // nine entries tested once for all nodes rather than on each product.
     if m.iter().flatten().all(|c| c.is_coef()) {

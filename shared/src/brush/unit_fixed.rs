@@ -94,6 +94,44 @@ pub(super) fn normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
     Some(Vec3::new(fx(q[0]), fx(q[1]), fx(q[2])))
 }
 
+/// The skeleton's nodes `pos + m offset_i` (`m` a rotation matrix, `offset_i` in the
+/// handle's frame) into `out`: [`super::place_skeleton`] for the fixed-point brush. Each
+/// rotation entry enters as `Q1.30`; each offset splits into its signed integer word and
+/// its fraction's upper 31 bits, so a row's three products are two sums of 32 x 32-bit
+/// products, exact in 64 bits, recombined and rounded once (the offsets are validated
+/// brush lengths, far below the range where the integer sums could wrap).
+#[inline(always)]
+pub(super) fn place_nodes(
+    pos: Vec3<Fx>,
+    offsets: &[[Fx; crate::params::MAX_LAYERS]; 3],
+    m: &[[Fx; 3]; 3],
+    out: &mut [Vec3<Fx>],
+) {
+    let rows = m.map(|row| row.map(|e| q30(e) as i64));
+    let [ox, oy, oz] = offsets;
+    for (node, ((x, y), z)) in out.iter_mut().zip(ox.iter().zip(oy).zip(oz)) {
+        let split = |v: &Fx| {
+            let b = v.to_bits();
+            (b >> 32, ((b as u32) >> 1) as i64)
+        };
+        let parts = [split(x), split(y), split(z)];
+        let row = |r: &[i64; 3]| {
+            let high = (r[0].wrapping_mul(parts[0].0))
+                .wrapping_add(r[1].wrapping_mul(parts[1].0))
+                .wrapping_add(r[2].wrapping_mul(parts[2].0));
+            let low = r[0] * parts[0].1 + r[1] * parts[1].1 + r[2] * parts[2].1;
+            // high is in Q.30 of the integer words, low in Q.61: to the model's Q.32.
+            let low = (low + (1 << 28)) >> 29;
+            Fx::from_bits((high << 2).wrapping_add(low))
+        };
+        *node = Vec3::new(
+            pos.x + row(&rows[0]),
+            pos.y + row(&rows[1]),
+            pos.z + row(&rows[2]),
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -149,5 +187,45 @@ mod tests {
             }
         }
         assert_eq!(normalized_or_none(Vec3::ZERO, min_len), None);
+    }
+
+    /// Skeleton nodes from random rotations and offsets along a bent brush up to 200 mm
+    /// long, within half a nanometre of the `f64` placement (the rotation's entries rounded to
+    /// 2^-31, times 200 mm, three times).
+    #[test]
+    fn skeleton_nodes_match_f64() {
+        use crate::params::MAX_LAYERS;
+        use crate::quat::Quat;
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for _ in 0..2_000 {
+            let q = [next(), next(), next(), next()];
+            let n = q.iter().map(|c| c * c).sum::<f64>().sqrt().max(1e-3);
+            let rot = Quat::<f64>::from_f64(q.map(|c| c / n));
+            let m64 = super::super::RotMat::from_quat(rot).m;
+            let pos = [next() * 300.0, next() * 300.0, next() * 100.0];
+            let offsets: [[f64; MAX_LAYERS]; 3] =
+                core::array::from_fn(|_| core::array::from_fn(|_| next() * 200.0));
+            let mut out = [Vec3::<Fx>::ZERO; MAX_LAYERS];
+            place_nodes(
+                Vec3::from_f64(pos),
+                &offsets.map(|o| o.map(Fx::from_f64)),
+                &m64.map(|r| r.map(Fx::from_f64)),
+                &mut out,
+            );
+            for (i, node) in out.iter().enumerate() {
+                let o = [offsets[0][i], offsets[1][i], offsets[2][i]];
+                let got = node.to_f64();
+                for (r, row) in m64.iter().enumerate() {
+                    let want = pos[r] + row[0] * o[0] + row[1] * o[1] + row[2] * o[2];
+                    assert!((got[r] - want).abs() < 5e-7, "{got:?} row {r}: {want}");
+                }
+            }
+        }
     }
 }

@@ -257,7 +257,7 @@ pub enum FxChain {
 impl SpineChain<Fx> for FxChain {
     fn new(compact: bool) -> Self {
         if compact {
-            FxChain::Compact(FixedChain::new(true))
+            FxChain::Compact(FixedChain::EMPTY)
         } else {
             FxChain::General(ChainSolve::new())
         }
@@ -304,16 +304,23 @@ impl SpineChain<Fx> for FxChain {
     }
 }
 
+impl FixedChain {
+    /// A solve before its first segment: a constant, so that a new one is one block copy
+    /// (building it field by field, then moving it into [`FxChain`], cost the pen's tick
+    /// thousands of instructions).
+    const EMPTY: Self = FixedChain {
+        p: [QMat([[0; 3]; 3]); MAX_LAYERS],
+        z: [[0; 3]; MAX_LAYERS],
+        inv: QSym::ZERO,
+        g_below: QSym::ZERO,
+        g_above: QSym::ZERO,
+        saturated: false,
+    };
+}
+
 impl SpineChain<Fx> for FixedChain {
     fn new(_compact: bool) -> Self {
-        FixedChain {
-            p: [QMat([[0; 3]; 3]); MAX_LAYERS],
-            z: [[0; 3]; MAX_LAYERS],
-            inv: QSym::ZERO,
-            g_below: QSym::ZERO,
-            g_above: QSym::ZERO,
-            saturated: false,
-        }
+        Self::EMPTY
     }
 
     /// The block in the blocks' format from its parts (each entered once: `iso` and

@@ -123,17 +123,24 @@ pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
-    /// `a x b` for unit vectors (the surface's axes).
+    /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
+    /// paper's normal) and its segment's unit direction `dir`: the long axis `sa x dir`
+    /// normalised, if longer than `min_len`, and the short axis `dir x long` (unit).
     #[doc(hidden)]
     #[inline(always)]
-    fn unit_cross(a: Vec3<Self>, b: Vec3<Self>) -> Vec3<Self> {
-        a.cross_coef(b)
-    }
-    /// `v / |v|` for a vector with components within one, if longer than `min_len`.
-    #[doc(hidden)]
-    #[inline(always)]
-    fn unit_normalized_or_none(v: Vec3<Self>, min_len: Self) -> Option<Vec3<Self>> {
-        v.normalized_or_none_coef(min_len)
+    fn ellipse_axes(
+        sa: Option<Vec3<Self>>,
+        dir: Vec3<Self>,
+        min_len: Self,
+    ) -> Option<(Vec3<Self>, Vec3<Self>)> {
+        let la = match sa {
+            // Z x V: the value of the general product (its factors zero and one give exact
+            // products), without its six products.
+            None => Vec3::new(Self::ZERO - dir.y, dir.x, Self::ZERO),
+            Some(sa) => sa.cross_coef(dir),
+        };
+        let la = la.normalized_or_none_coef(min_len)?;
+        Some((la, dir.cross_coef(la)))
     }
     /// The skeleton's nodes `pos + m offset_i` into `out` by the format's own means, if it
     /// has them (`true`); else [`place_skeleton`]'s generic products.
@@ -166,12 +173,12 @@ impl BrushScalar for Fx {
     // In 32-bit words (`brush/unit_fixed.rs`): a surface update's worth of 64-bit products
     // saved on the pen's every tick.
     #[inline(always)]
-    fn unit_cross(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3<Fx> {
-        unit_fixed::cross(a, b)
-    }
-    #[inline(always)]
-    fn unit_normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
-        unit_fixed::normalized_or_none(v, min_len)
+    fn ellipse_axes(
+        sa: Option<Vec3<Fx>>,
+        dir: Vec3<Fx>,
+        min_len: Fx,
+    ) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
+        unit_fixed::ellipse_axes(sa, dir, min_len)
     }
     #[inline(always)]
     fn place_nodes(
@@ -1183,21 +1190,14 @@ impl<S: BrushScalar> Brush<S> {
             }
             prev_dir = dir;
             let layer = &mut self.layers[i];
-            // Unit vectors: coefficient products (the same values), here and below.
-            let la = if i >= on_paper_from {
-                // The short axis is the paper's normal (step 1): Z x V, the value of the
-                // general product (its factors zero and one give exact products), without
-                // its six products.
-                Vec3::new(S::ZERO - dir.y, dir.x, S::ZERO)
-            } else {
-                S::unit_cross(layer.short_axis, dir)
-            };
-            match S::unit_normalized_or_none(la, min_cross) {
-                Some(la) => {
+            // The short axis is the paper's normal from the first layer on it (step 1).
+            let sa = (i < on_paper_from).then_some(layer.short_axis);
+            match S::ellipse_axes(sa, dir, min_cross) {
+                Some((la, sa)) => {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
                     // ellipse is a true cross-section (unit: V and LA are unit and orthogonal).
-                    layer.short_axis = S::unit_cross(dir, la);
+                    layer.short_axis = sa;
                 }
                 // The ellipse plane undefined: keep the old long axis, made perpendicular to
                 // the segment, and rebuild the short one.

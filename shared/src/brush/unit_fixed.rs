@@ -51,28 +51,59 @@ fn q30_vec(v: Vec3<Fx>) -> [i64; 3] {
     [q30(v.x) as i64, q30(v.y) as i64, q30(v.z) as i64]
 }
 
-/// `a x b` for vectors with components within one (unit vectors), each component the exact
-/// difference of two `Q1.30` products rounded once into the model's format.
+/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and `dir` enter
+/// once as `Q1.30`; the long axis `sa x dir` is formed exactly in 64 bits, rounded to
+/// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
+/// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
+/// once, rounded into the model's format.
 #[inline(always)]
-pub(super) fn cross(a: Vec3<Fx>, b: Vec3<Fx>) -> Vec3<Fx> {
-    let ([ax, ay, az], [bx, by, bz]) = (q30_vec(a), q30_vec(b));
-    // Products in Q2.60, below 2^62 in magnitude, so their difference fits.
+pub(super) fn ellipse_axes(
+    sa: Option<Vec3<Fx>>,
+    dir: Vec3<Fx>,
+    min_len: Fx,
+) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
+    let a = match sa {
+        Some(sa) => q30_vec(sa),
+        None => [0, 0, 1 << UNIT_FRAC],
+    };
+    let d = q30_vec(dir);
+    // Products in Q2.60 (below 2^62 in magnitude); their difference rounded to Q1.30 is
+    // within one in magnitude for `|sa| <= 1`, wrapping (never panicking) for a caller's
+    // vector that is not.
+    let to_q30 = |p: i64| p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC;
+    let long = cross_words(a, d).map(to_q30);
+    let unit = normalize_words(long, min_len)?;
+    // Q1.30 back to the model's 32 fractional bits: exact.
+    let fx = |w: i64| Fx::from_bits(w << (32 - UNIT_FRAC));
+    // dir x long in Q2.60, rounded once into the model's format.
     let shift = 2 * UNIT_FRAC - 32;
-    let fx = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
-    Vec3::new(
-        fx((ay * bz).wrapping_sub(az * by)),
-        fx((az * bx).wrapping_sub(ax * bz)),
-        fx((ax * by).wrapping_sub(ay * bx)),
-    )
+    let round = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
+    let short = cross_words(d, unit);
+    Some((
+        Vec3::new(fx(unit[0]), fx(unit[1]), fx(unit[2])),
+        Vec3::new(round(short[0]), round(short[1]), round(short[2])),
+    ))
 }
 
-/// `v / |v|` for a vector with components within one, if `|v| > min_len` (else `None`): the
+/// `a x b` of `Q1.30` words, exact in `Q2.60`.
+#[inline(always)]
+fn cross_words(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
+    let m = |x: i64, y: i64| x.wrapping_mul(y);
+    [
+        m(a[1], b[2]).wrapping_sub(m(a[2], b[1])),
+        m(a[2], b[0]).wrapping_sub(m(a[0], b[2])),
+        m(a[0], b[1]).wrapping_sub(m(a[1], b[0])),
+    ]
+}
+
+/// `v / |v|` of `Q1.30` words (magnitudes within one), in `Q1.30`, if `|v| > min_len`: the
 /// squared length exact in 64 bits, the reciprocal root from `f32` (see the module docs).
 #[inline(always)]
-pub(super) fn normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
-    let q = q30_vec(v);
+fn normalize_words(q: [i64; 3], min_len: Fx) -> Option<[i64; 3]> {
     // Q2.60, each square below 2^62: the sum below 2^64 as unsigned.
-    let n2 = q.iter().fold(0u64, |s, &c| s.wrapping_add((c * c) as u64));
+    let n2 = q
+        .iter()
+        .fold(0u64, |s, &c| s.wrapping_add(c.wrapping_mul(c) as u64));
     let min = q30(min_len) as i64;
     // Below 2^-8 in length the root leaves its format: too short to normalise, whatever
     // the caller's threshold.
@@ -84,14 +115,12 @@ pub(super) fn normalized_or_none(v: Vec3<Fx>, min_len: Fx) -> Option<Vec3<Fx>> {
     let s = n2.leading_zeros() & !1;
     let m = ((n2 << s) >> 32) as u32;
     let root = 1.0 / sqrt_f32(m as f32);
-    // Scaled by 2^(14 + s/2 + ROOT_FRAC) (exact: a power of two), then to an integer.
+    // Scaled by 2^(14 + s/2 + ROOT_FRAC) (exact: a power of two), then to an integer below
+    // 2^32 for a length above 2^-8 (a float-to-u32 conversion is one instruction).
     let scale = f32::from_bits((127 + 14 + ROOT_FRAC + s / 2) << 23);
-    // Below 2^32 for a length above 2^-8 (a float-to-u32 conversion is one instruction).
     let r = (root * scale) as u32 as i64;
-    // Component (Q1.30) times the root (Q8.24) into the model's format (32 fractional bits).
-    let shift = UNIT_FRAC + ROOT_FRAC - 32;
-    let fx = |c: i64| Fx::from_bits((c * r).wrapping_add(1 << (shift - 1)) >> shift);
-    Some(Vec3::new(fx(q[0]), fx(q[1]), fx(q[2])))
+    // Q1.30 times Q8.24, rounded back to Q1.30.
+    Some(q.map(|c| c.wrapping_mul(r).wrapping_add(1 << (ROOT_FRAC - 1)) >> ROOT_FRAC))
 }
 
 /// The skeleton's nodes `pos + m offset_i` (`m` a rotation matrix, `offset_i` in the
@@ -147,11 +176,11 @@ mod tests {
         }
     }
 
-    /// Cross products of unit vectors within `2^-29` of the exact ones, and normalisations
-    /// of short and long vectors within `3e-7` of unit and of the exact direction; below the
-    /// threshold, none.
+    /// The axes of layers with random short axes (within the unit ball, as the surface's
+    /// interpolated ones are, or the paper's normal) and unit segment directions: within
+    /// `3e-7` of the exact unit vectors; none where `|sa x dir|` is below the threshold.
     #[test]
-    fn unit_vector_arithmetic_matches_f64() {
+    fn ellipse_axes_match_f64() {
         let mut seed = 0x2545_f491_4f6c_dd1du64;
         let mut next = || {
             seed ^= seed << 13;
@@ -160,33 +189,45 @@ mod tests {
             (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
         let fx = |v: [f64; 3]| Vec3::<Fx>::from_f64(v);
-        let min_len = Fx::from_f64(0.0087);
-        for _ in 0..20_000 {
-            let (a, b) = (random_unit(&mut next), random_unit(&mut next));
-            let want = [
+        let cross = |a: [f64; 3], b: [f64; 3]| {
+            [
                 a[1] * b[2] - a[2] * b[1],
                 a[2] * b[0] - a[0] * b[2],
                 a[0] * b[1] - a[1] * b[0],
-            ];
-            let got = cross(fx(a), fx(b)).to_f64();
-            for k in 0..3 {
-                assert!((got[k] - want[k]).abs() < 2f64.powi(-29), "{a:?} x {b:?}");
-            }
-            // The cross product's length spans (0, 1]: normalise it.
-            let len = (want[0] * want[0] + want[1] * want[1] + want[2] * want[2]).sqrt();
-            match normalized_or_none(fx(want), min_len) {
-                Some(u) => {
-                    assert!(len > 0.0087 * 0.999, "{len}");
-                    let u = u.to_f64();
-                    for k in 0..3 {
-                        let exact = want[k] / len;
-                        assert!((u[k] - exact).abs() < 3e-7, "{want:?}: {u:?}");
+            ]
+        };
+        let min_len = 0.0087;
+        let (mut some, mut none) = (0, 0);
+        for k in 0..20_000 {
+            let dir = random_unit(&mut next);
+            // Every fourth on the paper; some nearly along the segment (no plane).
+            let sa = match k % 4 {
+                0 => None,
+                1 => Some(dir.map(|c| c * 0.9 + next() * 0.004)),
+                _ => Some(random_unit(&mut next).map(|c| c * (0.5 + 0.5 * next().abs()))),
+            };
+            let a = sa.unwrap_or([0.0, 0.0, 1.0]);
+            let long = cross(a, dir);
+            let len = (long[0] * long[0] + long[1] * long[1] + long[2] * long[2]).sqrt();
+            match ellipse_axes(sa.map(fx), fx(dir), Fx::from_f64(min_len)) {
+                Some((l, sh)) => {
+                    some += 1;
+                    assert!(len > min_len * 0.999, "{len}");
+                    let unit = long.map(|c| c / len);
+                    let short = cross(dir, unit);
+                    let (l, sh) = (l.to_f64(), sh.to_f64());
+                    for c in 0..3 {
+                        assert!((l[c] - unit[c]).abs() < 3e-7, "{sa:?} {dir:?}: {l:?}");
+                        assert!((sh[c] - short[c]).abs() < 3e-7, "{sa:?} {dir:?}: {sh:?}");
                     }
                 }
-                None => assert!(len <= 0.0087 * 1.001, "{len}"),
+                None => {
+                    none += 1;
+                    assert!(len <= min_len * 1.001, "{len}");
+                }
             }
         }
-        assert_eq!(normalized_or_none(Vec3::ZERO, min_len), None);
+        assert!(some > 10_000 && none > 100, "{some} {none}");
     }
 
     /// Skeleton nodes from random rotations and offsets along a bent brush up to 200 mm

@@ -104,6 +104,7 @@ use crate::vec::Vec3;
 mod chain_fixed;
 #[cfg(feature = "backward-euler")]
 mod chain_solve;
+pub mod ink;
 pub mod state_frame;
 
 #[cfg(feature = "backward-euler")]
@@ -280,8 +281,14 @@ pub struct Layer<S> {
     pub long_radius: S,
     /// Short radius RS_i (mm).
     pub short_radius: S,
-    /// Wetness W_i in [0, 1].
+    /// Wetness W_i in [0, 1]: the layer's ink as a share of what it holds ([`ink`]).
     pub wetness: S,
+    /// Ink the layer holds (ink units, [`ink`]).
+    pub ink: S,
+    /// Ink the layer has given to the paper since the brush was built or reset (ink units, a
+    /// running total: the host lays each increase on the paper under the layer's footprint;
+    /// in fixed point it saturates after some two thousand million units).
+    pub deposited: S,
 }
 
 /// A brush: its parameters and its complete dynamic state.
@@ -302,6 +309,7 @@ pub struct Brush<S> {
     /// Skeleton nodes' displacement in the last substep (mm).
     skel_vel: [Vec3<S>; MAX_LAYERS],
     layers: [Layer<S>; MAX_LAYERS],
+    ink_coefs: ink::InkCoefs<S>,
     /// External force on the tip mass (N), e.g. a finger or a test load.
     tip_load: Vec3<S>,
     /// The exact solve's pivots ([`Self::prepare_pivots`]), computed with the parameters.
@@ -371,7 +379,10 @@ impl<S: BrushScalar> Brush<S> {
                 long_radius: S::ZERO,
                 short_radius: S::ZERO,
                 wetness: S::ONE,
+                ink: S::ZERO,
+                deposited: S::ZERO,
             }; MAX_LAYERS],
+            ink_coefs: ink::InkCoefs::new(&params),
             tip_load: Vec3::ZERO,
             inv_pivot: [S::ZERO; MAX_LAYERS],
             cprime: [S::ZERO; MAX_LAYERS],
@@ -406,8 +417,11 @@ impl<S: BrushScalar> Brush<S> {
                 long_radius: self.d.rest_radius[i],
                 short_radius: self.d.rest_radius[i],
                 wetness: w,
+                ink: S::ZERO,
+                deposited: S::ZERO,
             };
         }
+        self.dip(w);
         // A brush reset into the paper settles onto it on the first substep.
         self.project_onto_paper();
         // What the first substep's springs need, as the surface update would leave it.
@@ -421,9 +435,11 @@ impl<S: BrushScalar> Brush<S> {
         params.validate()?;
         let relayout = params.layers != self.params.layers
             || params.length_mm != self.params.length_mm
-            || params.wetness != self.params.wetness;
+            || params.wetness != self.params.wetness
+            || params.ink_capacity != self.params.ink_capacity;
         self.params = params;
         self.d = derive::<S>(&params);
+        self.ink_coefs = ink::InkCoefs::new(&params);
         self.prepare_pivots();
         if relayout {
             self.reset(self.handle);
@@ -538,14 +554,6 @@ impl<S: Scalar> Brush<S> {
         self.tip_load = force;
     }
 
-    /// Wets every layer to `wetness` (dipping the brush in ink).
-    pub fn dip(&mut self, wetness: S) {
-        let w = wetness.clamp(S::ZERO, S::ONE);
-        for l in self.layers[..self.d.n()].iter_mut() {
-            l.wetness = w;
-        }
-    }
-
     /// How strongly mass i is tied to the skeleton: 0 lying on the paper, 1 from
     /// [`TIE_RAMP_MM`] up.
     #[inline]
@@ -605,6 +613,7 @@ impl<S: BrushScalar> Brush<S> {
             self.plastic_flow();
         }
         self.update_surface();
+        self.transfer_ink();
     }
 
     /// One substep of length h with the handle at `pose`.

@@ -124,6 +124,13 @@ pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
+
+    /// The tick's ink transfer ([`Brush::transfer_ink`]), compiled where the format wants it.
+    #[doc(hidden)]
+    #[inline(always)]
+    fn transfer_ink(brush: &mut Brush<Self>) {
+        brush.transfer_ink();
+    }
 }
 
 impl BrushScalar for f64 {
@@ -139,6 +146,10 @@ impl BrushScalar for f32 {
 impl BrushScalar for Fx {
     #[cfg(feature = "backward-euler")]
     type Chain = chain_fixed::FxChain;
+
+    fn transfer_ink(brush: &mut Brush<Fx>) {
+        ink::transfer_ink_fx(brush);
+    }
 }
 
 /// Largest Jacobi off-diagonal weight `c_j = (h^2 k_s + h k_d) / W'` at which the thesis's
@@ -281,10 +292,8 @@ pub struct Layer<S> {
     pub long_radius: S,
     /// Short radius RS_i (mm).
     pub short_radius: S,
-    /// Wetness W_i in [0, 1]: the layer's ink as a share of what it holds ([`ink`]).
+    /// Wetness W_i in [0, 1]: the layer's ink load as a share of what it holds ([`ink`]).
     pub wetness: S,
-    /// Ink the layer holds (ink units, [`ink`]).
-    pub ink: S,
     /// Ink the layer has given to the paper since the brush was built or reset (ink units, a
     /// running total: the host lays each increase on the paper under the layer's footprint;
     /// in fixed point it saturates after some two thousand million units).
@@ -309,7 +318,7 @@ pub struct Brush<S> {
     /// Skeleton nodes' displacement in the last substep (mm).
     skel_vel: [Vec3<S>; MAX_LAYERS],
     layers: [Layer<S>; MAX_LAYERS],
-    ink_coefs: ink::InkCoefs<S>,
+    ink_coefs: ink::InkCoefs,
     /// External force on the tip mass (N), e.g. a finger or a test load.
     tip_load: Vec3<S>,
     /// The exact solve's pivots ([`Self::prepare_pivots`]), computed with the parameters.
@@ -379,7 +388,6 @@ impl<S: BrushScalar> Brush<S> {
                 long_radius: S::ZERO,
                 short_radius: S::ZERO,
                 wetness: S::ONE,
-                ink: S::ZERO,
                 deposited: S::ZERO,
             }; MAX_LAYERS],
             ink_coefs: ink::InkCoefs::new(&params),
@@ -417,11 +425,9 @@ impl<S: BrushScalar> Brush<S> {
                 long_radius: self.d.rest_radius[i],
                 short_radius: self.d.rest_radius[i],
                 wetness: w,
-                ink: S::ZERO,
                 deposited: S::ZERO,
             };
         }
-        self.dip(w);
         // A brush reset into the paper settles onto it on the first substep.
         self.project_onto_paper();
         // What the first substep's springs need, as the surface update would leave it.
@@ -435,8 +441,7 @@ impl<S: BrushScalar> Brush<S> {
         params.validate()?;
         let relayout = params.layers != self.params.layers
             || params.length_mm != self.params.length_mm
-            || params.wetness != self.params.wetness
-            || params.ink_capacity != self.params.ink_capacity;
+            || params.wetness != self.params.wetness;
         self.params = params;
         self.d = derive::<S>(&params);
         self.ink_coefs = ink::InkCoefs::new(&params);
@@ -613,7 +618,7 @@ impl<S: BrushScalar> Brush<S> {
             self.plastic_flow();
         }
         self.update_surface();
-        self.transfer_ink();
+        S::transfer_ink(self);
     }
 
     /// One substep of length h with the handle at `pose`.

@@ -1,7 +1,7 @@
 //! Ink in the brush: what a dip puts in is what the brush holds plus what it gave to the
-//! paper (in f64 to rounding, in fixed point exactly), a stroke written without dipping
-//! drains the brush and its wetness with it, a dip refills it, and the pen and the desktop
-//! formats agree.
+//! paper (to rounding, in fixed point and in f64), a stroke written without dipping drains
+//! the brush and its wetness with it, a dip refills it, and the pen and the desktop formats
+//! agree.
 
 use maobi_shared::{presets, Brush, BrushScalar, Fx, Pose, Quat, Scalar, Vec3};
 
@@ -35,16 +35,21 @@ fn write<S: BrushScalar>(speed: f64, length_mm: f64) -> (Brush<S>, Vec<S>, S) {
     (b, deposits, dipped)
 }
 
+/// In fixed point each update of a layer's wetness rounds at 2^-32 of what it holds (about
+/// 3e-8 ink units for the large brush's belly), three a layer a tick: within 1e-7 of the dip
+/// over the stroke.
 #[test]
-fn ink_is_conserved_in_fixed_point_exactly() {
+fn ink_is_conserved_in_fixed_point_to_rounding() {
     let (b, deposits, dipped) = write::<Fx>(200.0, 150.0);
     let paper = deposits.iter().fold(Fx::ZERO, |a, &d| a + d);
+    let err = (paper + b.ink_load() - dipped).to_f64().abs();
     println!(
-        "dipped {dipped}, on paper {paper}, in the brush {}",
-        b.ink_load()
+        "dipped {dipped}, on paper {paper}, in the brush {}, off by {err:.1e} ink units over {} ticks",
+        b.ink_load(),
+        deposits.len()
     );
     assert!(paper > Fx::from_f64(10.0), "the stroke gave ink: {paper}");
-    assert_eq!(paper + b.ink_load(), dipped);
+    assert!(err < 1e-7 * dipped.to_f64(), "{err}");
 }
 
 #[test]
@@ -54,7 +59,10 @@ fn ink_is_conserved_in_f64_to_rounding() {
     let err = (paper + b.ink_load() - dipped).abs() / dipped;
     println!("dipped {dipped}, on paper {paper}, relative error {err:.1e}");
     assert!(paper > 10.0);
-    assert!(err < 1e-12, "{err}");
+    // The amounts are computed in single precision (as on the pen), each layer's capacity's
+    // reciprocal too: each update of a wetness is off by its relative rounding, 6e-8.
+    assert!(err < 1e-7, "{err}");
+    assert!(b.layers().iter().all(|l| (0.0..=1.0).contains(&l.wetness)));
 }
 
 /// Written without dipping, the brush gives less ink per tick at the end of a long stroke
@@ -76,7 +84,7 @@ fn a_long_stroke_drains_the_brush_and_a_dip_refills_it() {
     let dry = wet(&b);
     b.dip(Fx::from_f64(0.8));
     assert!(wet(&b) > dry + 1.0, "{dry} -> {}", wet(&b));
-    assert_eq!(b.ink_load(), dipped);
+    assert!((b.ink_load() - dipped).to_f64().abs() < 1e-6);
 }
 
 /// The pen (fixed point) and the desktop (f64) give the same ink along the same stroke, to

@@ -112,8 +112,6 @@ impl BrushState {
                 long_radius: Fx::from_bits(w.long_radius),
                 short_radius: Fx::from_bits(w.short_radius),
                 wetness: Fx::from_bits(w.wetness),
-                // Not carried: the wetness is the load's share of what the layer holds.
-                ink: Fx::ZERO,
                 deposited: Fx::from_bits(w.deposited),
             };
             prev = *s;
@@ -128,7 +126,6 @@ const NO_LAYER: Layer<Fx> = Layer {
     long_radius: Fx::ZERO,
     short_radius: Fx::ZERO,
     wetness: Fx::ZERO,
-    ink: Fx::ZERO,
     deposited: Fx::ZERO,
 };
 

@@ -582,9 +582,10 @@ mod tests {
         ));
         let (c, stats) = render::<Fx>(p, &down, f, PaperSpec::default()).unwrap();
         assert!(stats.stamps > 0);
-        // Darkness-weighted: a brush held still gives its ink slowly.
+        // Darkness-weighted: a brush held still gives its ink slowly (at the dwell's rate,
+        // `maobi_shared::brush::ink::DWELL_MM`, from the layers that reach the paper).
         let area_mm2 = c.ink_area_px() / 25.0;
-        assert!(area_mm2 > 10.0, "{area_mm2}");
+        assert!(area_mm2 > 2.0, "{area_mm2}");
         let (mut sx, mut sy) = (0.0, 0.0);
         for y in 0..f.height {
             for x in 0..f.width {

@@ -22,14 +22,16 @@
 //! What a layer gives is added to its `deposited`, the running total it has given to the
 //! paper, which the state frames carry: the host lays the increase since the last frame it
 //! saw under the layer's footprint, so a state sent every few ticks, or lost, loses no ink.
-//! Ink in the brush plus ink deposited equals ink dipped, to the rounding of the wetness's
-//! updates (`shared/tests/ink.rs`). The wetness is the state, not the amount, so a layer
+//! The amounts are computed in IEEE single precision (the same bits on every target; on the
+//! pen's FPU an instruction each, where the fixed-point products are library calls in the
+//! size-built code) and rounded into the brush's format once; the wetness is updated in
+//! the brush's format by exactly the amounts it gave or took. Ink in the brush plus ink
+//! deposited equals ink dipped, to the rounding of those updates (`shared/tests/ink.rs`). The wetness is the state, not the amount, so a layer
 //! costs the pen's RAM one number more (its running total), not two; each layer's
-//! capacity's reciprocal is taken in the tick (`Scalar::recip`: a single-precision division
-//! and a Newton step in fixed point) rather than stored.
+//! capacity's reciprocal is kept in single precision.
 
 use super::Brush;
-use crate::params::BrushParams;
+use crate::params::{BrushParams, MAX_LAYERS};
 use crate::scalar::{Fx, Scalar};
 
 /// [`Brush::transfer_ink`] for the pen's format, compiled here, in this crate: not generic,
@@ -61,15 +63,19 @@ pub const PRESS_FULL_MM: f32 = 1.0;
 /// tick, of the smaller layer's capacity (explicit, stable up to one half).
 pub const WICK: f32 = 0.25;
 
+/// Differences in wetness below this do not wick: a brush fresh from a dip, or in the air,
+/// spends no products on wicking.
+pub const WICK_MIN: f32 = 1.0 / 65536.0;
+
 /// The ink model's coefficients, derived from the parameters. Single precision: the transfer
 /// computes its amounts in IEEE `f32` (the same bits on every target; the pen's FPU does each
 /// operation in one instruction), and keeps the wetness and the running totals in the
 /// brush's format.
 #[derive(Copy, Clone)]
 pub(crate) struct InkCoefs {
-    /// What a layer holds when saturated per mm^2 of its rest area (`r_i^2`): `ink_capacity
-    /// x pi x L` (ink units per mm^2). Layer i holds `rest_area_i` times this.
-    per_area: f32,
+    /// One over what each layer holds (its capacity is taken as the reciprocal of this, so
+    /// the two agree).
+    inv_capacity: [f32; MAX_LAYERS],
     /// `DWELL_MM / substeps`, added to the last substep's travel.
     dwell: f32,
     eps: f32,
@@ -92,8 +98,15 @@ impl InkCoefs {
     pub(crate) fn new(p: &BrushParams) -> Self {
         let substeps = p.substeps_per_tick as f32;
         let gain = 2.0 * TRANSFER * substeps;
+        let per_area = p.ink_capacity * core::f32::consts::PI * p.segment_mm();
+        let n = (p.layers as usize).clamp(2, MAX_LAYERS);
+        let mut inv_capacity = [0.0; MAX_LAYERS];
+        for (i, inv) in inv_capacity[..n].iter_mut().enumerate() {
+            let r = p.rest_radius_mm(i);
+            *inv = 1.0 / (per_area * r * r);
+        }
         InkCoefs {
-            per_area: p.ink_capacity * core::f32::consts::PI * p.segment_mm(),
+            inv_capacity,
             dwell: DWELL_MM / substeps,
             eps: p.footprint_eps_mm,
             press_floor: gain * PRESS_FLOOR,
@@ -126,9 +139,10 @@ impl<S: Scalar> Brush<S> {
 
     /// What layer i holds when saturated (ink units).
     pub fn ink_capacity(&self, i: usize) -> S {
-        self.d.rest_area.get(i).map_or(S::ZERO, |a| {
-            S::from_f32(a.to_f32() * self.ink_coefs.per_area)
-        })
+        match self.ink_coefs.inv_capacity.get(i) {
+            Some(&inv) if inv > 0.0 => S::from_f32(1.0 / inv),
+            _ => S::ZERO,
+        }
     }
 
     /// The tick's ink transfer (see the module): deposits and wicking. Runs after the
@@ -137,49 +151,59 @@ impl<S: Scalar> Brush<S> {
     pub(crate) fn transfer_ink(&mut self) {
         let n = self.d.n();
         let c = self.ink_coefs;
-        // Layer i-1's rest area, capacity's reciprocal and wetness, from the last iteration.
+        let eps = S::from_f32(c.eps);
+        let wick_min = S::from_f32(WICK_MIN);
+        // Layer i-1's capacity, its reciprocal and its wetness, from the last iteration.
         let mut prev = (0.0f32, S::ZERO, 0.0f32);
         for i in 0..n {
-            let area = self.d.rest_area[i].to_f32();
-            let cap = area * c.per_area;
-            let inv = S::from_f32(if cap > 0.0 { 1.0 / cap } else { 0.0 });
+            let inv_cap = c.inv_capacity[i];
+            let cap = if inv_cap > 0.0 { 1.0 / inv_cap } else { 0.0 };
+            let inv = S::from_f32(inv_cap);
             let (x, u) = (self.spine[i], self.vel[i]);
             let l = &mut self.layers[i];
-            let drop = (l.long_radius * l.long_axis.z)
-                .abs()
-                .max((l.short_radius * l.short_axis.z).abs());
-            let press = c.eps - (x.z - drop).to_f32();
             let mut w = l.wetness.to_f32();
-            if press > 0.0 {
-                // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
-                let press = c.press_floor + c.press_slope * press.min(1.0);
-                // |u_xy| within 3% by the octagon, max + 3/8 min: no square root.
-                let (ux, uy) = (u.x.to_f32().abs(), u.y.to_f32().abs());
-                let travel = ux.max(uy) + 0.375 * ux.min(uy);
-                let give = (w * l.long_radius.to_f32() * (travel + c.dwell) * press).min(w * cap);
-                let give = S::from_f32(give);
-                l.wetness = (l.wetness - give * inv).max(S::ZERO);
-                l.deposited += give;
-                w = l.wetness.to_f32();
+            // No radius exceeds the widest: a layer higher than that above the threshold
+            // cannot reach the paper, and its lowest point is not needed.
+            if x.z <= eps + self.d.max_radius[i] {
+                let drop = (l.long_radius * l.long_axis.z)
+                    .abs()
+                    .max((l.short_radius * l.short_axis.z).abs());
+                let press = (eps - (x.z - drop)).to_f32();
+                if press > 0.0 {
+                    // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
+                    let press = c.press_floor + c.press_slope * press.min(1.0);
+                    // |u_xy| within 3% by the octagon, max + 3/8 min: no square root.
+                    let (ux, uy) = (u.x.to_f32().abs(), u.y.to_f32().abs());
+                    let travel = ux.max(uy) + 0.375 * ux.min(uy);
+                    let give =
+                        (w * l.long_radius.to_f32() * (travel + c.dwell) * press).min(w * cap);
+                    let give = S::from_f32(give);
+                    l.wetness = (l.wetness - give * inv).max(S::ZERO);
+                    l.deposited += give;
+                    w = l.wetness.to_f32();
+                }
             }
             if i > 0 {
                 // Wicking from layer i-1 (its deposit taken) by the wetness, at most what the
-                // giver holds and what the taker can hold.
-                let (prev_area, prev_inv, prev_w) = prev;
-                let room = prev_area.min(area) * c.per_area * WICK;
-                // max and min, not `f32::clamp`, which may panic (and format its floats).
-                let flow = ((prev_w - w) * room)
-                    .max(-w * cap)
-                    .min(prev_w * prev_area * c.per_area);
-                let flow = S::from_f32(flow);
+                // giver holds and what the taker can hold; none across a difference below
+                // WICK_MIN (a brush fresh from a dip, or in the air, costs no products).
+                let (prev_cap, prev_inv, prev_w) = prev;
                 let (lo, hi) = self.layers.split_at_mut(i);
                 if let (Some(giver), Some(taker)) = (lo.last_mut(), hi.first_mut()) {
-                    giver.wetness = (giver.wetness - flow * prev_inv).clamp(S::ZERO, S::ONE);
-                    taker.wetness = (taker.wetness + flow * inv).clamp(S::ZERO, S::ONE);
-                    w = taker.wetness.to_f32();
+                    if (giver.wetness - taker.wetness).abs() > wick_min {
+                        // max and min, not `f32::clamp`, which may panic (and format its
+                        // floats).
+                        let flow = ((prev_w - w) * prev_cap.min(cap) * WICK)
+                            .max(-w * cap)
+                            .min(prev_w * prev_cap);
+                        let flow = S::from_f32(flow);
+                        giver.wetness = (giver.wetness - flow * prev_inv).clamp(S::ZERO, S::ONE);
+                        taker.wetness = (taker.wetness + flow * inv).clamp(S::ZERO, S::ONE);
+                        w = taker.wetness.to_f32();
+                    }
                 }
             }
-            prev = (area, inv, w);
+            prev = (cap, inv, w);
         }
     }
 }

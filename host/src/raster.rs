@@ -205,7 +205,7 @@ impl Stamper {
 
 /// The coverage a convex polygon (pixel coordinates) lays on a `width` x `height` canvas,
 /// summed over its pixels (pixel units of area): its area as the stamper samples it (on
-/// [`SUB`] sub-scanlines per row, exact across each) and clipped to the canvas. Dividing an
+/// four sub-scanlines per row, exact across each) and clipped to the canvas. Dividing an
 /// amount of ink by it gives the weight that lays down exactly that amount.
 pub fn raster_area(pts: &[[f64; 2]], width: usize, height: usize) -> f64 {
     let n = pts.len();

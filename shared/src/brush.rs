@@ -69,6 +69,7 @@
 //!
 //! 4. **Plasticity** (eqs. 3-1..3-6) when D > 0.
 //! 5. **Surface** (eqs. 3-7..3-21): per-layer ellipse axes and radii.
+//! 6. **Ink** ([`ink`]): what each layer gives to the paper, and wicking between layers.
 //!
 //! # Deviations from the thesis, and why
 //!
@@ -125,7 +126,8 @@ pub trait BrushScalar: Scalar {
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
 
-    /// The tick's ink transfer ([`Brush::transfer_ink`]), compiled where the format wants it.
+    /// The tick's ink transfer (`Brush::transfer_ink`, [`ink`]), compiled where the format
+    /// wants it: the pen's in the shared crate, built for size.
     #[doc(hidden)]
     #[inline(always)]
     fn transfer_ink(brush: &mut Brush<Self>) {
@@ -609,7 +611,8 @@ impl<S: BrushScalar> Brush<S> {
         self.end_tick();
     }
 
-    /// The once-per-tick part of the model: plastic flow of the skeleton and the surface.
+    /// The once-per-tick part of the model: plastic flow of the skeleton, the surface, and the
+    /// ink the layers give and wick ([`ink`]).
     /// Neither is read by the substep's dynamics except through the skeleton, which moves by
     /// at most D per reference step, so running them at 1 kHz with their rates converted
     /// changes the result by far less than a micrometre and saves 24 of every 25 evaluations.

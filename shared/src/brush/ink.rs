@@ -5,7 +5,7 @@
 //! its area). Layer i holds at most `capacity_i = ink_capacity x pi r_i^2 L` (its rest
 //! ellipse over one segment: the belly holds most), and holds `W_i capacity_i`: its wetness
 //! W_i (eq. 3-17) is its load's share, the state itself, so the 3-17 splay follows the brush
-//! as it dries. Once per tick, after the surface update ([`Brush::transfer_ink`]):
+//! as it dries. Once per tick, after the surface update (`Brush::transfer_ink`):
 //!
 //! 1. **Deposit.** A layer whose ellipse reaches within `footprint_eps_mm` of the paper gives
 //!    `W_i x TRANSFER x 2 RL_i x (travel_i + DWELL_MM) x press_i`, at most what it holds: ink

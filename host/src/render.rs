@@ -219,6 +219,10 @@ impl Inker {
         } = self;
         *last_bounds = None;
         let ticks = last_tick.map_or(1, |t| tick.wrapping_sub(t).clamp(1, 1000)) as f64;
+        // The first state of a device that has been running (the app joining a pen): the ink
+        // its brush gave before is not this paper's. From tick 0 (a render, a fresh device)
+        // every bit of it is.
+        let joining = last_tick.is_none() && tick > 0;
         *last_tick = Some(tick);
         let n = geometry.spine.len().min(geometry.layers.len());
         geometry.for_each_polygon(|band, poly| {
@@ -247,7 +251,13 @@ impl Inker {
             let now = layer.deposited.to_f64();
             let last = std::mem::replace(&mut deposited[i], now);
             // A smaller total: the brush was reset, and counts from zero again.
-            let amount = if now >= last { now - last } else { now };
+            let amount = if joining {
+                0.0
+            } else if now >= last {
+                now - last
+            } else {
+                now
+            };
             if amount <= 0.0 {
                 continue;
             }

@@ -413,3 +413,30 @@ fn dry_brush_renders_are_the_same_bytes_run_to_run() {
     };
     assert!(png() == png(), "two renders of the flick differ");
 }
+
+/// States that come every few ticks (a device's link at 120 Hz) lose no ink: the inker lays
+/// the increase of each layer's running total since the last state it saw.
+#[test]
+fn states_every_eighth_tick_lay_the_same_ink() {
+    let track = stroke(200.0, 60.0);
+    let params = presets::by_name("large").unwrap();
+    let frame = paper_frame(&track, &params, PX_PER_MM).unwrap();
+    let ink = |every: usize| {
+        let mut c = Canvas::new(frame.width, frame.height);
+        let mut inker = Inker::new(frame, params.layers as usize - 1);
+        let ticks = simulate::<Fx>(params, &track, |_| Ok(())).unwrap();
+        simulate::<Fx>(params, &track, |tick| {
+            if tick.k % every == 0 || tick.k + 1 == ticks {
+                let g = maobi_shared::footprint::Geometry::of(tick.brush);
+                inker.stamp_geometry_at(&g, tick.k as u64, &mut c);
+            }
+            Ok(())
+        })
+        .unwrap();
+        c.total_ink()
+    };
+    let (all, eighth) = (ink(1), ink(8));
+    println!("ink with a state every tick {all:.3}, every eighth tick {eighth:.3}");
+    assert!(all > 1000.0);
+    assert!((all - eighth).abs() < 1e-5 * all, "{all} vs {eighth}");
+}

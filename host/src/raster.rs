@@ -115,6 +115,17 @@ impl Stamper {
     /// ink laid down (pixel units of area times ink), for tests and statistics. The stamp is
     /// cleared.
     pub fn finish(&mut self, canvas: &mut Canvas) -> f64 {
+        self.finish_with(canvas, true)
+    }
+
+    /// [`Stamper::finish`] without the clamp where polygons overlap: every polygon lays down
+    /// all of its coverage times its ink, so a polygon given `amount / raster_area` (see
+    /// [`raster_area`]) lays down `amount`, overlapping or not.
+    pub fn finish_summed(&mut self, canvas: &mut Canvas) -> f64 {
+        self.finish_with(canvas, false)
+    }
+
+    fn finish_with(&mut self, canvas: &mut Canvas, clamp: bool) -> f64 {
         if self.ends.is_empty() {
             return 0.0;
         }
@@ -148,7 +159,11 @@ impl Stamper {
         self.touched.resize(bh, (usize::MAX, 0));
 
         let mut start = 0;
-        let top = self.weights.iter().fold(0.0f32, |a, &w| a.max(w));
+        let top = if clamp {
+            self.weights.iter().fold(0.0f32, |a, &w| a.max(w))
+        } else {
+            f32::INFINITY
+        };
         for (&end, &w) in self.ends.iter().zip(&self.weights) {
             scan_polygon(
                 &self.pts[start..end],
@@ -186,6 +201,52 @@ impl Stamper {
         self.begin();
         total
     }
+}
+
+/// The coverage a convex polygon (pixel coordinates) lays on a `width` x `height` canvas,
+/// summed over its pixels (pixel units of area): its area as the stamper samples it (on
+/// four sub-scanlines per row, exact across each) and clipped to the canvas. Dividing an
+/// amount of ink by it gives the weight that lays down exactly that amount.
+pub fn raster_area(pts: &[[f64; 2]], width: usize, height: usize) -> f64 {
+    let n = pts.len();
+    if n < 3 {
+        return 0.0;
+    }
+    let (mut top, mut bot) = (0, 0);
+    for i in 1..n {
+        if pts[i][1] < pts[top][1] {
+            top = i;
+        }
+        if pts[i][1] > pts[bot][1] {
+            bot = i;
+        }
+    }
+    let sub = SUB as f64;
+    let q0 = (pts[top][1] * sub - 0.5).ceil().max(0.0);
+    let q1 = (pts[bot][1] * sub - 0.5).ceil().min((height * SUB) as f64);
+    if q0 >= q1 {
+        return 0.0;
+    }
+    let (mut a, mut b) = (top, top);
+    let (mut an, mut bn) = ((top + 1) % n, (top + n - 1) % n);
+    let w = width as f64;
+    let mut total = 0.0;
+    for q in q0 as usize..q1 as usize {
+        let y = (q as f64 + 0.5) / sub;
+        while pts[an][1] <= y {
+            a = an;
+            an = (a + 1) % n;
+        }
+        while pts[bn][1] <= y {
+            b = bn;
+            bn = (b + n - 1) % n;
+        }
+        let xa = edge_x(pts[a], pts[an], y);
+        let xb = edge_x(pts[b], pts[bn], y);
+        let (xl, xr) = if xa <= xb { (xa, xb) } else { (xb, xa) };
+        total += (xr.clamp(0.0, w) - xl.clamp(0.0, w)).max(0.0);
+    }
+    total / sub
 }
 
 /// Adds the coverage of one convex polygon, times `weight`, to the difference rows `acc` of a `bw` x `bh`

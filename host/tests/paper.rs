@@ -287,3 +287,156 @@ fn an_unknown_paper_is_refused_on_the_command_line_and_in_stroke_files() {
     ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("on sized paper"));
 }
+
+/// Ink on the paper plus ink in the brush is the ink dipped, to rounding: the brush model
+/// gives each layer's ink to the paper (`maobi_shared::brush::ink`), and the inker spreads
+/// it over the pixels it stamps with weights that sum to one, on both papers and in both
+/// the pen's format and f64.
+#[test]
+fn ink_on_paper_plus_ink_in_brush_is_the_ink_dipped() {
+    fn check<S: maobi_shared::BrushScalar>(kind: PaperKind) {
+        let track = stroke(200.0, 80.0);
+        let params = presets::by_name("large").unwrap();
+        let frame = paper_frame(&track, &params, PX_PER_MM).unwrap();
+        let start = maobi_shared::Brush::<S>::new(params, track.pose_at_tick(0).cast()).unwrap();
+        let dipped = start.ink_load().to_f64();
+        let mut c = Canvas::with_paper(frame.width, frame.height, PaperSpec::new(kind));
+        let mut inker = Inker::new(frame, params.layers as usize - 1);
+        let mut in_brush = dipped;
+        simulate::<S>(params, &track, |tick| {
+            inker.stamp(tick.brush, &mut c);
+            c.tick();
+            in_brush = tick.brush.ink_load().to_f64();
+            Ok(())
+        })
+        .unwrap();
+        c.dry(100_000);
+        let on_paper = c.total_ink() / (PX_PER_MM * PX_PER_MM);
+        let err = (on_paper + in_brush - dipped).abs() / dipped;
+        println!(
+            "{} on {}: dipped {dipped:.3}, on the paper {on_paper:.3}, in the brush {in_brush:.3}, \
+             relative error {err:.1e}",
+            S::NAME,
+            kind.name()
+        );
+        assert!(on_paper > 0.1 * dipped, "the stroke gave ink: {on_paper}");
+        assert!(err < 1e-5, "{err}");
+    }
+    check::<Fx>(PaperKind::Sized);
+    check::<Fx>(PaperKind::Raw);
+    check::<f64>(PaperKind::Sized);
+}
+
+/// Mean darkness of the columns of `c` from x = `from_mm` to `to_mm` on the paper, over the
+/// rows within 6 mm of y = 0.
+fn mean_darkness(c: &Canvas, frame: &Frame, from_mm: f64, to_mm: f64) -> f64 {
+    let (x0, x1) = (
+        frame.to_px(from_mm, 0.0)[0] as usize,
+        frame.to_px(to_mm, 0.0)[0] as usize,
+    );
+    let (y0, y1) = (
+        frame.to_px(0.0, 6.0)[1] as usize,
+        frame.to_px(0.0, -6.0)[1] as usize,
+    );
+    let mut sum = 0.0;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            sum += c.at(x, y) as f64;
+        }
+    }
+    sum / ((x1 - x0) * (y1 - y0)) as f64
+}
+
+/// A 250 mm stroke written without dipping fades along its length: the brush runs dry.
+#[test]
+fn a_long_stroke_without_dipping_fades() {
+    let track = stroke(100.0, 250.0);
+    let (c, frame) = render_on(&track, PaperKind::Sized);
+    // The first and last quarters of the way the ferrule went; the brush trails behind it.
+    let first = mean_darkness(&c, &frame, 0.0, 62.5);
+    let last = mean_darkness(&c, &frame, 187.5, 250.0);
+    println!("250 mm at 100 mm/s: mean darkness first quarter {first:.4}, last {last:.4}");
+    assert!(first > 0.05, "{first}");
+    assert!(last < 0.75 * first, "{first} -> {last}");
+}
+
+/// Of the columns of the stroke's middle (x from `from_mm` to `to_mm`), the share whose
+/// profile across the stroke has a gap: a pixel lighter than a quarter of the column's
+/// darkest between two pixels darker than half of it (the stroke split into streaks).
+fn columns_with_gaps(c: &Canvas, frame: &Frame, from_mm: f64, to_mm: f64) -> f64 {
+    let (x0, x1) = (
+        frame.to_px(from_mm, 0.0)[0] as usize,
+        frame.to_px(to_mm, 0.0)[0] as usize,
+    );
+    let gaps = (x0..x1)
+        .filter(|&x| {
+            let col: Vec<f32> = (0..c.height()).map(|y| c.at(x, y)).collect();
+            let top = col.iter().fold(0.0f32, |a, &d| a.max(d));
+            let dark: Vec<usize> = (0..col.len()).filter(|&y| col[y] > 0.5 * top).collect();
+            match (dark.first(), dark.last()) {
+                (Some(&a), Some(&b)) => (a..=b).any(|y| col[y] < 0.25 * top),
+                _ => false,
+            }
+        })
+        .count();
+    gaps as f64 / (x1 - x0) as f64
+}
+
+/// A 600 mm/s flick splits into dry-brush streaks (飛白): gaps across the stroke; a 40 mm/s
+/// stroke from the same dip is full.
+#[test]
+fn a_flick_shows_dry_brush_gaps_that_a_slow_stroke_does_not() {
+    let gaps = |speed: f64| {
+        let track = stroke(speed, 60.0);
+        let (c, frame) = render_on(&track, PaperKind::Sized);
+        columns_with_gaps(&c, &frame, 15.0, 45.0)
+    };
+    let (flick, slow) = (gaps(600.0), gaps(40.0));
+    println!(
+        "columns with gaps across the stroke: 600 mm/s {:.1}%, 40 mm/s {:.1}%",
+        flick * 100.0,
+        slow * 100.0
+    );
+    assert!(flick > 0.5, "the flick has few gaps: {flick}");
+    assert!(slow < 0.05, "the slow stroke has gaps: {slow}");
+}
+
+/// The same flick (hair strips, dry-brush gaps) renders to the same bytes run to run.
+#[test]
+fn dry_brush_renders_are_the_same_bytes_run_to_run() {
+    let track = stroke(600.0, 60.0);
+    let png = || {
+        let (c, _) = render_on(&track, PaperKind::Sized);
+        let mut bytes = Vec::new();
+        maobi::render::encode_png(&c, &mut bytes).unwrap();
+        bytes
+    };
+    assert!(png() == png(), "two renders of the flick differ");
+}
+
+/// States that come every few ticks (a device's link at 120 Hz) lose no ink: the inker lays
+/// the increase of each layer's running total since the last state it saw.
+#[test]
+fn states_every_eighth_tick_lay_the_same_ink() {
+    let track = stroke(200.0, 60.0);
+    let params = presets::by_name("large").unwrap();
+    let frame = paper_frame(&track, &params, PX_PER_MM).unwrap();
+    let ink = |every: usize| {
+        let mut c = Canvas::new(frame.width, frame.height);
+        let mut inker = Inker::new(frame, params.layers as usize - 1);
+        let ticks = simulate::<Fx>(params, &track, |_| Ok(())).unwrap();
+        simulate::<Fx>(params, &track, |tick| {
+            if tick.k % every == 0 || tick.k + 1 == ticks {
+                let g = maobi_shared::footprint::Geometry::of(tick.brush);
+                inker.stamp_geometry_at(&g, tick.k as u64, &mut c);
+            }
+            Ok(())
+        })
+        .unwrap();
+        c.total_ink()
+    };
+    let (all, eighth) = (ink(1), ink(8));
+    println!("ink with a state every tick {all:.3}, every eighth tick {eighth:.3}");
+    assert!(all > 1000.0);
+    assert!((all - eighth).abs() < 1e-5 * all, "{all} vs {eighth}");
+}

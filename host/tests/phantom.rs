@@ -790,14 +790,16 @@ fn stylus_buttons_toggle_forces_calibrate_and_dip() {
     // The chord: the brush (40 mm) now just reaches the paper from where the stylus is.
     let length = presets::by_name("large").unwrap().length_mm as f64;
     assert!((z(&at(400)) - length).abs() < 1e-6, "{}", z(&at(400)));
+    // The brush's wetness follows its ink load: the tip, just reaching the paper, gives ink
+    // and the layers above wick into it, so layer 1 is near the dip's load, not at it.
     let wet = |s: &BrushState| Fx::from_bits(s.layers[1].wetness).to_f64();
     assert!(
-        (wet(&at(590)) - 0.25).abs() < 1e-6,
+        (wet(&at(590)) - 0.25).abs() < 1e-3,
         "dried by the command: {}",
         wet(&at(590))
     );
     assert!(
-        (wet(&at(700)) - 1.0).abs() < 1e-6,
+        (wet(&at(700)) - 1.0).abs() < 1e-3,
         "button 1 dipped it: {}",
         wet(&at(700))
     );

@@ -83,11 +83,15 @@ fn pressed_box(ch: &Character, i: usize) -> [f64; 4] {
     b
 }
 
+/// Darkness from which a pixel counts as inked. The ink has tones now (a stroke runs from
+/// rich to dry, and splits into dry-brush streaks), so a mid-grey counts.
+const INKED: f32 = 0.2;
+
 fn inked_px(c: &Canvas) -> Vec<(usize, usize)> {
     let mut v = Vec::new();
     for y in 0..c.height() {
         for x in 0..c.width() {
-            if c.at(x, y) > 0.5 {
+            if c.at(x, y) > INKED {
                 v.push((x, y));
             }
         }
@@ -143,7 +147,10 @@ fn every_stroke_leaves_ink_where_the_file_puts_it_and_the_hook_tapers_without_a_
     // Nothing is inked while travelling between strokes.
     assert!(inked_px(&canvases[8]).is_empty(), "the travel left ink");
 
-    // The hook (stroke 4): one connected blot, thinner at its end than at its start.
+    // The hook (stroke 4): one blot, thinner at its end than at its start. A flick splits
+    // into dry-brush streaks (飛白) along its way, so the blot's pixels are connected across
+    // gaps narrower than `BRIDGE` px (a few hair strips), not only pixel to pixel.
+    const BRIDGE: i64 = 6;
     let hook = &canvases[3];
     let px = inked_px(hook);
     let mut seen = vec![false; hook.width() * hook.height()];
@@ -152,24 +159,17 @@ fn every_stroke_leaves_ink_where_the_file_puts_it_and_the_hook_tapers_without_a_
     let mut reached = 0;
     while let Some((x, y)) = stack.pop() {
         reached += 1;
-        for (dx, dy) in [
-            (-1i64, 0i64),
-            (1, 0),
-            (0, -1),
-            (0, 1),
-            (-1, -1),
-            (1, 1),
-            (-1, 1),
-            (1, -1),
-        ] {
-            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-            if nx < 0 || ny < 0 || nx >= hook.width() as i64 || ny >= hook.height() as i64 {
-                continue;
-            }
-            let (nx, ny) = (nx as usize, ny as usize);
-            if !seen[ny * hook.width() + nx] && hook.at(nx, ny) > 0.5 {
-                seen[ny * hook.width() + nx] = true;
-                stack.push((nx, ny));
+        for dy in -BRIDGE..=BRIDGE {
+            for dx in -BRIDGE..=BRIDGE {
+                let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+                if nx < 0 || ny < 0 || nx >= hook.width() as i64 || ny >= hook.height() as i64 {
+                    continue;
+                }
+                let (nx, ny) = (nx as usize, ny as usize);
+                if !seen[ny * hook.width() + nx] && hook.at(nx, ny) > INKED {
+                    seen[ny * hook.width() + nx] = true;
+                    stack.push((nx, ny));
+                }
             }
         }
     }

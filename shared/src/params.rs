@@ -41,10 +41,11 @@ pub enum ParamId {
     Wetness,
     FootprintEpsMm,
     Integrator,
+    InkCapacity,
 }
 
 impl ParamId {
-    pub const ALL: [ParamId; 22] = [
+    pub const ALL: [ParamId; 23] = [
         ParamId::Layers,
         ParamId::RingNodes,
         ParamId::LengthMm,
@@ -67,6 +68,7 @@ impl ParamId {
         ParamId::Wetness,
         ParamId::FootprintEpsMm,
         ParamId::Integrator,
+        ParamId::InkCapacity,
     ];
 
     /// The parameter's name as the CLI, the GUI and the wire protocol spell it.
@@ -94,6 +96,7 @@ impl ParamId {
             ParamId::Wetness => "wetness",
             ParamId::FootprintEpsMm => "footprint_eps_mm",
             ParamId::Integrator => "integrator",
+            ParamId::InkCapacity => "ink_capacity",
         }
     }
 
@@ -126,6 +129,7 @@ impl ParamId {
             ParamId::Wetness => (0.0, 1.0, false),
             ParamId::FootprintEpsMm => (0.001, 2.0, false),
             ParamId::Integrator => (INTEGRATORS.0 as f32, INTEGRATORS.1 as f32, true),
+            ParamId::InkCapacity => (0.01, 100.0, false),
         }
     }
 }
@@ -232,7 +236,8 @@ pub struct BrushParams {
     pub spread_rate: f32,
     /// RL_max,i / RL_initial,i.
     pub spread_max: f32,
-    /// Initial wetness W_i of every layer (1: saturated with ink; eq. 3-17).
+    /// Initial ink load of every layer, as a fraction of what it holds (1: saturated); the
+    /// wetness W_i of eq. 3-17 is the load's fraction from then on, as the brush writes.
     pub wetness: f32,
     /// Surface within this height of the paper leaves ink (SPEC D).
     pub footprint_eps_mm: f32,
@@ -240,6 +245,10 @@ pub struct BrushParams {
     /// results converge in the substep) or [`INTEGRATOR_KANG_CHO`] (the thesis's, for
     /// comparison with the paper). See [`crate::brush`].
     pub integrator: u8,
+    /// Ink a layer holds when saturated, per mm^3 of its hair at rest (the volume of its
+    /// rest ellipse over one segment), in ink units (optical depth times mm^2: one unit
+    /// darkens 1 mm^2 of paper to optical depth 1). See `crate::brush::ink`.
+    pub ink_capacity: f32,
 }
 
 /// `integrator` 0: backward Euler with each spring's own Jacobian, solved exactly.
@@ -284,6 +293,7 @@ impl BrushParams {
             ParamId::Wetness => self.wetness,
             ParamId::FootprintEpsMm => self.footprint_eps_mm,
             ParamId::Integrator => self.integrator as f32,
+            ParamId::InkCapacity => self.ink_capacity,
         }
     }
 
@@ -320,6 +330,7 @@ impl BrushParams {
             ParamId::Wetness => self.wetness = v,
             ParamId::FootprintEpsMm => self.footprint_eps_mm = v,
             ParamId::Integrator => self.integrator = v as u8,
+            ParamId::InkCapacity => self.ink_capacity = v,
         }
     }
 

@@ -57,6 +57,7 @@ pub const LARGE: BrushParams = BrushParams {
     wetness: 0.6,
     footprint_eps_mm: 0.1,
     integrator: DEFAULT_INTEGRATOR,
+    ink_capacity: 0.4,
 };
 
 /// 小楷: small regular-script brush.
@@ -83,6 +84,7 @@ pub const SMALL: BrushParams = BrushParams {
     wetness: 0.6,
     footprint_eps_mm: 0.05,
     integrator: DEFAULT_INTEGRATOR,
+    ink_capacity: 0.4,
 };
 
 /// Presets by the names the CLI and the protocol use.

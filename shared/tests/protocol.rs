@@ -578,6 +578,7 @@ fn largest_messages_fit_their_bounds() {
         long_radius: i64::MIN,
         short_radius: i64::MIN,
         wetness: i64::MIN,
+        deposited: i64::MIN,
     };
     let worst_pose = PoseBits {
         pos: [i64::MIN; 3],
@@ -917,7 +918,7 @@ proptest! {
     #[test]
     fn random_states_round_trip(
         layers in proptest::collection::vec(
-            (any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 3]>()),
+            (any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 3]>(), any::<[i64; 4]>()),
             0..=MAX_LAYERS,
         ),
         tick in any::<u32>(),
@@ -926,7 +927,7 @@ proptest! {
     ) {
         let layers = layers.into_iter().map(|(spine, skeleton, short_axis, long_axis, r)| LayerState {
             spine, skeleton, short_axis, long_axis,
-            long_radius: r[0], short_radius: r[1], wetness: r[2],
+            long_radius: r[0], short_radius: r[1], wetness: r[2], deposited: r[3],
         });
         let state = BrushState {
             tick,

@@ -114,7 +114,9 @@ impl PaperView {
     /// begins with the first frame that touches the paper and ends with the first that does
     /// not.
     pub fn ink(&mut self, f: &BrushFrame) {
-        let touched = self.inker.stamp_geometry(&f.geometry(), &mut self.canvas);
+        let touched = self
+            .inker
+            .stamp_geometry_at(&f.geometry(), f.tick, &mut self.canvas);
         if let Some(r) = self.canvas.tick() {
             self.mark_dirty([r[0] as f64, r[1] as f64, r[2] as f64, r[3] as f64]);
         }

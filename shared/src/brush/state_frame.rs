@@ -68,6 +68,7 @@ impl BrushState {
                 long_radius: l.long_radius.to_bits(),
                 short_radius: l.short_radius.to_bits(),
                 wetness: l.wetness.to_bits(),
+                deposited: l.deposited.to_bits(),
             });
             prev = s;
         }
@@ -111,6 +112,7 @@ impl BrushState {
                 long_radius: Fx::from_bits(w.long_radius),
                 short_radius: Fx::from_bits(w.short_radius),
                 wetness: Fx::from_bits(w.wetness),
+                deposited: Fx::from_bits(w.deposited),
             };
             prev = *s;
         }
@@ -124,6 +126,7 @@ const NO_LAYER: Layer<Fx> = Layer {
     long_radius: Fx::ZERO,
     short_radius: Fx::ZERO,
     wetness: Fx::ZERO,
+    deposited: Fx::ZERO,
 };
 
 /// One spine of a [`BrushState`], decoded into the model's own types.

@@ -22,7 +22,9 @@ use serde::{Deserialize, Serialize};
 /// * 4: `DeviceConfig` carries each motor's winding resistance (`DriveConfig::winding_mohm`)
 ///   and the motor supply and driver rating (`DeviceConfig::power`), which bound the duty
 ///   (configuration image format 2).
-pub const PROTOCOL_VERSION: u8 = 4;
+/// * 5: `LayerState::deposited`, the ink each layer has given to the paper (the brush holds a
+///   finite load of ink).
+pub const PROTOCOL_VERSION: u8 = 5;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

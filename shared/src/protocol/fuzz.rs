@@ -414,7 +414,7 @@ fn layer() -> impl Strategy<Value = LayerState> {
         prop::array::uniform3(any_fx_bits()),
         prop::array::uniform3(any_fx_bits()),
         prop::array::uniform3(any_fx_bits()),
-        prop::array::uniform3(any_fx_bits()),
+        prop::array::uniform4(any_fx_bits()),
     )
         .prop_map(|(spine, skeleton, short_axis, long_axis, r)| LayerState {
             spine,
@@ -424,6 +424,7 @@ fn layer() -> impl Strategy<Value = LayerState> {
             long_radius: r[0],
             short_radius: r[1],
             wetness: r[2],
+            deposited: r[3],
         })
 }
 

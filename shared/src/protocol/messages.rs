@@ -373,7 +373,8 @@ pub enum Command {
     DisableForces,
     /// Zero the sensors (board held in its rest fixture).
     Calibrate,
-    /// Wet every layer (`Brush::dip`); `wetness` as [`crate::Fx`] bits, clamped to [0, 1].
+    /// Fill every layer with ink to this share of what it holds (`Brush::dip`); `wetness` as
+    /// [`crate::Fx`] bits, clamped to [0, 1].
     DipInk {
         wetness: i64,
     },

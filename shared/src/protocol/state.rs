@@ -152,12 +152,17 @@ pub struct LayerState {
     pub spine: Vec3Bits,
     /// Skeleton node VS_i minus S_i (mm).
     pub skeleton: Vec3Bits,
-    /// The ellipse: short- and long-axis directions (unit), radii (mm), wetness [0, 1].
+    /// The ellipse: short- and long-axis directions (unit), radii (mm), wetness [0, 1] (the
+    /// layer's ink load as a share of what it holds).
     pub short_axis: Vec3Bits,
     pub long_axis: Vec3Bits,
     pub long_radius: i64,
     pub short_radius: i64,
     pub wetness: i64,
+    /// Ink the layer has given to the paper since the brush was built or reset (ink units, a
+    /// running total, `crate::brush::ink`): the host inks each increase, so no state frame
+    /// needs to be seen for the paper to get all the ink.
+    pub deposited: i64,
 }
 
 /// The brush at one tick, device to host, one frame per spine.

@@ -1,0 +1,214 @@
+//! Ink in the brush (issue 23, item 1): a finite load per layer, filled by a dip, drained
+//! onto the paper by contact, pressure and travel, and wicking between neighbouring layers.
+//!
+//! Units: an *ink unit* darkens 1 mm^2 of paper to optical depth 1 (the paper's unit times
+//! its area). Layer i holds at most `capacity_i = ink_capacity x pi r_i^2 L` (its rest
+//! ellipse over one segment: the belly holds most), and holds `W_i capacity_i`: its wetness
+//! W_i (eq. 3-17) is its load's share, the state itself, so the 3-17 splay follows the brush
+//! as it dries. Once per tick, after the surface update (`Brush::transfer_ink`):
+//!
+//! 1. **Deposit.** A layer whose ellipse reaches within `footprint_eps_mm` of the paper gives
+//!    `W_i x TRANSFER x 2 RL_i x (travel_i + DWELL_MM) x press_i`, at most what it holds: ink
+//!    in proportion to its wetness (so the tone decays along a stroke written without
+//!    dipping), to its width across the stroke, to how far it moved this tick (plus a dwell,
+//!    so a brush held still keeps giving ink and a slow stroke gives more per mm than a fast
+//!    one), and to how far it is pressed in (`press_i` from [`PRESS_FLOOR`] at the threshold
+//!    to one at [`PRESS_FULL_MM`]). The lowest point of the ellipse is taken as
+//!    `z - max(|RL LA_z|, |RS SA_z|)` (within a factor sqrt 2 of the true one, and no square
+//!    root on the pen).
+//! 2. **Wicking.** Ink moves from layer i-1 to i by `WICK x (W_(i-1) - W_i) x min(capacity)`
+//!    a tick on average (every other tick at twice that, the even and odd pairs in turn),
+//!    at most what the giving layer holds: the belly refills the tip as it writes.
+//!
+//! What a layer gives is added to its `deposited`, the running total it has given to the
+//! paper, which the state frames carry: the host lays the increase since the last frame it
+//! saw under the layer's footprint, so a state sent every few ticks, or lost, loses no ink.
+//! The amounts are computed in IEEE single precision (the same bits on every target; on the
+//! pen's FPU an instruction each, where the fixed-point products are library calls in the
+//! size-built code) and rounded into the brush's format once; the wetness is updated in
+//! the brush's format by exactly the amounts it gave or took. Ink in the brush plus ink
+//! deposited equals ink dipped, to the rounding of those updates (`shared/tests/ink.rs`). The wetness is the state, not the amount, so a layer
+//! costs the pen's RAM one number more (its running total), not two; each layer's
+//! capacity's reciprocal is kept in single precision.
+
+use super::Brush;
+use crate::params::{BrushParams, MAX_LAYERS};
+use crate::scalar::{Fx, Scalar};
+
+/// [`Brush::transfer_ink`] for the pen's format, compiled here, in this crate: not generic,
+/// it is built with this crate's code generation (in the firmware, for size) rather than the
+/// hot path's (`firmware/fast`, for speed), where its fixed-point products, inlined, would
+/// cost the Black Pill's flash more than it has; out of line, they cost a call each.
+#[inline(never)]
+pub(crate) fn transfer_ink_fx(brush: &mut Brush<Fx>) {
+    brush.transfer_ink();
+}
+
+/// Ink units a layer gives per mm^2 it sweeps at full load and full press: the optical depth
+/// one layer leaves on the paper it passes over.
+pub const TRANSFER: f32 = 1.0;
+
+/// Travel (mm) a layer in contact counts per tick on top of its motion: a brush held still
+/// keeps giving ink, and a slow stroke gives more per mm than a fast one (as if every
+/// stroke moved 30 mm/s faster).
+pub const DWELL_MM: f32 = 0.03;
+
+/// Share of the full transfer a layer gives when it only just reaches the paper.
+pub const PRESS_FLOOR: f32 = 0.4;
+
+/// Press (mm below the footprint threshold) from which a layer gives its full transfer: one
+/// millimetre, so that the press in mm is its share of the way with no product.
+pub const PRESS_FULL_MM: f32 = 1.0;
+
+/// Share of the difference in wetness between neighbouring layers that wicks across per
+/// tick, of the smaller layer's capacity (explicit, stable up to one half).
+pub const WICK: f32 = 0.25;
+
+/// Differences in wetness below this do not wick: a brush fresh from a dip, or in the air,
+/// spends no products on wicking.
+pub const WICK_MIN: f32 = 1.0 / 65536.0;
+
+/// The ink model's coefficients, derived from the parameters. Single precision: the transfer
+/// computes its amounts in IEEE `f32` (the same bits on every target; the pen's FPU does each
+/// operation in one instruction), and keeps the wetness and the running totals in the
+/// brush's format.
+#[derive(Copy, Clone)]
+pub(crate) struct InkCoefs {
+    /// One over what each layer holds (its capacity is taken as the reciprocal of this, so
+    /// the two agree).
+    inv_capacity: [f32; MAX_LAYERS],
+    /// `DWELL_MM / substeps`, added to the last substep's travel.
+    dwell: f32,
+    eps: f32,
+    /// The press factor at the threshold and its rise to full press, both times
+    /// `2 TRANSFER substeps`: times the wetness, the long radius and the last substep's travel
+    /// (plus `dwell`), the ink a layer gives in a tick.
+    press_floor: f32,
+    press_slope: f32,
+}
+
+/// Without its numbers: formatting an `f32` would bring the float formatting code into the
+/// pen's image for a brush's `Debug`, which the image never prints.
+impl core::fmt::Debug for InkCoefs {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("InkCoefs").finish_non_exhaustive()
+    }
+}
+
+impl InkCoefs {
+    pub(crate) fn new(p: &BrushParams) -> Self {
+        let substeps = p.substeps_per_tick as f32;
+        let gain = 2.0 * TRANSFER * substeps;
+        let per_area = p.ink_capacity * core::f32::consts::PI * p.segment_mm();
+        let n = (p.layers as usize).clamp(2, MAX_LAYERS);
+        let mut inv_capacity = [0.0; MAX_LAYERS];
+        for (i, inv) in inv_capacity[..n].iter_mut().enumerate() {
+            let r = p.rest_radius_mm(i);
+            *inv = 1.0 / (per_area * r * r);
+        }
+        InkCoefs {
+            inv_capacity,
+            dwell: DWELL_MM / substeps,
+            eps: p.footprint_eps_mm,
+            press_floor: gain * PRESS_FLOOR,
+            press_slope: gain * (1.0 - PRESS_FLOOR),
+        }
+    }
+}
+
+impl<S: Scalar> Brush<S> {
+    /// Fills every layer to `load` of what it holds (clamped to [0, 1]): dipping the brush.
+    pub fn dip(&mut self, load: S) {
+        let w = load.clamp(S::ZERO, S::ONE);
+        let n = self.d.n();
+        for l in self.layers[..n].iter_mut() {
+            l.wetness = w;
+        }
+    }
+
+    /// Ink held by the whole brush (ink units).
+    pub fn ink_load(&self) -> S {
+        (0..self.d.n()).fold(S::ZERO, |a, i| a + self.ink_held(i))
+    }
+
+    /// Ink layer i holds (ink units).
+    pub fn ink_held(&self, i: usize) -> S {
+        self.layers
+            .get(i)
+            .map_or(S::ZERO, |l| l.wetness * self.ink_capacity(i))
+    }
+
+    /// What layer i holds when saturated (ink units).
+    pub fn ink_capacity(&self, i: usize) -> S {
+        match self.ink_coefs.inv_capacity.get(i) {
+            Some(&inv) if inv > 0.0 => S::from_f32(1.0 / inv),
+            _ => S::ZERO,
+        }
+    }
+
+    /// The tick's ink transfer (see the module): deposits and wicking. Runs after the
+    /// surface update, whose radii and axes it reads.
+    #[inline(always)]
+    pub(crate) fn transfer_ink(&mut self) {
+        let n = self.d.n();
+        let c = self.ink_coefs;
+        let eps = S::from_f32(c.eps);
+        for i in 0..n {
+            let (x, u) = (self.spine[i], self.vel[i]);
+            let l = &mut self.layers[i];
+            // No radius exceeds the widest: a layer higher than that above the threshold
+            // cannot reach the paper, and its lowest point is not needed.
+            if x.z > eps + self.d.max_radius[i] {
+                continue;
+            }
+            let drop = (l.long_radius * l.long_axis.z)
+                .abs()
+                .max((l.short_radius * l.short_axis.z).abs());
+            let press = (eps - (x.z - drop)).to_f32();
+            if press > 0.0 {
+                let inv_cap = c.inv_capacity[i];
+                let cap = if inv_cap > 0.0 { 1.0 / inv_cap } else { 0.0 };
+                let w = l.wetness.to_f32();
+                // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
+                let press = c.press_floor + c.press_slope * press.min(1.0);
+                // |u_xy| within 3% by the octagon, max + 3/8 min: no square root.
+                let (ux, uy) = (u.x.to_f32().abs(), u.y.to_f32().abs());
+                let travel = ux.max(uy) + 0.375 * ux.min(uy);
+                let give = (w * l.long_radius.to_f32() * (travel + c.dwell) * press).min(w * cap);
+                let give = S::from_f32(give);
+                l.wetness = (l.wetness - give * S::from_f32(inv_cap)).max(S::ZERO);
+                l.deposited += give;
+            }
+        }
+        // Wicking, after the deposits: the pairs (i-1, i) with i of this tick's parity, so
+        // that each layer takes part in one exchange a tick, at twice the rate, the even
+        // and odd pairs in turn: the same diffusion as every pair at WICK each tick, half
+        // the work, and (each exchange moving at most half the difference, by WICK <= 1/4)
+        // no layer can overshoot its neighbour.
+        self.ink_phase = !self.ink_phase;
+        let first = if self.ink_phase { 2 } else { 1 };
+        let wick_min = S::from_f32(WICK_MIN);
+        for i in (first..n).step_by(2) {
+            let (lo, hi) = self.layers.split_at_mut(i);
+            let (Some(giver), Some(taker)) = (lo.last_mut(), hi.first_mut()) else {
+                continue;
+            };
+            // None across a difference below WICK_MIN (a brush fresh from a dip, or in the
+            // air, costs no products).
+            if (giver.wetness - taker.wetness).abs() <= wick_min {
+                continue;
+            }
+            let (inv_g, inv_t) = (c.inv_capacity[i - 1], c.inv_capacity[i]);
+            if inv_g <= 0.0 || inv_t <= 0.0 {
+                continue;
+            }
+            // Ink units per unit of wetness difference. At a rate of at most one half of the
+            // smaller capacity the flow is within what the giver holds and what the taker
+            // can take (each wetness within [0, 1]); the clamps below keep the rounding in.
+            let rate = S::from_f32((2.0 * WICK) * (1.0 / inv_g).min(1.0 / inv_t));
+            let flow = (giver.wetness - taker.wetness) * rate;
+            giver.wetness = (giver.wetness - flow * S::from_f32(inv_g)).clamp(S::ZERO, S::ONE);
+            taker.wetness = (taker.wetness + flow * S::from_f32(inv_t)).clamp(S::ZERO, S::ONE);
+        }
+    }
+}

@@ -203,6 +203,22 @@ impl Stamper {
     }
 }
 
+/// The indices of a polygon's first topmost and first bottommost vertices (least and
+/// greatest y): where the stamper's and [`raster_area`]'s scans start and end, found the same
+/// way so that the area is exactly what the stamper lays.
+fn top_and_bottom(pts: &[[f64; 2]]) -> (usize, usize) {
+    let (mut top, mut bot) = (0, 0);
+    for (i, p) in pts.iter().enumerate().skip(1) {
+        if p[1] < pts[top][1] {
+            top = i;
+        }
+        if p[1] > pts[bot][1] {
+            bot = i;
+        }
+    }
+    (top, bot)
+}
+
 /// The coverage a convex polygon (pixel coordinates) lays on a `width` x `height` canvas,
 /// summed over its pixels (pixel units of area): its area as the stamper samples it (on
 /// four sub-scanlines per row, exact across each) and clipped to the canvas. Dividing an
@@ -212,15 +228,7 @@ pub fn raster_area(pts: &[[f64; 2]], width: usize, height: usize) -> f64 {
     if n < 3 {
         return 0.0;
     }
-    let (mut top, mut bot) = (0, 0);
-    for i in 1..n {
-        if pts[i][1] < pts[top][1] {
-            top = i;
-        }
-        if pts[i][1] > pts[bot][1] {
-            bot = i;
-        }
-    }
+    let (top, bot) = top_and_bottom(pts);
     let sub = SUB as f64;
     let q0 = (pts[top][1] * sub - 0.5).ceil().max(0.0);
     let q1 = (pts[bot][1] * sub - 0.5).ceil().min((height * SUB) as f64);
@@ -262,15 +270,7 @@ fn scan_polygon(
 ) {
     let n = pts.len();
     let p = |i: usize| [pts[i][0] - origin[0], pts[i][1] - origin[1]];
-    let (mut top, mut bot) = (0, 0);
-    for i in 1..n {
-        if pts[i][1] < pts[top][1] {
-            top = i;
-        }
-        if pts[i][1] > pts[bot][1] {
-            bot = i;
-        }
-    }
+    let (top, bot) = top_and_bottom(pts);
     let (ymin, ymax) = (p(top)[1], p(bot)[1]);
     // Sub-scanline q samples y = (q + 1/2) / SUB; those with ymin <= y < ymax are inside.
     let sub = SUB as f64;

@@ -31,18 +31,7 @@
 //! costs the pen's RAM one number more (its running total), not two; each layer's
 //! capacity's reciprocal is kept in single precision.
 
-use super::Brush;
 use crate::params::{BrushParams, MAX_LAYERS};
-use crate::scalar::{Fx, Scalar};
-
-/// [`Brush::transfer_ink`] for the pen's format, compiled here, in this crate: not generic,
-/// it is built with this crate's code generation (in the firmware, for size) rather than the
-/// hot path's (`firmware/fast`, for speed), where its fixed-point products, inlined, would
-/// cost the Black Pill's flash more than it has; out of line, they cost a call each.
-#[inline(never)]
-pub(crate) fn transfer_ink_fx(brush: &mut Brush<Fx>) {
-    brush.transfer_ink();
-}
 
 /// Ink units a layer gives per mm^2 it sweeps at full load and full press: the optical depth
 /// one layer leaves on the paper it passes over.
@@ -76,15 +65,15 @@ pub const WICK_MIN: f32 = 1.0 / 65536.0;
 pub(crate) struct InkCoefs {
     /// One over what each layer holds (its capacity is taken as the reciprocal of this, so
     /// the two agree).
-    inv_capacity: [f32; MAX_LAYERS],
+    pub(super) inv_capacity: [f32; MAX_LAYERS],
     /// `DWELL_MM / substeps`, added to the last substep's travel.
-    dwell: f32,
-    eps: f32,
+    pub(super) dwell: f32,
+    pub(super) eps: f32,
     /// The press factor at the threshold and its rise to full press, both times
     /// `2 TRANSFER substeps`: times the wetness, the long radius and the last substep's travel
     /// (plus `dwell`), the ink a layer gives in a tick.
-    press_floor: f32,
-    press_slope: f32,
+    pub(super) press_floor: f32,
+    pub(super) press_slope: f32,
 }
 
 /// Without its numbers: formatting an `f32` would bring the float formatting code into the
@@ -112,103 +101,6 @@ impl InkCoefs {
             eps: p.footprint_eps_mm,
             press_floor: gain * PRESS_FLOOR,
             press_slope: gain * (1.0 - PRESS_FLOOR),
-        }
-    }
-}
-
-impl<S: Scalar> Brush<S> {
-    /// Fills every layer to `load` of what it holds (clamped to [0, 1]): dipping the brush.
-    pub fn dip(&mut self, load: S) {
-        let w = load.clamp(S::ZERO, S::ONE);
-        let n = self.d.n();
-        for l in self.layers[..n].iter_mut() {
-            l.wetness = w;
-        }
-    }
-
-    /// Ink held by the whole brush (ink units).
-    pub fn ink_load(&self) -> S {
-        (0..self.d.n()).fold(S::ZERO, |a, i| a + self.ink_held(i))
-    }
-
-    /// Ink layer i holds (ink units).
-    pub fn ink_held(&self, i: usize) -> S {
-        self.layers
-            .get(i)
-            .map_or(S::ZERO, |l| l.wetness * self.ink_capacity(i))
-    }
-
-    /// What layer i holds when saturated (ink units).
-    pub fn ink_capacity(&self, i: usize) -> S {
-        match self.ink_coefs.inv_capacity.get(i) {
-            Some(&inv) if inv > 0.0 => S::from_f32(1.0 / inv),
-            _ => S::ZERO,
-        }
-    }
-
-    /// The tick's ink transfer (see the module): deposits and wicking. Runs after the
-    /// surface update, whose radii and axes it reads.
-    #[inline(always)]
-    pub(crate) fn transfer_ink(&mut self) {
-        let n = self.d.n();
-        let c = self.ink_coefs;
-        let eps = S::from_f32(c.eps);
-        for i in 0..n {
-            let (x, u) = (self.spine[i], self.vel[i]);
-            let l = &mut self.layers[i];
-            // No radius exceeds the widest: a layer higher than that above the threshold
-            // cannot reach the paper, and its lowest point is not needed.
-            if x.z > eps + self.d.max_radius[i] {
-                continue;
-            }
-            let drop = (l.long_radius * l.long_axis.z)
-                .abs()
-                .max((l.short_radius * l.short_axis.z).abs());
-            let press = (eps - (x.z - drop)).to_f32();
-            if press > 0.0 {
-                let inv_cap = c.inv_capacity[i];
-                let cap = if inv_cap > 0.0 { 1.0 / inv_cap } else { 0.0 };
-                let w = l.wetness.to_f32();
-                // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
-                let press = c.press_floor + c.press_slope * press.min(1.0);
-                // |u_xy| within 3% by the octagon, max + 3/8 min: no square root.
-                let (ux, uy) = (u.x.to_f32().abs(), u.y.to_f32().abs());
-                let travel = ux.max(uy) + 0.375 * ux.min(uy);
-                let give = (w * l.long_radius.to_f32() * (travel + c.dwell) * press).min(w * cap);
-                let give = S::from_f32(give);
-                l.wetness = (l.wetness - give * S::from_f32(inv_cap)).max(S::ZERO);
-                l.deposited += give;
-            }
-        }
-        // Wicking, after the deposits: the pairs (i-1, i) with i of this tick's parity, so
-        // that each layer takes part in one exchange a tick, at twice the rate, the even
-        // and odd pairs in turn: the same diffusion as every pair at WICK each tick, half
-        // the work, and (each exchange moving at most half the difference, by WICK <= 1/4)
-        // no layer can overshoot its neighbour.
-        self.ink_phase = !self.ink_phase;
-        let first = if self.ink_phase { 2 } else { 1 };
-        let wick_min = S::from_f32(WICK_MIN);
-        for i in (first..n).step_by(2) {
-            let (lo, hi) = self.layers.split_at_mut(i);
-            let (Some(giver), Some(taker)) = (lo.last_mut(), hi.first_mut()) else {
-                continue;
-            };
-            // None across a difference below WICK_MIN (a brush fresh from a dip, or in the
-            // air, costs no products).
-            if (giver.wetness - taker.wetness).abs() <= wick_min {
-                continue;
-            }
-            let (inv_g, inv_t) = (c.inv_capacity[i - 1], c.inv_capacity[i]);
-            if inv_g <= 0.0 || inv_t <= 0.0 {
-                continue;
-            }
-            // Ink units per unit of wetness difference. At a rate of at most one half of the
-            // smaller capacity the flow is within what the giver holds and what the taker
-            // can take (each wetness within [0, 1]); the clamps below keep the rounding in.
-            let rate = S::from_f32((2.0 * WICK) * (1.0 / inv_g).min(1.0 / inv_t));
-            let flow = (giver.wetness - taker.wetness) * rate;
-            giver.wetness = (giver.wetness - flow * S::from_f32(inv_g)).clamp(S::ZERO, S::ONE);
-            taker.wetness = (taker.wetness + flow * S::from_f32(inv_t)).clamp(S::ZERO, S::ONE);
         }
     }
 }

@@ -57,16 +57,16 @@ fn bench_reports_instructions_per_tick() {
     let kinematics = r.kinematics.expect("a kinematics line");
     assert!(kinematics.0 > 1000 && kinematics.1 > 100, "{kinematics:?}");
     // Guided writing's cost on the force path: the guide leads on every tick of its run and
-    // costs more than nothing (it ran) and little beside the tick. Its budget was 1% of the
-    // presets' tick at 25 substeps; at one substep the tick is a fifth of that and the
-    // guide's own cost unchanged, so 2% of it.
+    // costs more than nothing (it ran) and little beside the tick: at most 3% of the tick's
+    // budget of 50,000 instructions (a share of the measured tick tightened every time the
+    // tick got cheaper, and the guide's own cost is unchanged).
     let g = r.guided.as_ref().expect("a guided line");
     let extra = g.mean as i64 - r.unguided.0 as i64;
     println!(
         "guide: {extra:+} instructions per tick (alone {:?})",
         r.guide_alone
     );
-    assert!(extra > 500 && extra < (g.mean / 50) as i64, "{extra}");
+    assert!(extra > 500 && extra < 50_000 * 3 / 100, "{extra}");
     assert!(
         r.guide_alone.0 > 500 && r.guide_alone.1 < 10_000,
         "{:?}",

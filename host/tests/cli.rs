@@ -339,7 +339,13 @@ fn render_of_the_fast_hook_is_continuous() {
     }
     let total = dark.iter().filter(|&&d| d).count();
     let reached = seen.iter().filter(|&&s| s).count();
-    assert_eq!(reached, total, "the ink falls apart into pieces");
+    // A gap between ticks would cut the stroke across (at 500 mm/s a tick is 5 px): whole
+    // pieces apart. The hair strips' ends may leave specks of a few pixels beside a dry
+    // flick (飛白): the blot holds all but a thousandth.
+    assert!(
+        reached * 1000 >= total * 999,
+        "the ink falls apart into pieces: {reached} of {total} dark pixels in one blot"
+    );
 }
 
 #[test]

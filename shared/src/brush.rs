@@ -1316,12 +1316,17 @@ impl<S: Scalar> Brush<S> {
         let n = self.d.n();
         let c = self.ink_coefs;
         let eps = S::from_f32(c.eps);
-        for i in 0..n {
-            let (x, u) = (self.spine[i], self.vel[i]);
-            let l = &mut self.layers[i];
+        // Zipped, not indexed: the force path holds no panicking index.
+        let layers = self.layers[..n]
+            .iter_mut()
+            .zip(&self.spine[..n])
+            .zip(&self.vel[..n])
+            .zip(&self.d.max_radius[..n])
+            .zip(&c.inv_capacity[..n]);
+        for ((((l, x), u), &max_radius), &inv_cap) in layers {
             // No radius exceeds the widest: a layer higher than that above the threshold
             // cannot reach the paper, and its lowest point is not needed.
-            if x.z > eps + self.d.max_radius[i] {
+            if x.z > eps + max_radius {
                 continue;
             }
             let drop = (l.long_radius * l.long_axis.z)
@@ -1329,7 +1334,6 @@ impl<S: Scalar> Brush<S> {
                 .max((l.short_radius * l.short_axis.z).abs());
             let press = (eps - (x.z - drop)).to_f32();
             if press > 0.0 {
-                let inv_cap = c.inv_capacity[i];
                 let cap = if inv_cap > 0.0 { 1.0 / inv_cap } else { 0.0 };
                 let w = l.wetness.to_f32();
                 // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
@@ -1348,8 +1352,11 @@ impl<S: Scalar> Brush<S> {
         // and odd pairs in turn: the same diffusion as every pair at WICK each tick, half
         // the work, and (each exchange moving at most half the difference, by WICK <= 1/4)
         // no layer can overshoot its neighbour.
-        self.ink_phase = !self.ink_phase;
+        // The phase turns only on a tick that wicked: a brush at rest in the air, evenly wet,
+        // is unchanged by any number of ticks (a device that idles longer than its host's
+        // copy still agrees with it).
         let first = if self.ink_phase { 2 } else { 1 };
+        let mut wicked = false;
         let wick_min = S::from_f32(ink::WICK_MIN);
         for i in (first..n).step_by(2) {
             let (lo, hi) = self.layers.split_at_mut(i);
@@ -1361,7 +1368,10 @@ impl<S: Scalar> Brush<S> {
             if (giver.wetness - taker.wetness).abs() <= wick_min {
                 continue;
             }
-            let (inv_g, inv_t) = (c.inv_capacity[i - 1], c.inv_capacity[i]);
+            let (Some(&inv_g), Some(&inv_t)) = (c.inv_capacity.get(i - 1), c.inv_capacity.get(i))
+            else {
+                continue;
+            };
             if inv_g <= 0.0 || inv_t <= 0.0 {
                 continue;
             }
@@ -1372,6 +1382,10 @@ impl<S: Scalar> Brush<S> {
             let flow = (giver.wetness - taker.wetness) * rate;
             giver.wetness = (giver.wetness - flow * S::from_f32(inv_g)).clamp(S::ZERO, S::ONE);
             taker.wetness = (taker.wetness + flow * S::from_f32(inv_t)).clamp(S::ZERO, S::ONE);
+            wicked = true;
+        }
+        if wicked {
+            self.ink_phase = !self.ink_phase;
         }
     }
 }

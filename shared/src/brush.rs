@@ -111,7 +111,7 @@ mod unit_fixed;
 #[cfg(feature = "backward-euler")]
 pub use chain_fixed::MAX_DIAGONAL;
 #[cfg(feature = "backward-euler")]
-use chain_solve::{ChainSolve, SpineChain};
+use chain_solve::{ChainSolve, Segment, SpineChain};
 
 use crate::scalar::Fx;
 
@@ -867,19 +867,20 @@ impl<S: BrushScalar> Brush<S> {
         // Segment j's Jacobian block G_j and its term T_j = c_k f_j + G_j (u_j - u_{j-1}) in
         // the rows of its two masses (+ in row j-1, - in row j), linearised where the substep
         // starts; u_0 is the ferrule's new displacement, so its prescribed motion enters
-        // here, once.
-        // Each segment's parts: its block's isotropic stiffness `iso` and its axial
-        // stiffness `axial` along the unit direction `dir` (the solve builds the block
-        // `iso I + axial dir dir^T` in its own format and keeps it for the rows on either
-        // side), its spring term c_k f_j, and the relative velocity of its masses.
-        let mut segment = |j: usize| -> (S, S, Vec3<S>, Vec3<S>, Vec3<S>) {
+        // here, once. The chain forms the blocks and terms in its own format
+        // ([`Segment`]): the brush hands it each segment's parts, its block's isotropic
+        // stiffness `iso` and axial stiffness `axial` along the unit direction `dir`, the
+        // spring term's scale of the segment's vector, and the relative velocity of its
+        // masses.
+        let segment = |this: &mut Self, j: usize| -> Segment<S> {
             let j = j.clamp(1, MAX_LAYERS - 1);
-            let v = self.spine[j] - self.spine[j - 1];
+            let v = this.spine[j] - this.spine[j - 1];
             if j < first_cached {
-                (self.seg_len2[j], self.seg_rsqrt[j]) = measure_near(v, self.seg_rsqrt[j]);
+                (this.seg_len2[j], this.seg_rsqrt[j]) = measure_near(v, this.seg_rsqrt[j]);
             }
-            let (len2, r) = (self.seg_len2[j], self.seg_rsqrt[j]);
-            let (iso, axial, dir, spring) = if len2 > self.d.tiny2 {
+            let rel = this.vel[j] - if j == 1 { u0 } else { this.vel[j - 1] };
+            let (len2, r) = (this.seg_len2[j], this.seg_rsqrt[j]);
+            if len2 > this.d.tiny2 {
                 // The Jacobian k (e I + (1 - e) d d^T), e = 1 - L/|d| the strain, d the unit
                 // direction. Compressed (e < 0) the transverse term k e (I - d d^T) is
                 // negative (the hairs buckle): left out, so the matrix stays positive
@@ -892,49 +893,48 @@ impl<S: BrushScalar> Brush<S> {
                 // The factors in [0, 1] (the stretch, the blend, 1/|d| for a segment over a
                 // millimetre) are the coefficients of `mul_coef`: the same products, cheaper
                 // in fixed point.
-                let strain = S::ONE - self.d.segment.mul_coef(r);
+                let strain = S::ONE - this.d.segment.mul_coef(r);
                 let stretched = strain.max(S::ZERO);
                 let blend = ((strain + c.blend_strain) * c.inv_blend_width).clamp(S::ZERO, S::ONE);
                 let axial = c.c_k_compressed + c.c_k_stretch_step.mul_coef(blend);
                 // The spring term c_k f_j = c_k (1 - L/|d|) d (`spring_term`'s strain, the
                 // compression's ratio applied when compressed), as one scale of d.
                 let spring_strain = if strain < S::ZERO {
-                    strain.mul_coef(self.d.compression_ratio)
+                    strain.mul_coef(this.d.compression_ratio)
                 } else {
                     strain
                 };
-                (
-                    c.c_k.mul_coef(stretched) + c.c_d,
-                    axial.mul_coef(S::ONE - stretched),
-                    v.scale_coef(r),
-                    // c_k times a strain is small (a coefficient) but for a segment
-                    // stretched far: `scale_coef` tests it.
-                    v.scale_coef(c.c_k.mul_coef(spring_strain)),
-                )
+                Segment {
+                    iso: c.c_k.mul_coef(stretched) + c.c_d,
+                    axial: axial.mul_coef(S::ONE - stretched),
+                    dir: v.scale_coef(r),
+                    v,
+                    spring: c.c_k.mul_coef(spring_strain),
+                    rel,
+                }
             } else {
                 // Coincident masses (piled on the paper): no direction, no spring force.
-                (c.c_d, S::ZERO, Vec3::ZERO, Vec3::ZERO)
-            };
-            let rel = self.vel[j] - if j == 1 { u0 } else { self.vel[j - 1] };
-            (iso, axial, dir, spring, rel)
+                Segment {
+                    iso: c.c_d,
+                    rel,
+                    ..Segment::BEYOND_TIP
+                }
+            }
         };
-        // T_j, with G_j handed to the solve.
-        let term = |solve: &mut S::Chain, (iso, axial, dir, spring, rel)| {
-            spring + solve.segment(iso, axial, dir, rel)
-        };
-        let mut t = term(solve, segment(1));
-        for i in 1..n {
-            let t_next = if i + 1 < n {
-                term(solve, segment(i + 1))
+        // One call site for the segments, so that their parts are formed in line: segment
+        // j, then row j - 1, whose blocks are the last two segments given.
+        for j in 1..=n {
+            solve.segment(if j < n {
+                segment(self, j)
             } else {
-                // Beyond the tip: no segment, a zero block.
-                term(
-                    solve,
-                    (S::ZERO, S::ZERO, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO),
-                )
-            };
+                Segment::BEYOND_TIP
+            });
+            if j == 1 {
+                continue;
+            }
+            let i = j - 1;
             let w = ties[i];
-            let mut rhs = t_next - t;
+            let mut own = Vec3::ZERO;
             let mut diag = S::ONE;
             if w > S::ZERO {
                 // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
@@ -942,17 +942,16 @@ impl<S: BrushScalar> Brush<S> {
                 let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c.c_t)
                     + (self.skel_vel[i] - self.vel[i]).scale_coef(c.c_tv);
                 let tv = c.c_tv;
-                (rhs, diag) = if w < S::ONE {
-                    (rhs + tie.scale_coef(w), diag + tv.mul_coef(w))
+                (own, diag) = if w < S::ONE {
+                    (tie.scale_coef(w), diag + tv.mul_coef(w))
                 } else {
-                    (rhs + tie, diag + tv)
+                    (tie, diag + tv)
                 };
             }
             if i + 1 == n {
-                rhs += self.tip_load.scale(c.c_f);
+                own += self.tip_load.scale(c.c_f);
             }
-            solve.row(i, diag, rhs);
-            t = t_next;
+            solve.row(i, diag, own);
         }
         solve.solve(n);
     }

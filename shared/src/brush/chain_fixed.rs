@@ -35,7 +35,7 @@
 //! solve reaches them) the arithmetic wraps, as `wrapping_*` says, and panics in no build;
 //! the vectors stay clamped.
 
-use super::chain_solve::{ChainSolve, SpineChain};
+use super::chain_solve::{ChainSolve, Segment, SpineChain};
 use super::unit_fixed::saturated_word;
 use crate::params::MAX_LAYERS;
 use crate::scalar::Fx;
@@ -94,6 +94,13 @@ fn dot(a: [i32; 3], b: [i32; 3]) -> i64 {
 /// a hostile stream) is [`SpineChain::saturated`], and the brush solves it again with the
 /// general solve.
 const VEC_FRAC: u32 = 27;
+
+/// Fractional bits of a segment's spring coefficient, its strain times its stiffness in
+/// units of the mass at the substep (`Q8.23`): the range holds it for every brush whose
+/// blocks fit their format ([`MAX_DIAGONAL`]) but a segment stretched to twice its length;
+/// the precision is the force's (with the blocks' 20 fractional bits the spring term alone
+/// put the brush a tenth of a micrometre further from `f64`).
+const COEF_FRAC: u32 = 23;
 
 /// `v >> shift` rounded to nearest, in the vectors' format; a value beyond it saturates
 /// and sets `saturated`.
@@ -243,6 +250,11 @@ pub struct FixedChain {
     /// The last two segments' blocks ([`SpineChain::segment`]), the upper the latest.
     g_below: QSym,
     g_above: QSym,
+    /// The same segments' terms `T_j` ([`Segment`]), exact sums of products in
+    /// `Q(BLOCK_FRAC + VEC_FRAC)`: a term alone can leave the vectors' range (a stiff
+    /// segment's force), where the difference of two, the row's right-hand side, does not.
+    t_below: [i64; 3],
+    t_above: [i64; 3],
 }
 
 /// The fixed-point brush's chain solve: [`FixedChain`] for a brush whose blocks fit its
@@ -264,18 +276,18 @@ impl SpineChain<Fx> for FxChain {
     }
 
     #[inline(always)]
-    fn segment(&mut self, iso: Fx, axial: Fx, dir: Vec3<Fx>, rel: Vec3<Fx>) -> Vec3<Fx> {
+    fn segment(&mut self, segment: Segment<Fx>) {
         match self {
-            FxChain::Compact(c) => c.segment(iso, axial, dir, rel),
-            FxChain::General(c) => SpineChain::segment(c, iso, axial, dir, rel),
+            FxChain::Compact(c) => c.segment(segment),
+            FxChain::General(c) => SpineChain::segment(c, segment),
         }
     }
 
     #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, rhs: Vec3<Fx>) {
+    fn row(&mut self, i: usize, a: Fx, own: Vec3<Fx>) {
         match self {
-            FxChain::Compact(c) => c.row(i, a, rhs),
-            FxChain::General(c) => SpineChain::row(c, i, a, rhs),
+            FxChain::Compact(c) => c.row(i, a, own),
+            FxChain::General(c) => SpineChain::row(c, i, a, own),
         }
     }
 
@@ -314,6 +326,8 @@ impl FixedChain {
         inv: QSym::ZERO,
         g_below: QSym::ZERO,
         g_above: QSym::ZERO,
+        t_below: [0; 3],
+        t_above: [0; 3],
         saturated: false,
     };
 }
@@ -324,15 +338,15 @@ impl SpineChain<Fx> for FixedChain {
     }
 
     /// The block in the blocks' format from its parts (each entered once: `iso` and
-    /// `axial` below the diagonal's bound, `dir` a unit vector), then its product with the
-    /// model's vector `rel`.
+    /// `axial` below the diagonal's bound, `dir` a unit vector), then the term
+    /// `spring v + G rel` as one exact sum of four products per row.
     #[inline(always)]
-    fn segment(&mut self, iso: Fx, axial: Fx, dir: Vec3<Fx>, rel: Vec3<Fx>) -> Vec3<Fx> {
+    fn segment(&mut self, s: Segment<Fx>) {
         let q = |v: Fx| round_clamp(v.to_bits(), 32 - BLOCK_FRAC, LIMIT);
-        let (iso, axial) = (q(iso), q(axial));
+        let (iso, axial) = (q(s.iso), q(s.axial));
         // The direction in Q1.30: its rounding is multiplied by the axial stiffness.
         let unit = |v: Fx| round_clamp(v.to_bits(), 32 - DIR_FRAC, 1 << DIR_FRAC);
-        let d = [unit(dir.x), unit(dir.y), unit(dir.z)];
+        let d = [unit(s.dir.x), unit(s.dir.y), unit(s.dir.z)];
         let ad = d.map(|e| round_shift(axial as i64 * e as i64, DIR_FRAC));
         let outer = |a: usize, b: usize| round_shift(ad[a] as i64 * d[b] as i64, DIR_FRAC);
         let g = QSym([
@@ -345,20 +359,36 @@ impl SpineChain<Fx> for FixedChain {
         ]);
         self.g_below = self.g_above;
         self.g_above = g;
-        let rel = to_vec(rel, &mut self.saturated);
-        // G rel in the model's format: the exact sum shifted by the formats' difference.
-        let shift = BLOCK_FRAC + VEC_FRAC - 32;
-        let [x, y, z] = [0, 1, 2]
-            .map(|r| Fx::from_bits(dot(g.row(r), rel).wrapping_add(1 << (shift - 1)) >> shift));
-        Vec3::new(x, y, z)
+        let sat = &mut self.saturated;
+        // The strain's stiffness in the coefficients' format; beyond its range (a segment
+        // stretched to twice its length) the substep is the general solve's.
+        let spring = to_vec_from(s.spring.to_bits(), 32 - COEF_FRAC, sat);
+        let (v, rel) = (to_vec(s.v, sat), to_vec(s.rel, sat));
+        // G rel in Q(BLOCK_FRAC + VEC_FRAC), exact in 64 bits (entries below the diagonal's
+        // bound and 2^31), plus spring v in the same format (exact in Q(COEF_FRAC +
+        // VEC_FRAC), the bits below the sum's dropped), kept: the row rounds the difference
+        // of two terms once.
+        let term = [0, 1, 2].map(|r| {
+            let force = (spring as i64 * v[r] as i64) >> (COEF_FRAC - BLOCK_FRAC);
+            dot(g.row(r), rel).wrapping_add(force)
+        });
+        self.t_below = self.t_above;
+        self.t_above = term;
     }
 
     #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, rhs: Vec3<Fx>) {
+    fn row(&mut self, i: usize, a: Fx, own: Vec3<Fx>) {
         let i = i.clamp(1, MAX_LAYERS - 1);
         let f = BLOCK_FRAC;
         let sat = &mut self.saturated;
-        let rhs = to_vec(rhs, sat);
+        // T_{i+1} - T_i + own, exact, then rounded once into the vectors' format.
+        let own = to_vec(own, sat);
+        let rhs = [0, 1, 2].map(|r| {
+            let sum = self.t_above[r]
+                .wrapping_sub(self.t_below[r])
+                .wrapping_add((own[r] as i64) << BLOCK_FRAC);
+            to_vec_from(sum, BLOCK_FRAC, sat)
+        });
         let (g, g_next) = (self.g_below, self.g_above);
         // a I + G_i + G_{i+1}, in the blocks' format (each below the diagonal's bound).
         let a = round_clamp(a.to_bits(), 32 - BLOCK_FRAC, LIMIT);
@@ -432,7 +462,7 @@ impl SpineChain<Fx> for FixedChain {
 
 #[cfg(test)]
 mod tests {
-    use super::super::chain_solve::{ChainSolve, Sym3};
+    use super::super::chain_solve::{ChainSolve, Segment, Sym3};
     use super::*;
     extern crate std;
     use crate::scalar::Scalar;
@@ -480,8 +510,11 @@ mod tests {
             let a: [f64; MAX_LAYERS] = core::array::from_fn(|_| 1.0 + 0.2 * rnd().abs());
             let rhs: [Vec3<f64>; MAX_LAYERS] =
                 core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(2.0));
-            let rel: [Vec3<f64>; MAX_LAYERS + 1] =
-                core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(0.1));
+            // Relative velocities whose damping and stiffness terms stay within the vectors'
+            // range, as a brush's do (a stiffer brush's masses move together).
+            let rel: [Vec3<f64>; MAX_LAYERS + 1] = core::array::from_fn(|_| {
+                Vec3::new(rnd(), rnd(), rnd()).scale(0.1 / c_k.max(1.0).sqrt())
+            });
             let to_fx = |s: Sym3<f64>| Sym3 {
                 xx: fx(s.xx),
                 yy: fx(s.yy),
@@ -494,26 +527,50 @@ mod tests {
             let mut exact = ChainSolve::<f64>::new();
             let mut model = ChainSolve::<Fx>::new();
             let mut fixed = FixedChain::new(true);
+            // Each segment's vector and spring scale: its term T_j = spring v + G_j rel, and
+            // the rows' right-hand sides T_{i+1} - T_i + own.
+            let vecs: [Vec3<f64>; MAX_LAYERS + 1] =
+                core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(3.0));
+            let springs: [f64; MAX_LAYERS + 1] = core::array::from_fn(|_| rnd() * c_k * 1e-3);
+            let term = |j: usize| {
+                if j >= n {
+                    return Vec3::ZERO;
+                }
+                vecs[j].scale(springs[j]) + block(segments[j]).mul_vec(rel[j])
+            };
             let segment = |fixed: &mut FixedChain, j: usize| {
                 let (iso, axial, d) = segments[j];
-                let got = fixed.segment(fx(iso), fx(axial), vfx(d), vfx(rel[j]));
-                let want = block(segments[j]).mul_vec(rel[j]);
-                let off = got.to_f64();
-                let off = [off[0] - want.x, off[1] - want.y, off[2] - want.z];
-                assert!(off.iter().all(|e| e.abs() < 1e-6), "G rel {off:?}");
+                let (v, spring) = if j < n {
+                    (vecs[j], springs[j])
+                } else {
+                    (Vec3::ZERO, 0.0)
+                };
+                fixed.segment(Segment {
+                    iso: fx(iso),
+                    axial: fx(axial),
+                    dir: vfx(d),
+                    v: vfx(v),
+                    spring: fx(spring),
+                    rel: vfx(rel[j]),
+                });
             };
             segment(&mut fixed, 1);
             for i in 1..n {
                 segment(&mut fixed, i + 1);
                 let (g, g_next) = (block(segments[i]), block(segments[i + 1]));
                 let diag = Sym3::iso(a[i]).add(g).add(g_next);
-                exact.row(i, diag, &g, rhs[i]);
-                model.row(i, to_fx(diag), &to_fx(g), vfx(rhs[i]));
+                let full = term(i + 1) - term(i) + rhs[i];
+                exact.row(i, diag, &g, full);
+                model.row(i, to_fx(diag), &to_fx(g), vfx(full));
                 fixed.row(i, fx(a[i]), vfx(rhs[i]));
             }
             let want = *exact.solve(n);
             let own = *model.solve(n);
             fixed.solve(n);
+            assert!(
+                !fixed.saturated(),
+                "trial {trial}: the system left the formats"
+            );
             let off = |v: Vec3<Fx>, w: Vec3<f64>| {
                 let v = v.to_f64();
                 [v[0] - w.x, v[1] - w.y, v[2] - w.z]
@@ -566,16 +623,22 @@ mod tests {
         ] {
             let mut fixed = FixedChain::new(true);
             let n = 6;
-            fixed.segment(
-                fx(1.0),
-                fx(30.0),
-                Vec3::new(fx(0.0), fx(0.0), fx(1.0)),
-                Vec3::ZERO,
-            );
+            fixed.segment(Segment {
+                iso: fx(1.0),
+                axial: fx(30.0),
+                dir: Vec3::new(fx(0.0), fx(0.0), fx(1.0)),
+                ..Segment::BEYOND_TIP
+            });
             for i in 1..n {
                 let rel = Vec3::new(big, big, big).scale(fx(0.01));
                 let axial = if i + 1 < n { fx(30.0) } else { fx(0.0) };
-                fixed.segment(fx(1.0), axial, Vec3::new(fx(0.6), fx(0.0), fx(0.8)), rel);
+                fixed.segment(Segment {
+                    iso: fx(1.0),
+                    axial,
+                    dir: Vec3::new(fx(0.6), fx(0.0), fx(0.8)),
+                    rel,
+                    ..Segment::BEYOND_TIP
+                });
                 fixed.row(i, fx(1.0), Vec3::new(big, big, big));
             }
             fixed.solve(n);

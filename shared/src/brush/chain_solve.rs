@@ -176,6 +176,35 @@ impl<S: Scalar> Mat3<S> {
     }
 }
 
+/// One segment's part of the backward-Euler system, as the brush hands it to the chain
+/// ([`SpineChain::segment`]): its Jacobian block `iso I + axial dir dir^T` (`dir` a unit
+/// vector, or zero with `axial`), and its term `T_j = spring v + G_j rel`: the spring force
+/// `spring v` (`v` the segment's vector, from mass j-1 to mass j, `spring` its strain
+/// times the stiffness, in units of the mass) and the damping of the masses' relative
+/// velocity `rel`. The chain forms the term in its own format, so a compact format takes
+/// the vectors in once and keeps the products exact until their one rounding.
+#[derive(Copy, Clone, Debug)]
+pub struct Segment<S> {
+    pub iso: S,
+    pub axial: S,
+    pub dir: Vec3<S>,
+    pub v: Vec3<S>,
+    pub spring: S,
+    pub rel: Vec3<S>,
+}
+
+impl<S: Scalar> Segment<S> {
+    /// Beyond the tip: no segment, a zero block and a zero term.
+    pub const BEYOND_TIP: Self = Segment {
+        iso: S::ZERO,
+        axial: S::ZERO,
+        dir: Vec3::ZERO,
+        v: Vec3::ZERO,
+        spring: S::ZERO,
+        rel: Vec3::ZERO,
+    };
+}
+
 /// How a number format solves one substep's chain: the elimination row by row
 /// ([`SpineChain::row`]), then the back substitution ([`SpineChain::solve`]). The float
 /// formats use [`ChainSolve`] in their own arithmetic; the fixed-point brush uses
@@ -187,16 +216,17 @@ pub trait SpineChain<S> {
     /// compact solve, if it has one (the fixed-point format's, see
     /// [`super::chain_fixed::MAX_DIAGONAL`]).
     fn new(compact: bool) -> Self;
-    /// The next segment's Jacobian block `G_j = iso I + axial dir dir^T` (`dir` a unit
-    /// vector or zero; the segments in order from the first, then a zero block for beyond
-    /// the tip), kept for the rows on either side of it; returns `G_j rel`.
-    fn segment(&mut self, iso: S, axial: S, dir: Vec3<S>, rel: Vec3<S>) -> Vec3<S>;
-    /// Eliminates row `i` (from 1 up, in order, each after the segment below it), given
-    /// `a_i` (the mass and its tie, in units of the mass) and its right-hand side. Its
+    /// The next segment (in order from the first, then [`Segment::BEYOND_TIP`]): its
+    /// Jacobian block `G_j = iso I + axial dir dir^T`, kept for the rows on either side of
+    /// it, and its term `T_j = spring v + G_j rel`, kept for their right-hand sides.
+    fn segment(&mut self, segment: Segment<S>);
+    /// Eliminates row `i` (from 1 up, in order, each after the segment above it), given
+    /// `a_i` (the mass and its tie, in units of the mass) and the row's own part of its
+    /// right-hand side (tie, load); the chain adds the segments' terms `T_{i+1} - T_i`. Its
     /// blocks are the last two segments given: `G_i` (the coupling to the row before; for
-    /// row 1, to the prescribed ferrule, whose term is in the right-hand side) and
-    /// `G_{i+1}`; the diagonal block is `a_i I + G_i + G_{i+1}`.
-    fn row(&mut self, i: usize, a: S, rhs: Vec3<S>);
+    /// row 1, to the prescribed ferrule, whose term is in `T_1`) and `G_{i+1}`; the
+    /// diagonal block is `a_i I + G_i + G_{i+1}`.
+    fn row(&mut self, i: usize, a: S, own: Vec3<S>);
     /// The back substitution after rows `1..n` were eliminated.
     fn solve(&mut self, n: usize);
     /// Then: `du_i` of free mass `i` (`1..n`).
@@ -214,14 +244,18 @@ impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
         ChainSolve::new()
     }
     #[inline(always)]
-    fn segment(&mut self, iso: S, axial: S, dir: Vec3<S>, rel: Vec3<S>) -> Vec3<S> {
+    fn segment(&mut self, s: Segment<S>) {
         self.g_below = self.g_above;
-        self.g_above = Sym3::iso_plus_outer(iso, axial, dir);
-        self.g_above.mul_vec(rel)
+        self.g_above = Sym3::iso_plus_outer(s.iso, s.axial, s.dir);
+        self.t_below = self.t_above;
+        // The strain's stiffness is small (a coefficient) but for a segment stretched far:
+        // `scale_coef` tests it.
+        self.t_above = s.v.scale_coef(s.spring) + self.g_above.mul_vec(s.rel);
     }
     #[inline(always)]
-    fn row(&mut self, i: usize, a: S, rhs: Vec3<S>) {
+    fn row(&mut self, i: usize, a: S, own: Vec3<S>) {
         let (g, g_next) = (self.g_below, self.g_above);
+        let rhs = (self.t_above - self.t_below) + own;
         ChainSolve::row(self, i, Sym3::iso(a).add(g).add(g_next), &g, rhs)
     }
     #[inline(always)]
@@ -246,6 +280,9 @@ pub struct ChainSolve<S> {
     /// The last two segments' blocks ([`SpineChain::segment`]), the upper the latest.
     g_below: Sym3<S>,
     g_above: Sym3<S>,
+    /// The same segments' terms `T_j` ([`Segment`]).
+    t_below: Vec3<S>,
+    t_above: Vec3<S>,
 }
 
 impl<S: Scalar> ChainSolve<S> {
@@ -256,6 +293,8 @@ impl<S: Scalar> ChainSolve<S> {
             inv: Sym3::ZERO,
             g_below: Sym3::ZERO,
             g_above: Sym3::ZERO,
+            t_below: Vec3::ZERO,
+            t_above: Vec3::ZERO,
         }
     }
 

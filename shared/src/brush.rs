@@ -235,13 +235,31 @@ pub const TIE_RAMP_MM: f64 = 0.05;
 struct Row<S> {
     c_k: S,
     c_j: S, // c_k + c_d: the Jacobi off-diagonal, also the relative-velocity weight
+    tie: Tie<S>,
+    c_f: S, // h^2 / W' in mm per newton: an external force's share of the velocity change
+}
+
+/// A tie's per-substep coefficients, `c_t` and `c_tv = c_t + c_dt` of a dry layer (see the
+/// module docs), and what a saturated layer's ink adds to each ([`ink`]'s law).
+#[derive(Copy, Clone, Debug)]
+struct Tie<S> {
     c_t: S,
-    c_tv: S, // c_t + c_dt
-    c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
-    // What a saturated layer's ink adds to c_t and to c_tv (see [`ink`]'s tie law): the
-    // row's tie coefficients for wetness W are `c_t + W c_t_ink` and `c_tv + W c_tv_ink`.
+    c_tv: S,
     c_t_ink: S,
     c_tv_ink: S,
+}
+
+impl<S: Scalar> Tie<S> {
+    /// The coefficients `(c_t, c_tv)` of a layer with wetness `wet`: linear in it, one
+    /// product each, by `mul` (a coefficient product: `c_t_ink` and `c_tv_ink` are the
+    /// coefficients).
+    #[inline(always)]
+    fn at(&self, wet: S, mul: impl Fn(S, S) -> S) -> (S, S) {
+        (
+            self.c_t + mul(wet, self.c_t_ink),
+            self.c_tv + mul(wet, self.c_tv_ink),
+        )
+    }
 }
 
 /// Half the band of strain across which the backward-Euler step's axial stiffness goes from
@@ -265,30 +283,13 @@ struct Implicit<S> {
     inv_blend_width: S,
     /// h k_d / m.
     c_d: S,
-    /// h^2 k_t / m.
-    c_t: S,
-    /// (h^2 k_t + h k_dt) / m.
-    c_tv: S,
-    /// What a saturated layer's ink adds to `c_t` and to `c_tv` ([`ink`]'s tie law).
-    c_t_ink: S,
-    c_tv_ink: S,
+    /// h^2 k_t / m and (h^2 k_t + h k_dt) / m, and the ink's change to them.
+    tie: Tie<S>,
     /// h^2 / m in mm per newton: an external force's displacement.
     c_f: S,
     /// Whether the brush's blocks fit the number format's compact chain solve, if it has one
     /// ([`BrushScalar`]; [`MAX_DIAGONAL`]).
     fits_format_chain: bool,
-}
-
-#[cfg(feature = "backward-euler")]
-impl<S: Scalar> Implicit<S> {
-    /// The tie's coefficients `(c_t, c_tv)` of a layer with wetness `wet` ([`ink`]'s law).
-    #[inline(always)]
-    fn tie(&self, wet: S) -> (S, S) {
-        (
-            self.c_t + wet.mul_coef(self.c_t_ink),
-            self.c_tv + wet.mul_coef(self.c_tv_ink),
-        )
-    }
 }
 
 /// Everything derived from the parameters that the substep needs: recomputed by
@@ -305,6 +306,10 @@ struct Derived<S> {
     backward_euler: bool,
     /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
     exact_solve: bool,
+    /// Whether every coefficient the interior rows multiply by is a coefficient in the
+    /// sense of [`Scalar::is_coef`] (so the thesis's step may take `mul_tested_coef`):
+    /// decided with the parameters, not on every substep.
+    interior_coefs: bool,
     #[cfg(feature = "backward-euler")]
     implicit: Implicit<S>,
     /// [interior, tip]. Every row includes the tie (see the module docs).
@@ -845,20 +850,7 @@ impl<S: BrushScalar> Brush<S> {
         p[..3].copy_from_slice(&[du0.x, du0.y, du0.z]);
         // The interior rows share their coefficients (in [0, 1): fractions of the mass's
         // W'): tested once for the whole loop instead of on each product.
-        // A layer's tie coefficients lie between the dry's and the saturated's.
-        if [
-            inner.c_k,
-            inner.c_j,
-            inner.c_t,
-            inner.c_tv,
-            inner.c_t_ink,
-            inner.c_tv_ink,
-            inner.c_t + inner.c_t_ink,
-            inner.c_tv + inner.c_tv_ink,
-        ]
-        .iter()
-        .all(|c| c.is_coef())
-        {
+        if d.interior_coefs {
             self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_tested_coef);
         } else {
             self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_coef);
@@ -969,7 +961,7 @@ impl<S: BrushScalar> Brush<S> {
             if w > S::ZERO {
                 // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
                 // where the substep started, its coefficients the layer's for its ink.
-                let (c_t, tv) = c.tie(self.layers[i].wetness);
+                let (c_t, tv) = c.tie.at(self.layers[i].wetness, S::mul_coef);
                 let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c_t)
                     + (self.skel_vel[i] - self.vel[i]).scale_coef(tv);
                 (rhs, diag) = if w < S::ONE {
@@ -997,16 +989,16 @@ impl<S: BrushScalar> Brush<S> {
         spring: Vec3<S>,
         rel: Vec3<S>,
         w: S,
-        mul: impl Fn(S, S) -> S,
+        mul: impl Fn(S, S) -> S + Copy,
     ) -> Vec3<S> {
         let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
         let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
         if w > S::ZERO {
             // The skeleton where the substep started (VS^t): its motion in the substep, w,
-            // enters through c_tv alone. The coefficients are the layer's for its ink.
-            let wet = self.layers[i].wetness;
-            let c_t = row.c_t + mul(wet, row.c_t_ink);
-            let c_tv = row.c_tv + mul(wet, row.c_tv_ink);
+            // enters through c_tv alone. The coefficients are the layer's for its ink,
+            // evaluated here rather than with the weights: only for a tied mass, and with
+            // the row's tested products.
+            let (c_t, c_tv) = row.tie.at(self.layers[i].wetness, mul);
             let tie = scale((self.skel[i] - self.skel_vel[i]) - self.spine[i], c_t)
                 + scale(self.skel_vel[i] - self.vel[i], c_tv);
             // A mass clear of the paper has weight exactly one, and scaling by one is exact in
@@ -1740,8 +1732,8 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let (kt, kdt) = (p.tie_stiffness, p.tie_damping);
     // The tie's change from a dry to a saturated layer ([`ink`]'s law), per unit wetness.
     let (kt_ink, kdt_ink) = (
-        kt * (p.tie_stiffness_wet - 1.0),
-        kdt * (p.tie_damping_wet - 1.0),
+        kt * (p.tie_stiffness_wet() - 1.0),
+        kdt * (p.tie_damping_wet() - 1.0),
     );
     // Each row's Jacobi coefficient, c_j, as computed: the largest picks the solve.
     let mut worst_c_j = 0.0f32;
@@ -1759,11 +1751,13 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         Row {
             c_k: S::from_f32(c_k),
             c_j: S::from_f32(c_j),
-            c_t: S::from_f32(c_t),
-            c_tv: S::from_f32(c_t + c_dt),
+            tie: Tie {
+                c_t: S::from_f32(c_t),
+                c_tv: S::from_f32(c_t + c_dt),
+                c_t_ink: S::from_f32(c_t_ink),
+                c_tv_ink: S::from_f32(c_t_ink + h * kdt_ink / w),
+            },
             c_f: S::from_f32(h * h * 1e3 / w),
-            c_t_ink: S::from_f32(c_t_ink),
-            c_tv_ink: S::from_f32(c_t_ink + h * kdt_ink / w),
         }
     };
     let mut rest_radius = [S::ZERO; MAX_LAYERS];
@@ -1791,6 +1785,23 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         }
     }
     let rows = [row(2.0), row(1.0)];
+    // The interior rows' coefficients, tested once here for the substeps' products. A
+    // layer's tie coefficients lie between the dry's and the saturated's: c_tv's ends are
+    // tested, c_t's saturated end lies between zero and its dry one (the stiffness factor
+    // is a tenth to one).
+    let [inner, _] = rows;
+    let t = inner.tie;
+    let interior_coefs = [
+        inner.c_k,
+        inner.c_j,
+        t.c_t,
+        t.c_tv,
+        t.c_t_ink,
+        t.c_tv_ink,
+        t.c_tv + t.c_tv_ink,
+    ]
+    .iter()
+    .all(|c| c.is_coef());
     #[cfg(feature = "backward-euler")]
     let implicit = Implicit {
         c_k: S::from_f32(h * h * ks / m),
@@ -1799,10 +1810,12 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         blend_strain: S::from_f32(STIFFNESS_BLEND_STRAIN as f32),
         inv_blend_width: S::from_f32((0.5 / STIFFNESS_BLEND_STRAIN) as f32),
         c_d: S::from_f32(h * kd / m),
-        c_t: S::from_f32(h * h * kt / m),
-        c_tv: S::from_f32((h * h * kt + h * kdt) / m),
-        c_t_ink: S::from_f32(h * h * kt_ink / m),
-        c_tv_ink: S::from_f32((h * h * kt_ink + h * kdt_ink) / m),
+        tie: Tie {
+            c_t: S::from_f32(h * h * kt / m),
+            c_tv: S::from_f32((h * h * kt + h * kdt) / m),
+            c_t_ink: S::from_f32(h * h * kt_ink / m),
+            c_tv_ink: S::from_f32((h * h * kt_ink + h * kdt_ink) / m),
+        },
         c_f: S::from_f32(h * h * 1e3 / m),
         fits_format_chain: p.backward_euler_diagonal_bound() < MAX_DIAGONAL,
     };
@@ -1810,6 +1823,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         #[cfg(feature = "backward-euler")]
         backward_euler: p.integrator == INTEGRATOR_BACKWARD_EULER,
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
+        interior_coefs,
         #[cfg(feature = "backward-euler")]
         implicit,
         layers: n,
@@ -1902,8 +1916,8 @@ mod tests {
             (
                 BrushParams {
                     axial_stiffness: crate::presets::LARGE.axial_stiffness * 20.0,
-                    tie_stiffness_wet: 1.0,
-                    tie_damping_wet: 1.0,
+                    tie_stiffness_wet_pct: 100,
+                    tie_damping_wet_pct: 100,
                     ..crate::presets::LARGE
                 },
                 false,

@@ -101,8 +101,8 @@ impl ParamId {
             ParamId::FootprintEpsMm => "footprint_eps_mm",
             ParamId::Integrator => "integrator",
             ParamId::InkCapacity => "ink_capacity",
-            ParamId::TieStiffnessWet => "tie_stiffness_wet_factor",
-            ParamId::TieDampingWet => "tie_damping_wet_factor",
+            ParamId::TieStiffnessWet => "tie_stiffness_wet_pct",
+            ParamId::TieDampingWet => "tie_damping_wet_pct",
         }
     }
 
@@ -136,11 +136,12 @@ impl ParamId {
             ParamId::FootprintEpsMm => (0.001, 2.0, false),
             ParamId::Integrator => (INTEGRATORS.0 as f32, INTEGRATORS.1 as f32, true),
             ParamId::InkCapacity => (0.01, 100.0, false),
-            // The directions of `crate::brush::ink`'s law: ink softens the hair and adds
-            // viscosity, never the reverse. A tenth of the dry stiffness keeps a saturated
-            // brush standing; ten times the dry damping is far past critical for any preset.
-            ParamId::TieStiffnessWet => (0.1, 1.0, false),
-            ParamId::TieDampingWet => (1.0, 10.0, false),
+            // Percent of the dry tie's, in the directions of `crate::brush::ink`'s law: ink
+            // softens the hair and adds viscosity, never the reverse. Whole percent, each kept
+            // in a byte (every copy of the parameters, a command queue's too, stays its
+            // size); two and a half times the dry damping is past critical for either preset.
+            ParamId::TieStiffnessWet => (10.0, 100.0, true),
+            ParamId::TieDampingWet => (100.0, 250.0, true),
         }
     }
 }
@@ -261,13 +262,13 @@ pub struct BrushParams {
     /// rest ellipse over one segment), in ink units (optical depth times mm^2: one unit
     /// darkens 1 mm^2 of paper to optical depth 1). See `crate::brush::ink`.
     pub ink_capacity: f32,
-    /// The tie's stiffness of a saturated layer (wetness 1) as a fraction of
-    /// `tie_stiffness`: wet keratin is softer than dry. In between it follows the layer's
-    /// wetness linearly (see `crate::brush::ink`, the thesis's 3.1.2 suggestion).
-    pub tie_stiffness_wet: f32,
-    /// The tie's damping of a saturated layer as a multiple of `tie_damping`: the ink
-    /// between the hairs is viscous. Linear in the wetness, like `tie_stiffness_wet`.
-    pub tie_damping_wet: f32,
+    /// The tie's stiffness of a saturated layer (wetness 1) in percent of `tie_stiffness`:
+    /// wet keratin is softer than dry. In between it follows the layer's wetness linearly
+    /// (see `crate::brush::ink`, the thesis's 3.1.2 suggestion).
+    pub tie_stiffness_wet_pct: u8,
+    /// The tie's damping of a saturated layer in percent of `tie_damping`: the ink between
+    /// the hairs is viscous. Linear in the wetness, like `tie_stiffness_wet_pct`.
+    pub tie_damping_wet_pct: u8,
 }
 
 /// `integrator` 0: backward Euler with each spring's own Jacobian, solved exactly.
@@ -313,8 +314,8 @@ impl BrushParams {
             ParamId::FootprintEpsMm => self.footprint_eps_mm,
             ParamId::Integrator => self.integrator as f32,
             ParamId::InkCapacity => self.ink_capacity,
-            ParamId::TieStiffnessWet => self.tie_stiffness_wet,
-            ParamId::TieDampingWet => self.tie_damping_wet,
+            ParamId::TieStiffnessWet => self.tie_stiffness_wet_pct as f32,
+            ParamId::TieDampingWet => self.tie_damping_wet_pct as f32,
         }
     }
 
@@ -352,8 +353,8 @@ impl BrushParams {
             ParamId::FootprintEpsMm => self.footprint_eps_mm = v,
             ParamId::Integrator => self.integrator = v as u8,
             ParamId::InkCapacity => self.ink_capacity = v,
-            ParamId::TieStiffnessWet => self.tie_stiffness_wet = v,
-            ParamId::TieDampingWet => self.tie_damping_wet = v,
+            ParamId::TieStiffnessWet => self.tie_stiffness_wet_pct = v as u8,
+            ParamId::TieDampingWet => self.tie_damping_wet_pct = v as u8,
         }
     }
 
@@ -394,8 +395,20 @@ impl BrushParams {
         // The tie at its strongest over the wetness: the law's factors are validated to
         // soften the spring (at most one) and stiffen the damper (at least one) with ink,
         // so the dry spring and the saturated damper.
-        let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping * self.tie_damping_wet) / m;
+        let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping * self.tie_damping_wet()) / m;
         1.0 + c_tv + 2.0 * (c_k + c_d)
+    }
+
+    /// The tie's stiffness of a saturated layer as a fraction of the dry's
+    /// (`tie_stiffness_wet_pct`).
+    pub fn tie_stiffness_wet(&self) -> f32 {
+        self.tie_stiffness_wet_pct as f32 / 100.0
+    }
+
+    /// The tie's damping of a saturated layer as a multiple of the dry's
+    /// (`tie_damping_wet_pct`).
+    pub fn tie_damping_wet(&self) -> f32 {
+        self.tie_damping_wet_pct as f32 / 100.0
     }
 
     /// Resting length of one spine segment (mm).

@@ -33,17 +33,16 @@ use core::fmt;
 
 use crate::params::{BrushParams, DEFAULT_INTEGRATOR};
 
-/// The presets' tie stiffness of a saturated layer as a fraction of the dry's (see
+/// The presets' tie stiffness of a saturated layer in percent of the dry's (see
 /// `crate::brush::ink`): wet keratin's modulus is a half to a third of dry keratin's, but a
 /// layer that has given its ink is still damp, so the step from a saturated to an emptied
 /// layer is taken as the smaller 30%.
-pub const TIE_STIFFNESS_WET: f32 = 0.7;
+pub const TIE_STIFFNESS_WET_PCT: u8 = 70;
 
-/// The presets' tie damping of a saturated layer as a multiple of the dry's: the ink's
+/// The presets' tie damping of a saturated layer in percent of the dry's: the ink's
 /// viscosity between the hairs. Half as much again keeps the saturated large brush's tie
-/// below critical damping (the dry tie is about half of critical), so a loaded brush still
-/// springs back within the presets' 200 ms.
-pub const TIE_DAMPING_WET: f32 = 1.5;
+/// below critical damping (the dry tie is about half of critical).
+pub const TIE_DAMPING_WET_PCT: u8 = 150;
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
@@ -70,8 +69,8 @@ pub const LARGE: BrushParams = BrushParams {
     footprint_eps_mm: 0.1,
     integrator: DEFAULT_INTEGRATOR,
     ink_capacity: 0.4,
-    tie_stiffness_wet: TIE_STIFFNESS_WET,
-    tie_damping_wet: TIE_DAMPING_WET,
+    tie_stiffness_wet_pct: TIE_STIFFNESS_WET_PCT,
+    tie_damping_wet_pct: TIE_DAMPING_WET_PCT,
 };
 
 /// 小楷: small regular-script brush.
@@ -99,8 +98,8 @@ pub const SMALL: BrushParams = BrushParams {
     footprint_eps_mm: 0.05,
     integrator: DEFAULT_INTEGRATOR,
     ink_capacity: 0.4,
-    tie_stiffness_wet: TIE_STIFFNESS_WET,
-    tie_damping_wet: TIE_DAMPING_WET,
+    tie_stiffness_wet_pct: TIE_STIFFNESS_WET_PCT,
+    tie_damping_wet_pct: TIE_DAMPING_WET_PCT,
 };
 
 /// Presets by the names the CLI and the protocol use.

@@ -11,11 +11,14 @@ fn upright<S: BrushScalar>() -> Pose<S> {
     Pose::new(Vec3::from_f64([0.0, 0.0, 60.0]), Quat::IDENTITY)
 }
 
-/// The large brush with every layer at wetness `wet` and the ink's tie factors given.
-fn brush<S: BrushScalar>(wet: f64, stiffness_wet: f32, damping_wet: f32) -> Brush<S> {
+/// The large brush with every layer at wetness `wet` and the ink's tie factors given (in
+/// percent of the dry tie's).
+fn brush<S: BrushScalar>(wet: f64, stiffness_wet_pct: u8, damping_wet_pct: u8) -> Brush<S> {
     let mut p: BrushParams = presets::LARGE;
-    p.set(ParamId::TieStiffnessWet, stiffness_wet).unwrap();
-    p.set(ParamId::TieDampingWet, damping_wet).unwrap();
+    p.set(ParamId::TieStiffnessWet, stiffness_wet_pct.into())
+        .unwrap();
+    p.set(ParamId::TieDampingWet, damping_wet_pct.into())
+        .unwrap();
     let mut b = Brush::new(p, upright()).unwrap();
     b.dip(S::from_f64(wet));
     b
@@ -45,19 +48,17 @@ fn push<S: BrushScalar>(b: &mut Brush<S>, force: f64, ms: usize) -> (f64, f64) {
 /// wetness). The handle feels the push itself either way: its reaction sums the same ties.
 fn static_push_follows_the_stiffness_factor<S: BrushScalar>() {
     let force = 0.02;
-    let factor = presets::TIE_STIFFNESS_WET;
+    let pct = presets::TIE_STIFFNESS_WET_PCT;
+    let factor = f64::from(pct) / 100.0;
     let half_factor = 0.5 * (1.0 + factor);
-    let (dry, dry_reaction) = push(&mut brush::<S>(0.0, factor, 1.0), force, 800);
-    let (wet, wet_reaction) = push(&mut brush::<S>(1.0, factor, 1.0), force, 800);
-    let (half, _) = push(&mut brush::<S>(0.5, factor, 1.0), force, 800);
-    let dry_f = |f: f64| push(&mut brush::<S>(0.0, factor, 1.0), f, 800).0;
-    let (dry_wet_load, dry_half_load) = (
-        dry_f(force / factor as f64),
-        dry_f(force / half_factor as f64),
-    );
+    let (dry, dry_reaction) = push(&mut brush::<S>(0.0, pct, 100), force, 800);
+    let (wet, wet_reaction) = push(&mut brush::<S>(1.0, pct, 100), force, 800);
+    let (half, _) = push(&mut brush::<S>(0.5, pct, 100), force, 800);
+    let dry_f = |f: f64| push(&mut brush::<S>(0.0, pct, 100), f, 800).0;
+    let (dry_wet_load, dry_half_load) = (dry_f(force / factor), dry_f(force / half_factor));
     // The same brushes with the ink's law switched off bend alike.
-    let (plain_dry, _) = push(&mut brush::<S>(0.0, 1.0, 1.0), force, 800);
-    let (plain_wet, _) = push(&mut brush::<S>(1.0, 1.0, 1.0), force, 800);
+    let (plain_dry, _) = push(&mut brush::<S>(0.0, 100, 100), force, 800);
+    let (plain_wet, _) = push(&mut brush::<S>(1.0, 100, 100), force, 800);
     println!(
         "{force} N across the tip: dry {dry:.4} mm, saturated {wet:.4} mm (dry under \
          F/{factor}: {dry_wet_load:.4}), half {half:.4} mm (dry under F/{half_factor}: \
@@ -114,14 +115,14 @@ fn ticks_to_half_return<S: BrushScalar>(mut b: Brush<S>) -> usize {
 /// wet and dry too, the two return alike.
 #[test]
 fn ink_damps_the_return_from_a_push() {
-    let damping_wet = presets::TIE_DAMPING_WET;
-    let dry = ticks_to_half_return(brush::<Fx>(0.0, 1.0, damping_wet));
-    let wet = ticks_to_half_return(brush::<Fx>(1.0, 1.0, damping_wet));
-    let heavy = ticks_to_half_return(brush::<Fx>(1.0, 1.0, 4.0));
-    let plain = ticks_to_half_return(brush::<Fx>(1.0, 1.0, 1.0));
+    let damping_wet = presets::TIE_DAMPING_WET_PCT;
+    let dry = ticks_to_half_return(brush::<Fx>(0.0, 100, damping_wet));
+    let wet = ticks_to_half_return(brush::<Fx>(1.0, 100, damping_wet));
+    let heavy = ticks_to_half_return(brush::<Fx>(1.0, 100, 250));
+    let plain = ticks_to_half_return(brush::<Fx>(1.0, 100, 100));
     println!(
-        "ms to half return after a push: dry {dry}, saturated {wet} (damping x{damping_wet}), \
-         saturated with damping x4 {heavy}, saturated without the law {plain}"
+        "ms to half return after a push: dry {dry}, saturated {wet} (damping {damping_wet}%), \
+         saturated with damping 250% {heavy}, saturated without the law {plain}"
     );
     assert_eq!(plain, dry, "without the law the ink changed the return");
     assert!(
@@ -138,7 +139,7 @@ fn ink_damps_the_return_from_a_push() {
 /// the same push and takes longer to come back.
 #[test]
 fn the_presets_loaded_brush_is_softer_and_slower_than_dry() {
-    let (s, d) = (presets::TIE_STIFFNESS_WET, presets::TIE_DAMPING_WET);
+    let (s, d) = (presets::TIE_STIFFNESS_WET_PCT, presets::TIE_DAMPING_WET_PCT);
     let (dry, _) = push(&mut brush::<Fx>(0.0, s, d), 0.02, 800);
     let (wet, _) = push(&mut brush::<Fx>(1.0, s, d), 0.02, 800);
     let (dry_back, wet_back) = (
@@ -154,34 +155,42 @@ fn the_presets_loaded_brush_is_softer_and_slower_than_dry() {
 /// keeps its old value.
 #[test]
 fn tie_factors_out_of_range_are_refused_by_name() {
-    let mut b = brush::<Fx>(1.0, presets::TIE_STIFFNESS_WET, presets::TIE_DAMPING_WET);
+    let mut b = brush::<Fx>(
+        1.0,
+        presets::TIE_STIFFNESS_WET_PCT,
+        presets::TIE_DAMPING_WET_PCT,
+    );
     let before = *b.params();
     for (id, v) in [
-        (ParamId::TieStiffnessWet, 1.2),
-        (ParamId::TieStiffnessWet, 0.0),
+        (ParamId::TieStiffnessWet, 120.0),
+        (ParamId::TieStiffnessWet, 5.0),
+        (ParamId::TieStiffnessWet, 70.5),
         (ParamId::TieStiffnessWet, f32::NAN),
-        (ParamId::TieDampingWet, 0.5),
-        (ParamId::TieDampingWet, 11.0),
+        (ParamId::TieDampingWet, 50.0),
+        (ParamId::TieDampingWet, 300.0),
     ] {
         let e = b.set_param(id, v).unwrap_err();
         println!("{e}");
         assert!(e.to_string().starts_with(id.name()), "{e}");
         assert!(matches!(
             e,
-            ParamError::OutOfRange { param, .. } | ParamError::NotFinite { param } if param == id
+            ParamError::OutOfRange { param, .. }
+                | ParamError::NotFinite { param }
+                | ParamError::NotWholeNumber { param, .. } if param == id
         ));
         assert_eq!(*b.params(), before);
     }
     assert_eq!(
-        ParamId::from_name("tie_stiffness_wet_factor"),
+        ParamId::from_name("tie_stiffness_wet_pct"),
         Some(ParamId::TieStiffnessWet)
     );
     assert_eq!(
-        ParamId::from_name("tie_damping_wet_factor"),
+        ParamId::from_name("tie_damping_wet_pct"),
         Some(ParamId::TieDampingWet)
     );
-    b.set_param(ParamId::TieDampingWet, 3.0).unwrap();
-    assert_eq!(b.params().tie_damping_wet, 3.0);
+    b.set_param(ParamId::TieDampingWet, 200.0).unwrap();
+    assert_eq!(b.params().tie_damping_wet_pct, 200);
+    assert_eq!(b.params().tie_damping_wet(), 2.0);
 }
 
 /// The tip's sideways path over a push across it (300 ms) and its release (300 ms).
@@ -201,7 +210,8 @@ fn push_and_release_path<S: BrushScalar>(mut b: Brush<S>) -> Vec<f64> {
 /// moves as a layer of a brush without the law whose tie stiffness and damping are the dry
 /// ones times `1 + W (factor - 1)`, for both integrators, in fixed point and in f64.
 fn a_loaded_layer_moves_as_a_dry_one_with_the_factored_ties<S: BrushScalar>() {
-    let (s, d) = (presets::TIE_STIFFNESS_WET, presets::TIE_DAMPING_WET);
+    let (s, d) = (presets::TIE_STIFFNESS_WET_PCT, presets::TIE_DAMPING_WET_PCT);
+    let (sf, df) = (f32::from(s) / 100.0, f32::from(d) / 100.0);
     for integrator in [
         maobi_shared::params::INTEGRATOR_BACKWARD_EULER,
         maobi_shared::params::INTEGRATOR_KANG_CHO,
@@ -211,11 +221,11 @@ fn a_loaded_layer_moves_as_a_dry_one_with_the_factored_ties<S: BrushScalar>() {
             loaded
                 .set_param(ParamId::Integrator, integrator as f32)
                 .unwrap();
-            let mut dry = brush::<S>(0.0, 1.0, 1.0);
+            let mut dry = brush::<S>(0.0, 100, 100);
             dry.set_param(ParamId::Integrator, integrator as f32)
                 .unwrap();
-            let k = presets::LARGE.tie_stiffness * (1.0 + wet * (s - 1.0));
-            let c = presets::LARGE.tie_damping * (1.0 + wet * (d - 1.0));
+            let k = presets::LARGE.tie_stiffness * (1.0 + wet * (sf - 1.0));
+            let c = presets::LARGE.tie_damping * (1.0 + wet * (df - 1.0));
             dry.set_param(ParamId::TieStiffness, k).unwrap();
             dry.set_param(ParamId::TieDamping, c).unwrap();
             let (a, b) = (push_and_release_path(loaded), push_and_release_path(dry));

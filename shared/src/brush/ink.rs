@@ -38,8 +38,8 @@
 //! making both functions of the ink content. Layer i's tie is
 //!
 //! ```text
-//! k_t,i  = k_t  (1 + W_i (tie_stiffness_wet_factor - 1))
-//! k_dt,i = k_dt (1 + W_i (tie_damping_wet_factor - 1))
+//! k_t,i  = k_t  (1 + W_i (tie_stiffness_wet_pct / 100 - 1))
+//! k_dt,i = k_dt (1 + W_i (tie_damping_wet_pct / 100 - 1))
 //! ```
 //!
 //! `k_t`, `k_dt` the dry layer's (`tie_stiffness_n_per_m`, `tie_damping_ns_per_m`), W_i its
@@ -53,7 +53,7 @@
 //! product per coefficient (`c_t + W c_t_ink`, `c_tv + W c_tv_ink`, with the saturated
 //! layer's changes derived with the other coefficients), evaluated where the tie is, so
 //! the brush keeps no per-layer array for it. The presets' factors
-//! ([`crate::presets::TIE_STIFFNESS_WET`], [`crate::presets::TIE_DAMPING_WET`]) are milder
+//! ([`crate::presets::TIE_STIFFNESS_WET_PCT`], [`crate::presets::TIE_DAMPING_WET_PCT`]) are milder
 //! than soaked against dry hair: a brush that writes itself dry of ink is still damp.
 //! The implicit rows of the thesis's integrator keep the dry tie in W' and take the ink's
 //! change on the right-hand side, as they take the tie's weight.
@@ -137,7 +137,7 @@ impl InkCoefs {
 pub fn tie_at(p: &BrushParams, wet: f64) -> (f64, f64) {
     let law = |dry: f32, wet_factor: f32| dry as f64 * (1.0 + wet * (wet_factor as f64 - 1.0));
     (
-        law(p.tie_stiffness, p.tie_stiffness_wet),
-        law(p.tie_damping, p.tie_damping_wet),
+        law(p.tie_stiffness, p.tie_stiffness_wet()),
+        law(p.tie_damping, p.tie_damping_wet()),
     )
 }

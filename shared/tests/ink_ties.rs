@@ -146,7 +146,10 @@ fn the_presets_loaded_brush_is_softer_and_slower_than_dry() {
         ticks_to_half_return(brush::<Fx>(0.0, s, d)),
         ticks_to_half_return(brush::<Fx>(1.0, s, d)),
     );
-    println!("presets' law: bend dry {dry:.3} / saturated {wet:.3} mm, half return dry {dry_back} / saturated {wet_back} ms");
+    println!(
+        "presets' law: bend dry {dry:.3} / saturated {wet:.3} mm, half return dry {dry_back} / \
+         saturated {wet_back} ms"
+    );
     assert!(wet > dry && wet_back > dry_back);
 }
 

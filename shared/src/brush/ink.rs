@@ -43,20 +43,20 @@
 //! ```
 //!
 //! `k_t`, `k_dt` the dry layer's (`tie_stiffness_n_per_m`, `tie_damping_ns_per_m`), W_i its
-//! wetness. The directions are the physics': water plasticises keratin's amorphous matrix,
-//! so a wet hair's Young's modulus is a half to a third of a dry one's (Robbins, *Chemical
-//! and Physical Behavior of Human Hair*; Feughelman's two-phase model of keratin fibres),
-//! and the spring softens with ink (factor at most one); the ink between the hairs is a
-//! viscous liquid that binds them and has to be sheared when they move against each other,
-//! so the damper stiffens with ink (factor at least one). Linear in W: the thesis gives no
-//! form, the wetness is itself the load's share, and a linear law costs the substep one
-//! product per coefficient (`c_t + W c_t_ink`, `c_tv + W c_tv_ink`, with the saturated
-//! layer's changes derived with the other coefficients), evaluated where the tie is, so
-//! the brush keeps no per-layer array for it. The presets' factors
-//! ([`crate::presets::TIE_STIFFNESS_WET_PCT`], [`crate::presets::TIE_DAMPING_WET_PCT`]) are milder
-//! than soaked against dry hair: a brush that writes itself dry of ink is still damp.
-//! The implicit rows of the thesis's integrator keep the dry tie in W' and take the ink's
-//! change on the right-hand side, as they take the tie's weight.
+//! wetness. The directions are the physics': water plasticises keratin's amorphous matrix
+//! (Feughelman's two-phase model, Textile Research Journal 29, 1959), so a dry hair's
+//! Young's modulus is two to three times a wet one's (J. Cosmet. Sci. 72, special edition,
+//! "The matrix revisited"), and the spring softens with ink (factor at most one); the ink
+//! between the hairs is a viscous liquid that binds them and has to be sheared when they
+//! move against each other, so the damper stiffens with ink (factor at least one). Linear
+//! in W: the thesis gives no form, the wetness is itself the load's share, and a linear law
+//! costs the substep one product per coefficient (`c_t + W c_t_ink`, `c_tv + W c_tv_ink`,
+//! the saturated layer's changes derived with the other coefficients), evaluated where the
+//! tie is, so the brush keeps no per-layer array for it. The presets' factors
+//! ([`crate::presets::TIE_STIFFNESS_WET_PCT`], [`crate::presets::TIE_DAMPING_WET_PCT`])
+//! are milder than soaked against dry hair: a brush that writes itself dry of ink is still
+//! damp. The implicit rows of the thesis's integrator keep the dry tie in W' and take the
+//! ink's change on the right-hand side, as they take the tie's weight.
 
 use crate::params::{BrushParams, MAX_LAYERS};
 

@@ -25,10 +25,11 @@
 //!    ```
 //!
 //!    over its one or two segments j, with `c_k = h^2 k_s / m`, `c_d = h k_d / m`, `c_t = h^2
-//!    k_t / m`, `c_tv = c_t + h k_dt / m`, `f_j` the spring term `(1 - L/|d|) d` with the
-//!    mass's sign, `e+ = max(e, 0)`: compressed, the negative transverse stiffness (buckling)
-//!    stays in the force but not in the matrix, which keeps the system positive definite and
-//!    the step stable, and the axial stiffness is the compression's (blended with the
+//!    k_t,i / m`, `c_tv = c_t + h k_dt,i / m` (layer i's tie for its ink, [`ink`]'s law),
+//!    `f_j` the spring term `(1 - L/|d|) d` with the mass's sign, `e+ = max(e, 0)`:
+//!    compressed, the negative transverse stiffness (buckling) stays in the force but not in
+//!    the matrix, which keeps the system positive definite and the step stable, and the
+//!    axial stiffness is the compression's (blended with the
 //!    stretch's across [`STIFFNESS_BLEND_STRAIN`] of the rest length, so the step is
 //!    continuous in the state). `VS^t_i` is the skeleton node where the substep started and
 //!    `w_i` its displacement in it; the ferrule's prescribed displacement `u_0` enters as
@@ -49,7 +50,8 @@
 //!    ```
 //!
 //!    with `c_k = h^2 k_s / W'_i`, `c_d = h k_d / W'_i`, `c_t = h^2 k_t / W'_i`,
-//!    `c_dt = h k_dt / W'_i`, `W'_i = m + h^2 (n_i k_s + t_i k_t) + h (n_i k_d + t_i k_dt)`,
+//!    `c_dt = h k_dt / W'_i`, `W'_i = m + h^2 (n_i k_s + t_i k_t) + h (n_i k_d + t_i k_dt)`
+//!    (in p_i, c_t and c_dt are layer i's for its ink, [`ink`]'s law; W' keeps the dry tie),
 //!    `t_i` the weight of mass i's tie to the skeleton (0 lying on the paper, 3.1.2, rising
 //!    to 1 at [`TIE_RAMP_MM`]; the implicit rows always include the tie, which changes W' by
 //!    under 0.01% at the presets' stiffness and keeps the solve independent of contact),
@@ -233,9 +235,31 @@ pub const TIE_RAMP_MM: f64 = 0.05;
 struct Row<S> {
     c_k: S,
     c_j: S, // c_k + c_d: the Jacobi off-diagonal, also the relative-velocity weight
+    tie: Tie<S>,
+    c_f: S, // h^2 / W' in mm per newton: an external force's share of the velocity change
+}
+
+/// A tie's per-substep coefficients, `c_t` and `c_tv = c_t + c_dt` of a dry layer (see the
+/// module docs), and what a saturated layer's ink adds to each ([`ink`]'s law).
+#[derive(Copy, Clone, Debug)]
+struct Tie<S> {
     c_t: S,
-    c_tv: S, // c_t + c_dt
-    c_f: S,  // h^2 / W' in mm per newton: an external force's share of the velocity change
+    c_tv: S,
+    c_t_ink: S,
+    c_tv_ink: S,
+}
+
+impl<S: Scalar> Tie<S> {
+    /// The coefficients `(c_t, c_tv)` of a layer with wetness `wet`: linear in it, one
+    /// product each, by `mul` (a coefficient product: `c_t_ink` and `c_tv_ink` are the
+    /// coefficients).
+    #[inline(always)]
+    fn at(&self, wet: S, mul: impl Fn(S, S) -> S) -> (S, S) {
+        (
+            self.c_t + mul(wet, self.c_t_ink),
+            self.c_tv + mul(wet, self.c_tv_ink),
+        )
+    }
 }
 
 /// Half the band of strain across which the backward-Euler step's axial stiffness goes from
@@ -259,10 +283,8 @@ struct Implicit<S> {
     inv_blend_width: S,
     /// h k_d / m.
     c_d: S,
-    /// h^2 k_t / m.
-    c_t: S,
-    /// (h^2 k_t + h k_dt) / m.
-    c_tv: S,
+    /// h^2 k_t / m and (h^2 k_t + h k_dt) / m, and the ink's change to them.
+    tie: Tie<S>,
     /// h^2 / m in mm per newton: an external force's displacement.
     c_f: S,
     /// Whether the brush's blocks fit the number format's compact chain solve, if it has one
@@ -284,10 +306,14 @@ struct Derived<S> {
     backward_euler: bool,
     /// Solve eq. 2.30 exactly instead of by Jacobi iterations (see [`JACOBI_LIMIT`]).
     exact_solve: bool,
+    /// Whether every coefficient the interior rows multiply by is a coefficient in the
+    /// sense of [`Scalar::is_coef`] (so the thesis's step may take `mul_tested_coef`):
+    /// decided with the parameters, not on every substep.
+    interior_coefs: bool,
     #[cfg(feature = "backward-euler")]
     implicit: Implicit<S>,
-    /// [interior or tip][untied or tied]
-    rows: [[Row<S>; 2]; 2],
+    /// [interior, tip]. Every row includes the tie (see the module docs).
+    rows: [Row<S>; 2],
     /// 1 - 1 / (1 + h C_f / m): the share of in-plane velocity the paper's drag takes.
     drag_loss: S,
     segment: S,
@@ -581,7 +607,6 @@ impl<S: Scalar> Brush<S> {
         let p = &self.params;
         let h = p.substep_s() as f64;
         let (ks, kd) = (p.axial_stiffness as f64, p.axial_damping as f64);
-        let (kt, kdt) = (p.tie_stiffness as f64, p.tie_damping as f64);
         let mut f = [0.0; 3];
         let n = self.d.n();
         if n > 1 {
@@ -599,6 +624,7 @@ impl<S: Scalar> Brush<S> {
             }
         }
         for i in 1..n {
+            let (kt, kdt) = ink::tie_at(p, self.layers[i].wetness.to_f64());
             let w = self.tie_weight(i).to_f64();
             let d = (self.spine[i] - self.skel[i]).to_f64();
             let dv = (self.vel[i] - self.skel_vel[i]).to_f64();
@@ -792,8 +818,7 @@ impl<S: BrushScalar> Brush<S> {
         let d = &self.d;
         // Every row includes the tie (see the module docs), so only two rows occur: the
         // interior masses 1..n-1 share one, the tip has its own.
-        let inner = d.rows[0][1];
-        let tip = d.rows[1][1];
+        let [inner, tip] = d.rows;
 
         // Spring term of each segment j (between masses j-1 and j), computed once and used with
         // opposite signs by both ends: (1 - L/|d|) d with d = S_j - S_{j-1}. `seg[n]` stays
@@ -825,10 +850,7 @@ impl<S: BrushScalar> Brush<S> {
         p[..3].copy_from_slice(&[du0.x, du0.y, du0.z]);
         // The interior rows share their coefficients (in [0, 1): fractions of the mass's
         // W'): tested once for the whole loop instead of on each product.
-        if [inner.c_k, inner.c_j, inner.c_t, inner.c_tv]
-            .iter()
-            .all(|c| c.is_coef())
-        {
+        if d.interior_coefs {
             self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_tested_coef);
         } else {
             self.interior_rhs(&inner, &seg, ties, &mut p, S::mul_coef);
@@ -938,10 +960,10 @@ impl<S: BrushScalar> Brush<S> {
             let mut diag = S::ONE;
             if w > S::ZERO {
                 // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
-                // where the substep started.
-                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c.c_t)
-                    + (self.skel_vel[i] - self.vel[i]).scale_coef(c.c_tv);
-                let tv = c.c_tv;
+                // where the substep started, its coefficients the layer's for its ink.
+                let (c_t, tv) = c.tie.at(self.layers[i].wetness, S::mul_coef);
+                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c_t)
+                    + (self.skel_vel[i] - self.vel[i]).scale_coef(tv);
                 (own, diag) = if w < S::ONE {
                     (tie.scale_coef(w), diag + tv.mul_coef(w))
                 } else {
@@ -966,15 +988,18 @@ impl<S: BrushScalar> Brush<S> {
         spring: Vec3<S>,
         rel: Vec3<S>,
         w: S,
-        mul: impl Fn(S, S) -> S,
+        mul: impl Fn(S, S) -> S + Copy,
     ) -> Vec3<S> {
         let scale = |v: Vec3<S>, c: S| Vec3::new(mul(v.x, c), mul(v.y, c), mul(v.z, c));
         let mut pi = scale(spring, row.c_k) + scale(rel, row.c_j);
         if w > S::ZERO {
             // The skeleton where the substep started (VS^t): its motion in the substep, w,
-            // enters through c_tv alone.
-            let tie = scale((self.skel[i] - self.skel_vel[i]) - self.spine[i], row.c_t)
-                + scale(self.skel_vel[i] - self.vel[i], row.c_tv);
+            // enters through c_tv alone. The coefficients are the layer's for its ink,
+            // evaluated here rather than with the weights: only for a tied mass, and with
+            // the row's tested products.
+            let (c_t, c_tv) = row.tie.at(self.layers[i].wetness, mul);
+            let tie = scale((self.skel[i] - self.skel_vel[i]) - self.spine[i], c_t)
+                + scale(self.skel_vel[i] - self.vel[i], c_tv);
             // A mass clear of the paper has weight exactly one, and scaling by one is exact in
             // every scalar type: skip those three multiplies. A weight below one is a
             // coefficient.
@@ -1015,7 +1040,7 @@ impl<S: BrushScalar> Brush<S> {
         let n = self.d.n();
         // The pivots: set by `prepare_pivots` with the parameters (the rows do not depend on
         // contact: the tie is weighted in the right-hand side).
-        let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)][1].c_j;
+        let c_j = |i: usize| self.d.rows[usize::from(i == n - 1)].c_j;
         let get = |e: &[S]| Vec3::new(e[0], e[1], e[2]);
         let mut prev = Vec3::<S>::ZERO;
         for (i, e) in (1..n).zip(p[3..].chunks_exact_mut(3)) {
@@ -1047,7 +1072,7 @@ impl<S: BrushScalar> Brush<S> {
         let n = self.d.n();
         let mut prev_cp = S::ZERO;
         for i in 1..n {
-            let c = self.d.rows[usize::from(i == n - 1)][1].c_j;
+            let c = self.d.rows[usize::from(i == n - 1)].c_j;
             let m = S::ONE - c * prev_cp;
             let inv_m = S::ONE.div(m);
             self.inv_pivot[i] = inv_m;
@@ -1704,22 +1729,33 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let m = p.mass_g * 1e-3 / (n as f32 - 1.0);
     let (ks, kd) = (p.axial_stiffness, p.axial_damping);
     let (kt, kdt) = (p.tie_stiffness, p.tie_damping);
+    // The tie's change from a dry to a saturated layer ([`ink`]'s law), per unit wetness.
+    let (kt_ink, kdt_ink) = (
+        kt * (p.tie_stiffness_wet() - 1.0),
+        kdt * (p.tie_damping_wet() - 1.0),
+    );
     // Each row's Jacobi coefficient, c_j, as computed: the largest picks the solve.
     let mut worst_c_j = 0.0f32;
-    let mut row = |neighbours: f32, tied: bool| {
-        let t = if tied { 1.0 } else { 0.0 };
-        let w = m + h * h * (neighbours * ks + t * kt) + h * (neighbours * kd + t * kdt);
+    // Every row includes the dry tie (see the module docs): the ink's change to it, like
+    // the tie's weight, enters the right-hand side only.
+    let mut row = |neighbours: f32| {
+        let w = m + h * h * (neighbours * ks + kt) + h * (neighbours * kd + kdt);
         let c_k = h * h * ks / w;
         let c_d = h * kd / w;
         let c_t = h * h * kt / w;
         let c_dt = h * kdt / w;
+        let c_t_ink = h * h * kt_ink / w;
         let c_j = c_k + c_d;
         worst_c_j = worst_c_j.max(c_j);
         Row {
             c_k: S::from_f32(c_k),
             c_j: S::from_f32(c_j),
-            c_t: S::from_f32(c_t * t),
-            c_tv: S::from_f32((c_t + c_dt) * t),
+            tie: Tie {
+                c_t: S::from_f32(c_t),
+                c_tv: S::from_f32(c_t + c_dt),
+                c_t_ink: S::from_f32(c_t_ink),
+                c_tv_ink: S::from_f32(c_t_ink + h * kdt_ink / w),
+            },
             c_f: S::from_f32(h * h * 1e3 / w),
         }
     };
@@ -1747,10 +1783,24 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
             inv_count[i] = S::ONE.div(S::from_usize(i));
         }
     }
-    let rows = [
-        [row(2.0, false), row(2.0, true)],
-        [row(1.0, false), row(1.0, true)],
-    ];
+    let rows = [row(2.0), row(1.0)];
+    // The interior rows' coefficients, tested once here for the substeps' products. A
+    // layer's tie coefficients lie between the dry's and the saturated's: c_tv's ends are
+    // tested, c_t's saturated end lies between zero and its dry one (the stiffness factor
+    // is a tenth to one).
+    let [inner, _] = rows;
+    let t = inner.tie;
+    let interior_coefs = [
+        inner.c_k,
+        inner.c_j,
+        t.c_t,
+        t.c_tv,
+        t.c_t_ink,
+        t.c_tv_ink,
+        t.c_tv + t.c_tv_ink,
+    ]
+    .iter()
+    .all(|c| c.is_coef());
     #[cfg(feature = "backward-euler")]
     let implicit = Implicit {
         c_k: S::from_f32(h * h * ks / m),
@@ -1759,8 +1809,12 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         blend_strain: S::from_f32(STIFFNESS_BLEND_STRAIN as f32),
         inv_blend_width: S::from_f32((0.5 / STIFFNESS_BLEND_STRAIN) as f32),
         c_d: S::from_f32(h * kd / m),
-        c_t: S::from_f32(h * h * kt / m),
-        c_tv: S::from_f32((h * h * kt + h * kdt) / m),
+        tie: Tie {
+            c_t: S::from_f32(h * h * kt / m),
+            c_tv: S::from_f32((h * h * kt + h * kdt) / m),
+            c_t_ink: S::from_f32(h * h * kt_ink / m),
+            c_tv_ink: S::from_f32((h * h * kt_ink + h * kdt_ink) / m),
+        },
         c_f: S::from_f32(h * h * 1e3 / m),
         fits_format_chain: p.backward_euler_diagonal_bound() < MAX_DIAGONAL,
     };
@@ -1768,6 +1822,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         #[cfg(feature = "backward-euler")]
         backward_euler: p.integrator == INTEGRATOR_BACKWARD_EULER,
         exact_solve: worst_c_j as f64 > JACOBI_LIMIT,
+        interior_coefs,
         #[cfg(feature = "backward-euler")]
         implicit,
         layers: n,
@@ -1852,9 +1907,16 @@ mod tests {
         for (params, fits) in [
             (crate::presets::LARGE, true),
             (crate::presets::SMALL, true),
+            // Without the ink's law in the ties (`ink`): this brush, pressed, leaves layers
+            // where the ink's deposit starts (a step, `ink::PRESS_FLOOR`), and the rounding
+            // that puts a layer on the other side of it in one format but not the other
+            // gives the two different wetness (5e-3), which the ties turn into tens of
+            // micrometres; the solve, which this tests, is the same either way.
             (
                 BrushParams {
                     axial_stiffness: crate::presets::LARGE.axial_stiffness * 20.0,
+                    tie_stiffness_wet_pct: 100,
+                    tie_damping_wet_pct: 100,
                     ..crate::presets::LARGE
                 },
                 false,

@@ -42,10 +42,12 @@ pub enum ParamId {
     FootprintEpsMm,
     Integrator,
     InkCapacity,
+    TieStiffnessWet,
+    TieDampingWet,
 }
 
 impl ParamId {
-    pub const ALL: [ParamId; 23] = [
+    pub const ALL: [ParamId; 25] = [
         ParamId::Layers,
         ParamId::RingNodes,
         ParamId::LengthMm,
@@ -69,6 +71,8 @@ impl ParamId {
         ParamId::FootprintEpsMm,
         ParamId::Integrator,
         ParamId::InkCapacity,
+        ParamId::TieStiffnessWet,
+        ParamId::TieDampingWet,
     ];
 
     /// The parameter's name as the CLI, the GUI and the wire protocol spell it.
@@ -97,6 +101,8 @@ impl ParamId {
             ParamId::FootprintEpsMm => "footprint_eps_mm",
             ParamId::Integrator => "integrator",
             ParamId::InkCapacity => "ink_capacity",
+            ParamId::TieStiffnessWet => "tie_stiffness_wet_pct",
+            ParamId::TieDampingWet => "tie_damping_wet_pct",
         }
     }
 
@@ -130,6 +136,12 @@ impl ParamId {
             ParamId::FootprintEpsMm => (0.001, 2.0, false),
             ParamId::Integrator => (INTEGRATORS.0 as f32, INTEGRATORS.1 as f32, true),
             ParamId::InkCapacity => (0.01, 100.0, false),
+            // Percent of the dry tie's, in the directions of `crate::brush::ink`'s law: ink
+            // softens the hair and adds viscosity, never the reverse. Whole percent, each kept
+            // in a byte (every copy of the parameters, a command queue's too, stays its
+            // size); two and a half times the dry damping is past critical for either preset.
+            ParamId::TieStiffnessWet => (10.0, 100.0, true),
+            ParamId::TieDampingWet => (100.0, 250.0, true),
         }
     }
 }
@@ -217,9 +229,10 @@ pub struct BrushParams {
     /// carry much compression (each hair buckles), so a brush pressed straight down settles
     /// onto the paper instead of standing on its tip like a column.
     pub compression_ratio: f32,
-    /// Zero-length spring from S_i to the virtual skeleton node VS_i (Liang 3.1.2).
+    /// Zero-length spring from S_i to the virtual skeleton node VS_i (Liang 3.1.2), of a
+    /// layer with no ink in it (wetness 0); see `tie_stiffness_wet`.
     pub tie_stiffness: f32,
-    /// Damper in parallel with the tie.
+    /// Damper in parallel with the tie, of a layer with no ink in it; see `tie_damping_wet`.
     pub tie_damping: f32,
     /// C_f of the viscous paper drag on masses lying on the paper (eq. 4.1).
     pub paper_drag: f32,
@@ -249,6 +262,13 @@ pub struct BrushParams {
     /// rest ellipse over one segment), in ink units (optical depth times mm^2: one unit
     /// darkens 1 mm^2 of paper to optical depth 1). See `crate::brush::ink`.
     pub ink_capacity: f32,
+    /// The tie's stiffness of a saturated layer (wetness 1) in percent of `tie_stiffness`:
+    /// wet keratin is softer than dry. In between it follows the layer's wetness linearly
+    /// (see `crate::brush::ink`, the thesis's 3.1.2 suggestion).
+    pub tie_stiffness_wet_pct: u8,
+    /// The tie's damping of a saturated layer in percent of `tie_damping`: the ink between
+    /// the hairs is viscous. Linear in the wetness, like `tie_stiffness_wet_pct`.
+    pub tie_damping_wet_pct: u8,
 }
 
 /// `integrator` 0: backward Euler with each spring's own Jacobian, solved exactly.
@@ -294,6 +314,8 @@ impl BrushParams {
             ParamId::FootprintEpsMm => self.footprint_eps_mm,
             ParamId::Integrator => self.integrator as f32,
             ParamId::InkCapacity => self.ink_capacity,
+            ParamId::TieStiffnessWet => self.tie_stiffness_wet_pct as f32,
+            ParamId::TieDampingWet => self.tie_damping_wet_pct as f32,
         }
     }
 
@@ -331,6 +353,8 @@ impl BrushParams {
             ParamId::FootprintEpsMm => self.footprint_eps_mm = v,
             ParamId::Integrator => self.integrator = v as u8,
             ParamId::InkCapacity => self.ink_capacity = v,
+            ParamId::TieStiffnessWet => self.tie_stiffness_wet_pct = v as u8,
+            ParamId::TieDampingWet => self.tie_damping_wet_pct = v as u8,
         }
     }
 
@@ -358,17 +382,33 @@ impl BrushParams {
     }
 
     /// The largest entry a diagonal block of the backward-Euler step's system can reach, in
-    /// units of the mass: `1 + c_tv + 2 (c_k + c_d)` (the mass, its tie, and two segments'
-    /// stiffness and damping at the substep; see `crate::brush`). It decides whether the
-    /// fixed-point brush solves its chain in 32 bits (`brush::MAX_DIAGONAL`).
+    /// units of the mass: `1 + c_tv + 2 (c_k + c_d)` (the mass, its tie at its strongest over
+    /// the layer's wetness, and two segments' stiffness and damping at the substep; see
+    /// `crate::brush`). It decides whether the fixed-point brush solves its chain in 32 bits
+    /// (`brush::MAX_DIAGONAL`).
     #[cfg(feature = "backward-euler")]
     pub fn backward_euler_diagonal_bound(&self) -> f32 {
         let h = self.substep_s();
         let m = self.mass_g * 1e-3 / (self.layers as f32 - 1.0);
         let c_k = h * h * self.axial_stiffness / m;
         let c_d = h * self.axial_damping / m;
-        let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping) / m;
+        // The tie at its strongest over the wetness: the law's factors are validated to
+        // soften the spring (at most one) and stiffen the damper (at least one) with ink,
+        // so the dry spring and the saturated damper.
+        let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping * self.tie_damping_wet()) / m;
         1.0 + c_tv + 2.0 * (c_k + c_d)
+    }
+
+    /// The tie's stiffness of a saturated layer as a fraction of the dry's
+    /// (`tie_stiffness_wet_pct`).
+    pub fn tie_stiffness_wet(&self) -> f32 {
+        self.tie_stiffness_wet_pct as f32 / 100.0
+    }
+
+    /// The tie's damping of a saturated layer as a multiple of the dry's
+    /// (`tie_damping_wet_pct`).
+    pub fn tie_damping_wet(&self) -> f32 {
+        self.tie_damping_wet_pct as f32 / 100.0
     }
 
     /// Resting length of one spine segment (mm).

@@ -9,10 +9,13 @@
 //!   small brush.
 //! * Bending stiffness: Baxter & Lin 2004 section 5 report that 1-2 N of normal force bends a
 //!   brush nearly 90 degrees. Bending stiffness in this model comes from the ties between the
-//!   spine and the virtual skeleton, so the tie stiffness sets it: with 1.5 N/m a load of 1 N
-//!   across the large brush's tip bends its ferrule-to-tip chord by about 72 degrees and 2 N
-//!   by about 81 (test `large_brush_bends_nearly_flat_under_one_to_two_newtons` in
-//!   `tests/model.rs`). Tie damping is about half of critical.
+//!   spine and the virtual skeleton, so the tie stiffness sets it: with 1.5 N/m dry, 82% of it
+//!   at the presets' starting load (wetness 0.6, the ink's law in `crate::brush::ink`), a
+//!   load of 1 N across the large brush's tip bends its ferrule-to-tip chord by about 75
+//!   degrees and 2 N by about 82 (test `large_brush_bends_nearly_flat_under_one_to_two_newtons`
+//!   in `tests/model.rs`). Dry, the tie's damping is about half of critical.
+//! * Ink in the ties: a saturated layer's tie has [`TIE_STIFFNESS_WET_PCT`] of the dry
+//!   stiffness and [`TIE_DAMPING_WET_PCT`] of the dry damping, linear in the wetness between.
 //! * Axial springs: hair barely stretches; k_s is set stiff (h^2 k_s / m = 0.05 at 25 kHz, 30
 //!   at the presets' one substep per 1 ms tick, which the backward-Euler step takes in its
 //!   stride) while staying well inside the solver's range.
@@ -32,6 +35,17 @@
 use core::fmt;
 
 use crate::params::{BrushParams, DEFAULT_INTEGRATOR};
+
+/// The presets' tie stiffness of a saturated layer in percent of the dry's (see
+/// `crate::brush::ink`): wet keratin's modulus is a half to a third of dry keratin's, but a
+/// layer that has given its ink is still damp, so the step from a saturated to an emptied
+/// layer is taken as the smaller 30%.
+pub const TIE_STIFFNESS_WET_PCT: u8 = 70;
+
+/// The presets' tie damping of a saturated layer in percent of the dry's: the ink's
+/// viscosity between the hairs. Half as much again keeps the saturated large brush's tie
+/// below critical damping (the dry tie is about half of critical).
+pub const TIE_DAMPING_WET_PCT: u8 = 150;
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
@@ -58,6 +72,8 @@ pub const LARGE: BrushParams = BrushParams {
     footprint_eps_mm: 0.1,
     integrator: DEFAULT_INTEGRATOR,
     ink_capacity: 0.4,
+    tie_stiffness_wet_pct: TIE_STIFFNESS_WET_PCT,
+    tie_damping_wet_pct: TIE_DAMPING_WET_PCT,
 };
 
 /// 小楷: small regular-script brush.
@@ -85,6 +101,8 @@ pub const SMALL: BrushParams = BrushParams {
     footprint_eps_mm: 0.05,
     integrator: DEFAULT_INTEGRATOR,
     ink_capacity: 0.4,
+    tie_stiffness_wet_pct: TIE_STIFFNESS_WET_PCT,
+    tie_damping_wet_pct: TIE_DAMPING_WET_PCT,
 };
 
 /// Presets by the names the CLI and the protocol use.

@@ -51,7 +51,11 @@ fn pressed_brush(params: maobi_shared::BrushParams) -> Brush<Fx> {
     for k in 1..=100 {
         b.tick(pose(4.0 * k as f64 / 100.0, 0.0, reach - 10.0, tilt));
     }
-    assert!(b.contacts() >= 3, "the press must put hair on the paper");
+    // Masses within a few micrometres of the paper: whether each counts as touching
+    // (`contacts`, a tolerance of micrometres) changes with the ties' stiffness, which the
+    // ink sets, as the drag ends.
+    let on_paper = b.spine().iter().filter(|s| s.z.to_f64() < 0.02).count();
+    assert!(on_paper >= 3, "the press must put hair on the paper");
     b
 }
 

@@ -30,6 +30,33 @@
 //! deposited equals ink dipped, to the rounding of those updates (`shared/tests/ink.rs`). The wetness is the state, not the amount, so a layer
 //! costs the pen's RAM one number more (its running total), not two; each layer's
 //! capacity's reciprocal is kept in single precision.
+//!
+//! # The ink in the ties
+//!
+//! The thesis (3.1.2) has the tie between a mass and its skeleton node stand for the hair's
+//! elasticity (its spring, k_t) and the ink's viscosity (its damper, k_dt), and suggests
+//! making both functions of the ink content. Layer i's tie is
+//!
+//! ```text
+//! k_t,i  = k_t  (1 + W_i (tie_stiffness_wet_pct / 100 - 1))
+//! k_dt,i = k_dt (1 + W_i (tie_damping_wet_pct / 100 - 1))
+//! ```
+//!
+//! `k_t`, `k_dt` the dry layer's (`tie_stiffness_n_per_m`, `tie_damping_ns_per_m`), W_i its
+//! wetness. The directions are the physics': water plasticises keratin's amorphous matrix
+//! (Feughelman's two-phase model, Textile Research Journal 29, 1959), so a dry hair's
+//! Young's modulus is two to three times a wet one's (J. Cosmet. Sci. 72, special edition,
+//! "The matrix revisited"), and the spring softens with ink (factor at most one); the ink
+//! between the hairs is a viscous liquid that binds them and has to be sheared when they
+//! move against each other, so the damper stiffens with ink (factor at least one). Linear
+//! in W: the thesis gives no form, the wetness is itself the load's share, and a linear law
+//! costs the substep one product per coefficient (`c_t + W c_t_ink`, `c_tv + W c_tv_ink`,
+//! the saturated layer's changes derived with the other coefficients), evaluated where the
+//! tie is, so the brush keeps no per-layer array for it. The presets' factors
+//! ([`crate::presets::TIE_STIFFNESS_WET_PCT`], [`crate::presets::TIE_DAMPING_WET_PCT`])
+//! are milder than soaked against dry hair: a brush that writes itself dry of ink is still
+//! damp. The implicit rows of the thesis's integrator keep the dry tie in W' and take the
+//! ink's change on the right-hand side, as they take the tie's weight.
 
 use crate::params::{BrushParams, MAX_LAYERS};
 
@@ -103,4 +130,14 @@ impl InkCoefs {
             press_slope: gain * (1.0 - PRESS_FLOOR),
         }
     }
+}
+
+/// Layer tie stiffness (N/m) and damping (N s/m) at wetness `wet` (see the module docs), in
+/// double precision: the handle's reaction ([`super::Brush::handle_reaction`]) sums them.
+pub fn tie_at(p: &BrushParams, wet: f64) -> (f64, f64) {
+    let law = |dry: f32, wet_factor: f32| dry as f64 * (1.0 + wet * (wet_factor as f64 - 1.0));
+    (
+        law(p.tie_stiffness, p.tie_stiffness_wet()),
+        law(p.tie_damping, p.tie_damping_wet()),
+    )
 }

@@ -47,8 +47,8 @@ pub(super) fn saturated_word(v: i64) -> i32 {
 }
 
 #[inline(always)]
-fn q30_vec(v: Vec3<Fx>) -> [i64; 3] {
-    [q30(v.x) as i64, q30(v.y) as i64, q30(v.z) as i64]
+fn q30_vec(v: Vec3<Fx>) -> [i32; 3] {
+    [q30(v.x), q30(v.y), q30(v.z)]
 }
 
 /// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and `dir` enter
@@ -56,6 +56,11 @@ fn q30_vec(v: Vec3<Fx>) -> [i64; 3] {
 /// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
 /// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
 /// once, rounded into the model's format.
+///
+/// Every intermediate is a word (`i32`), every product a 32 x 32-bit one (`SMULL`): `sa`
+/// within the unit ball and `dir` a unit vector (the surface's are, to their rounding), so
+/// `sa x dir` and the normalised axis lie within one, far inside `Q1.30`'s range of two. A
+/// caller's vector that is not wraps (never panics).
 #[inline(always)]
 pub(super) fn ellipse_axes(
     sa: Option<Vec3<Fx>>,
@@ -67,14 +72,12 @@ pub(super) fn ellipse_axes(
         None => [0, 0, 1 << UNIT_FRAC],
     };
     let d = q30_vec(dir);
-    // Products in Q2.60 (below 2^62 in magnitude); their difference rounded to Q1.30 is
-    // within one in magnitude for `|sa| <= 1`, wrapping (never panicking) for a caller's
-    // vector that is not.
-    let to_q30 = |p: i64| p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC;
+    // Products in Q2.60 (below 2^62 in magnitude), their difference rounded to Q1.30.
+    let to_q30 = |p: i64| (p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC) as i32;
     let long = cross_words(a, d).map(to_q30);
     let unit = normalize_words(long, min_len)?;
     // Q1.30 back to the model's 32 fractional bits: exact.
-    let fx = |w: i64| Fx::from_bits(w << (32 - UNIT_FRAC));
+    let fx = |w: i32| Fx::from_bits((w as i64) << (32 - UNIT_FRAC));
     // dir x long in Q2.60, rounded once into the model's format.
     let shift = 2 * UNIT_FRAC - 32;
     let round = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
@@ -87,8 +90,8 @@ pub(super) fn ellipse_axes(
 
 /// `a x b` of `Q1.30` words, exact in `Q2.60`.
 #[inline(always)]
-fn cross_words(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
-    let m = |x: i64, y: i64| x.wrapping_mul(y);
+fn cross_words(a: [i32; 3], b: [i32; 3]) -> [i64; 3] {
+    let m = |x: i32, y: i32| x as i64 * y as i64;
     [
         m(a[1], b[2]).wrapping_sub(m(a[2], b[1])),
         m(a[2], b[0]).wrapping_sub(m(a[0], b[2])),
@@ -99,11 +102,11 @@ fn cross_words(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
 /// `v / |v|` of `Q1.30` words (magnitudes within one), in `Q1.30`, if `|v| > min_len`: the
 /// squared length exact in 64 bits, the reciprocal root from `f32` (see the module docs).
 #[inline(always)]
-fn normalize_words(q: [i64; 3], min_len: Fx) -> Option<[i64; 3]> {
-    // Q2.60, each square below 2^62: the sum below 2^64 as unsigned.
+fn normalize_words(q: [i32; 3], min_len: Fx) -> Option<[i32; 3]> {
+    // Q2.60, each square at most 2^62: the sum below 2^64 as unsigned.
     let n2 = q
         .iter()
-        .fold(0u64, |s, &c| s.wrapping_add(c.wrapping_mul(c) as u64));
+        .fold(0u64, |s, &c| s.wrapping_add((c as i64 * c as i64) as u64));
     let min = q30(min_len) as i64;
     // Below 2^-8 in length the root leaves its format: too short to normalise, whatever
     // the caller's threshold.
@@ -119,8 +122,9 @@ fn normalize_words(q: [i64; 3], min_len: Fx) -> Option<[i64; 3]> {
     // 2^32 for a length above 2^-8 (a float-to-u32 conversion is one instruction).
     let scale = f32::from_bits((127 + 14 + ROOT_FRAC + s / 2) << 23);
     let r = (root * scale) as u32 as i64;
-    // Q1.30 times Q8.24, rounded back to Q1.30.
-    Some(q.map(|c| c.wrapping_mul(r).wrapping_add(1 << (ROOT_FRAC - 1)) >> ROOT_FRAC))
+    // Q1.30 times Q8.24 (below 2^62: a component is at most the length), rounded back to
+    // Q1.30.
+    Some(q.map(|c| ((c as i64 * r + (1 << (ROOT_FRAC - 1))) >> ROOT_FRAC) as i32))
 }
 
 /// The skeleton's nodes `pos + m offset_i` (`m` a rotation matrix, `offset_i` in the

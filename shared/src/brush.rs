@@ -125,25 +125,26 @@ pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
-    /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
-    /// paper's normal) and its segment's unit direction `dir`: the long axis `sa x dir`
-    /// normalised, if longer than `min_len`, and the short axis `dir x long` (unit).
+    /// A unit vector (a segment's direction) in the form the surface's products take it in
+    /// ([`Self::unit`]).
     #[doc(hidden)]
-    #[inline(always)]
+    type Unit: Copy;
+    /// `dir` (unit) as a [`Self::Unit`]: the float formats keep it as it is.
+    #[doc(hidden)]
+    fn unit(dir: Vec3<Self>) -> Self::Unit;
+    /// `1 - a . b` of two unit vectors: a layer's tilt (the surface update's step 5).
+    #[doc(hidden)]
+    fn one_minus_dot(a: Self::Unit, b: Self::Unit) -> Self;
+    /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
+    /// paper's normal) and its segment's unit direction `dir` ([`Self::unit`]): the long axis
+    /// `sa x dir` normalised, if longer than `min_len`, and the short axis `dir x long`
+    /// (unit).
+    #[doc(hidden)]
     fn ellipse_axes(
         sa: Option<Vec3<Self>>,
-        dir: Vec3<Self>,
+        dir: Self::Unit,
         min_len: Self,
-    ) -> Option<(Vec3<Self>, Vec3<Self>)> {
-        let la = match sa {
-            // Z x V: the value of the general product (its factors zero and one give exact
-            // products), without its six products.
-            None => Vec3::new(Self::ZERO - dir.y, dir.x, Self::ZERO),
-            Some(sa) => sa.cross_coef(dir),
-        };
-        let la = la.normalized_or_none_coef(min_len)?;
-        Some((la, dir.cross_coef(la)))
-    }
+    ) -> Option<(Vec3<Self>, Vec3<Self>)>;
     /// The skeleton's nodes `pos + m offset_i` into `out` by the format's own means, if it
     /// has them (`true`); else [`place_skeleton`]'s generic products.
     #[doc(hidden)]
@@ -166,25 +167,67 @@ pub trait BrushScalar: Scalar {
     }
 }
 
+/// [`BrushScalar`]'s surface products in the format's own arithmetic (the float formats').
+macro_rules! float_surface {
+    () => {
+        type Unit = Vec3<Self>;
+        #[inline(always)]
+        fn unit(dir: Vec3<Self>) -> Vec3<Self> {
+            dir
+        }
+        #[inline(always)]
+        fn one_minus_dot(a: Vec3<Self>, b: Vec3<Self>) -> Self {
+            1.0 - a.dot_coef(b)
+        }
+        #[inline(always)]
+        fn ellipse_axes(
+            sa: Option<Vec3<Self>>,
+            dir: Vec3<Self>,
+            min_len: Self,
+        ) -> Option<(Vec3<Self>, Vec3<Self>)> {
+            let la = match sa {
+                // Z x V: the value of the general product (its factors zero and one give
+                // exact products), without its six products.
+                None => Vec3::new(0.0 - dir.y, dir.x, 0.0),
+                Some(sa) => sa.cross_coef(dir),
+            };
+            let la = la.normalized_or_none_coef(min_len)?;
+            Some((la, dir.cross_coef(la)))
+        }
+    };
+}
+
 impl BrushScalar for f64 {
     #[cfg(feature = "backward-euler")]
     type Chain = ChainSolve<f64>;
+    float_surface!();
 }
 
 impl BrushScalar for f32 {
     #[cfg(feature = "backward-euler")]
     type Chain = ChainSolve<f32>;
+    float_surface!();
 }
 
 impl BrushScalar for Fx {
     #[cfg(feature = "backward-euler")]
     type Chain = chain_fixed::FxChain;
     // In 32-bit words (`brush/unit_fixed.rs`): a surface update's worth of 64-bit products
-    // saved on the pen's every tick.
+    // saved on the pen's every tick. A direction enters its words once, for the layer's
+    // axes and for the tilts on either side.
+    type Unit = unit_fixed::Unit;
+    #[inline(always)]
+    fn unit(dir: Vec3<Fx>) -> unit_fixed::Unit {
+        unit_fixed::unit(dir)
+    }
+    #[inline(always)]
+    fn one_minus_dot(a: unit_fixed::Unit, b: unit_fixed::Unit) -> Fx {
+        unit_fixed::one_minus_dot(a, b)
+    }
     #[inline(always)]
     fn ellipse_axes(
         sa: Option<Vec3<Fx>>,
-        dir: Vec3<Fx>,
+        dir: unit_fixed::Unit,
         min_len: Fx,
     ) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
         unit_fixed::ellipse_axes(sa, dir, min_len)
@@ -1187,7 +1230,7 @@ impl<S: BrushScalar> Brush<S> {
         // pen would pay for zeroing that array in every tick).
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
-        let mut prev_dir = Vec3::<S>::ZERO;
+        let mut prev_dir = S::unit(Vec3::ZERO);
         // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined (see below).
         let min_cross = self.d.tiny;
         for i in 1..n {
@@ -1202,15 +1245,16 @@ impl<S: BrushScalar> Brush<S> {
             } else {
                 down
             };
+            let unit = S::unit(dir);
             if i >= 2 {
-                tilt[i - 1] = S::ONE - dir.dot_coef(prev_dir);
+                tilt[i - 1] = S::one_minus_dot(unit, prev_dir);
                 tilt_sum += tilt[i - 1];
             }
-            prev_dir = dir;
+            prev_dir = unit;
             let layer = &mut self.layers[i];
             // The short axis is the paper's normal from the first layer on it (step 1).
             let sa = (i < on_paper_from).then_some(layer.short_axis);
-            match S::ellipse_axes(sa, dir, min_cross) {
+            match S::ellipse_axes(sa, unit, min_cross) {
                 Some((la, sa)) => {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the

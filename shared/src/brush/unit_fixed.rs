@@ -51,8 +51,27 @@ fn q30_vec(v: Vec3<Fx>) -> [i32; 3] {
     [q30(v.x), q30(v.y), q30(v.z)]
 }
 
-/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and `dir` enter
-/// once as `Q1.30`; the long axis `sa x dir` is formed exactly in 64 bits, rounded to
+/// A unit vector's components in `Q1.30` ([`super::BrushScalar::Unit`] for `Fx`).
+pub(super) type Unit = [i32; 3];
+
+/// `dir` (a unit vector) as its `Q1.30` words.
+#[inline(always)]
+pub(super) fn unit(dir: Vec3<Fx>) -> Unit {
+    q30_vec(dir)
+}
+
+/// `1 - a . b` of two unit vectors' words: the dot product exact in `Q2.60` (within one in
+/// magnitude for unit vectors), rounded once into the model's format.
+#[inline(always)]
+pub(super) fn one_minus_dot(a: Unit, b: Unit) -> Fx {
+    let m = |k: usize| a[k] as i64 * b[k] as i64;
+    let dot = m(0).wrapping_add(m(1)).wrapping_add(m(2));
+    let shift = 2 * UNIT_FRAC - 32;
+    Fx::from_bits((1i64 << 32).wrapping_sub(dot.wrapping_add(1 << (shift - 1)) >> shift))
+}
+
+/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) enters once as
+/// `Q1.30`, the direction `d` is in its words already ([`unit`]); the long axis `sa x dir` is formed exactly in 64 bits, rounded to
 /// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
 /// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
 /// once, rounded into the model's format.
@@ -64,14 +83,13 @@ fn q30_vec(v: Vec3<Fx>) -> [i32; 3] {
 #[inline(always)]
 pub(super) fn ellipse_axes(
     sa: Option<Vec3<Fx>>,
-    dir: Vec3<Fx>,
+    d: Unit,
     min_len: Fx,
 ) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
     let a = match sa {
         Some(sa) => q30_vec(sa),
         None => [0, 0, 1 << UNIT_FRAC],
     };
-    let d = q30_vec(dir);
     // Products in Q2.60 (below 2^62 in magnitude), their difference rounded to Q1.30.
     let to_q30 = |p: i64| (p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC) as i32;
     let long = cross_words(a, d).map(to_q30);
@@ -213,7 +231,7 @@ mod tests {
             let a = sa.unwrap_or([0.0, 0.0, 1.0]);
             let long = cross(a, dir);
             let len = (long[0] * long[0] + long[1] * long[1] + long[2] * long[2]).sqrt();
-            match ellipse_axes(sa.map(fx), fx(dir), Fx::from_f64(min_len)) {
+            match ellipse_axes(sa.map(fx), unit(fx(dir)), Fx::from_f64(min_len)) {
                 Some((l, sh)) => {
                     some += 1;
                     assert!(len > min_len * 0.999, "{len}");

@@ -135,13 +135,22 @@ pub trait BrushScalar: Scalar {
     /// `1 - a . b` of two unit vectors: a layer's tilt (the surface update's step 5).
     #[doc(hidden)]
     fn one_minus_dot(a: Self::Unit, b: Self::Unit) -> Self;
+    /// A [`Self::Unit`] as a vector.
+    #[doc(hidden)]
+    fn from_unit(u: Self::Unit) -> Vec3<Self>;
+    /// `a (1 - w) + Z w` for `w` in [0, 1]: a short axis between `a` and the paper's normal.
+    #[doc(hidden)]
+    fn toward_normal(a: Self::Unit, w: Self) -> Self::Unit;
+    /// `a + (b - a) w` for `w` in [0, 1]: a short axis between `a` and `b`.
+    #[doc(hidden)]
+    fn lerp_unit(a: Self::Unit, b: Self::Unit, w: Self) -> Self::Unit;
     /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
     /// paper's normal) and its segment's unit direction `dir` ([`Self::unit`]): the long axis
     /// `sa x dir` normalised, if longer than `min_len`, and the short axis `dir x long`
     /// (unit).
     #[doc(hidden)]
     fn ellipse_axes(
-        sa: Option<Vec3<Self>>,
+        sa: Option<Self::Unit>,
         dir: Self::Unit,
         min_len: Self,
     ) -> Option<(Vec3<Self>, Vec3<Self>)>;
@@ -178,6 +187,21 @@ macro_rules! float_surface {
         #[inline(always)]
         fn one_minus_dot(a: Vec3<Self>, b: Vec3<Self>) -> Self {
             1.0 - a.dot_coef(b)
+        }
+        #[inline(always)]
+        fn from_unit(u: Vec3<Self>) -> Vec3<Self> {
+            u
+        }
+        #[inline(always)]
+        fn toward_normal(a: Vec3<Self>, w: Self) -> Vec3<Self> {
+            // Z's products are exact (zero and w), so only the z sum is left of them.
+            let sa = a.scale_coef(1.0 - w);
+            Vec3::new(sa.x, sa.y, sa.z + w)
+        }
+        #[inline(always)]
+        fn lerp_unit(a: Vec3<Self>, b: Vec3<Self>, w: Self) -> Vec3<Self> {
+            // Three products instead of the six of a (1 - w) + b w.
+            a + (b - a).scale_coef(w)
         }
         #[inline(always)]
         fn ellipse_axes(
@@ -225,8 +249,20 @@ impl BrushScalar for Fx {
         unit_fixed::one_minus_dot(a, b)
     }
     #[inline(always)]
+    fn from_unit(u: unit_fixed::Unit) -> Vec3<Fx> {
+        unit_fixed::from_unit(u)
+    }
+    #[inline(always)]
+    fn toward_normal(a: unit_fixed::Unit, w: Fx) -> unit_fixed::Unit {
+        unit_fixed::toward_normal(a, w)
+    }
+    #[inline(always)]
+    fn lerp_unit(a: unit_fixed::Unit, b: unit_fixed::Unit, w: Fx) -> unit_fixed::Unit {
+        unit_fixed::lerp_unit(a, b, w)
+    }
+    #[inline(always)]
     fn ellipse_axes(
-        sa: Option<Vec3<Fx>>,
+        sa: Option<unit_fixed::Unit>,
         dir: unit_fixed::Unit,
         min_len: Fx,
     ) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
@@ -1191,36 +1227,23 @@ impl<S: BrushScalar> Brush<S> {
         self.layers[0].short_axis = sa0;
         self.layers[0].long_axis = Vec3::new(m[0][1], m[1][1], m[2][1]);
 
-        // Step 1: short axes. First layer lying on the paper, if any.
+        // Step 1: short axes. First layer lying on the paper, if any. The layers from there
+        // on have the paper's normal for their short axis; those above it interpolate
+        // between the handle's short axis and the paper's normal (by i / c) or, with no
+        // layer on the paper, the tip layer's short axis of the last tick (by i / (N - 1)).
+        // Each is formed where the layer's axes are, below, in the surface's unit form.
         let first_contact = (1..n).find(|&i| self.contact[i]);
-        // The layers from here on have the paper's normal for their short axis.
         let on_paper_from = first_contact.unwrap_or(n);
-        match first_contact {
-            Some(c) => {
-                // c < n: the entry exists (`get` only spares the force path a panic).
-                let inv_c = self.d.inv_count.get(c).copied().unwrap_or(S::ONE);
-                for i in 1..n {
-                    self.layers[i].short_axis = if i >= c {
-                        normal
-                    } else {
-                        // i < c: the weight is below one, and 1/c too unless c is one.
-                        let w = S::from_usize(i).mul_coef(inv_c);
-                        // SA_0 (1 - w) + Z w: Z's products are exact (zero and w), so only
-                        // the z sum is left of the second term.
-                        let sa = sa0.scale_coef(S::ONE - w);
-                        Vec3::new(sa.x, sa.y, sa.z + w)
-                    };
-                }
-            }
-            None => {
-                // SA_0 (1 - w) + SA_end w as SA_0 + (SA_end - SA_0) w: three products a
-                // layer instead of six.
-                let span = self.layers[n - 1].short_axis - sa0;
-                for i in 1..n - 1 {
-                    self.layers[i].short_axis = sa0 + span.scale_coef(self.d.layer_frac[i]);
-                }
-            }
-        }
+        // c < n: the entry exists (`get` only spares the force path a panic).
+        let inv_c = first_contact.map(|c| self.d.inv_count.get(c).copied().unwrap_or(S::ONE));
+        let sa0_unit = S::unit(sa0);
+        let end_unit = S::unit(self.layers[n - 1].short_axis);
+        let short_axis = |i: usize| match inv_c {
+            // i < c: the weight is below one, and 1/c too unless c is one.
+            Some(inv_c) => S::toward_normal(sa0_unit, S::from_usize(i).mul_coef(inv_c)),
+            None if i + 1 < n => S::lerp_unit(sa0_unit, end_unit, self.d.layer_frac[i]),
+            None => end_unit,
+        };
 
         // Steps 2-3: long axes from the cross product, both normalised; Step 4: bends.
         // A segment shorter than `tiny` has no direction (`Vec3::normalized_or_none`'s test).
@@ -1251,9 +1274,9 @@ impl<S: BrushScalar> Brush<S> {
                 tilt_sum += tilt[i - 1];
             }
             prev_dir = unit;
-            let layer = &mut self.layers[i];
             // The short axis is the paper's normal from the first layer on it (step 1).
-            let sa = (i < on_paper_from).then_some(layer.short_axis);
+            let sa = (i < on_paper_from).then(|| short_axis(i));
+            let layer = &mut self.layers[i];
             match S::ellipse_axes(sa, unit, min_cross) {
                 Some((la, sa)) => {
                     layer.long_axis = la;
@@ -1264,6 +1287,7 @@ impl<S: BrushScalar> Brush<S> {
                 // The ellipse plane undefined: keep the old long axis, made perpendicular to
                 // the segment, and rebuild the short one.
                 None => {
+                    layer.short_axis = sa.map_or(normal, S::from_unit);
                     let old = layer.long_axis;
                     let la = old - dir.scale(old.dot(dir));
                     if let Some(la) = la.normalized_or_none(self.d.tiny) {

@@ -60,6 +60,38 @@ pub(super) fn unit(dir: Vec3<Fx>) -> Unit {
     q30_vec(dir)
 }
 
+/// A unit vector's words as a vector: exact.
+#[inline(always)]
+pub(super) fn from_unit(u: Unit) -> Vec3<Fx> {
+    let fx = |w: i32| Fx::from_bits((w as i64) << (32 - UNIT_FRAC));
+    Vec3::new(fx(u[0]), fx(u[1]), fx(u[2]))
+}
+
+/// `a (1 - w) + Z w` of a unit vector's words, `w` in [0, 1]: each product exact in 64
+/// bits and rounded once to `Q1.30`.
+#[inline(always)]
+pub(super) fn toward_normal(a: Unit, w: Fx) -> Unit {
+    let w = q30(w);
+    let keep = ((1i64 << UNIT_FRAC) - w as i64) as i32;
+    let [x, y, z] = a.map(|c| round_q30(c as i64 * keep as i64));
+    [x, y, z.wrapping_add(w)]
+}
+
+/// `a + (b - a) w` of two unit vectors' words, `w` in [0, 1]: each product exact in 64 bits
+/// and rounded once to `Q1.30`.
+#[inline(always)]
+pub(super) fn lerp_unit(a: Unit, b: Unit, w: Fx) -> Unit {
+    let w = q30(w) as i64;
+    let lerp = |k: usize| a[k].wrapping_add(round_q30((b[k] as i64 - a[k] as i64) * w));
+    [lerp(0), lerp(1), lerp(2)]
+}
+
+/// A `Q2.60` product (below 2^62 in magnitude) rounded to `Q1.30`.
+#[inline(always)]
+fn round_q30(p: i64) -> i32 {
+    (p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC) as i32
+}
+
 /// `1 - a . b` of two unit vectors' words: the dot product exact in `Q2.60` (within one in
 /// magnitude for unit vectors), rounded once into the model's format.
 #[inline(always)]
@@ -70,8 +102,8 @@ pub(super) fn one_minus_dot(a: Unit, b: Unit) -> Fx {
     Fx::from_bits((1i64 << 32).wrapping_sub(dot.wrapping_add(1 << (shift - 1)) >> shift))
 }
 
-/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) enters once as
-/// `Q1.30`, the direction `d` is in its words already ([`unit`]); the long axis `sa x dir` is formed exactly in 64 bits, rounded to
+/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and the
+/// direction `d` in their words ([`unit`]); the long axis `sa x dir` is formed exactly in 64 bits, rounded to
 /// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
 /// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
 /// once, rounded into the model's format.
@@ -81,27 +113,17 @@ pub(super) fn one_minus_dot(a: Unit, b: Unit) -> Fx {
 /// `sa x dir` and the normalised axis lie within one, far inside `Q1.30`'s range of two. A
 /// caller's vector that is not wraps (never panics).
 #[inline(always)]
-pub(super) fn ellipse_axes(
-    sa: Option<Vec3<Fx>>,
-    d: Unit,
-    min_len: Fx,
-) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
-    let a = match sa {
-        Some(sa) => q30_vec(sa),
-        None => [0, 0, 1 << UNIT_FRAC],
-    };
+pub(super) fn ellipse_axes(sa: Option<Unit>, d: Unit, min_len: Fx) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
+    let a = sa.unwrap_or([0, 0, 1 << UNIT_FRAC]);
     // Products in Q2.60 (below 2^62 in magnitude), their difference rounded to Q1.30.
-    let to_q30 = |p: i64| (p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC) as i32;
-    let long = cross_words(a, d).map(to_q30);
+    let long = cross_words(a, d).map(round_q30);
     let unit = normalize_words(long, min_len)?;
-    // Q1.30 back to the model's 32 fractional bits: exact.
-    let fx = |w: i32| Fx::from_bits((w as i64) << (32 - UNIT_FRAC));
     // dir x long in Q2.60, rounded once into the model's format.
     let shift = 2 * UNIT_FRAC - 32;
     let round = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
     let short = cross_words(d, unit);
     Some((
-        Vec3::new(fx(unit[0]), fx(unit[1]), fx(unit[2])),
+        from_unit(unit),
         Vec3::new(round(short[0]), round(short[1]), round(short[2])),
     ))
 }
@@ -231,7 +253,11 @@ mod tests {
             let a = sa.unwrap_or([0.0, 0.0, 1.0]);
             let long = cross(a, dir);
             let len = (long[0] * long[0] + long[1] * long[1] + long[2] * long[2]).sqrt();
-            match ellipse_axes(sa.map(fx), unit(fx(dir)), Fx::from_f64(min_len)) {
+            match ellipse_axes(
+                sa.map(|v| unit(fx(v))),
+                unit(fx(dir)),
+                Fx::from_f64(min_len),
+            ) {
                 Some((l, sh)) => {
                     some += 1;
                     assert!(len > min_len * 0.999, "{len}");

@@ -174,6 +174,17 @@ pub trait BrushScalar: Scalar {
     fn transfer_ink(brush: &mut Brush<Self>) {
         brush.transfer_ink();
     }
+    /// A layer's short radius `area / long` from its rest area and its long radius (at least
+    /// the rest radius, so positive): eq. 3-20's area preserved.
+    #[doc(hidden)]
+    #[inline(always)]
+    fn short_radius(area: Self, long: Self) -> Self {
+        // rl is at least the rest radius and the area its square: the reciprocal's product
+        // is within about r0^2 (1 + 1/r0) units of the format's resolution of the quotient
+        // ([`Scalar::recip`]). The reciprocal is below one for a long radius above a
+        // millimetre: the coefficient product then (the same value).
+        area.mul_coef(long.recip())
+    }
 }
 
 /// [`BrushScalar`]'s surface products in the format's own arithmetic (the float formats').
@@ -280,6 +291,12 @@ impl BrushScalar for Fx {
     }
     fn transfer_ink(brush: &mut Brush<Fx>) {
         transfer_ink_fx(brush);
+    }
+    // In `f32` (a tenth of a nanometre for the presets' radii): every layer's short radius
+    // is a division on the pen's every tick.
+    #[inline(always)]
+    fn short_radius(area: Fx, long: Fx) -> Fx {
+        crate::scalar::quotient_f32(area, long)
     }
 }
 
@@ -1335,13 +1352,8 @@ impl<S: BrushScalar> Brush<S> {
             };
             let rl = (rl + step).clamp(rest, max);
             layer.long_radius = rl;
-            // rl is at least the rest radius and the area its square: the reciprocal's product
-            // is within about r0^2 (1 + 1/r0) units of the format's resolution of the
-            // quotient ([`Scalar::recip`]), a few tens (1e-8 mm), for one multiply
-            // a layer where the Cortex-M4's 64-bit division takes three and a residual. The
-            // reciprocal is below one for a long radius above a millimetre: the coefficient
-            // product then (the same value).
-            layer.short_radius = self.d.rest_area[i].mul_coef(rl.recip());
+            // Not a 64-bit division, which the Cortex-M4 does in software.
+            layer.short_radius = S::short_radius(self.d.rest_area[i], rl);
         }
     }
 }

@@ -132,6 +132,10 @@ pub trait BrushScalar: Scalar {
     /// `dir` (unit) as a [`Self::Unit`]: the float formats keep it as it is.
     #[doc(hidden)]
     fn unit(dir: Vec3<Self>) -> Self::Unit;
+    /// The unit vector along `v`, given `len2 = |v|^2` and `r = len2.rsqrt()`, as a
+    /// [`Self::Unit`]: [`Vec3::normalized_by`]'s.
+    #[doc(hidden)]
+    fn direction(v: Vec3<Self>, len2: Self, r: Self) -> Self::Unit;
     /// `1 - a . b` of two unit vectors: a layer's tilt (the surface update's step 5).
     #[doc(hidden)]
     fn one_minus_dot(a: Self::Unit, b: Self::Unit) -> Self;
@@ -196,6 +200,10 @@ macro_rules! float_surface {
             dir
         }
         #[inline(always)]
+        fn direction(v: Vec3<Self>, len2: Self, r: Self) -> Vec3<Self> {
+            v.normalized_by(len2, r)
+        }
+        #[inline(always)]
         fn one_minus_dot(a: Vec3<Self>, b: Vec3<Self>) -> Self {
             1.0 - a.dot_coef(b)
         }
@@ -254,6 +262,10 @@ impl BrushScalar for Fx {
     #[inline(always)]
     fn unit(dir: Vec3<Fx>) -> unit_fixed::Unit {
         unit_fixed::unit(dir)
+    }
+    #[inline(always)]
+    fn direction(v: Vec3<Fx>, len2: Fx, r: Fx) -> unit_fixed::Unit {
+        unit_fixed::direction(v, len2, r)
     }
     #[inline(always)]
     fn one_minus_dot(a: unit_fixed::Unit, b: unit_fixed::Unit) -> Fx {
@@ -1280,12 +1292,11 @@ impl<S: BrushScalar> Brush<S> {
             let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
-            let dir = if len2 > min_len2 {
-                v.normalized_by(len2, r)
+            let unit = if len2 > min_len2 {
+                S::direction(v, len2, r)
             } else {
-                down
+                S::unit(down)
             };
-            let unit = S::unit(dir);
             if i >= 2 {
                 tilt[i - 1] = S::one_minus_dot(unit, prev_dir);
                 tilt_sum += tilt[i - 1];
@@ -1305,6 +1316,7 @@ impl<S: BrushScalar> Brush<S> {
                 // the segment, and rebuild the short one.
                 None => {
                     layer.short_axis = sa.map_or(normal, S::from_unit);
+                    let dir = S::from_unit(unit);
                     let old = layer.long_axis;
                     let la = old - dir.scale(old.dot(dir));
                     if let Some(la) = la.normalized_or_none(self.d.tiny) {

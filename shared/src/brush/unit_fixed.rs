@@ -14,7 +14,7 @@
 //! [`super::BrushScalar`] hooks these in for `Fx`; the float formats keep their own
 //! arithmetic.
 
-use crate::scalar::{sqrt_f32, Fx};
+use crate::scalar::{sqrt_f32, Fx, Scalar};
 use crate::vec::Vec3;
 
 /// Fractional bits of a unit vector's components (`Q1.30`).
@@ -58,6 +58,27 @@ pub(super) type Unit = [i32; 3];
 #[inline(always)]
 pub(super) fn unit(dir: Vec3<Fx>) -> Unit {
     q30_vec(dir)
+}
+
+/// The unit vector along `v`, given `len2 = |v|^2` and `r = len2.rsqrt()`, in words:
+/// [`Vec3::normalized_by`]'s products (the same bits), each rounded to `Q1.30` as [`unit`]
+/// rounds them, without its saturation (a unit vector's components are within one). For a
+/// segment longer than a millimetre `r` is the coefficient, tested once, and the products
+/// are inline.
+#[inline(always)]
+pub(super) fn direction(v: Vec3<Fx>, len2: Fx, r: Fx) -> Unit {
+    let d = if len2 > Fx::ONE && r.is_coef() {
+        Vec3::new(
+            v.x.mul_tested_coef(r),
+            v.y.mul_tested_coef(r),
+            v.z.mul_tested_coef(r),
+        )
+    } else {
+        v.normalized_by(len2, r)
+    };
+    let shift = 32 - UNIT_FRAC;
+    let word = |c: Fx| (c.to_bits().wrapping_add(1 << (shift - 1)) >> shift) as i32;
+    [word(d.x), word(d.y), word(d.z)]
 }
 
 /// A unit vector's words as a vector: exact.
@@ -208,7 +229,6 @@ pub(super) fn place_nodes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scalar::Scalar;
 
     fn random_unit(next: &mut impl FnMut() -> f64) -> [f64; 3] {
         loop {

@@ -11,6 +11,10 @@
 //! result is a unit vector to `f32`'s precision, about `1e-7` relative: an ellipse's axis,
 //! whose length the footprint and the drawing multiply by a radius of a few millimetres.
 //!
+//! A segment's direction enters its words once and stays there for the layer's axes and
+//! the tilts on either side; the interpolated short axes are formed in words and never
+//! enter the model's format.
+//!
 //! [`super::BrushScalar`] hooks these in for `Fx`; the float formats keep their own
 //! arithmetic.
 
@@ -123,15 +127,15 @@ pub(super) fn one_minus_dot(a: Unit, b: Unit) -> Fx {
     Fx::from_bits((1i64 << 32).wrapping_sub(dot.wrapping_add(1 << (shift - 1)) >> shift))
 }
 
-/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and the
-/// direction `d` in their words ([`unit`]); the long axis `sa x dir` is formed exactly in 64 bits, rounded to
-/// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
-/// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
-/// once, rounded into the model's format.
+/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: the short axis `sa` (`None`: `Z`)
+/// and the direction `d` come as words ([`unit`]); the long axis `sa x d` is formed exactly
+/// in 64 bits, rounded to `Q1.30`, normalised (its squared length exact, the reciprocal root
+/// from `f32`, see the module docs) and the short axis `d x long` taken from the normalised
+/// words; each leaves once, rounded into the model's format.
 ///
 /// Every intermediate is a word (`i32`), every product a 32 x 32-bit one (`SMULL`): `sa`
-/// within the unit ball and `dir` a unit vector (the surface's are, to their rounding), so
-/// `sa x dir` and the normalised axis lie within one, far inside `Q1.30`'s range of two. A
+/// within the unit ball and `d` a unit vector (the surface's are, to their rounding), so
+/// `sa x d` and the normalised axis lie within one, far inside `Q1.30`'s range of two. A
 /// caller's vector that is not wraps (never panics).
 #[inline(always)]
 pub(super) fn ellipse_axes(sa: Option<Unit>, d: Unit, min_len: Fx) -> Option<(Vec3<Fx>, Vec3<Fx>)> {

@@ -127,25 +127,39 @@ pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
-    /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
-    /// paper's normal) and its segment's unit direction `dir`: the long axis `sa x dir`
-    /// normalised, if longer than `min_len`, and the short axis `dir x long` (unit).
+    /// A unit vector (a segment's direction) in the form the surface's products take it in
+    /// ([`Self::unit`]).
     #[doc(hidden)]
-    #[inline(always)]
+    type Unit: Copy;
+    /// `dir` (unit) as a [`Self::Unit`]: the float formats keep it as it is.
+    #[doc(hidden)]
+    fn unit(dir: Vec3<Self>) -> Self::Unit;
+    /// The unit vector along `v`, given `len2 = |v|^2` and `r = len2.rsqrt()`, as a
+    /// [`Self::Unit`]: [`Vec3::normalized_by`]'s.
+    #[doc(hidden)]
+    fn direction(v: Vec3<Self>, len2: Self, r: Self) -> Self::Unit;
+    /// `1 - a . b` of two unit vectors: a layer's tilt (the surface update's step 5).
+    #[doc(hidden)]
+    fn one_minus_dot(a: Self::Unit, b: Self::Unit) -> Self;
+    /// A [`Self::Unit`] as a vector.
+    #[doc(hidden)]
+    fn from_unit(u: Self::Unit) -> Vec3<Self>;
+    /// `a (1 - w) + Z w` for `w` in [0, 1]: a short axis between `a` and the paper's normal.
+    #[doc(hidden)]
+    fn toward_normal(a: Self::Unit, w: Self) -> Self::Unit;
+    /// `a + (b - a) w` for `w` in [0, 1]: a short axis between `a` and `b`.
+    #[doc(hidden)]
+    fn lerp_unit(a: Self::Unit, b: Self::Unit, w: Self) -> Self::Unit;
+    /// A layer's ellipse axes from its short axis `sa` (components within one; `None`: the
+    /// paper's normal) and its segment's unit direction `dir` ([`Self::unit`]): the long axis
+    /// `sa x dir` normalised, if longer than `min_len`, and the short axis `dir x long`
+    /// (unit).
+    #[doc(hidden)]
     fn ellipse_axes(
-        sa: Option<Vec3<Self>>,
-        dir: Vec3<Self>,
+        sa: Option<Self::Unit>,
+        dir: Self::Unit,
         min_len: Self,
-    ) -> Option<(Vec3<Self>, Vec3<Self>)> {
-        let la = match sa {
-            // Z x V: the value of the general product (its factors zero and one give exact
-            // products), without its six products.
-            None => Vec3::new(Self::ZERO - dir.y, dir.x, Self::ZERO),
-            Some(sa) => sa.cross_coef(dir),
-        };
-        let la = la.normalized_or_none_coef(min_len)?;
-        Some((la, dir.cross_coef(la)))
-    }
+    ) -> Option<(Vec3<Self>, Vec3<Self>)>;
     /// The skeleton's nodes `pos + m offset_i` into `out` by the format's own means, if it
     /// has them (`true`); else [`place_skeleton`]'s generic products.
     #[doc(hidden)]
@@ -166,27 +180,115 @@ pub trait BrushScalar: Scalar {
     fn transfer_ink(brush: &mut Brush<Self>) {
         brush.transfer_ink();
     }
+    /// A layer's short radius `area / long` from its rest area and its long radius (at least
+    /// the rest radius, so positive): eq. 3-20's area preserved.
+    #[doc(hidden)]
+    #[inline(always)]
+    fn short_radius(area: Self, long: Self) -> Self {
+        // rl is at least the rest radius and the area its square: the reciprocal's product
+        // is within about r0^2 (1 + 1/r0) units of the format's resolution of the quotient
+        // ([`Scalar::recip`]). The reciprocal is below one for a long radius above a
+        // millimetre: the coefficient product then (the same value).
+        area.mul_coef(long.recip())
+    }
+}
+
+/// [`BrushScalar`]'s surface products in the format's own arithmetic (the float formats').
+macro_rules! float_surface {
+    () => {
+        type Unit = Vec3<Self>;
+        #[inline(always)]
+        fn unit(dir: Vec3<Self>) -> Vec3<Self> {
+            dir
+        }
+        #[inline(always)]
+        fn direction(v: Vec3<Self>, len2: Self, r: Self) -> Vec3<Self> {
+            v.normalized_by(len2, r)
+        }
+        #[inline(always)]
+        fn one_minus_dot(a: Vec3<Self>, b: Vec3<Self>) -> Self {
+            1.0 - a.dot_coef(b)
+        }
+        #[inline(always)]
+        fn from_unit(u: Vec3<Self>) -> Vec3<Self> {
+            u
+        }
+        #[inline(always)]
+        fn toward_normal(a: Vec3<Self>, w: Self) -> Vec3<Self> {
+            // Z's products are exact (zero and w), so only the z sum is left of them.
+            let sa = a.scale_coef(1.0 - w);
+            Vec3::new(sa.x, sa.y, sa.z + w)
+        }
+        #[inline(always)]
+        fn lerp_unit(a: Vec3<Self>, b: Vec3<Self>, w: Self) -> Vec3<Self> {
+            // Three products instead of the six of a (1 - w) + b w.
+            a + (b - a).scale_coef(w)
+        }
+        #[inline(always)]
+        fn ellipse_axes(
+            sa: Option<Vec3<Self>>,
+            dir: Vec3<Self>,
+            min_len: Self,
+        ) -> Option<(Vec3<Self>, Vec3<Self>)> {
+            let la = match sa {
+                // Z x V: the value of the general product (its factors zero and one give
+                // exact products), without its six products.
+                None => Vec3::new(0.0 - dir.y, dir.x, 0.0),
+                Some(sa) => sa.cross_coef(dir),
+            };
+            let la = la.normalized_or_none_coef(min_len)?;
+            Some((la, dir.cross_coef(la)))
+        }
+    };
 }
 
 impl BrushScalar for f64 {
     #[cfg(feature = "backward-euler")]
     type Chain = ChainSolve<f64>;
+    float_surface!();
 }
 
 impl BrushScalar for f32 {
     #[cfg(feature = "backward-euler")]
     type Chain = ChainSolve<f32>;
+    float_surface!();
 }
 
 impl BrushScalar for Fx {
     #[cfg(feature = "backward-euler")]
     type Chain = chain_fixed::FxChain;
     // In 32-bit words (`brush/unit_fixed.rs`): a surface update's worth of 64-bit products
-    // saved on the pen's every tick.
+    // saved on the pen's every tick. A direction enters its words once, for the layer's
+    // axes and for the tilts on either side.
+    type Unit = unit_fixed::Unit;
+    #[inline(always)]
+    fn unit(dir: Vec3<Fx>) -> unit_fixed::Unit {
+        unit_fixed::unit(dir)
+    }
+    #[inline(always)]
+    fn direction(v: Vec3<Fx>, len2: Fx, r: Fx) -> unit_fixed::Unit {
+        unit_fixed::direction(v, len2, r)
+    }
+    #[inline(always)]
+    fn one_minus_dot(a: unit_fixed::Unit, b: unit_fixed::Unit) -> Fx {
+        unit_fixed::one_minus_dot(a, b)
+    }
+    #[inline(always)]
+    fn from_unit(u: unit_fixed::Unit) -> Vec3<Fx> {
+        unit_fixed::from_unit(u)
+    }
+    #[inline(always)]
+    fn toward_normal(a: unit_fixed::Unit, w: Fx) -> unit_fixed::Unit {
+        unit_fixed::toward_normal(a, w)
+    }
+    #[inline(always)]
+    fn lerp_unit(a: unit_fixed::Unit, b: unit_fixed::Unit, w: Fx) -> unit_fixed::Unit {
+        unit_fixed::lerp_unit(a, b, w)
+    }
     #[inline(always)]
     fn ellipse_axes(
-        sa: Option<Vec3<Fx>>,
-        dir: Vec3<Fx>,
+        sa: Option<unit_fixed::Unit>,
+        dir: unit_fixed::Unit,
         min_len: Fx,
     ) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
         unit_fixed::ellipse_axes(sa, dir, min_len)
@@ -203,6 +305,12 @@ impl BrushScalar for Fx {
     }
     fn transfer_ink(brush: &mut Brush<Fx>) {
         transfer_ink_fx(brush);
+    }
+    // In `f32` (a tenth of a nanometre for the presets' radii): every layer's short radius
+    // is a division on the pen's every tick.
+    #[inline(always)]
+    fn short_radius(area: Fx, long: Fx) -> Fx {
+        crate::scalar::quotient_f32(area, long)
     }
 }
 
@@ -1172,36 +1280,23 @@ impl<S: BrushScalar> Brush<S> {
         self.layers[0].short_axis = sa0;
         self.layers[0].long_axis = Vec3::new(m[0][1], m[1][1], m[2][1]);
 
-        // Step 1: short axes. First layer lying on the paper, if any.
+        // Step 1: short axes. First layer lying on the paper, if any. The layers from there
+        // on have the paper's normal for their short axis; those above it interpolate
+        // between the handle's short axis and the paper's normal (by i / c) or, with no
+        // layer on the paper, the tip layer's short axis of the last tick (by i / (N - 1)).
+        // Each is formed where the layer's axes are, below, in the surface's unit form.
         let first_contact = (1..n).find(|&i| self.contact[i]);
-        // The layers from here on have the paper's normal for their short axis.
         let on_paper_from = first_contact.unwrap_or(n);
-        match first_contact {
-            Some(c) => {
-                // c < n: the entry exists (`get` only spares the force path a panic).
-                let inv_c = self.d.inv_count.get(c).copied().unwrap_or(S::ONE);
-                for i in 1..n {
-                    self.layers[i].short_axis = if i >= c {
-                        normal
-                    } else {
-                        // i < c: the weight is below one, and 1/c too unless c is one.
-                        let w = S::from_usize(i).mul_coef(inv_c);
-                        // SA_0 (1 - w) + Z w: Z's products are exact (zero and w), so only
-                        // the z sum is left of the second term.
-                        let sa = sa0.scale_coef(S::ONE - w);
-                        Vec3::new(sa.x, sa.y, sa.z + w)
-                    };
-                }
-            }
-            None => {
-                // SA_0 (1 - w) + SA_end w as SA_0 + (SA_end - SA_0) w: three products a
-                // layer instead of six.
-                let span = self.layers[n - 1].short_axis - sa0;
-                for i in 1..n - 1 {
-                    self.layers[i].short_axis = sa0 + span.scale_coef(self.d.layer_frac[i]);
-                }
-            }
-        }
+        // c < n: the entry exists (`get` only spares the force path a panic).
+        let inv_c = first_contact.map(|c| self.d.inv_count.get(c).copied().unwrap_or(S::ONE));
+        let sa0_unit = S::unit(sa0);
+        let end_unit = S::unit(self.layers[n - 1].short_axis);
+        let short_axis = |i: usize| match inv_c {
+            // i < c: the weight is below one, and 1/c too unless c is one.
+            Some(inv_c) => S::toward_normal(sa0_unit, S::from_usize(i).mul_coef(inv_c)),
+            None if i + 1 < n => S::lerp_unit(sa0_unit, end_unit, self.d.layer_frac[i]),
+            None => end_unit,
+        };
 
         // Steps 2-3: long axes from the cross product, both normalised; Step 4: bends.
         // A segment shorter than `tiny` has no direction (`Vec3::normalized_or_none`'s test).
@@ -1211,7 +1306,7 @@ impl<S: BrushScalar> Brush<S> {
         // pen would pay for zeroing that array in every tick).
         let mut tilt = [S::ZERO; MAX_LAYERS];
         let mut tilt_sum = S::ZERO;
-        let mut prev_dir = Vec3::<S>::ZERO;
+        let mut prev_dir = S::unit(Vec3::ZERO);
         // |sa x v| below sin(0.5 deg) * |sa|: the ellipse plane is undefined (see below).
         let min_cross = self.d.tiny;
         for i in 1..n {
@@ -1221,20 +1316,20 @@ impl<S: BrushScalar> Brush<S> {
             let (len2, r) = measure(v);
             (self.seg_len2[i], self.seg_rsqrt[i]) = (len2, r);
             // Coincident masses (piled on the paper) have no direction: use the handle's.
-            let dir = if len2 > min_len2 {
-                v.normalized_by(len2, r)
+            let unit = if len2 > min_len2 {
+                S::direction(v, len2, r)
             } else {
-                down
+                S::unit(down)
             };
             if i >= 2 {
-                tilt[i - 1] = S::ONE - dir.dot_coef(prev_dir);
+                tilt[i - 1] = S::one_minus_dot(unit, prev_dir);
                 tilt_sum += tilt[i - 1];
             }
-            prev_dir = dir;
-            let layer = &mut self.layers[i];
+            prev_dir = unit;
             // The short axis is the paper's normal from the first layer on it (step 1).
-            let sa = (i < on_paper_from).then_some(layer.short_axis);
-            match S::ellipse_axes(sa, dir, min_cross) {
+            let sa = (i < on_paper_from).then(|| short_axis(i));
+            let layer = &mut self.layers[i];
+            match S::ellipse_axes(sa, unit, min_cross) {
                 Some((la, sa)) => {
                     layer.long_axis = la;
                     // V x LA: the short axis made perpendicular to the segment, so the
@@ -1244,6 +1339,8 @@ impl<S: BrushScalar> Brush<S> {
                 // The ellipse plane undefined: keep the old long axis, made perpendicular to
                 // the segment, and rebuild the short one.
                 None => {
+                    layer.short_axis = sa.map_or(normal, S::from_unit);
+                    let dir = S::from_unit(unit);
                     let old = layer.long_axis;
                     let la = old - dir.scale(old.dot(dir));
                     if let Some(la) = la.normalized_or_none(self.d.tiny) {
@@ -1291,13 +1388,8 @@ impl<S: BrushScalar> Brush<S> {
             };
             let rl = (rl + step).clamp(rest, max);
             layer.long_radius = rl;
-            // rl is at least the rest radius and the area its square: the reciprocal's product
-            // is within about r0^2 (1 + 1/r0) units of the format's resolution of the
-            // quotient ([`Scalar::recip`]), a few tens (1e-8 mm), for one multiply
-            // a layer where the Cortex-M4's 64-bit division takes three and a residual. The
-            // reciprocal is below one for a long radius above a millimetre: the coefficient
-            // product then (the same value).
-            layer.short_radius = self.d.rest_area[i].mul_coef(rl.recip());
+            // Not a 64-bit division, which the Cortex-M4 does in software.
+            layer.short_radius = S::short_radius(self.d.rest_area[i], rl);
         }
     }
 }
@@ -1613,13 +1705,22 @@ pub(crate) fn integrate_mass<S: Scalar>(
 /// [`Brush::measure_segments`].
 #[inline]
 pub(crate) fn measure<S: Scalar>(v: Vec3<S>) -> (S, S) {
-    let len2 = v.norm2();
+    let len2 = squared_length(v);
     let r = if len2 > S::ZERO {
         len2.rsqrt()
     } else {
         S::ZERO
     };
     (len2, r)
+}
+
+/// A segment's squared length: [`Vec3::norm2`]'s sum (the same bits), written out for the
+/// surface's measurements so that each square is compiled as one (its two cross terms are
+/// one product, its range test one word) rather than as a call to the general dot product
+/// (in [`measure_near`], on the substep's path, it measured no cheaper).
+#[inline(always)]
+fn squared_length<S: Scalar>(v: Vec3<S>) -> S {
+    v.x * v.x + v.y * v.y + v.z * v.z
 }
 
 /// [`measure`] with the segment's last `rsqrt` as the guess for [`Scalar::rsqrt_near`].

@@ -11,10 +11,14 @@
 //! result is a unit vector to `f32`'s precision, about `1e-7` relative: an ellipse's axis,
 //! whose length the footprint and the drawing multiply by a radius of a few millimetres.
 //!
+//! A segment's direction enters its words once and stays there for the layer's axes and
+//! the tilts on either side; the interpolated short axes are formed in words and never
+//! enter the model's format.
+//!
 //! [`super::BrushScalar`] hooks these in for `Fx`; the float formats keep their own
 //! arithmetic.
 
-use crate::scalar::{sqrt_f32, Fx};
+use crate::scalar::{sqrt_f32, Fx, Scalar};
 use crate::vec::Vec3;
 
 /// Fractional bits of a unit vector's components (`Q1.30`).
@@ -47,48 +51,112 @@ pub(super) fn saturated_word(v: i64) -> i32 {
 }
 
 #[inline(always)]
-fn q30_vec(v: Vec3<Fx>) -> [i64; 3] {
-    [q30(v.x) as i64, q30(v.y) as i64, q30(v.z) as i64]
+fn q30_vec(v: Vec3<Fx>) -> [i32; 3] {
+    [q30(v.x), q30(v.y), q30(v.z)]
 }
 
-/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: `sa` (`None`: `Z`) and `dir` enter
-/// once as `Q1.30`; the long axis `sa x dir` is formed exactly in 64 bits, rounded to
-/// `Q1.30`, normalised (its squared length exact, the reciprocal root from `f32`, see the
-/// module docs) and the short axis `dir x long` taken from the normalised words; each leaves
-/// once, rounded into the model's format.
+/// A unit vector's components in `Q1.30` ([`super::BrushScalar::Unit`] for `Fx`).
+pub(super) type Unit = [i32; 3];
+
+/// `dir` (a unit vector) as its `Q1.30` words.
 #[inline(always)]
-pub(super) fn ellipse_axes(
-    sa: Option<Vec3<Fx>>,
-    dir: Vec3<Fx>,
-    min_len: Fx,
-) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
-    let a = match sa {
-        Some(sa) => q30_vec(sa),
-        None => [0, 0, 1 << UNIT_FRAC],
+pub(super) fn unit(dir: Vec3<Fx>) -> Unit {
+    q30_vec(dir)
+}
+
+/// The unit vector along `v`, given `len2 = |v|^2` and `r = len2.rsqrt()`, in words:
+/// [`Vec3::normalized_by`]'s products (the same bits), each rounded to `Q1.30` as [`unit`]
+/// rounds them, without its saturation (a unit vector's components are within one). For a
+/// segment longer than a millimetre `r` is the coefficient, tested once, and the products
+/// are inline.
+#[inline(always)]
+pub(super) fn direction(v: Vec3<Fx>, len2: Fx, r: Fx) -> Unit {
+    let d = if len2 > Fx::ONE && r.is_coef() {
+        Vec3::new(
+            v.x.mul_tested_coef(r),
+            v.y.mul_tested_coef(r),
+            v.z.mul_tested_coef(r),
+        )
+    } else {
+        v.normalized_by(len2, r)
     };
-    let d = q30_vec(dir);
-    // Products in Q2.60 (below 2^62 in magnitude); their difference rounded to Q1.30 is
-    // within one in magnitude for `|sa| <= 1`, wrapping (never panicking) for a caller's
-    // vector that is not.
-    let to_q30 = |p: i64| p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC;
-    let long = cross_words(a, d).map(to_q30);
+    let shift = 32 - UNIT_FRAC;
+    let word = |c: Fx| (c.to_bits().wrapping_add(1 << (shift - 1)) >> shift) as i32;
+    [word(d.x), word(d.y), word(d.z)]
+}
+
+/// A unit vector's words as a vector: exact.
+#[inline(always)]
+pub(super) fn from_unit(u: Unit) -> Vec3<Fx> {
+    let fx = |w: i32| Fx::from_bits((w as i64) << (32 - UNIT_FRAC));
+    Vec3::new(fx(u[0]), fx(u[1]), fx(u[2]))
+}
+
+/// `a (1 - w) + Z w` of a unit vector's words, `w` in [0, 1]: each product exact in 64
+/// bits and rounded once to `Q1.30`.
+#[inline(always)]
+pub(super) fn toward_normal(a: Unit, w: Fx) -> Unit {
+    let w = q30(w);
+    let keep = ((1i64 << UNIT_FRAC) - w as i64) as i32;
+    let [x, y, z] = a.map(|c| round_q30(c as i64 * keep as i64));
+    [x, y, z.wrapping_add(w)]
+}
+
+/// `a + (b - a) w` of two unit vectors' words, `w` in [0, 1]: each product exact in 64 bits
+/// and rounded once to `Q1.30`.
+#[inline(always)]
+pub(super) fn lerp_unit(a: Unit, b: Unit, w: Fx) -> Unit {
+    let w = q30(w) as i64;
+    let lerp = |k: usize| a[k].wrapping_add(round_q30((b[k] as i64 - a[k] as i64) * w));
+    [lerp(0), lerp(1), lerp(2)]
+}
+
+/// A `Q2.60` product (below 2^62 in magnitude) rounded to `Q1.30`.
+#[inline(always)]
+fn round_q30(p: i64) -> i32 {
+    (p.wrapping_add(1 << (UNIT_FRAC - 1)) >> UNIT_FRAC) as i32
+}
+
+/// `1 - a . b` of two unit vectors' words: the dot product exact in `Q2.60` (within one in
+/// magnitude for unit vectors), rounded once into the model's format.
+#[inline(always)]
+pub(super) fn one_minus_dot(a: Unit, b: Unit) -> Fx {
+    let m = |k: usize| a[k] as i64 * b[k] as i64;
+    let dot = m(0).wrapping_add(m(1)).wrapping_add(m(2));
+    let shift = 2 * UNIT_FRAC - 32;
+    Fx::from_bits((1i64 << 32).wrapping_sub(dot.wrapping_add(1 << (shift - 1)) >> shift))
+}
+
+/// [`super::BrushScalar::ellipse_axes`] in 32-bit words: the short axis `sa` (`None`: `Z`)
+/// and the direction `d` come as words ([`unit`]); the long axis `sa x d` is formed exactly
+/// in 64 bits, rounded to `Q1.30`, normalised (its squared length exact, the reciprocal root
+/// from `f32`, see the module docs) and the short axis `d x long` taken from the normalised
+/// words; each leaves once, rounded into the model's format.
+///
+/// Every intermediate is a word (`i32`), every product a 32 x 32-bit one (`SMULL`): `sa`
+/// within the unit ball and `d` a unit vector (the surface's are, to their rounding), so
+/// `sa x d` and the normalised axis lie within one, far inside `Q1.30`'s range of two. A
+/// caller's vector that is not wraps (never panics).
+#[inline(always)]
+pub(super) fn ellipse_axes(sa: Option<Unit>, d: Unit, min_len: Fx) -> Option<(Vec3<Fx>, Vec3<Fx>)> {
+    let a = sa.unwrap_or([0, 0, 1 << UNIT_FRAC]);
+    // Products in Q2.60 (below 2^62 in magnitude), their difference rounded to Q1.30.
+    let long = cross_words(a, d).map(round_q30);
     let unit = normalize_words(long, min_len)?;
-    // Q1.30 back to the model's 32 fractional bits: exact.
-    let fx = |w: i64| Fx::from_bits(w << (32 - UNIT_FRAC));
     // dir x long in Q2.60, rounded once into the model's format.
     let shift = 2 * UNIT_FRAC - 32;
     let round = |p: i64| Fx::from_bits(p.wrapping_add(1 << (shift - 1)) >> shift);
     let short = cross_words(d, unit);
     Some((
-        Vec3::new(fx(unit[0]), fx(unit[1]), fx(unit[2])),
+        from_unit(unit),
         Vec3::new(round(short[0]), round(short[1]), round(short[2])),
     ))
 }
 
 /// `a x b` of `Q1.30` words, exact in `Q2.60`.
 #[inline(always)]
-fn cross_words(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
-    let m = |x: i64, y: i64| x.wrapping_mul(y);
+fn cross_words(a: [i32; 3], b: [i32; 3]) -> [i64; 3] {
+    let m = |x: i32, y: i32| x as i64 * y as i64;
     [
         m(a[1], b[2]).wrapping_sub(m(a[2], b[1])),
         m(a[2], b[0]).wrapping_sub(m(a[0], b[2])),
@@ -99,11 +167,11 @@ fn cross_words(a: [i64; 3], b: [i64; 3]) -> [i64; 3] {
 /// `v / |v|` of `Q1.30` words (magnitudes within one), in `Q1.30`, if `|v| > min_len`: the
 /// squared length exact in 64 bits, the reciprocal root from `f32` (see the module docs).
 #[inline(always)]
-fn normalize_words(q: [i64; 3], min_len: Fx) -> Option<[i64; 3]> {
-    // Q2.60, each square below 2^62: the sum below 2^64 as unsigned.
+fn normalize_words(q: [i32; 3], min_len: Fx) -> Option<[i32; 3]> {
+    // Q2.60, each square at most 2^62: the sum below 2^64 as unsigned.
     let n2 = q
         .iter()
-        .fold(0u64, |s, &c| s.wrapping_add(c.wrapping_mul(c) as u64));
+        .fold(0u64, |s, &c| s.wrapping_add((c as i64 * c as i64) as u64));
     let min = q30(min_len) as i64;
     // Below 2^-8 in length the root leaves its format: too short to normalise, whatever
     // the caller's threshold.
@@ -119,8 +187,9 @@ fn normalize_words(q: [i64; 3], min_len: Fx) -> Option<[i64; 3]> {
     // 2^32 for a length above 2^-8 (a float-to-u32 conversion is one instruction).
     let scale = f32::from_bits((127 + 14 + ROOT_FRAC + s / 2) << 23);
     let r = (root * scale) as u32 as i64;
-    // Q1.30 times Q8.24, rounded back to Q1.30.
-    Some(q.map(|c| c.wrapping_mul(r).wrapping_add(1 << (ROOT_FRAC - 1)) >> ROOT_FRAC))
+    // Q1.30 times Q8.24 (below 2^62: a component is at most the length), rounded back to
+    // Q1.30.
+    Some(q.map(|c| ((c as i64 * r + (1 << (ROOT_FRAC - 1))) >> ROOT_FRAC) as i32))
 }
 
 /// The skeleton's nodes `pos + m offset_i` (`m` a rotation matrix, `offset_i` in the
@@ -164,7 +233,6 @@ pub(super) fn place_nodes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scalar::Scalar;
 
     fn random_unit(next: &mut impl FnMut() -> f64) -> [f64; 3] {
         loop {
@@ -209,7 +277,11 @@ mod tests {
             let a = sa.unwrap_or([0.0, 0.0, 1.0]);
             let long = cross(a, dir);
             let len = (long[0] * long[0] + long[1] * long[1] + long[2] * long[2]).sqrt();
-            match ellipse_axes(sa.map(fx), fx(dir), Fx::from_f64(min_len)) {
+            match ellipse_axes(
+                sa.map(|v| unit(fx(v))),
+                unit(fx(dir)),
+                Fx::from_f64(min_len),
+            ) {
                 Some((l, sh)) => {
                     some += 1;
                     assert!(len > min_len * 0.999, "{len}");

@@ -168,13 +168,16 @@ fn the_force_path_holds_no_index_panic() {
 /// carries the presets' backward-Euler step, which the Black Pill's leaves out (it does not
 /// fit that board yet): it may exceed the targets by that step's code and its state, and no
 /// more, so growth past that fails here, to be seen and answered, not found later. (The
-/// chips have more: 512 KiB of flash, 128 KiB of RAM; the QEMU board more still.)
+/// chips have more: 512 KiB of flash, 128 KiB of RAM; the QEMU board more still.) The step's
+/// code is two solves, the 32-bit one and the general one it falls back to, each with the
+/// segments' terms formed in line for the tick's sake: the allowance was raised from 8 KiB
+/// when the terms moved into the chain's formats.
 #[test]
 fn image_fits_the_budget() {
     let Some(elf) = image() else { return };
     let s = firmware::size(&elf, 0x2000_0000).unwrap();
     println!("{}", s.report());
-    const BACKWARD_EULER_FLASH: u64 = 8 * 1024;
+    const BACKWARD_EULER_FLASH: u64 = 10 * 1024;
     const BACKWARD_EULER_RAM: u64 = 1024;
     assert!(
         s.flash <= firmware::Size::FLASH_BUDGET + BACKWARD_EULER_FLASH

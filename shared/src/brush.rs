@@ -1062,7 +1062,8 @@ impl<S: BrushScalar> Brush<S> {
             if j == 1 {
                 continue;
             }
-            let i = j - 1;
+            // Row j - 1 (within the arrays: the force path has no panicking index).
+            let i = (j - 1).min(MAX_LAYERS - 1);
             let w = ties[i];
             let mut own = Vec3::ZERO;
             let mut diag = S::ONE;

@@ -999,9 +999,8 @@ impl<S: BrushScalar> Brush<S> {
         // starts; u_0 is the ferrule's new displacement, so its prescribed motion enters
         // here, once. The chain forms the blocks and terms in its own format
         // ([`Segment`]): the brush hands it each segment's parts, its block's isotropic
-        // stiffness `iso` and axial stiffness `axial` along the unit direction `dir`, the
-        // spring term's scale of the segment's vector, and the relative velocity of its
-        // masses.
+        // stiffness `iso` and axial stiffness `axial` along the unit direction `dir`, its
+        // spring term c_k f_j, and the relative velocity of its masses.
         let segment = |this: &mut Self, j: usize| -> Segment<S> {
             let j = j.clamp(1, MAX_LAYERS - 1);
             let v = this.spine[j] - this.spine[j - 1];
@@ -1038,8 +1037,9 @@ impl<S: BrushScalar> Brush<S> {
                     iso: c.c_k.mul_coef(stretched) + c.c_d,
                     axial: axial.mul_coef(S::ONE - stretched),
                     dir: v.scale_coef(r),
-                    v,
-                    spring: c.c_k.mul_coef(spring_strain),
+                    // c_k times a strain is small (a coefficient) but for a segment
+                    // stretched far: `scale_coef` tests it.
+                    spring: v.scale_coef(c.c_k.mul_coef(spring_strain)),
                     rel,
                 }
             } else {

@@ -95,13 +95,6 @@ fn dot(a: [i32; 3], b: [i32; 3]) -> i64 {
 /// general solve.
 const VEC_FRAC: u32 = 27;
 
-/// Fractional bits of a segment's spring coefficient, its strain times its stiffness in
-/// units of the mass at the substep (`Q8.23`): the range holds it for every brush whose
-/// blocks fit their format ([`MAX_DIAGONAL`]) but a segment stretched to twice its length;
-/// the precision is the force's (with the blocks' 20 fractional bits the spring term alone
-/// put the brush a tenth of a micrometre further from `f64`).
-const COEF_FRAC: u32 = 23;
-
 /// `v >> shift` rounded to nearest, in the vectors' format; a value beyond it saturates
 /// and sets `saturated`.
 #[inline(always)]
@@ -339,7 +332,7 @@ impl SpineChain<Fx> for FixedChain {
 
     /// The block in the blocks' format from its parts (each entered once: `iso` and
     /// `axial` below the diagonal's bound, `dir` a unit vector), then the term
-    /// `spring v + G rel` as one exact sum of four products per row.
+    /// `spring + G rel`, exact.
     #[inline(always)]
     fn segment(&mut self, s: Segment<Fx>) {
         let q = |v: Fx| round_clamp(v.to_bits(), 32 - BLOCK_FRAC, LIMIT);
@@ -360,17 +353,22 @@ impl SpineChain<Fx> for FixedChain {
         self.g_below = self.g_above;
         self.g_above = g;
         let sat = &mut self.saturated;
-        // The strain's stiffness in the coefficients' format; beyond its range (a segment
-        // stretched to twice its length) the substep is the general solve's.
-        let spring = to_vec_from(s.spring.to_bits(), 32 - COEF_FRAC, sat);
-        let (v, rel) = (to_vec(s.v, sat), to_vec(s.rel, sat));
+        let rel = to_vec(s.rel, sat);
         // G rel in Q(BLOCK_FRAC + VEC_FRAC), exact in 64 bits (entries below the diagonal's
-        // bound and 2^31), plus spring v in the same format (exact in Q(COEF_FRAC +
-        // VEC_FRAC), the bits below the sum's dropped), kept: the row rounds the difference
-        // of two terms once.
+        // bound and 2^31), plus the spring force, whose model format (`I32F32`) enters that
+        // one exactly: kept, so that the row rounds the difference of two terms once. (A
+        // coefficient format for the spring's scale of the segment's vector loses the force
+        // at high substep rates, where that scale is a few units of its resolution.)
+        let shift = BLOCK_FRAC + VEC_FRAC - 32;
+        let spring = [s.spring.x, s.spring.y, s.spring.z];
         let term = [0, 1, 2].map(|r| {
-            let force = (spring as i64 * v[r] as i64) >> (COEF_FRAC - BLOCK_FRAC);
-            dot(g.row(r), rel).wrapping_add(force)
+            let force = spring[r].to_bits();
+            // A force beyond the terms' range (2^16 mm per substep, never a brush's) is the
+            // general solve's.
+            if force.unsigned_abs() >> (63 - shift) != 0 {
+                *sat = true;
+            }
+            dot(g.row(r), rel).wrapping_add(force.wrapping_shl(shift))
         });
         self.t_below = self.t_above;
         self.t_above = term;
@@ -527,30 +525,24 @@ mod tests {
             let mut exact = ChainSolve::<f64>::new();
             let mut model = ChainSolve::<Fx>::new();
             let mut fixed = FixedChain::new(true);
-            // Each segment's vector and spring scale: its term T_j = spring v + G_j rel, and
-            // the rows' right-hand sides T_{i+1} - T_i + own.
-            let vecs: [Vec3<f64>; MAX_LAYERS + 1] =
-                core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(3.0));
-            let springs: [f64; MAX_LAYERS + 1] = core::array::from_fn(|_| rnd() * c_k * 1e-3);
+            // Each segment's spring force: its term T_j = spring + G_j rel, and the rows'
+            // right-hand sides T_{i+1} - T_i + own.
+            let springs: [Vec3<f64>; MAX_LAYERS + 1] =
+                core::array::from_fn(|_| Vec3::new(rnd(), rnd(), rnd()).scale(c_k * 3e-3));
             let term = |j: usize| {
                 if j >= n {
                     return Vec3::ZERO;
                 }
-                vecs[j].scale(springs[j]) + block(segments[j]).mul_vec(rel[j])
+                springs[j] + block(segments[j]).mul_vec(rel[j])
             };
             let segment = |fixed: &mut FixedChain, j: usize| {
                 let (iso, axial, d) = segments[j];
-                let (v, spring) = if j < n {
-                    (vecs[j], springs[j])
-                } else {
-                    (Vec3::ZERO, 0.0)
-                };
+                let spring = if j < n { springs[j] } else { Vec3::ZERO };
                 fixed.segment(Segment {
                     iso: fx(iso),
                     axial: fx(axial),
                     dir: vfx(d),
-                    v: vfx(v),
-                    spring: fx(spring),
+                    spring: vfx(spring),
                     rel: vfx(rel[j]),
                 });
             };

@@ -178,18 +178,16 @@ impl<S: Scalar> Mat3<S> {
 
 /// One segment's part of the backward-Euler system, as the brush hands it to the chain
 /// ([`SpineChain::segment`]): its Jacobian block `iso I + axial dir dir^T` (`dir` a unit
-/// vector, or zero with `axial`), and its term `T_j = spring v + G_j rel`: the spring force
-/// `spring v` (`v` the segment's vector, from mass j-1 to mass j, `spring` its strain
-/// times the stiffness, in units of the mass) and the damping of the masses' relative
-/// velocity `rel`. The chain forms the term in its own format, so a compact format takes
-/// the vectors in once and keeps the products exact until their one rounding.
+/// vector, or zero with `axial`), and the parts of its term `T_j = spring + G_j rel`: the
+/// spring force `spring` (in units of the mass at the substep) and the masses' relative
+/// velocity `rel`, whose damping and stiffness the block gives. The chain forms the term in
+/// its own format, so a compact format keeps the products exact until their one rounding.
 #[derive(Copy, Clone, Debug)]
 pub struct Segment<S> {
     pub iso: S,
     pub axial: S,
     pub dir: Vec3<S>,
-    pub v: Vec3<S>,
-    pub spring: S,
+    pub spring: Vec3<S>,
     pub rel: Vec3<S>,
 }
 
@@ -199,8 +197,7 @@ impl<S: Scalar> Segment<S> {
         iso: S::ZERO,
         axial: S::ZERO,
         dir: Vec3::ZERO,
-        v: Vec3::ZERO,
-        spring: S::ZERO,
+        spring: Vec3::ZERO,
         rel: Vec3::ZERO,
     };
 }
@@ -218,7 +215,7 @@ pub trait SpineChain<S> {
     fn new(compact: bool) -> Self;
     /// The next segment (in order from the first, then [`Segment::BEYOND_TIP`]): its
     /// Jacobian block `G_j = iso I + axial dir dir^T`, kept for the rows on either side of
-    /// it, and its term `T_j = spring v + G_j rel`, kept for their right-hand sides.
+    /// it, and its term `T_j = spring + G_j rel`, kept for their right-hand sides.
     fn segment(&mut self, segment: Segment<S>);
     /// Eliminates row `i` (from 1 up, in order, each after the segment above it), given
     /// `a_i` (the mass and its tie, in units of the mass) and the row's own part of its
@@ -248,9 +245,7 @@ impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
         self.g_below = self.g_above;
         self.g_above = Sym3::iso_plus_outer(s.iso, s.axial, s.dir);
         self.t_below = self.t_above;
-        // The strain's stiffness is small (a coefficient) but for a segment stretched far:
-        // `scale_coef` tests it.
-        self.t_above = s.v.scale_coef(s.spring) + self.g_above.mul_vec(s.rel);
+        self.t_above = s.spring + self.g_above.mul_vec(s.rel);
     }
     #[inline(always)]
     fn row(&mut self, i: usize, a: S, own: Vec3<S>) {

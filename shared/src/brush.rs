@@ -1832,10 +1832,7 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
     let (ks, kd) = (p.axial_stiffness, p.axial_damping);
     let (kt, kdt) = (p.tie_stiffness, p.tie_damping);
     // The tie's change from a dry to a saturated layer ([`ink`]'s law), per unit wetness.
-    let (kt_ink, kdt_ink) = (
-        kt * (p.tie_stiffness_wet() - 1.0),
-        kdt * (p.tie_damping_wet() - 1.0),
-    );
+    let (kt_ink, kdt_ink) = ink::tie_change(p);
     // Each row's Jacobi coefficient, c_j, as computed: the largest picks the solve.
     let mut worst_c_j = 0.0f32;
     // Every row includes the dry tie (see the module docs): the ink's change to it, like

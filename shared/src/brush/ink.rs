@@ -132,12 +132,23 @@ impl InkCoefs {
     }
 }
 
-/// Layer tie stiffness (N/m) and damping (N s/m) at wetness `wet` (see the module docs), in
+/// The law's one statement: what a saturated layer's ink adds to its tie stiffness (N/m)
+/// and damping (N s/m), per unit wetness (see the module docs); the tie at wetness W is the
+/// dry tie plus W times this. The brush's coefficients and the handle's reaction both take
+/// it from here.
+pub fn tie_change(p: &BrushParams) -> (f32, f32) {
+    (
+        p.tie_stiffness * (p.tie_stiffness_wet() - 1.0),
+        p.tie_damping * (p.tie_damping_wet() - 1.0),
+    )
+}
+
+/// Layer tie stiffness (N/m) and damping (N s/m) at wetness `wet` ([`tie_change`]), in
 /// double precision: the handle's reaction ([`super::Brush::handle_reaction`]) sums them.
 pub fn tie_at(p: &BrushParams, wet: f64) -> (f64, f64) {
-    let law = |dry: f32, wet_factor: f32| dry as f64 * (1.0 + wet * (wet_factor as f64 - 1.0));
+    let (kt_ink, kdt_ink) = tie_change(p);
     (
-        law(p.tie_stiffness, p.tie_stiffness_wet()),
-        law(p.tie_damping, p.tie_damping_wet()),
+        p.tie_stiffness as f64 + wet * kt_ink as f64,
+        p.tie_damping as f64 + wet * kdt_ink as f64,
     )
 }

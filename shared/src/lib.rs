@@ -32,6 +32,7 @@
 // is still an error.
 #![deny(unsafe_code)]
 
+pub mod baxter_lin;
 pub mod brush;
 pub mod energy;
 pub mod footprint;

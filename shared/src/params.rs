@@ -4,6 +4,7 @@
 //! model turns them into dimensionless per-substep coefficients (see [`crate::brush`]) when a
 //! parameter changes; nothing here is on the substep path.
 
+use crate::scalar::Scalar;
 use core::fmt;
 
 /// Most layers (spine masses, including the ferrule mass S_0) a brush may have.
@@ -420,11 +421,17 @@ impl BrushParams {
     /// tip radius. `t = i / (N-1)` runs from the ferrule (0) to the tip (1).
     pub fn rest_radius_mm(&self, i: usize) -> f32 {
         let t = i as f32 / (self.layers as f32 - 1.0);
-        let (r0, rt) = (self.radius_mm, self.tip_radius_mm);
-        // Swells by (1 + b t) below the ferrule, tapers as (1 - t^2) to the tip: the "belly"
-        // of a calligraphy brush sits about a third of the way down for b around 0.5.
-        rt + (r0 - rt) * (1.0 + self.belly * t) * (1.0 - t * t)
+        head_radius(self.radius_mm, self.tip_radius_mm, self.belly, t)
     }
+}
+
+/// A brush head's radius at the fraction `t` of its length from the ferrule (0) to the tip
+/// (1): `r0` at the ferrule, swelling by `(1 + belly t)` below it and tapering as `(1 - t^2)`
+/// to `rt` at the tip. With a belly around 0.5 the widest part sits about a third of the way
+/// down, as on a calligraphy brush. Liang's layers ([`BrushParams::rest_radius_mm`]) and
+/// Baxter & Lin's bundles (`baxter_lin::skin::Bundle`) both take their profile from here.
+pub fn head_radius<S: Scalar>(r0: S, rt: S, belly: S, t: S) -> S {
+    rt + (r0 - rt) * (S::ONE + belly * t) * (S::ONE - t * t)
 }
 
 fn check_value(id: ParamId, value: f32) -> Result<f32, ParamError> {

@@ -874,6 +874,9 @@ fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<(
         }
     })?;
     eprintln!();
+    if let Some(note) = &r.model_note {
+        eprintln!("maobi render: warning: {}: {note}", path.display());
+    }
     write_png(r.paper.canvas(), out)?;
     let c = r.paper.canvas();
     eprintln!(

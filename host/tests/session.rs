@@ -195,7 +195,8 @@ fn bad_session_files_say_what_is_wrong() {
     let bad_x = format!("poses, line {}, column x", row_index + 1);
     let cases: Vec<(String, &str)> = vec![
         (good.replace("maobi-session", "something"), "format"),
-        (good.replace("version = 1", "version = 7"), "version 7"),
+        (good.replace("version = 2", "version = 7"), "version 7"),
+        (good.replace("model = ", "# model = "), "needs `model`"),
         (
             good.replace("preset = \"large\"", "preset = \"huge\""),
             "unknown brush `huge`",
@@ -271,6 +272,28 @@ fn maobi_render_session_writes_the_apps_paper() {
         &buf[..info.buffer_size()],
         &want[..],
         "the PNG is the app's paper"
+    );
+    assert!(!err.contains("warning"), "{err}");
+
+    // The same session as a file from before models had versions: it renders, and says
+    // that this build's model may ink it differently.
+    let model_line = text.lines().find(|l| l.starts_with("model = ")).unwrap();
+    let old = text
+        .replace("version = 2", "version = 1")
+        .replace(&format!("{model_line}\n"), "");
+    std::fs::write(&path, old).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["render", "--session"])
+        .arg(&path)
+        .arg("-o")
+        .arg(&png)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("before brush models had versions"),
+        "{err}"
     );
 
     // A broken session: a clear error and a non-zero exit, no PNG.

@@ -311,6 +311,7 @@ impl MaobiApp {
             paper: *self.paper.frame(),
             paper_spec: self.paper.paper(),
             ink: self.ink_log.clone(),
+            model: Some(super::session::MODEL_VERSION),
         })
     }
 
@@ -391,10 +392,13 @@ impl MaobiApp {
                     .iter()
                     .map(|&p| self.status.params.get(p))
                     .collect();
+                let note = r
+                    .model_note
+                    .map_or(String::new(), |n| format!(". Note: {n}"));
                 self.message = Some(match connected {
                     Ok(()) => (
                         format!(
-                            "opened {}: {ticks} ticks re-rendered; the built-in simulator goes on from there",
+                            "opened {}: {ticks} ticks re-rendered; the built-in simulator goes on from there{note}",
                             path.display()
                         ),
                         false,

@@ -18,6 +18,9 @@ pub struct Rerender {
     pub core: SimCore,
     pub paper: PaperView,
     pub ink: InkLog,
+    /// The session was recorded with another brush model: what that means
+    /// ([`Session::model_note`]).
+    pub model_note: Option<String>,
 }
 
 /// Runs `session` again: the model from its start, the same poses and commands at the
@@ -72,6 +75,7 @@ pub fn rerender(session: &Session, mut progress: impl FnMut(f64)) -> anyhow::Res
         core,
         paper,
         ink: session.ink.clone(),
+        model_note: session.model_note(),
     })
 }
 

@@ -13,10 +13,11 @@
 //! written by [`SimCore`](crate::device::builtin::SimCore)), because only it knows at which
 //! tick a command took effect; the paper's history is kept by the app ([`InkLog`]).
 //!
-//! # File format (`.maobi.toml`, version 1)
+//! # File format (`.maobi.toml`, version 2)
 //!
-//! TOML, so it can be read and diffed: `format = "maobi-session"`, `version`, the `device`
-//! it was recorded on, `preset`, `ticks` (the last tick), `start` (the rest pose before tick
+//! TOML, so it can be read and diffed: `format = "maobi-session"`, `version`, `model` (the
+//! [`MODEL_VERSION`] it was recorded with; version 1 files, written before models had
+//! versions, have none), the `device` it was recorded on, `preset`, `ticks` (the last tick), `start` (the rest pose before tick
 //! 1: `[x, y, z, qw, qx, qy, qz]`, mm and a unit quaternion), `inked` (inclusive tick
 //! ranges), a `[paper]` table (the canvas frame, and the paper's `kind`, `"sized"` or
 //! `"raw"`, and the `seed` of its fibres: both optional, files written before papers had
@@ -40,8 +41,16 @@ use crate::raster::Frame;
 
 /// The `format` key of a session file.
 pub const FORMAT: &str = "maobi-session";
-/// The version this build writes and reads.
-pub const VERSION: u32 = 1;
+/// The version this build writes. It reads it and version 1 (the same, without `model`).
+pub const VERSION: u32 = 2;
+/// The version of what turns a session's inputs into ink: the brush model, the force loop
+/// and the built-in device (`maobi-shared`), and the inker and paper. A session records the
+/// version it was written with, and a session opened in a build of another version
+/// re-renders with this build's model, so its ink may differ from what was written: the app
+/// says so. Raised with every change to the re-rendered result; `tests/model_version.rs`
+/// keeps a digest of a reference session's re-render for the current version and fails when
+/// the result changes and the version does not.
+pub const MODEL_VERSION: u32 = 1;
 /// A change to the paper that is not ink.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -89,9 +98,25 @@ pub struct Session {
     /// The paper's kind and fibres.
     pub paper_spec: PaperSpec,
     pub ink: InkLog,
+    /// The [`MODEL_VERSION`] it was recorded with (`None`: before models had versions).
+    pub model: Option<u32>,
 }
 
 impl Session {
+    /// What a re-render in this build changes, if anything: `None` when the session was
+    /// recorded with this build's model, else a sentence for the user.
+    pub fn model_note(&self) -> Option<String> {
+        let recorded = match self.model {
+            Some(v) if v == MODEL_VERSION => return None,
+            Some(v) => format!("recorded with brush model version {v}"),
+            None => "recorded before brush models had versions".to_string(),
+        };
+        Some(format!(
+            "{recorded}, re-rendered with this build's version {MODEL_VERSION}: the ink may \
+             differ from what was written (a PNG saved then is the record of it)"
+        ))
+    }
+
     /// Checks that the session can be saved: a complete journal, no ink from elsewhere.
     pub fn check_complete(&self) -> anyhow::Result<()> {
         if let Some(t) = self.journal.full_at {
@@ -134,6 +159,7 @@ impl Session {
         let file = SessionFile {
             format: FORMAT.into(),
             version: VERSION,
+            model: Some(self.model.unwrap_or(MODEL_VERSION)),
             device: self.device.clone(),
             preset: j.preset.clone(),
             ticks: j.ticks,
@@ -195,11 +221,11 @@ impl Session {
         if f.format != FORMAT {
             bail!("format is `{}`, expected `{FORMAT}`", f.format);
         }
-        if f.version != VERSION {
-            bail!(
-                "session version {} (this build reads version {VERSION})",
-                f.version
-            );
+        match (f.version, f.model) {
+            (1, None) | (VERSION, Some(_)) => {}
+            (VERSION, None) => bail!("version {VERSION} needs `model`, the brush model's version"),
+            (1, Some(_)) => bail!("version 1 has no `model` (it came with version 2)"),
+            (v, _) => bail!("session version {v} (this build reads versions 1 and {VERSION})"),
         }
         let preset_params = presets::find(&f.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut params = preset_params;
@@ -329,6 +355,7 @@ impl Session {
                 ops,
                 foreign: false,
             },
+            model: f.model,
         })
     }
 }
@@ -432,6 +459,8 @@ fn parse_poses(
 struct SessionFile {
     format: String,
     version: u32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    model: Option<u32>,
     device: String,
     preset: String,
     ticks: u64,
@@ -510,6 +539,42 @@ mod tests {
              y_top_mm = 10.0\npx_per_mm = 2.0\nwidth = 40\nheight = 40\n{paper}\n\
              [params]\n"
         )
+    }
+
+    #[test]
+    fn a_session_records_its_model_and_an_older_one_says_what_a_replay_changes() {
+        // Version 1: written before models had versions.
+        let old = Session::from_toml(&file("")).unwrap();
+        assert_eq!(old.model, None);
+        let note = old.model_note().unwrap();
+        assert!(note.contains("before brush models had versions"), "{note}");
+        assert!(note.contains(&format!("version {MODEL_VERSION}")), "{note}");
+        // Written out, it is this format's file, with this build's model: what re-rendering
+        // it now gives.
+        let text = old.to_toml().unwrap();
+        assert!(text.contains("version = 2") && text.contains(&format!("model = {MODEL_VERSION}")));
+        let current = Session::from_toml(&text).unwrap();
+        assert_eq!(current.model, Some(MODEL_VERSION));
+        assert_eq!(current.model_note(), None);
+        // Another version's session reads, and says so.
+        let other = text.replace(
+            &format!("model = {MODEL_VERSION}"),
+            &format!("model = {}", MODEL_VERSION + 7),
+        );
+        let note = Session::from_toml(&other).unwrap().model_note().unwrap();
+        assert!(
+            note.contains(&format!("version {}", MODEL_VERSION + 7)),
+            "{note}"
+        );
+        // Each version's own fields.
+        let bad = |t: &str| format!("{:#}", Session::from_toml(t).unwrap_err());
+        assert!(
+            bad(&text.replace(&format!("model = {MODEL_VERSION}\n"), "")).contains("needs `model`")
+        );
+        assert!(
+            bad(&file("").replace("version = 1\n", "version = 1\nmodel = 1\n"))
+                .contains("version 1 has no `model`")
+        );
     }
 
     #[test]

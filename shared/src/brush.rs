@@ -1426,84 +1426,19 @@ impl<S: Scalar> Brush<S> {
         }
     }
 
-    /// The tick's ink transfer (see the module): deposits and wicking. Runs after the
+    /// The tick's ink transfer ([`ink::transfer`]): deposits and wicking. Runs after the
     /// surface update, whose radii and axes it reads.
     #[inline(always)]
     pub(crate) fn transfer_ink(&mut self) {
         let n = self.d.n();
-        let c = self.ink_coefs;
-        let eps = S::from_f32(c.eps);
-        // Zipped, not indexed: the force path holds no panicking index.
-        let layers = self.layers[..n]
-            .iter_mut()
-            .zip(&self.spine[..n])
-            .zip(&self.vel[..n])
-            .zip(&self.d.max_radius[..n])
-            .zip(&c.inv_capacity[..n]);
-        for ((((l, x), u), &max_radius), &inv_cap) in layers {
-            // No radius exceeds the widest: a layer higher than that above the threshold
-            // cannot reach the paper, and its lowest point is not needed.
-            if x.z > eps + max_radius {
-                continue;
-            }
-            let drop = (l.long_radius * l.long_axis.z)
-                .abs()
-                .max((l.short_radius * l.short_axis.z).abs());
-            let press = (eps - (x.z - drop)).to_f32();
-            if press > 0.0 {
-                let cap = if inv_cap > 0.0 { 1.0 / inv_cap } else { 0.0 };
-                let w = l.wetness.to_f32();
-                // PRESS_FULL_MM is one millimetre: the press in mm is its share of the way.
-                let press = c.press_floor + c.press_slope * press.min(1.0);
-                // |u_xy| within 3% by the octagon, max + 3/8 min: no square root.
-                let (ux, uy) = (u.x.to_f32().abs(), u.y.to_f32().abs());
-                let travel = ux.max(uy) + 0.375 * ux.min(uy);
-                let give = (w * l.long_radius.to_f32() * (travel + c.dwell) * press).min(w * cap);
-                let give = S::from_f32(give);
-                l.wetness = (l.wetness - give * S::from_f32(inv_cap)).max(S::ZERO);
-                l.deposited += give;
-            }
-        }
-        // Wicking, after the deposits: the pairs (i-1, i) with i of this tick's parity, so
-        // that each layer takes part in one exchange a tick, at twice the rate, the even
-        // and odd pairs in turn: the same diffusion as every pair at WICK each tick, half
-        // the work, and (each exchange moving at most half the difference, by WICK <= 1/4)
-        // no layer can overshoot its neighbour.
-        // The phase turns only on a tick that wicked: a brush at rest in the air, evenly wet,
-        // is unchanged by any number of ticks (a device that idles longer than its host's
-        // copy still agrees with it).
-        let first = if self.ink_phase { 2 } else { 1 };
-        let mut wicked = false;
-        let wick_min = S::from_f32(ink::WICK_MIN);
-        for i in (first..n).step_by(2) {
-            let (lo, hi) = self.layers.split_at_mut(i);
-            let (Some(giver), Some(taker)) = (lo.last_mut(), hi.first_mut()) else {
-                continue;
-            };
-            // None across a difference below ink::WICK_MIN (a brush fresh from a dip, or in the
-            // air, costs no products).
-            if (giver.wetness - taker.wetness).abs() <= wick_min {
-                continue;
-            }
-            let (Some(&inv_g), Some(&inv_t)) = (c.inv_capacity.get(i - 1), c.inv_capacity.get(i))
-            else {
-                continue;
-            };
-            if inv_g <= 0.0 || inv_t <= 0.0 {
-                continue;
-            }
-            // Ink units per unit of wetness difference. At a rate of at most one half of the
-            // smaller capacity the flow is within what the giver holds and what the taker
-            // can take (each wetness within [0, 1]); the clamps below keep the rounding in.
-            let rate = S::from_f32((2.0 * ink::WICK) * (1.0 / inv_g).min(1.0 / inv_t));
-            let flow = (giver.wetness - taker.wetness) * rate;
-            giver.wetness = (giver.wetness - flow * S::from_f32(inv_g)).clamp(S::ZERO, S::ONE);
-            taker.wetness = (taker.wetness + flow * S::from_f32(inv_t)).clamp(S::ZERO, S::ONE);
-            wicked = true;
-        }
-        if wicked {
-            self.ink_phase = !self.ink_phase;
-        }
+        ink::transfer(
+            &mut self.layers[..n],
+            &self.spine[..n],
+            &self.vel[..n],
+            &self.d.max_radius[..n],
+            &self.ink_coefs,
+            &mut self.ink_phase,
+        );
     }
 }
 

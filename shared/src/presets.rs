@@ -37,7 +37,9 @@
 //! The three hairs a calligrapher picks between, each as a head of the large brush's size
 //! (大楷, 40 mm by 12 mm, 1 g wet), so that they compare with `large` and with each other at
 //! the same geometry and only what the hair changes differs: the ties' stiffness and damping,
-//! the neighbour damping, the ink a layer holds and the load a dip leaves.
+//! the neighbour damping, the ink a layer holds and the load a dip leaves. The mass stays
+//! the large brush's 1 g for all three: the model's mass does not follow the ink (a goat
+//! head carrying more of it would be a little heavier).
 //!
 //! * What the hairs are: 狼毫 is in fact the tail hair of the Siberian weasel (黄鼠狼),
 //!   stiff, straight and springy; 羊毫 is goat hair, fine, soft, kinked and absorbent; 兼毫
@@ -65,8 +67,8 @@
 //!   0.03 mm of rest, mixed 0.08, goat 0.22 (and 0.07 after 500 ms).
 //! * Substeps: the springier wolf hair has faster modes, and at one substep per tick the
 //!   backward-Euler step's own damping slows its spring-back by 11% (beyond the 10% of
-//!   `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (5%). A board that runs
-//!   one substep (the Black Pill) runs it a little slower to spring back.
+//!   `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (5%). A board that sets
+//!   its own substep rate (the Black Pill: one, with the thesis's step) runs it at that.
 //! * Ink: hair holds ink by capillarity on its surface, which per volume of hair goes as
 //!   1 / d, and goat hair's scales hold more (Saitzyk): [`GOAT`] holds 0.55 units per mm^3,
 //!   [`MIXED`] 0.42, [`WOLF`] 0.3 (large: 0.4), and a dip leaves the absorbent goat head
@@ -74,7 +76,7 @@
 //!   stays darker than half its start for 125 mm with wolf hair, 200 mm with mixed, 250 mm
 //!   with goat (`host/tests/paper.rs`).
 //! * Mixed is the half-and-half 兼毫 with its stiffer hair at the core, which carries the
-//!   bend: its ties a little stiffer than the midpoint, the rest at the midpoint.
+//!   bend: its ties a little stiffer than the midpoint, the rest near the midpoint.
 
 use core::fmt;
 

@@ -542,6 +542,28 @@ fn parameters_and_commands_are_validated_and_answered() {
         )),
         Err(CommandError::UnknownPreset)
     );
+    // The hair types, by their Chinese name and by their index in `presets::PRESETS`.
+    for (preset, want) in [
+        (PresetRef::Name(bounded_str("羊毫")), presets::GOAT),
+        (PresetRef::Name(bounded_str("jianhao")), presets::MIXED),
+        (PresetRef::Index(2), presets::WOLF),
+    ] {
+        assert_eq!(
+            done(ask(
+                &mut s,
+                HostMsg::Command(Command::ChoosePreset(preset.clone()))
+            )),
+            Ok(()),
+            "{preset:?}"
+        );
+        for p in [ParamId::TieStiffness, ParamId::InkCapacity] {
+            assert_eq!(
+                param(ask(&mut s, HostMsg::GetParam { id: id(p) })),
+                Ok(want.get(p)),
+                "{preset:?}: {p}"
+            );
+        }
+    }
     assert_eq!(
         done(ask(
             &mut s,

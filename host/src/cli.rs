@@ -256,7 +256,15 @@ pub struct GuiArgs {
     #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "replay")]
     pub session: Option<PathBuf>,
     /// Brush preset (default: the one used last, else `large`).
-    #[arg(long, value_name = "NAME", value_parser = parse_brush)]
+    #[arg(
+        long,
+        value_name = "NAME",
+        value_parser = parse_brush,
+        help = format!(
+            "Brush preset: {} (default: the one used last, else `large`)",
+            presets::NAMES
+        )
+    )]
     pub brush: Option<BrushChoice>,
     /// The paper at start: `sized` (熟宣) or `raw` (生宣); the app's paper choice changes it.
     #[arg(long, value_name = "NAME", value_parser = parse_paper, default_value = "sized")]
@@ -305,7 +313,13 @@ fn parse_brush(name: &str) -> Result<BrushChoice, String> {
 #[derive(Debug, Args)]
 pub struct BrushArgs {
     /// Brush preset.
-    #[arg(long, value_name = "NAME", default_value = "large", value_parser = parse_brush)]
+    #[arg(
+        long,
+        value_name = "NAME",
+        default_value = "large",
+        value_parser = parse_brush,
+        help = format!("Brush preset: {}", presets::NAMES)
+    )]
     pub brush: BrushChoice,
     /// Set a brush parameter on top of the preset, by the name the app's parameter panel
     /// shows (e.g. `substeps_per_tick=2`); repeatable, applied in order (`--help` lists them).

@@ -151,11 +151,55 @@ fn rejects_unknown_brush_listing_valid_ones() {
     let out = Temp::new("out.csv");
     let p = example("press_lift.csv");
     for cmd in ["trace", "render"] {
-        let o = maobi(&[cmd, "--poses", &p, "--brush", "huge", "-o", out.path()]);
+        let o = maobi(&[cmd, "--poses", &p, "--brush", "nonsense", "-o", out.path()]);
         let err = stderr(&o);
         assert!(!o.status.success());
-        for w in ["unknown brush `huge`", "large", "small"] {
-            assert!(err.contains(w), "{cmd}: {w:?} not in {err:?}");
+        assert!(err.contains("unknown brush `nonsense`"), "{cmd}: {err:?}");
+        for (name, _) in maobi_shared::presets::PRESETS {
+            assert!(err.contains(name), "{cmd}: {name:?} not in {err:?}");
+        }
+    }
+}
+
+/// Every command that chooses a brush lists the presets in its `--help`.
+#[test]
+fn help_lists_every_brush_preset() {
+    for cmd in ["trace", "render", "sim-device", "bridge", "gui"] {
+        let o = maobi(&[cmd, "--help"]);
+        let help = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{cmd}");
+        assert!(
+            help.contains(maobi_shared::presets::NAMES),
+            "{cmd}: the presets are not listed in {help}"
+        );
+    }
+}
+
+/// The hair types answer to their name, pinyin and Chinese name alike (the same trace), and
+/// each traces a brush of its own (not the large brush's trace).
+#[test]
+fn hair_types_are_chosen_by_any_of_their_names() {
+    let p = example("press_lift.csv");
+    let trace = |brush: &str| {
+        let out = Temp::new("hair.csv");
+        let o = maobi(&["trace", "--poses", &p, "--brush", brush, "-o", out.path()]);
+        assert!(o.status.success(), "{brush}: {}", stderr(&o));
+        std::fs::read(out.path()).unwrap()
+    };
+    let large = trace("large");
+    for names in [
+        ["wolf", "langhao", "狼毫"],
+        ["goat", "yanghao", "羊毫"],
+        ["mixed", "jianhao", "兼毫"],
+    ] {
+        let own = trace(names[0]);
+        assert!(own != large, "{}: the large brush's trace", names[0]);
+        for alias in &names[1..] {
+            assert!(
+                trace(alias) == own,
+                "{alias} traces another brush than {}",
+                names[0]
+            );
         }
     }
 }

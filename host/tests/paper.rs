@@ -10,7 +10,7 @@ use maobi::paper::{Canvas, PaperKind, PaperSpec};
 use maobi::poses::PoseTrack;
 use maobi::raster::Frame;
 use maobi::render::{paper_frame, render, Inker};
-use maobi_shared::{presets, Fx};
+use maobi_shared::{presets, BrushParams, Fx};
 
 const PX_PER_MM: f64 = 10.0;
 
@@ -32,7 +32,10 @@ fn stroke(speed: f64, length_mm: f64) -> PoseTrack {
 }
 
 fn render_on(track: &PoseTrack, kind: PaperKind) -> (Canvas, Frame) {
-    let params = presets::by_name("large").unwrap();
+    render_with(presets::by_name("large").unwrap(), track, kind)
+}
+
+fn render_with(params: BrushParams, track: &PoseTrack, kind: PaperKind) -> (Canvas, Frame) {
     let frame = paper_frame(track, &params, PX_PER_MM).unwrap();
     let (c, _) = render::<Fx>(params, track, frame, PaperSpec::new(kind)).unwrap();
     (c, frame)
@@ -358,6 +361,42 @@ fn a_long_stroke_without_dipping_fades() {
     println!("250 mm at 100 mm/s: mean darkness first quarter {first:.4}, last {last:.4}");
     assert!(first > 0.05, "{first}");
     assert!(last < 0.75 * first, "{first} -> {last}");
+}
+
+/// The same long stroke without dipping, written with each hair type: goat hair, which holds
+/// the most ink, goes furthest before the stroke fades to half its first darkness, wolf hair
+/// the least far. The fade is read off the paper in 25 mm windows of the way the ferrule went.
+#[test]
+fn goat_hair_fades_later_than_mixed_and_mixed_later_than_wolf() {
+    const LENGTH_MM: f64 = 400.0;
+    const WINDOW_MM: f64 = 25.0;
+    let track = stroke(100.0, LENGTH_MM);
+    let fades: Vec<(f64, Vec<f64>)> = [presets::WOLF, presets::MIXED, presets::GOAT]
+        .into_iter()
+        .map(|params| {
+            let (c, frame) = render_with(params, &track, PaperKind::Sized);
+            let windows: Vec<f64> = (0..(LENGTH_MM / WINDOW_MM) as usize)
+                .map(|k| {
+                    let from = k as f64 * WINDOW_MM;
+                    mean_darkness(&c, &frame, from, from + WINDOW_MM)
+                })
+                .collect();
+            let half = windows.iter().position(|&d| d < 0.5 * windows[0]);
+            (half.map_or(LENGTH_MM, |k| k as f64 * WINDOW_MM), windows)
+        })
+        .collect();
+    for ((fade, windows), name) in fades.iter().zip(["wolf", "mixed", "goat"]) {
+        let tones: Vec<String> = windows.iter().map(|d| format!("{d:.3}")).collect();
+        println!(
+            "{name}: darker than half its start for {fade:.0} mm; darkness per {WINDOW_MM} mm: {}",
+            tones.join(" ")
+        );
+    }
+    let [wolf, mixed, goat] = [fades[0].0, fades[1].0, fades[2].0];
+    assert!(
+        wolf < mixed && mixed < goat,
+        "fades at wolf {wolf} mm, mixed {mixed} mm, goat {goat} mm"
+    );
 }
 
 /// Of the columns of the stroke's middle (x from `from_mm` to `to_mm`), the share whose

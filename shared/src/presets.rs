@@ -31,6 +31,52 @@
 //!   instead of standing on its tip like a column (2% left only the tip touching).
 //! * Surface: TF, SDF and RL_max from Liang 2009 3.2; with a wet brush (W = 1) the surface
 //!   does not spread (eq. 3-17), a drier one splays up to RL_max.
+//!
+//! # The hair types: 狼毫 ([`WOLF`]), 羊毫 ([`GOAT`]), 兼毫 ([`MIXED`])
+//!
+//! The three hairs a calligrapher picks between, each as a head of the large brush's size
+//! (大楷, 40 mm by 12 mm, 1 g wet), so that they compare with `large` and with each other at
+//! the same geometry and only what the hair changes differs: the ties' stiffness and damping,
+//! the neighbour damping, the ink a layer holds and the load a dip leaves. The mass stays
+//! the large brush's 1 g for all three: the model's mass does not follow the ink (a goat
+//! head carrying more of it would be a little heavier).
+//!
+//! * What the hairs are: 狼毫 is in fact the tail hair of the Siberian weasel (黄鼠狼),
+//!   stiff, straight and springy; 羊毫 is goat hair, fine, soft, kinked and absorbent; 兼毫
+//!   mixes the two (or rabbit and goat), commonly in proportions of 7:3, 5:5 or 3:7, for a
+//!   brush between them (brush makers' and calligraphy guides, e.g. the Molecular Expressions
+//!   gallery's "Chinese goat hair fibers" and China-tour notes on writing brushes; Saitzyk,
+//!   *Art Hardware*, 1987, names absorbency and spring as the two properties that tell hairs
+//!   apart; USDA Circular 802, Hardy & Hardy 1949, *Animal fibers used in brushes*, ties a
+//!   soft-hair brush's spring to its hairs' taper).
+//! * Stiffness: a hair bends with E I, I = pi d^4 / 64, and keratin's modulus is about the
+//!   same across these animals (a few GPa), so the hair's diameter and taper set it: a head
+//!   of given size holds about (D / d)^2 hairs, so its bending stiffness goes as d^2, and the
+//!   coarse, strongly tapered weasel hair makes a stiffer head than fine goat hair. No
+//!   measured stiffness per hair type was found; the ties are set to keep the calligrapher's
+//!   order (goat bends most under the same push, wolf least) inside Baxter & Lin's 70 to 90
+//!   degrees under 1-2 N: wolf 1.9 N/m, mixed 1.6, goat 1.1 (large: 1.5). Under 1 N the
+//!   chord bends 71, 74 and 80 degrees (`tests/hair.rs`); goat hair is the one that bends
+//!   more than 50 degrees under a light 0.25 N (55).
+//! * Spring and damping: weasel hair is straight and springs back; goat hair's kink and
+//!   scales rub between the hairs and hold more ink between them, which damps. Tie damping
+//!   0.008, 0.011 and 0.014 N s/m, neighbour damping 0.05, 0.065 and 0.08: dry, a wolf
+//!   tie is damped at about a third of critical, mixed at a half (as large), goat at four
+//!   fifths, and a saturated goat tie (150%) beyond critical, so goat hair creeps back where
+//!   wolf hair springs. 200 ms after the model tests' 10 mm press and lift, wolf is within
+//!   0.03 mm of rest, mixed 0.08, goat 0.22 (and 0.07 after 500 ms).
+//! * Substeps: the springier wolf hair has faster modes, and at one substep per tick the
+//!   backward-Euler step's own damping slows its spring-back by 11% (beyond the 10% of
+//!   `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (5%). A board that sets
+//!   its own substep rate (the Black Pill: one, with the thesis's step) runs it at that.
+//! * Ink: hair holds ink by capillarity on its surface, which per volume of hair goes as
+//!   1 / d, and goat hair's scales hold more (Saitzyk): [`GOAT`] holds 0.55 units per mm^3,
+//!   [`MIXED`] 0.42, [`WOLF`] 0.3 (large: 0.4), and a dip leaves the absorbent goat head
+//!   fuller (wetness 0.75, mixed 0.6, wolf 0.5). The same 400 mm stroke without dipping
+//!   stays darker than half its start for 125 mm with wolf hair, 200 mm with mixed, 250 mm
+//!   with goat (`host/tests/paper.rs`).
+//! * Mixed is the half-and-half 兼毫 with its stiffer hair at the core, which carries the
+//!   bend: its ties a little stiffer than the midpoint, the rest near the midpoint.
 
 use core::fmt;
 
@@ -105,20 +151,71 @@ pub const SMALL: BrushParams = BrushParams {
     tie_damping_wet_pct: TIE_DAMPING_WET_PCT,
 };
 
-/// Presets by the names the CLI and the protocol use.
-pub const PRESETS: [(&str, &BrushParams); 2] = [("large", &LARGE), ("small", &SMALL)];
+/// 狼毫 (wolf hair, in fact the tail hair of the Siberian weasel): a stiff, springy head of
+/// the large brush's size (大楷, 40 mm) that holds less ink, at two substeps per tick (see the
+/// module's notes on the hair types).
+pub const WOLF: BrushParams = BrushParams {
+    substeps_per_tick: 2,
+    axial_damping: 0.05,
+    tie_stiffness: 1.9,
+    tie_damping: 0.008,
+    wetness: 0.5,
+    ink_capacity: 0.3,
+    ..LARGE
+};
 
-/// The preset called `name` (also accepts `dakai` / `xiaokai` and the Chinese names).
+/// 羊毫 (goat hair): a soft, slow head of the large brush's size (大楷, 40 mm) that holds much
+/// ink (see the module's notes on the hair types).
+pub const GOAT: BrushParams = BrushParams {
+    axial_damping: 0.08,
+    tie_stiffness: 1.1,
+    tie_damping: 0.014,
+    wetness: 0.75,
+    ink_capacity: 0.55,
+    ..LARGE
+};
+
+/// 兼毫 (mixed hair): wolf and goat hair half and half, a head of the large brush's size (大楷,
+/// 40 mm) between the two (see the module's notes on the hair types).
+pub const MIXED: BrushParams = BrushParams {
+    axial_damping: 0.065,
+    tie_stiffness: 1.6,
+    tie_damping: 0.011,
+    wetness: 0.6,
+    ink_capacity: 0.42,
+    ..LARGE
+};
+
+/// Presets by the names the CLI and the protocol use; the protocol's preset index is the
+/// position here, so new presets go at the end.
+pub const PRESETS: [(&str, &BrushParams); 5] = [
+    ("large", &LARGE),
+    ("small", &SMALL),
+    ("wolf", &WOLF),
+    ("goat", &GOAT),
+    ("mixed", &MIXED),
+];
+
+/// Each preset's other names, in the order of [`PRESETS`]: its pinyin and its Chinese name.
+const ALIASES: [[&str; 2]; PRESETS.len()] = [
+    ["dakai", "大楷"],
+    ["xiaokai", "小楷"],
+    ["langhao", "狼毫"],
+    ["yanghao", "羊毫"],
+    ["jianhao", "兼毫"],
+];
+
+/// The preset called `name`: its name in [`PRESETS`], its pinyin or its Chinese name.
 pub fn by_name(name: &str) -> Option<BrushParams> {
-    match name {
-        "large" | "dakai" | "大楷" => Some(LARGE),
-        "small" | "xiaokai" | "小楷" => Some(SMALL),
-        _ => None,
-    }
+    PRESETS
+        .iter()
+        .zip(ALIASES)
+        .find(|((own, _), aliases)| *own == name || aliases.contains(&name))
+        .map(|((_, params), _)| **params)
 }
 
 /// Names for error messages and `--help`.
-pub const NAMES: &str = "large (大楷), small (小楷)";
+pub const NAMES: &str = "large (大楷), small (小楷), wolf (狼毫), goat (羊毫), mixed (兼毫)";
 
 /// The preset called `name`, or the error that says which names are valid.
 pub fn find(name: &str) -> Result<BrushParams, UnknownPreset<'_>> {
@@ -152,12 +249,30 @@ mod tests {
     }
 
     #[test]
+    fn every_preset_answers_to_its_pinyin_and_chinese_name_and_is_listed() {
+        extern crate std;
+        use std::format;
+        for ((name, params), aliases) in PRESETS.iter().zip(ALIASES) {
+            for alias in aliases {
+                assert_eq!(by_name(alias), Some(**params), "{alias}");
+            }
+            let listed = format!("{name} ({})", aliases[1]);
+            assert!(NAMES.contains(&listed), "{listed} not in {NAMES}");
+        }
+        assert_eq!(by_name("羊毫"), Some(GOAT));
+        assert_eq!(by_name("langhao"), Some(WOLF));
+        assert_eq!(by_name("兼毫"), Some(MIXED));
+        assert_eq!(by_name("Wolf"), None);
+    }
+
+    #[test]
     fn an_unknown_preset_names_the_valid_ones() {
         extern crate std;
         use std::string::ToString;
         assert_eq!(
             UnknownPreset("huge").to_string(),
-            "unknown brush `huge`; valid brushes: large (大楷), small (小楷)"
+            "unknown brush `huge`; valid brushes: large (大楷), small (小楷), wolf (狼毫), goat (羊毫), \
+             mixed (兼毫)"
         );
     }
 }

@@ -1,6 +1,7 @@
 //! The brush's results do not depend on its substep: a sweep of the substep rate in `f64` and in
 //! fixed point, against the finest `f64` run, for the default integrator (backward Euler),
-//! with the thesis's integrator's table beside it to show what the default changed.
+//! with the thesis's integrator's table beside it to show what the default changed. Each
+//! preset is held to it from its own substep rate up (the springy wolf hair takes two).
 //!
 //! `cargo test --release -p maobi-shared --test convergence -- --nocapture` prints the tables.
 
@@ -143,7 +144,7 @@ fn close(got: f64, want: f64) -> bool {
 fn backward_euler_converges_in_the_substep_and_the_thesis_scheme_does_not() {
     for (name, params) in presets::PRESETS {
         let (rows, reference) = table(name, *params, INTEGRATOR_BACKWARD_EULER);
-        for (rate, f, x) in &rows {
+        for (rate, f, x) in rows.iter().filter(|r| r.0 >= params.substeps_per_tick) {
             for (format, fig) in [("f64", f), ("fixed", x)] {
                 for (k, (&got, &want)) in fig
                     .spring_back

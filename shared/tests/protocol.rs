@@ -438,10 +438,17 @@ fn parameter_errors_keep_the_parameter_and_the_reason() {
 fn presets_resolve_by_index_and_name() {
     assert_eq!(PresetRef::Index(0).resolve(), Some(presets::LARGE));
     assert_eq!(PresetRef::Index(1).resolve(), Some(presets::SMALL));
-    assert_eq!(PresetRef::Index(2).resolve(), None);
+    assert_eq!(PresetRef::Index(2).resolve(), Some(presets::WOLF));
+    assert_eq!(PresetRef::Index(3).resolve(), Some(presets::GOAT));
+    assert_eq!(PresetRef::Index(4).resolve(), Some(presets::MIXED));
+    assert_eq!(PresetRef::Index(5).resolve(), None);
     assert_eq!(
         PresetRef::Name(bounded_str("小楷")).resolve(),
         Some(presets::SMALL)
+    );
+    assert_eq!(
+        PresetRef::Name(bounded_str("羊毫")).resolve(),
+        Some(presets::GOAT)
     );
     assert_eq!(PresetRef::Name(bounded_str("huge")).resolve(), None);
     // Names are cut on a character boundary.

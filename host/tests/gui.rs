@@ -84,6 +84,17 @@ fn a_rejected_parameter_shows_why() {
     h.run_steps(2);
     h.get_by_label("plasticity_d = 0.01");
     assert_eq!(h.state().status().params.plasticity, 0.01);
+
+    // The panel shows a value as the model holds it, not rounded to the drag's decimals
+    // (the goat brush's tie damping is 0.014).
+    h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "tie_damping_ns_per_m")
+        .set_value_accesskit(0.014);
+    h.run_steps(2);
+    assert_eq!(h.state().status().params.tie_damping, 0.014);
+    let shown = h
+        .get_by_role_and_label(egui::accesskit::Role::SpinButton, "tie_damping_ns_per_m")
+        .value();
+    assert_eq!(shown.as_deref(), Some("0.014"));
 }
 
 #[test]

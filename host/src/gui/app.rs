@@ -1180,9 +1180,14 @@ impl MaobiApp {
                         let label = ui.label(id.name()).on_hover_text(format!("{lo} ..= {hi}"));
                         let speed = ((hi - lo) as f64 / 500.0).min(1.0);
                         let mut dv = egui::DragValue::new(&mut self.param_edit[i]).speed(speed);
-                        if whole {
-                            dv = dv.fixed_decimals(0);
-                        }
+                        dv = if whole {
+                            dv.fixed_decimals(0)
+                        } else {
+                            // The value as the model holds it (f32, shortest form): the
+                            // decimals egui derives from the drag speed would round a goat
+                            // brush's tie damping of 0.014 to "0.01".
+                            dv.custom_formatter(|v, _| format!("{}", v as f32))
+                        };
                         let r = ui.add(dv).labelled_by(label.id);
                         if r.changed() {
                             changed = Some((id, self.param_edit[i]));

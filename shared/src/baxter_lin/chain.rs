@@ -19,6 +19,9 @@
 //! the second because turning about an earlier axis `a_u` carries `a_v`, its pivot and `x_i`
 //! rigidly. `x_i` does not depend on the variables of joints at or past it.
 
+// The second derivatives fill a matrix by its row and column indices.
+#![allow(clippy::needless_range_loop)]
+
 use crate::quat::Quat;
 use crate::vec::Vec3;
 
@@ -137,7 +140,12 @@ mod tests {
         let h = 0.3f64;
         let axis = V3::new(0.3, -0.5, 0.8);
         let axis = axis * (1.0 / axis.norm());
-        Mat3::from_quat(Quat::new(h.cos(), axis.x * h.sin(), axis.y * h.sin(), axis.z * h.sin()))
+        Mat3::from_quat(Quat::new(
+            h.cos(),
+            axis.x * h.sin(),
+            axis.y * h.sin(),
+            axis.z * h.sin(),
+        ))
     }
 
     const L: [f64; 4] = [4.0, 3.0, 2.5, 2.0];
@@ -188,7 +196,11 @@ mod tests {
                     c.add_curvature(i, w, &mut hh);
                     for u in 0..8 {
                         let fd2 = (cp.d(i, u) - cm.d(i, u)).dot(w) * (0.5 / step);
-                        assert!((fd2 - hh[u][v]).abs() < 1e-7, "x_{i} {u} {v}: {fd2} {}", hh[u][v]);
+                        assert!(
+                            (fd2 - hh[u][v]).abs() < 1e-7,
+                            "x_{i} {u} {v}: {fd2} {}",
+                            hh[u][v]
+                        );
                     }
                 }
             }

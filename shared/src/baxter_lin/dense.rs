@@ -19,7 +19,8 @@ pub(crate) fn cholesky<const N: usize>(a: &mut [[f64; N]; N], n: usize) -> bool 
         for k in 0..j {
             d -= a[j][k] * a[j][k];
         }
-        if !(d > floor) {
+        // Also refuses a NaN pivot.
+        if d.is_nan() || d <= floor {
             return false;
         }
         let d = libm::sqrt(d);
@@ -207,7 +208,11 @@ mod tests {
         for case in 0..500usize {
             let m = 1 + case % 5;
             // M = B B^T, sometimes rank deficient (B with fewer columns than rows).
-            let cols = if case % 3 == 0 { m.saturating_sub(1).max(1) } else { m };
+            let cols = if case % 3 == 0 {
+                m.saturating_sub(1).max(1)
+            } else {
+                m
+            };
             let mut b = [[0.0; 5]; 5];
             for r in b.iter_mut().take(m) {
                 for v in r.iter_mut().take(cols) {

@@ -42,7 +42,10 @@
 //!   friction; one pushed tip first meets all of it (§3.4.2).
 //! * Joint friction `D` (eq. 15) is plasticity: a joint released from a bend stops where its
 //!   spring's torque falls to D, at `beta = D / K`. Rounded over
-//!   [`PLASTICITY_SMOOTHING_RAD`].
+//!   [`PLASTICITY_SMOOTHING_RAD`]; `d beta` is measured from a reference bend that follows
+//!   the joint to within three roundings after each solve (the last solve's bend would let
+//!   a joint held at its limit creep a little every solve), so a released joint stops
+//!   between 95% and 100% of `D / K` and stays.
 //!
 //! # Stiction (§3.4.1)
 //!
@@ -67,7 +70,7 @@
 //! are capped at 0.5 rad in any angle and accepted by an Armijo line search on the l1 merit
 //! `E + nu sum max(0, -z_i)` (`nu` twice the largest multiplier), angles clamped to
 //! `|theta| <= `[`THETA_LIMIT`], `|phi| <= `[`PHI_LIMIT`]. It stops when a step is below
-//! 1e-10 rad, when the line search finds no decrease, or after
+//! 1e-8 rad, when the line search finds no decrease, or after
 //! [`SpineParams::max_iterations`] iterations; a solve runs at most three minimisations
 //! (the first, after a slip, after the normal forces moved).
 //!
@@ -97,6 +100,6 @@ mod spine;
 pub use chain::MAX_JOINTS;
 pub use params::{SpineParamError, SpineParams};
 pub use spine::{
-    bend_angle, ContactState, SolveReport, Spine, FRICTION_SMOOTHING_MM,
-    PENETRATION_TOLERANCE_MM, PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, THETA_LIMIT,
+    bend_angle, ContactState, SolveReport, Spine, FRICTION_SMOOTHING_MM, PENETRATION_TOLERANCE_MM,
+    PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, THETA_LIMIT,
 };

@@ -19,6 +19,13 @@ use crate::vec::Vec3;
 pub const FRICTION_SMOOTHING_MM: f64 = 1e-4;
 /// The joint friction's `|d beta|` is rounded the same way over this angle (rad).
 pub const PLASTICITY_SMOOTHING_RAD: f64 = 1e-4;
+/// A joint's friction is measured from a reference bend that follows the joint only as far
+/// as needed to stay within this many roundings of it (after each solve). Measured from the
+/// last solve's bend instead, a joint held at its friction limit would creep down the
+/// rounded cone's wall a little every solve without end (a set would fade within a
+/// second at 1 kHz); held like this, a released joint stops between 95% and 100% of
+/// `D / K` and stays there.
+const PLASTIC_REFERENCE_SPAN: f64 = 3.0;
 /// Bound on each theta (rad): the XYZ set's singularity is at theta = 90 degrees (§3.2).
 pub const THETA_LIMIT: f64 = 1.45;
 /// Bound on each phi (rad). Past 90 degrees so that a spine whose root is on the paper can
@@ -37,7 +44,7 @@ const MAX_NORMAL_FORCE_N: f64 = 1e4;
 /// linearisation.
 const MAX_STEP_RAD: f64 = 0.5;
 /// An SQP step this small in every angle (rad) ends the iterations.
-const STEP_TOLERANCE_RAD: f64 = 1e-10;
+const STEP_TOLERANCE_RAD: f64 = 1e-8;
 /// Most minimisations of one solve: the first, a re-solve after a contact slips (§3.4.1),
 /// and a re-solve when the normal forces the friction used moved.
 const MAX_PASSES: usize = 3;
@@ -91,7 +98,7 @@ struct Problem {
     lengths: [f64; MAX_JOINTS],
     stiffness: [f64; MAX_JOINTS],
     joint_friction: f64,
-    /// Each joint's bend where the solve started (for eq. 4's `d beta`).
+    /// Each joint's reference bend for eq. 4's `d beta` (see `PLASTIC_REFERENCE_SPAN`).
     beta_start: [f64; MAX_JOINTS],
     /// Indexed by point (1..=joints; 0, the root, never touches).
     friction: [Friction; MAX_JOINTS + 1],
@@ -106,7 +113,7 @@ struct Eval {
     energy: f64,
     grad: [f64; MAX_VARS],
     /// The Lagrangian's Hessian (energy and the constraints' curvature at the given
-    /// multipliers), with the friction's and joint friction's Gauss-Newton parts.
+    /// multipliers; the friction's Hessian in the paper plane by differences of its gradient).
     hess: [[f64; MAX_VARS]; MAX_VARS],
 }
 
@@ -118,6 +125,11 @@ struct Bend {
     /// `d beta`, zero at the rest position where it is not defined (the paper's choice at
     /// the friction cone's apex, §3.4).
     grad: [f64; 2],
+    /// `d^2 (beta^2 / 2)`.
+    half_sq_hess: [[f64; 2]; 2],
+    /// `d^2 beta`, zero within a milliradian of the rest position, where it grows as
+    /// `1 / beta` (the cone's apex).
+    hess: [[f64; 2]; 2],
 }
 
 fn bend(phi: f64, theta: f64) -> Bend {
@@ -131,16 +143,40 @@ fn bend(phi: f64, theta: f64) -> Bend {
     } else {
         beta / s
     };
-    let d = [ct * sp, st * cp];
+    // w = d cos(beta) negated, and its derivative dw (symmetric).
+    let w = [ct * sp, st * cp];
+    let c = ct * cp;
+    let dw = [[c, -st * sp], [-st * sp, c]];
     let grad = if s > 1e-12 {
-        [d[0] / s, d[1] / s]
+        [w[0] / s, w[1] / s]
     } else {
         [0.0; 2]
     };
+    // d^2 (beta^2 / 2) = (g'(beta) / sin beta) w w^T + g dw, with
+    // g' / sin beta = (sin beta - beta cos beta) / sin^3 beta -> 1/3 at rest.
+    let gp = if beta < 1e-3 {
+        1.0 / 3.0 + beta * beta / 15.0
+    } else {
+        (s - beta * c) / (s * s * s)
+    };
+    // d^2 beta = dw / sin beta - cos beta w w^T / sin^3 beta.
+    let near_rest = s < 1e-3;
+    let mut half_sq_hess = [[0.0; 2]; 2];
+    let mut hess = [[0.0; 2]; 2];
+    for a in 0..2 {
+        for b in 0..2 {
+            half_sq_hess[a][b] = gp * w[a] * w[b] + g * dw[a][b];
+            if !near_rest {
+                hess[a][b] = dw[a][b] / s - c * w[a] * w[b] / (s * s * s);
+            }
+        }
+    }
     Bend {
         beta,
-        half_sq_grad: [g * d[0], g * d[1]],
+        half_sq_grad: [g * w[0], g * w[1]],
         grad,
+        half_sq_hess,
+        hess,
     }
 }
 
@@ -162,10 +198,36 @@ impl Problem {
     }
 
     /// A contact's friction energy (eqs. 3, 13, 14), its gradient in the point's paper
-    /// coordinates and the Hessian of its isotropic part (positive semidefinite).
+    /// coordinates and its Hessian there: by central differences of the analytic gradient,
+    /// over a thousandth of the rounded distance from the anchor (the scale on which the
+    /// cone's curvature changes), accurate to about a millionth.
     fn friction(&self, f: &Friction, x: V3) -> (f64, [f64; 2], [[f64; 2]; 2]) {
-        let eps = FRICTION_SMOOTHING_MM;
+        let (e, g) = self.friction_gradient(f, [x.x, x.y]);
         let dx = [x.x - f.anchor[0], x.y - f.anchor[1]];
+        let eps = FRICTION_SMOOTHING_MM;
+        let step = 1e-3 * libm::sqrt(dx[0] * dx[0] + dx[1] * dx[1] + eps * eps);
+        let mut h = [[0.0; 2]; 2];
+        for a in 0..2 {
+            let mut xp = [x.x, x.y];
+            let mut xm = xp;
+            xp[a] += step;
+            xm[a] -= step;
+            let (_, gp) = self.friction_gradient(f, xp);
+            let (_, gm) = self.friction_gradient(f, xm);
+            for b in 0..2 {
+                h[b][a] = (gp[b] - gm[b]) / (2.0 * step);
+            }
+        }
+        let off = 0.5 * (h[0][1] + h[1][0]);
+        h[0][1] = off;
+        h[1][0] = off;
+        (e, g, h)
+    }
+
+    /// The friction energy and its gradient at the paper point `x`.
+    fn friction_gradient(&self, f: &Friction, x: [f64; 2]) -> (f64, [f64; 2]) {
+        let eps = FRICTION_SMOOTHING_MM;
+        let dx = [x[0] - f.anchor[0], x[1] - f.anchor[1]];
         let rho = libm::sqrt(dx[0] * dx[0] + dx[1] * dx[1] + eps * eps);
         let s = rho - eps;
         let along = f.dir[0] * dx[0] + f.dir[1] * dx[1];
@@ -188,13 +250,7 @@ impl Problem {
             m * ((1.0 - eta) * dx[0] / rho - s * geta[0]),
             m * ((1.0 - eta) * dx[1] / rho - s * geta[1]),
         ];
-        let w = m * (1.0 - eta) / rho;
-        let r2 = rho * rho;
-        let h = [
-            [w * (1.0 - dx[0] * dx[0] / r2), -w * dx[0] * dx[1] / r2],
-            [-w * dx[0] * dx[1] / r2, w * (1.0 - dx[1] * dx[1] / r2)],
-        ];
-        (e, g, h)
+        (e, g)
     }
 
     /// The joints' spring and friction energy (eqs. 2, 4), into `grad` and `hess` if given.
@@ -214,14 +270,13 @@ impl Problem {
             let rho = libm::sqrt(delta * delta + eps * eps);
             e += d * (rho - eps);
             if let Some((grad, hess)) = derivs.as_mut() {
+                let r = rho * rho * rho;
                 for a in 0..2 {
                     grad[2 * k + a] += kk * b.half_sq_grad[a] + d * delta / rho * b.grad[a];
-                    // The spring's Hessian at rest, K I: close to it at any bend the
-                    // bounds allow, and positive.
-                    hess[2 * k + a][2 * k + a] += kk;
-                    let c = d * eps * eps / (rho * rho * rho);
-                    for bb in 0..2 {
-                        hess[2 * k + a][2 * k + bb] += c * b.grad[a] * b.grad[bb];
+                    for c in 0..2 {
+                        hess[2 * k + a][2 * k + c] += kk * b.half_sq_hess[a][c]
+                            + d * eps * eps / r * b.grad[a] * b.grad[c]
+                            + d * delta / rho * b.hess[a][c];
                     }
                 }
             }
@@ -234,7 +289,8 @@ impl Problem {
         let mut e = self.joint_terms(q, None);
         for i in 1..=self.joints {
             if self.friction[i].mu_fn > 0.0 {
-                e += self.friction(&self.friction[i], chain.x[i]).0;
+                let x = chain.x[i];
+                e += self.friction_gradient(&self.friction[i], [x.x, x.y]).0;
             }
         }
         e - self.load.dot(chain.x[self.joints])
@@ -246,7 +302,8 @@ impl Problem {
         let mut w = [V3::ZERO; MAX_JOINTS + 1];
         for i in 1..=self.joints {
             if self.friction[i].mu_fn > 0.0 {
-                let (_, g, _) = self.friction(&self.friction[i], chain.x[i]);
+                let x = chain.x[i];
+                let (_, g) = self.friction_gradient(&self.friction[i], [x.x, x.y]);
                 w[i] = V3::new(g[0], g[1], 0.0);
             }
         }
@@ -576,6 +633,8 @@ pub struct Spine {
     stiffness: [f64; MAX_JOINTS],
     /// Angles in the chain's variable order (phi, theta per joint).
     q: [f64; MAX_VARS],
+    /// Each joint's friction reference bend (`PLASTIC_REFERENCE_SPAN`).
+    plastic_ref: [f64; MAX_JOINTS],
     x: [V3; MAX_JOINTS + 1],
     normal: [f64; MAX_JOINTS + 1],
     friction: [V3; MAX_JOINTS + 1],
@@ -599,6 +658,7 @@ impl Spine {
             lengths: [0.0; MAX_JOINTS],
             stiffness: [0.0; MAX_JOINTS],
             q: [0.0; MAX_VARS],
+            plastic_ref: [0.0; MAX_JOINTS],
             x: [V3::ZERO; MAX_JOINTS + 1],
             normal: [0.0; MAX_JOINTS + 1],
             friction: [V3::ZERO; MAX_JOINTS + 1],
@@ -629,6 +689,7 @@ impl Spine {
         params.validate()?;
         if params.joints != self.params.joints {
             self.q = [0.0; MAX_VARS];
+            self.plastic_ref = [0.0; MAX_JOINTS];
             self.normal = [0.0; MAX_JOINTS + 1];
             self.state = [ContactState::Free; MAX_JOINTS + 1];
         }
@@ -795,9 +856,7 @@ impl Spine {
             anisotropy_exponent: self.params.anisotropy_exponent,
             load,
         };
-        for k in 0..j {
-            p.beta_start[k] = bend(self.q[2 * k], self.q[2 * k + 1]).beta;
-        }
+        p.beta_start = self.plastic_ref;
         // Where each point was, and the hair's direction at the contact once carried with
         // the handle: the preferred (pulling) direction points from the contact back
         // toward the ferrule along the segment that ends there, in the paper's plane.
@@ -827,6 +886,20 @@ impl Spine {
         }
 
         let mut q = self.q;
+        // A straight spine pressed along its axis (a vertical handle straight down) gives its
+        // tip a constraint with no gradient: no step of the angles moves it up to first
+        // order, and the QP cannot choose a side to buckle to. Bend it a little (the same way
+        // every time) so it can.
+        for i in 1..=j {
+            let grad2: f64 = (0..n).map(|v| carried.d(i, v).z * carried.d(i, v).z).sum();
+            if carried.x[i].z < 0.0 && grad2 < 1e-6 * self.params.length_mm * self.params.length_mm
+            {
+                for k in 0..j {
+                    q[2 * k] += 1e-2;
+                }
+                break;
+            }
+        }
         let mut lam = self.normal;
         let mut converged = false;
         for _ in 0..MAX_PASSES {
@@ -856,7 +929,11 @@ impl Spine {
                 }
                 // The friction's normal force is held through a minimisation (§3.4); when
                 // the solution's differs, solve again with it.
-                let fresh = if lam[i] > CONTACT_FORCE_N { lam[i] } else { 0.0 };
+                let fresh = if lam[i] > CONTACT_FORCE_N {
+                    lam[i]
+                } else {
+                    0.0
+                };
                 if (fresh - fn_used[i]).abs() > 0.05 * fn_used[i] + 1e-4 {
                     fn_used[i] = fresh;
                     let mu = if sticking[i] {
@@ -929,6 +1006,11 @@ impl Spine {
             self.normal[i] = fn_i;
             self.friction[i] = fr;
         }
+        let span = PLASTIC_REFERENCE_SPAN * PLASTICITY_SMOOTHING_RAD;
+        for k in 0..j {
+            let beta = bend(q[2 * k], q[2 * k + 1]).beta;
+            self.plastic_ref[k] = beta - (beta - self.plastic_ref[k]).clamp(-span, span);
+        }
         self.q = q;
         self.x = c.x;
         self.handle_force = force;
@@ -975,7 +1057,9 @@ mod tests {
     #[test]
     fn gradient_matches_finite_differences() {
         let p = problem();
-        let q = [0.3, -0.2, 0.25, 0.4, -0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let q = [
+            0.3, -0.2, 0.25, 0.4, -0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ];
         let ev = p.evaluate(&q, &[0.0; MAX_JOINTS + 1]);
         let step = 1e-6;
         for v in 0..6 {

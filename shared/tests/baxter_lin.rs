@@ -392,6 +392,12 @@ fn random_poses_keep_every_invariant() {
             if k % 97 == 0 {
                 input.pos.x = f64::NAN;
             }
+            if k % 103 == 0 {
+                input.pos = V::new(1e300, -1e300, -1e300 * rnd());
+            }
+            if k % 107 == 0 {
+                input.rot = Quat::new(1e300, 1e-300, -1e300, 3.0);
+            }
             if k % 101 == 0 {
                 input.rot = Quat::new(0.0, 0.0, 0.0, 0.0);
             }
@@ -399,6 +405,8 @@ fn random_poses_keep_every_invariant() {
                 V::new(3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd())
             } else if k % 89 == 0 {
                 V::new(f64::INFINITY, 0.0, 0.0)
+            } else if k % 91 == 0 {
+                V::new(1e200, -1e200, 1e200)
             } else {
                 V::ZERO
             };

@@ -185,6 +185,19 @@ pub fn bend_angle(theta: f64, phi: f64) -> f64 {
     bend(phi, theta).beta
 }
 
+/// Handle positions are clamped to this box (mm).
+const MAX_COORDINATE_MM: f64 = 1e6;
+/// Tip loads are clamped to this many newtons per component.
+const MAX_LOAD_N: f64 = 1e4;
+
+fn clamp_vec(v: V3, limit: f64) -> V3 {
+    V3::new(
+        v.x.clamp(-limit, limit),
+        v.y.clamp(-limit, limit),
+        v.z.clamp(-limit, limit),
+    )
+}
+
 fn clamp_angles(q: &mut [f64; MAX_VARS], n: usize) {
     for v in 0..n {
         let lim = if v % 2 == 0 { PHI_LIMIT } else { THETA_LIMIT };
@@ -822,8 +835,11 @@ impl Spine {
             self.bad_inputs += 1;
             self.pose
         };
+        // Finite but absurd inputs are clamped to a range no brush meets, where every product
+        // of the energy stays finite.
+        let pose = Pose::new(clamp_vec(pose.pos, MAX_COORDINATE_MM), pose.rot);
         let load = if finite(&tip_load.to_f64()) {
-            tip_load
+            clamp_vec(tip_load, MAX_LOAD_N)
         } else {
             self.bad_inputs += 1;
             V3::ZERO

@@ -439,3 +439,36 @@ fn random_poses_keep_every_invariant() {
     let (b, _, _) = run();
     assert!(a == b, "a second run differs");
 }
+
+/// A rejected parameter set names its field and changes nothing; an accepted one with
+/// another joint count starts from rest.
+#[test]
+fn parameter_changes_are_validated() {
+    let at = pose(0.0, 0.0, 60.0, 10.0);
+    let mut s = Spine::new(SpineParams::DEFAULT, at).unwrap();
+    let bad = SpineParams {
+        stiffness_tip: 50.0,
+        ..SpineParams::DEFAULT
+    };
+    let err = s.set_params(bad).unwrap_err();
+    println!("rejected: {err}");
+    assert_eq!(err.field(), "stiffness_tip");
+    assert_eq!(*s.params(), SpineParams::DEFAULT);
+    assert!(Spine::new(
+        SpineParams {
+            joints: 0,
+            ..SpineParams::DEFAULT
+        },
+        at
+    )
+    .is_err());
+    s.set_params(SpineParams {
+        joints: 5,
+        ..SpineParams::DEFAULT
+    })
+    .unwrap();
+    s.solve(&at, V::ZERO);
+    assert_eq!(s.positions().len(), 6);
+    let chord = s.position(5) - s.position(0);
+    assert!((chord.norm() - 30.0).abs() < 1e-9 && angle_deg(chord, at.down()) < 1e-6);
+}

@@ -19,6 +19,8 @@
 //! * [`pen_io`]: the physical pen's board logic without the hardware: H-bridge duty from a
 //!   motor command, the gimbal sensors' filter, the stored configuration and its flash image.
 //! * [`hand`]: a simulated hand holding the stylus, for tests of the force loop.
+//! * [`baxter_lin`]: Baxter & Lin's brush (the second model: its spines, heads and surface,
+//!   `f64`, desktop only).
 //!
 //! Coordinates: millimetres, the paper is the plane z = 0 with +z up, the pose is the
 //! ferrule's, and the identity orientation holds the brush pointing straight down.

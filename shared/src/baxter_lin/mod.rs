@@ -5,6 +5,7 @@
 //! * [`head`]: brush heads (round, flat, filbert, fan) as sets of spines.
 //! * [`skin`]: the surface over the spines as layer rings, and the hair strips between them.
 //! * [`Spine`]: one spine and its solver, below.
+//! * [`brush`]: the brush as a whole: a head's spines, their surface, their ink.
 //!
 //! A spine is a chain of J joints hanging from a root on the ferrule. It has no mass: each
 //! [`Spine::solve`] carries it rigidly with the new handle pose (§3.1 steps 1-2, the angles
@@ -100,6 +101,7 @@
 //! friction torques (`tests/baxter_lin.rs` checks this). The local force model of eqs. 21-22
 //! is built from these by a later step.
 
+pub mod brush;
 pub mod head;
 pub mod skin;
 

@@ -95,7 +95,7 @@ pub const WICK_MIN: f32 = 1.0 / 65536.0;
 pub(crate) struct InkCoefs {
     /// One over what each layer holds (its capacity is taken as the reciprocal of this, so
     /// the two agree).
-    pub(super) inv_capacity: [f32; MAX_LAYERS],
+    pub(crate) inv_capacity: [f32; MAX_LAYERS],
     /// `DWELL_MM / substeps`, added to the last substep's travel.
     pub(super) dwell: f32,
     pub(super) eps: f32,
@@ -115,9 +115,18 @@ impl core::fmt::Debug for InkCoefs {
 }
 
 impl InkCoefs {
+    /// The coefficients of rings that hold `capacity[i]` ink units each when saturated (the
+    /// rest hold none), stepped `substeps` times a tick, inking below `eps` mm: a brush
+    /// whose layers are not Liang's rest rings (Baxter & Lin's).
+    pub(crate) fn for_rings(capacity: &[f32], substeps: u8, eps: f32) -> Self {
+        let mut inv_capacity = [0.0; MAX_LAYERS];
+        for (inv, c) in inv_capacity.iter_mut().zip(capacity) {
+            *inv = if *c > 0.0 { 1.0 / c } else { 0.0 };
+        }
+        Self::with(inv_capacity, substeps.max(1) as f32, eps)
+    }
+
     pub(crate) fn new(p: &BrushParams) -> Self {
-        let substeps = p.substeps_per_tick as f32;
-        let gain = 2.0 * TRANSFER * substeps;
         let per_area = p.ink_capacity * core::f32::consts::PI * p.segment_mm();
         let n = (p.layers as usize).clamp(2, MAX_LAYERS);
         let mut inv_capacity = [0.0; MAX_LAYERS];
@@ -125,10 +134,18 @@ impl InkCoefs {
             let r = p.rest_radius_mm(i);
             *inv = 1.0 / (per_area * r * r);
         }
+        Self::with(inv_capacity, p.substeps_per_tick as f32, p.footprint_eps_mm)
+    }
+
+    /// The law's coefficients for layers of the given capacities, `substeps` (at least
+    /// one) a tick.
+    #[inline(always)]
+    fn with(inv_capacity: [f32; MAX_LAYERS], substeps: f32, eps: f32) -> Self {
+        let gain = 2.0 * TRANSFER * substeps;
         InkCoefs {
             inv_capacity,
             dwell: DWELL_MM / substeps,
-            eps: p.footprint_eps_mm,
+            eps,
             press_floor: gain * PRESS_FLOOR,
             press_slope: gain * (1.0 - PRESS_FLOOR),
         }

@@ -1,0 +1,222 @@
+//! Baxter & Lin's brush as a whole: a head of spines ([`super::head`]), each solved against
+//! the paper every tick ([`super::Spine`]), skinned into layer rings ([`super::skin`]) that
+//! the footprint, the ink and the app read as they read Liang's brush's, and inked through
+//! the same law ([`crate::brush::ink`]).
+//!
+//! The spines carry the head's hair in parallel, so each takes its share of the head's
+//! stiffness: the head bends under a load as one spine of the base stiffness would.
+
+use super::head::{Head, SpineRoot};
+use super::skin::{self, SpineCurve, MAX_SPINES};
+use super::{Spine, SpineParamError, SpineParams, MAX_JOINTS};
+use crate::brush::ink::{self, InkCoefs};
+use crate::brush::Layer;
+use crate::footprint::Geometry;
+use crate::quat::Pose;
+use crate::vec::Vec3;
+
+/// Layer rings of the surface, from the ferrule to the tip.
+pub const LEVELS: usize = 16;
+
+/// Nodes per ring of the surface (as Liang's presets).
+pub const RING_NODES: usize = 16;
+
+/// What the brush needs besides its head and its spines' mechanics: the ink it holds and
+/// the footprint's threshold, as Liang's brush takes them from its parameters.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct InkParams {
+    /// Ink a saturated ring holds per mm^3 of its volume.
+    pub capacity: f32,
+    /// The load a dip leaves, in [0, 1].
+    pub wetness: f32,
+    /// Surface at or below this height touches the paper (mm).
+    pub footprint_eps_mm: f32,
+}
+
+/// The spine parameters of `root`'s spine on a head whose spines share `base`'s stiffness:
+/// its root, its length, and `base`'s springs and joint friction times its share of the hair.
+pub fn spine_params(root: &SpineRoot, base: &SpineParams) -> SpineParams {
+    SpineParams {
+        root_mm: [root.position.x, root.position.y, root.position.z],
+        length_mm: root.length_mm,
+        stiffness_root: base.stiffness_root * root.share,
+        stiffness_tip: base.stiffness_tip * root.share,
+        joint_friction: base.joint_friction * root.share,
+        ..*base
+    }
+}
+
+/// Baxter & Lin's brush: its spines, its surface and its ink.
+#[derive(Clone, Debug)]
+pub struct BaxterLinBrush {
+    head: Head,
+    spines: heapless::Vec<Spine, MAX_SPINES>,
+    centres: [Vec3<f64>; LEVELS],
+    /// Each ring's move over the last tick (mm), the ink's travel.
+    steps: [Vec3<f64>; LEVELS],
+    layers: [Layer<f64>; LEVELS],
+    /// A bound on each ring's radius (the longest spine and the thickest bundle): the ink
+    /// skips a ring higher than that above the paper.
+    max_radius: [f64; LEVELS],
+    ink: InkCoefs,
+    ink_phase: bool,
+    eps: f64,
+}
+
+impl BaxterLinBrush {
+    /// The brush of `head`, its spines built from `base` ([`spine_params`]), hanging at rest
+    /// from the handle at `pose`, dipped to `ink.wetness`.
+    pub fn new(
+        head: Head,
+        base: SpineParams,
+        ink_params: InkParams,
+        pose: Pose<f64>,
+    ) -> Result<Self, SpineParamError> {
+        let mut spines = heapless::Vec::new();
+        for root in head.spines() {
+            // At most MAX_SPINES roots: the head holds no more.
+            let _ = spines.push(Spine::new(spine_params(root, &base), pose)?);
+        }
+        let blank = Layer {
+            short_axis: Vec3::X,
+            long_axis: Vec3::Y,
+            long_radius: 0.0,
+            short_radius: 0.0,
+            wetness: 0.0,
+            deposited: 0.0,
+        };
+        let reach = head.length_mm()
+            + head
+                .spines()
+                .iter()
+                .map(|s| s.bundle.root_mm.max(s.bundle.tip_mm))
+                .fold(0.0, f64::max);
+        let mut brush = BaxterLinBrush {
+            head,
+            spines,
+            centres: [Vec3::ZERO; LEVELS],
+            steps: [Vec3::ZERO; LEVELS],
+            layers: [blank; LEVELS],
+            max_radius: [reach; LEVELS],
+            ink: InkCoefs::for_rings(&[0.0; LEVELS], 1, ink_params.footprint_eps_mm),
+            ink_phase: false,
+            eps: ink_params.footprint_eps_mm as f64,
+        };
+        brush.skin(&pose);
+        // What each ring holds: its volume at rest (the ring's ellipse over the spacing
+        // between rings) times the capacity per mm^3.
+        let spacing = brush.head.length_mm() / (LEVELS - 1) as f64;
+        let mut capacity = [0.0f32; LEVELS];
+        for (c, l) in capacity.iter_mut().zip(&brush.layers) {
+            let area = core::f64::consts::PI * l.long_radius * l.short_radius;
+            *c = (ink_params.capacity as f64 * area * spacing) as f32;
+        }
+        brush.ink = InkCoefs::for_rings(&capacity, 1, ink_params.footprint_eps_mm);
+        brush.dip(ink_params.wetness as f64);
+        Ok(brush)
+    }
+
+    /// One tick: every spine solved at the handle's new pose, the surface over them, the ink.
+    pub fn tick(&mut self, pose: &Pose<f64>) {
+        for spine in self.spines.iter_mut() {
+            spine.solve(pose, Vec3::ZERO);
+        }
+        let last = self.centres;
+        self.skin(pose);
+        for ((step, now), then) in self.steps.iter_mut().zip(&self.centres).zip(&last) {
+            *step = *now - *then;
+        }
+        ink::transfer(
+            &mut self.layers,
+            &self.centres,
+            &self.steps,
+            &self.max_radius,
+            &self.ink,
+            &mut self.ink_phase,
+        );
+    }
+
+    fn skin(&mut self, pose: &Pose<f64>) {
+        let mut joints = [[Vec3::ZERO; MAX_JOINTS + 1]; MAX_SPINES];
+        let mut curves: heapless::Vec<SpineCurve<'_>, MAX_SPINES> = heapless::Vec::new();
+        for ((spine, root), js) in self
+            .spines
+            .iter()
+            .zip(self.head.spines())
+            .zip(joints.iter_mut())
+        {
+            let p = spine.positions();
+            let n = p.len().min(js.len());
+            js[..n].copy_from_slice(&p[..n]);
+            let _ = curves.push(SpineCurve {
+                joints: &js[..n],
+                bundle: root.bundle,
+            });
+        }
+        skin::skin(&curves, pose, &mut self.centres, &mut self.layers);
+    }
+
+    /// Fills every ring to `load` of what it holds (clamped to [0, 1]): dipping the brush.
+    pub fn dip(&mut self, load: f64) {
+        for l in &mut self.layers {
+            l.wetness = load.clamp(0.0, 1.0);
+        }
+    }
+
+    /// The surface as the footprint reads it.
+    pub fn geometry(&self) -> Geometry<'_, f64> {
+        Geometry {
+            spine: &self.centres,
+            layers: &self.layers,
+            ring_nodes: RING_NODES,
+            eps: self.eps,
+        }
+    }
+
+    /// The rings' centres (the ferrule's first), world mm.
+    pub fn centres(&self) -> &[Vec3<f64>] {
+        &self.centres
+    }
+
+    /// The rings.
+    pub fn layers(&self) -> &[Layer<f64>] {
+        &self.layers
+    }
+
+    /// The spines.
+    pub fn spines(&self) -> &[Spine] {
+        &self.spines
+    }
+
+    /// The head.
+    pub fn head(&self) -> &Head {
+        &self.head
+    }
+
+    /// The force the spines put on the handle (N): the paper's push on the hair.
+    pub fn handle_force(&self) -> Vec3<f64> {
+        self.spines
+            .iter()
+            .fold(Vec3::ZERO, |acc, s| acc + s.handle_force())
+    }
+
+    /// Ink the brush holds (ink units).
+    pub fn ink_load(&self) -> f64 {
+        self.layers
+            .iter()
+            .zip(&self.ink.inv_capacity)
+            .map(|(l, inv)| {
+                if *inv > 0.0 {
+                    l.wetness / *inv as f64
+                } else {
+                    0.0
+                }
+            })
+            .sum()
+    }
+
+    /// Ink the brush has given the paper (ink units).
+    pub fn ink_given(&self) -> f64 {
+        self.layers.iter().map(|l| l.deposited).sum()
+    }
+}

@@ -1,0 +1,119 @@
+//! Baxter & Lin's brush as a whole (`maobi_shared::baxter_lin::brush`): a head's spines
+//! solved against the paper, skinned, inked. A flat brush's stroke is wide across its flat
+//! side and thin along it; a round brush's the same either way; the ink is conserved.
+//!
+//! `cargo test -p maobi-shared --test baxter_lin_brush -- --nocapture` prints the figures.
+
+use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
+use maobi_shared::baxter_lin::head::HeadShape;
+use maobi_shared::baxter_lin::SpineParams;
+use maobi_shared::{Pose, Quat, Vec3};
+
+const INK: InkParams = InkParams {
+    capacity: 0.4,
+    wetness: 0.6,
+    footprint_eps_mm: 0.1,
+};
+
+/// The handle upright, turned `yaw_deg` about the vertical, its ferrule at `pos`.
+fn pose(pos: Vec3<f64>, yaw_deg: f64) -> Pose<f64> {
+    let h = yaw_deg.to_radians() / 2.0;
+    Pose::new(pos, Quat::from_f64([h.cos(), 0.0, 0.0, h.sin()]))
+}
+
+/// Presses `shape`'s head `press` mm into the paper and drags it 60 mm along +x at 50 mm/s
+/// with the handle turned `yaw_deg`; returns the footprint's width across the travel (mm,
+/// the mean over the last 10 mm, once the hair pressed down has been drawn out behind the
+/// handle) and the brush.
+fn stroke(shape: HeadShape, yaw_deg: f64, press: f64) -> (f64, BaxterLinBrush) {
+    let head = shape.head();
+    let top = head.length_mm() - press;
+    let start = Vec3::new(0.0, 0.0, top + 10.0);
+    let mut b = BaxterLinBrush::new(head, SpineParams::DEFAULT, INK, pose(start, yaw_deg)).unwrap();
+    // Down over 200 ms, along x over 600 ms.
+    for k in 1..=200 {
+        b.tick(&pose(
+            Vec3::new(0.0, 0.0, top + 10.0 * (1.0 - k as f64 / 200.0)),
+            yaw_deg,
+        ));
+    }
+    let (mut width, mut samples) = (0.0, 0);
+    for k in 1..=1200 {
+        let x = 60.0 * k as f64 / 1200.0;
+        b.tick(&pose(Vec3::new(x, 0.0, top), yaw_deg));
+        if k > 1000 {
+            let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+            b.geometry().for_each_polygon(|_, poly| {
+                for p in poly {
+                    lo = lo.min(p.y);
+                    hi = hi.max(p.y);
+                }
+            });
+            if hi > lo {
+                width += hi - lo;
+                samples += 1;
+            }
+        }
+    }
+    (width / samples.max(1) as f64, b)
+}
+
+#[test]
+fn a_flat_brush_writes_wide_across_its_flat_side_and_thin_along_it() {
+    let (across, _) = stroke(HeadShape::Flat, 0.0, 4.0);
+    let (along, _) = stroke(HeadShape::Flat, 90.0, 4.0);
+    let (round_a, _) = stroke(HeadShape::Round, 0.0, 6.0);
+    let (round_b, _) = stroke(HeadShape::Round, 90.0, 6.0);
+    println!(
+        "flat: {across:.2} mm wide travelling across its flat side, {along:.2} mm along it \
+         (ratio {:.2}); round: {round_a:.2} / {round_b:.2} mm (ratio {:.2})",
+        across / along,
+        round_a / round_b
+    );
+    assert!(across / along > 2.5, "flat {across} / {along}");
+    assert!(
+        (round_a / round_b - 1.0).abs() < 0.1,
+        "round {round_a} / {round_b}"
+    );
+}
+
+#[test]
+fn the_brush_hangs_still_and_its_ink_is_conserved_as_it_writes() {
+    for (name, shape) in maobi_shared::baxter_lin::head::SHAPES {
+        let head = shape.head();
+        let hanging = pose(Vec3::new(0.0, 0.0, head.length_mm() + 20.0), 0.0);
+        let mut b = BaxterLinBrush::new(head, SpineParams::DEFAULT, INK, hanging).unwrap();
+        let dipped = b.ink_load();
+        let rest: Vec<_> = b.centres().to_vec();
+        for _ in 0..100 {
+            b.tick(&hanging);
+        }
+        let drift = b
+            .centres()
+            .iter()
+            .zip(&rest)
+            .map(|(a, r)| (*a - *r).norm())
+            .fold(0.0, f64::max);
+        assert!(drift < 1e-9, "{name}: the hanging brush moved {drift} mm");
+        assert_eq!(b.ink_given(), 0.0, "{name}: ink given in the air");
+        let (_, b) = stroke(shape, 0.0, 4.0);
+        let given = b.ink_given();
+        let error = (b.ink_load() + given - dipped).abs() / dipped;
+        println!(
+            "{name:8}: dipped {dipped:.3} ink units, gave {given:.3} in a 60 mm stroke, \
+             conserved to {error:.1e}"
+        );
+        assert!(given > 0.0, "{name}: no ink on the paper");
+        assert!(error < 1e-6, "{name}: ink not conserved ({error})");
+        // Every spine kept to the paper's side.
+        let lowest = b
+            .spines()
+            .iter()
+            .flat_map(|s| s.positions().iter().map(|p| p.z))
+            .fold(f64::MAX, f64::min);
+        assert!(
+            lowest > -1e-6,
+            "{name}: a joint {lowest} mm below the paper"
+        );
+    }
+}

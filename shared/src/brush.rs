@@ -107,6 +107,8 @@ mod chain_fixed;
 #[cfg(feature = "backward-euler")]
 mod chain_solve;
 pub mod ink;
+mod layer;
+pub use layer::Layer;
 pub mod state_frame;
 mod unit_fixed;
 
@@ -465,25 +467,6 @@ impl<S> Derived<S> {
     fn n(&self) -> usize {
         self.layers.clamp(2, MAX_LAYERS)
     }
-}
-
-/// The state of one layer's surface ellipse (Liang 3.2).
-#[derive(Copy, Clone, Debug, PartialEq)]
-pub struct Layer<S> {
-    /// Short-axis direction SA_i (unit).
-    pub short_axis: Vec3<S>,
-    /// Long-axis direction LA_i (unit).
-    pub long_axis: Vec3<S>,
-    /// Long radius RL_i (mm).
-    pub long_radius: S,
-    /// Short radius RS_i (mm).
-    pub short_radius: S,
-    /// Wetness W_i in [0, 1]: the layer's ink load as a share of what it holds ([`ink`]).
-    pub wetness: S,
-    /// Ink the layer has given to the paper since the brush was built or reset (ink units, a
-    /// running total: the host lays each increase on the paper under the layer's footprint;
-    /// in fixed point it saturates after some two thousand million units).
-    pub deposited: S,
 }
 
 /// A brush: its parameters and its complete dynamic state.

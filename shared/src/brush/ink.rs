@@ -58,7 +58,7 @@
 //! damp. The implicit rows of the thesis's integrator keep the dry tie in W' and take the
 //! ink's change on the right-hand side, as they take the tie's weight.
 
-use super::Layer;
+use super::layer::Layer;
 use crate::params::{BrushParams, MAX_LAYERS};
 use crate::scalar::Scalar;
 use crate::vec::Vec3;

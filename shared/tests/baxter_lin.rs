@@ -472,3 +472,120 @@ fn parameter_changes_are_validated() {
     let chord = s.position(5) - s.position(0);
     assert!((chord.norm() - 30.0).abs() < 1e-9 && angle_deg(chord, at.down()) < 1e-6);
 }
+
+/// Rest directions in the handle frame: the fan's outermost spine (35 degrees in the y-z
+/// plane), a round head's ring spine leaning in to its point, and a skew one.
+fn rest_directions() -> [[f64; 3]; 3] {
+    let fan = 35f64.to_radians();
+    let ring = V::new(-3.0, 0.0, -40.0);
+    let ring = ring * (1.0 / ring.norm());
+    let skew = V::new(0.4, -0.3, -0.8);
+    let skew = skew * (1.0 / skew.norm());
+    [
+        [0.0, fan.sin(), -fan.cos()],
+        [ring.x, ring.y, ring.z],
+        [skew.x, skew.y, skew.z],
+    ]
+}
+
+/// A spine with a rest direction hangs along it in free air, turned with the handle: its tip
+/// is the handle's rotation of `root_direction` times the length from the root, unbent. Bent
+/// by a load and released (D = 0), it comes back to it.
+#[test]
+fn free_air_hangs_along_the_rest_direction() {
+    for dir in rest_directions() {
+        let p = SpineParams {
+            root_mm: [1.0, -2.0, 0.0],
+            root_direction: dir,
+            joint_friction: 0.0,
+            ..SpineParams::DEFAULT
+        };
+        let d = V::new(dir[0], dir[1], dir[2]);
+        for tilt in [0.0, 25.0, 70.0] {
+            let pz = pose(3.0, -2.0, 80.0, tilt);
+            let mut s = Spine::new(p, pz).unwrap();
+            let expect = pz.rot.rotate(d) * p.length_mm;
+            let root = pz.pos + pz.rot.rotate(V::new(1.0, -2.0, 0.0));
+            let root_err = (s.position(0) - root).norm();
+            let tip_err = (s.position(s.joints()) - s.position(0) - expect).norm();
+            let bends: f64 = (0..s.joints()).map(|k| s.bend(k)).sum();
+            for _ in 0..5 {
+                s.solve(&pz, V::new(0.7, 0.4, 0.0));
+            }
+            let bent: f64 = (0..s.joints()).map(|k| s.bend(k)).sum();
+            for _ in 0..500 {
+                s.solve(&pz, V::ZERO);
+            }
+            let released: f64 = (0..s.joints()).map(|k| s.bend(k)).sum();
+            let released_tip = (s.position(s.joints()) - s.position(0) - expect).norm();
+            println!("rest {dir:.4?}, tilt {tilt:4.1} deg: root off by {root_err:.2e} mm, tip off the rest direction by {tip_err:.2e} mm, sum of bends {bends:.2e} rad; loaded {bent:.4} rad, released {released:.2e} rad (tip off by {released_tip:.2e} mm)");
+            assert!(root_err < 1e-9 && tip_err < 1e-9, "{tip_err}");
+            assert_eq!(bends, 0.0);
+            assert!(contacts(&s).is_empty());
+            assert!(bent > 0.1);
+            assert!(
+                released < 1e-6 && released_tip < 1e-4,
+                "{released} {released_tip}"
+            );
+        }
+    }
+}
+
+/// The fan's outermost spine, leaning 35 degrees across the handle's y-z plane, pressed and
+/// dragged along a curve: no joint goes below the paper. The lean shortens its reach below
+/// the ferrule, so it is pressed a little deeper than the straight spine's test.
+#[test]
+fn no_joint_below_the_paper_with_a_leaning_spine() {
+    let p = SpineParams {
+        root_direction: rest_directions()[0],
+        ..SpineParams::DEFAULT
+    };
+    for tilt in [0.0, 20.0, 45.0] {
+        let mut s = pressed(p, tilt, 10.0);
+        let mut worst = f64::INFINITY;
+        let mut most_force = 0.0f64;
+        for k in 0..600 {
+            let t = k as f64;
+            // Down to 3 mm above the paper and along a curve, at up to 0.2 mm a solve.
+            let z = 10.0 - 7.0 * (t / 600.0);
+            let at = pose(0.1 * t, 10.0 * (t / 100.0).sin(), z, tilt);
+            s.solve(&at, V::ZERO);
+            worst = worst.min(min_z(&s));
+            most_force = most_force.max(total_normal(&s));
+        }
+        let (solves, fallbacks, unconverged, _) = s.counts();
+        println!("rest 35 deg in y-z, tilt {tilt}: lowest joint {worst:.3e} mm, largest normal force {most_force:.3} N, {solves} solves, {fallbacks} fallbacks, {unconverged} unconverged");
+        assert!(worst >= -PENETRATION_TOLERANCE_MM);
+        assert!(most_force > 0.1);
+    }
+}
+
+/// A rest direction with no direction (zero, not a number) or pointing up into the handle
+/// is refused, naming `root_direction`, and changes nothing.
+#[test]
+fn a_bad_rest_direction_is_refused() {
+    let at = pose(0.0, 0.0, 60.0, 10.0);
+    let mut s = Spine::new(SpineParams::DEFAULT, at).unwrap();
+    for bad in [
+        [0.0; 3],
+        [f64::NAN, 0.0, -1.0],
+        [0.0, f64::INFINITY, -1.0],
+        [0.0, 0.3, 0.2],
+    ] {
+        let p = SpineParams {
+            root_direction: bad,
+            ..SpineParams::DEFAULT
+        };
+        let err = Spine::new(p, at).unwrap_err();
+        println!("{bad:?}: {err}");
+        assert_eq!(err.field(), "root_direction");
+        assert_eq!(s.set_params(p).unwrap_err().field(), "root_direction");
+        assert_eq!(*s.params(), SpineParams::DEFAULT);
+    }
+    // Any length will do: the direction is normalised.
+    let long = SpineParams {
+        root_direction: [0.0, 0.0, -7.5],
+        ..SpineParams::DEFAULT
+    };
+    assert!(Spine::new(long, at).is_ok());
+}

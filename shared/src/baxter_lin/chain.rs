@@ -3,9 +3,12 @@
 //!
 //! Joint `k` (0-based; the paper's joint k + 1) sits at `x[k]` and turns segment `k`, of
 //! length `l_k`, by `R(theta_k, phi_k) = Ry(phi_k) Rx(theta_k)` (eq. 10) relative to its
-//! parent's frame: the frames are `F_0 = R_handle`, `F_{k+1} = F_k R(theta_k, phi_k)`, and
-//! the segment points along its frame's -z (the brush hangs down the handle's -z at rest), so
-//! `x[k + 1] = x[k] + F_{k+1} (0, 0, -l_k)` (eq. 11). `x[0]` is the root on the ferrule.
+//! parent's frame: the frames are `F_0 = R_handle R_rest`, `F_{k+1} = F_k R(theta_k, phi_k)`,
+//! and the segment points along its frame's -z, so `x[k + 1] = x[k] + F_{k+1} (0, 0, -l_k)`
+//! (eq. 11). `x[0]` is the root on the ferrule. `R_rest` is the fixed rotation that takes the
+//! handle's -z to the spine's rest direction ([`Mat3::rest`]): at rest (all angles 0) the
+//! spine points along it, and each joint's bend is measured from it. A spine hanging straight
+//! down the handle has `F_0 = R_handle` itself.
 //!
 //! The variables are ordered as the rotations compose, `[phi_0, theta_0, phi_1, theta_1,
 //! ...]`: `phi_k` turns about `F_k`'s y axis and carries `theta_k`'s axis `F_{k+1}`'s x with
@@ -17,7 +20,8 @@
 //! ```
 //!
 //! the second because turning about an earlier axis `a_u` carries `a_v`, its pivot and `x_i`
-//! rigidly. `x_i` does not depend on the variables of joints at or past it.
+//! rigidly. `x_i` does not depend on the variables of joints at or past it. The axes are
+//! those of the frames built from `F_0`, so the derivatives carry the rest rotation with them.
 
 // The second derivatives fill a matrix by its row and column indices.
 #![allow(clippy::needless_range_loop)]
@@ -54,6 +58,18 @@ impl Mat3 {
             c: [self.apply(o.c[0]), self.apply(o.c[1]), self.apply(o.c[2])],
         }
     }
+    /// The shortest-arc rotation taking -z to the unit vector `d` (the spine's rest
+    /// direction in the handle frame), for `d.z <= 0`: a turn by `acos(-d.z)` about
+    /// `-z x d`. By Rodrigues' formula with `v = -z x d = (d.y, -d.x, 0)` and `c = -d.z`,
+    /// `R e = c e + v x e + v (v . e) / (1 + c)`; `1 + c >= 1` on the allowed half-space.
+    pub fn rest(d: V3) -> Mat3 {
+        let v = V3::new(d.y, -d.x, 0.0);
+        let c = -d.z;
+        let turn = |e: V3| e * c + v.cross(e) + v * (v.dot(e) / (1.0 + c));
+        Mat3 {
+            c: [turn(V3::X), turn(V3::Y), turn(V3::Z)],
+        }
+    }
     /// Eq. 10: `Ry(phi) Rx(theta)`, by columns.
     #[inline]
     pub fn joint(theta: f64, phi: f64) -> Mat3 {
@@ -69,6 +85,16 @@ impl Mat3 {
     }
 }
 
+/// The root frame `F_0 = R_handle R_rest` of the handle's frame and a spine's rest rotation;
+/// `None` for a spine hanging straight down the handle, whose root frame is the handle's
+/// own (not a product with the identity, which could flip the sign of a zero).
+pub fn root_frame(handle: &Mat3, rest: Option<&Mat3>) -> Mat3 {
+    match rest {
+        Some(r) => handle.then(r),
+        None => *handle,
+    }
+}
+
 /// One evaluation of the chain's forward kinematics.
 #[derive(Copy, Clone, Debug)]
 pub(crate) struct Chain {
@@ -80,8 +106,9 @@ pub(crate) struct Chain {
 }
 
 impl Chain {
-    /// Forward kinematics of angles `q` (variable order of the module docs).
-    pub fn new(root: V3, handle: &Mat3, lengths: &[f64], q: &[f64]) -> Chain {
+    /// Forward kinematics of angles `q` (variable order of the module docs) from the root
+    /// frame `frame`, `F_0 = R_handle R_rest`.
+    pub fn new(root: V3, frame: &Mat3, lengths: &[f64], q: &[f64]) -> Chain {
         let joints = lengths.len().min(MAX_JOINTS);
         let mut c = Chain {
             joints,
@@ -89,7 +116,7 @@ impl Chain {
             axis: [V3::ZERO; MAX_VARS],
         };
         c.x[0] = root;
-        let mut frame = *handle;
+        let mut frame = *frame;
         for k in 0..joints {
             let (phi, theta) = (q[2 * k], q[2 * k + 1]);
             c.axis[2 * k] = frame.c[1];
@@ -163,28 +190,79 @@ mod tests {
         }
     }
 
-    #[test]
-    fn rest_chain_hangs_down_the_handle() {
+    /// Rest directions in the handle frame: straight down (the handle's own frame), the
+    /// fan's outermost spine (35 degrees in the y-z plane), a round head's ring spine, a
+    /// skew one, and one lying across the ferrule's plane.
+    fn directions() -> [V3; 5] {
+        let fan = 35f64.to_radians();
+        let skew = V3::new(0.4, -0.3, -0.8);
+        [
+            -V3::Z,
+            V3::new(0.0, libm::sin(fan), -libm::cos(fan)),
+            V3::new(-3.0, 0.0, -40.0) * (1.0 / libm::hypot(3.0, 40.0)),
+            skew * (1.0 / skew.norm()),
+            V3::X,
+        ]
+    }
+
+    fn frames() -> [Mat3; 5] {
         let h = handle();
-        let c = Chain::new(V3::new(1.0, 2.0, 30.0), &h, &L, &[0.0; 8]);
-        let down = -h.c[2];
-        let tip = c.x[4] - c.x[0];
-        assert!((tip - down * 11.5).norm() < 1e-12, "{tip:?}");
+        directions().map(|d| {
+            if d == -V3::Z {
+                root_frame(&h, None)
+            } else {
+                root_frame(&h, Some(&Mat3::rest(d)))
+            }
+        })
+    }
+
+    #[test]
+    fn rest_rotation_takes_down_to_the_direction() {
+        for d in directions() {
+            let r = Mat3::rest(d);
+            let err = (r.apply(-V3::Z) - d).norm();
+            // A rotation: orthonormal, right-handed columns.
+            let ortho = (r.c[0].cross(r.c[1]) - r.c[2]).norm()
+                + (r.c[0].norm() - 1.0).abs()
+                + (r.c[1].norm() - 1.0).abs();
+            assert!(err < 1e-15 && ortho < 1e-15, "{d:?}: {err} {ortho}");
+            // The shortest arc: the turn's axis is perpendicular to both -z and d, so a
+            // vector along that axis is left where it is.
+            let axis = V3::new(d.y, -d.x, 0.0);
+            assert!((r.apply(axis) - axis).norm() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn rest_chain_hangs_along_its_rest_direction() {
+        let h = handle();
+        for (d, f) in directions().into_iter().zip(frames()) {
+            let c = Chain::new(V3::new(1.0, 2.0, 30.0), &f, &L, &[0.0; 8]);
+            // The handle's rotation of the rest direction.
+            let along = h.apply(d);
+            let tip = c.x[4] - c.x[0];
+            assert!((tip - along * 11.5).norm() < 1e-12, "{d:?}: {tip:?}");
+        }
     }
 
     #[test]
     fn derivatives_match_finite_differences() {
-        let h = handle();
+        for f in frames() {
+            derivatives_match_finite_differences_from(&f);
+        }
+    }
+
+    fn derivatives_match_finite_differences_from(h: &Mat3) {
         let root = V3::new(1.0, 2.0, 30.0);
-        let c = Chain::new(root, &h, &L, &Q);
+        let c = Chain::new(root, h, &L, &Q);
         let step = 1e-6;
         for v in 0..8 {
             let mut qp = Q;
             let mut qm = Q;
             qp[v] += step;
             qm[v] -= step;
-            let cp = Chain::new(root, &h, &L, &qp);
-            let cm = Chain::new(root, &h, &L, &qm);
+            let cp = Chain::new(root, h, &L, &qp);
+            let cm = Chain::new(root, h, &L, &qm);
             for i in 0..=4 {
                 let fd = (cp.x[i] - cm.x[i]) * (0.5 / step);
                 let err = (fd - c.d(i, v)).norm();

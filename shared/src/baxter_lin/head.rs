@@ -18,6 +18,7 @@
 
 use core::fmt;
 
+use super::params::SpineParams;
 use super::skin::{Bundle, MAX_SPINES};
 use crate::vec::Vec3;
 
@@ -105,6 +106,26 @@ pub struct SpineRoot {
     /// Its share of the head's hair, by the bundle's cross-section at the ferrule (the shares
     /// sum to one): a spine's stiffness and the ink it holds are this share of the head's.
     pub share: f64,
+}
+
+impl SpineRoot {
+    /// The [`SpineParams`] of this spine: `base` with this spine's root, rest direction and
+    /// length, and its stiffnesses scaled by its [`share`](SpineRoot::share) of the hair.
+    /// `base` describes the whole head's hair: its spines bend side by side, in parallel,
+    /// so their springs add up to the base's. The joint friction, a torque of the same hair,
+    /// is shared the same way, so each spine keeps the base's set (`D / K`). Friction
+    /// coefficients, the solver's settings and the joint count are the base's.
+    pub fn spine_params(&self, base: &SpineParams) -> SpineParams {
+        SpineParams {
+            length_mm: self.length_mm,
+            root_mm: [self.position.x, self.position.y, self.position.z],
+            root_direction: [self.direction.x, self.direction.y, self.direction.z],
+            stiffness_root: base.stiffness_root * self.share,
+            stiffness_tip: base.stiffness_tip * self.share,
+            joint_friction: base.joint_friction * self.share,
+            ..*base
+        }
+    }
 }
 
 /// A brush head: its spines.
@@ -246,5 +267,45 @@ impl Head {
             s.direction = Vec3::new(0.0, libm::sin(angle), -libm::cos(angle));
         }
         Head::of(&spines)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::baxter_lin::Spine;
+    use crate::{Pose, Quat};
+
+    #[test]
+    fn round_spines_hang_along_their_rest_directions_and_share_the_stiffness() {
+        let base = SpineParams::DEFAULT;
+        let head = HeadShape::Round.head();
+        assert_eq!(head.spines().len(), 7);
+        let (mut k_root, mut k_tip, mut d) = (0.0, 0.0, 0.0);
+        for (n, root) in head.spines().iter().enumerate() {
+            let p = root.spine_params(&base);
+            assert_eq!(p.validate(), Ok(()));
+            k_root += p.stiffness_root;
+            k_tip += p.stiffness_tip;
+            d += p.joint_friction;
+            for tilt in [0.0f64, 30.0] {
+                let h = tilt.to_radians() / 2.0;
+                let rot = Quat::new(libm::cos(h), 0.0, libm::sin(h), 0.0);
+                let pose = Pose::new(Vec3::new(2.0, -1.0, 80.0), rot);
+                let s = Spine::new(p, pose).unwrap();
+                let ferrule = pose.pos + rot.rotate(root.position);
+                let tip = ferrule + rot.rotate(root.direction).scale(root.length_mm);
+                let root_err = (s.position(0) - ferrule).norm();
+                let tip_err = (s.position(s.joints()) - tip).norm();
+                let bends: f64 = (0..s.joints()).map(|k| s.bend(k)).sum();
+                assert!(
+                    root_err < 1e-9 && tip_err < 1e-9 && bends == 0.0,
+                    "spine {n} at {tilt} deg: root {root_err:e} tip {tip_err:e} mm, bends {bends}"
+                );
+            }
+        }
+        assert!((k_root - base.stiffness_root).abs() < 1e-12, "{k_root}");
+        assert!((k_tip - base.stiffness_tip).abs() < 1e-12, "{k_tip}");
+        assert!((d - base.joint_friction).abs() < 1e-15, "{d}");
     }
 }

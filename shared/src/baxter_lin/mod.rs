@@ -17,9 +17,13 @@
 //!
 //! Joint k turns the segment below it by `Ry(phi_k) Rx(theta_k)` relative to its parent's
 //! frame (the XYZ Euler set, the first two angles: eq. 10), the first joint relative to the
-//! handle; each segment, of length `l = length_mm / J`, points down its frame's -z, so at
-//! rest (all angles 0) the spine hangs along the handle's axis. The world positions `x_i`
-//! and their first and second derivatives in the angles are analytic (`chain.rs`).
+//! root frame; each segment, of length `l = length_mm / J`, points down its frame's -z. The
+//! root frame is the handle's turned by a fixed rotation, the shortest arc from the handle's
+//! -z to the spine's rest direction [`SpineParams::root_direction`] (the handle's own frame
+//! for the default, straight down), so at rest (all angles 0) the spine points along its
+//! rest direction, carried with the handle, and each bend beta is measured from there. The
+//! world positions `x_i` and their first and second derivatives in the angles are analytic
+//! (`chain.rs`).
 //!
 //! # Energy (eqs. 1-4, 13-15)
 //!

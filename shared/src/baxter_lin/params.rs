@@ -4,6 +4,7 @@
 use core::fmt;
 
 use super::chain::MAX_JOINTS;
+use crate::vec::Vec3;
 
 /// Everything that defines one spine. [`SpineParams::DEFAULT`] is the paper's scale;
 /// [`SpineParams::validate`] names the first bad field.
@@ -16,6 +17,14 @@ pub struct SpineParams {
     /// The root on the ferrule in the handle frame (mm; the ferrule's centre is the origin,
     /// the hair leaves along -z). A brush of several spines gives each its own root.
     pub root_mm: [f64; 3],
+    /// Which way the spine points at rest, in the handle frame: `[0, 0, -1]` hangs it
+    /// straight down the handle; a head's spines lean (the round head's ring toward its
+    /// point, the fan's outward). Only its direction counts: any finite, non-zero vector
+    /// not pointing up into the handle (z at most 0) is accepted and normalised
+    /// ([`SpineParams::rest_direction`]). Each joint's bend is measured from the frame the
+    /// shortest-arc rotation from -z to this direction turns the handle's into, so a spine in
+    /// free air points along it.
+    pub root_direction: [f64; 3],
     /// K_1, the spring of the joint at the root (N mm/rad). The joints' springs fall
     /// geometrically from it to `stiffness_tip`: the hair is thicker and packed tighter near
     /// the ferrule (§3.3).
@@ -54,6 +63,7 @@ impl SpineParams {
         joints: 3,
         length_mm: 30.0,
         root_mm: [0.0; 3],
+        root_direction: [0.0, 0.0, -1.0],
         stiffness_root: 10.0,
         stiffness_tip: 5.0,
         joint_friction: 0.01,
@@ -81,12 +91,48 @@ impl SpineParams {
         self.length_mm / self.joints.max(1) as f64
     }
 
+    /// [`SpineParams::root_direction`] as a unit vector, or `None` if it has no direction
+    /// (zero or not finite). Scaled by its largest component first, so no finite vector
+    /// overflows or underflows on the way; `[0, 0, -1]` comes back exactly.
+    pub fn rest_direction(&self) -> Option<Vec3<f64>> {
+        let [x, y, z] = self.root_direction;
+        let m = x.abs().max(y.abs()).max(z.abs());
+        // `max` passes over a NaN, so every component is checked.
+        if !(x.is_finite() && y.is_finite() && z.is_finite() && m > 0.0) {
+            return None;
+        }
+        let d = Vec3::new(x / m, y / m, z / m);
+        Some(d * (1.0 / d.norm()))
+    }
+
     /// Checks every field and the relations between them; the error names the first bad one.
     pub fn validate(&self) -> Result<(), SpineParamError> {
         range("joints", self.joints as f64, 1.0, MAX_JOINTS as f64)?;
         range("length_mm", self.length_mm, 1.0, 200.0)?;
         for v in self.root_mm {
             range("root_mm", v, -50.0, 50.0)?;
+        }
+        for v in self.root_direction {
+            if !v.is_finite() {
+                return Err(SpineParamError::NotFinite {
+                    field: "root_direction",
+                });
+            }
+        }
+        match self.rest_direction() {
+            None => {
+                return Err(SpineParamError::Inconsistent {
+                    field: "root_direction",
+                    why: "has zero length: it must give a direction",
+                })
+            }
+            Some(d) if d.z > 0.0 => {
+                return Err(SpineParamError::Inconsistent {
+                    field: "root_direction",
+                    why: "points up into the handle (z above 0)",
+                })
+            }
+            Some(_) => {}
         }
         range("stiffness_root", self.stiffness_root, 0.01, 1.0e4)?;
         range("stiffness_tip", self.stiffness_tip, 0.01, 1.0e4)?;
@@ -227,5 +273,33 @@ mod tests {
         let mut p = SpineParams::DEFAULT;
         p.stick_mm = p.slip_mm;
         assert_eq!(p.validate().unwrap_err().field(), "stick_mm");
+        for bad in [
+            [0.0; 3],
+            [0.0, f64::NAN, -1.0],
+            [0.0, 0.0, f64::INFINITY],
+            [0.1, 0.0, 0.5],
+        ] {
+            let mut p = SpineParams::DEFAULT;
+            p.root_direction = bad;
+            assert_eq!(
+                p.validate().unwrap_err().field(),
+                "root_direction",
+                "{bad:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn rest_direction_is_normalised_and_the_default_exact() {
+        let mut p = SpineParams::DEFAULT;
+        assert_eq!(p.rest_direction(), Some(-Vec3::Z));
+        p.root_direction = [0.0, 0.0, -1e-300];
+        assert_eq!(p.rest_direction(), Some(-Vec3::Z));
+        p.root_direction = [3e300, 0.0, -4e300];
+        let d = p.rest_direction().unwrap();
+        assert!((d - Vec3::new(0.6, 0.0, -0.8)).norm() < 1e-15, "{d:?}");
+        // Lying across the ferrule's plane is allowed; pointing into the handle is not.
+        p.root_direction = [1.0, 0.0, 0.0];
+        assert_eq!(p.validate(), Ok(()));
     }
 }

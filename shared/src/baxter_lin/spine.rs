@@ -5,7 +5,7 @@
 // together.
 #![allow(clippy::needless_range_loop)]
 
-use super::chain::{Chain, Mat3, MAX_JOINTS, MAX_VARS, V3};
+use super::chain::{root_frame, Chain, Mat3, MAX_JOINTS, MAX_VARS, V3};
 use super::dense;
 use super::params::{SpineParamError, SpineParams};
 use crate::quat::{Pose, Quat};
@@ -94,7 +94,8 @@ struct Friction {
 struct Problem {
     joints: usize,
     root: V3,
-    handle: Mat3,
+    /// The root frame `F_0`: the handle's, turned to the spine's rest direction.
+    frame: Mat3,
     lengths: [f64; MAX_JOINTS],
     stiffness: [f64; MAX_JOINTS],
     joint_friction: f64,
@@ -207,7 +208,7 @@ fn clamp_angles(q: &mut [f64; MAX_VARS], n: usize) {
 
 impl Problem {
     fn chain(&self, q: &[f64; MAX_VARS]) -> Chain {
-        Chain::new(self.root, &self.handle, &self.lengths[..self.joints], q)
+        Chain::new(self.root, &self.frame, &self.lengths[..self.joints], q)
     }
 
     /// A contact's friction energy (eqs. 3, 13, 14), its gradient in the point's paper
@@ -610,21 +611,21 @@ fn restore(p: &Problem, q: &mut [f64; MAX_VARS]) -> bool {
 
 /// Angles that lay the spine flat from its root along the paper: always feasible once the
 /// root is on or above the paper. The first joint turns the segment into the horizontal
-/// direction perpendicular to the handle frame's y axis (so theta is 0), on the side that
+/// direction perpendicular to the root frame's y axis (so theta is 0), on the side that
 /// needs the smaller phi; the others stay straight.
-fn flat_angles(handle: &Mat3, joints: usize) -> [f64; MAX_VARS] {
+fn flat_angles(frame: &Mat3, joints: usize) -> [f64; MAX_VARS] {
     let mut q = [0.0; MAX_VARS];
-    let y = handle.c[1];
+    let y = frame.c[1];
     let h = V3::Z.cross(y);
     let h = match h.normalized_or_none(1e-9) {
         Some(h) => h,
-        // The handle's y axis is vertical: any horizontal direction is perpendicular to it.
-        None => (handle.c[0] - V3::Z * handle.c[0].z)
+        // The root frame's y axis is vertical: any horizontal direction is perpendicular to it.
+        None => (frame.c[0] - V3::Z * frame.c[0].z)
             .normalized_or_none(1e-9)
             .unwrap_or(V3::X),
     };
-    // The direction in the handle frame, v = F_0^T h; the segment is -(sp ct, -st, cp ct).
-    let v = V3::new(h.dot(handle.c[0]), h.dot(handle.c[1]), h.dot(handle.c[2]));
+    // The direction in the root frame, v = F_0^T h; the segment is -(sp ct, -st, cp ct).
+    let v = V3::new(h.dot(frame.c[0]), h.dot(frame.c[1]), h.dot(frame.c[2]));
     let phi = libm::atan2(-v.x, -v.z);
     let phi = if phi.abs() > core::f64::consts::FRAC_PI_2 {
         libm::atan2(v.x, v.z)
@@ -642,6 +643,8 @@ fn flat_angles(handle: &Mat3, joints: usize) -> [f64; MAX_VARS] {
 #[derive(Clone, Debug)]
 pub struct Spine {
     params: SpineParams,
+    /// The rotation from the handle's -z to the rest direction; `None` hanging straight down.
+    rest: Option<Mat3>,
     lengths: [f64; MAX_JOINTS],
     stiffness: [f64; MAX_JOINTS],
     /// Angles in the chain's variable order (phi, theta per joint).
@@ -668,6 +671,7 @@ impl Spine {
         params.validate()?;
         let mut s = Spine {
             params,
+            rest: None,
             lengths: [0.0; MAX_JOINTS],
             stiffness: [0.0; MAX_JOINTS],
             q: [0.0; MAX_VARS],
@@ -690,6 +694,10 @@ impl Spine {
     }
 
     fn derive(&mut self) {
+        self.rest = match self.params.rest_direction() {
+            Some(d) if d != -V3::Z => Some(Mat3::rest(d)),
+            _ => None,
+        };
         for k in 0..self.joints() {
             self.lengths[k] = self.params.segment_mm();
             self.stiffness[k] = self.params.stiffness(k);
@@ -697,7 +705,8 @@ impl Spine {
     }
 
     /// Replaces the parameters after validating them (nothing changes on error). A change of
-    /// `joints` puts the spine back at rest; the next solve places it.
+    /// `joints` puts the spine back at rest; the next solve places it. A changed
+    /// `root_direction` keeps the angles, now measured from the new rest direction.
     pub fn set_params(&mut self, params: SpineParams) -> Result<(), SpineParamError> {
         params.validate()?;
         if params.joints != self.params.joints {
@@ -731,7 +740,8 @@ impl Spine {
         &self.x[..=self.joints()]
     }
 
-    /// Joint `k`'s angles (theta, phi) in the XYZ Euler set (rad; k from 0 at the root).
+    /// Joint `k`'s angles (theta, phi) in the XYZ Euler set (rad; k from 0 at the root), the
+    /// root joint's relative to the rest direction's frame.
     pub fn angles(&self, k: usize) -> (f64, f64) {
         let k = k.min(self.joints() - 1);
         (self.q[2 * k + 1], self.q[2 * k])
@@ -847,6 +857,7 @@ impl Spine {
         let n = 2 * self.joints();
         let j = self.joints();
         let handle = Mat3::from_quat(pose.rot);
+        let frame = root_frame(&handle, self.rest.as_ref());
         let r = self.params.root_mm;
         let mut root = pose.pos + handle.apply(V3::new(r[0], r[1], r[2]));
         // Like Liang's god-object the drawn ferrule stays out of the paper: a spine whose
@@ -862,7 +873,7 @@ impl Spine {
         let mut p = Problem {
             joints: j,
             root,
-            handle,
+            frame,
             lengths: self.lengths,
             stiffness: self.stiffness,
             joint_friction: self.params.joint_friction,
@@ -977,7 +988,7 @@ impl Spine {
             lam = [0.0; MAX_JOINTS + 1];
             ok = restore(&p, &mut q);
             if !ok {
-                q = flat_angles(&handle, j);
+                q = flat_angles(&frame, j);
             }
         }
         report.converged = converged && !report.fell_back;
@@ -1040,14 +1051,16 @@ mod tests {
     use super::*;
 
     /// A problem with every term switched on: friction (one contact moving in its easy
-    /// direction, one against it), joint friction from a bent start, a tip load.
-    fn problem() -> Problem {
+    /// direction, one against it), joint friction from a bent start, a tip load; the spine's
+    /// rest direction `rest` in the handle frame.
+    fn problem(rest: V3) -> Problem {
         let h = 0.2f64;
         let handle = Mat3::from_quat(Quat::new(libm::cos(h), 0.0, libm::sin(h), 0.0));
+        let rest = (rest != -V3::Z).then(|| Mat3::rest(rest));
         let mut p = Problem {
             joints: 3,
             root: V3::new(0.0, 0.0, 20.0),
-            handle,
+            frame: root_frame(&handle, rest.as_ref()),
             lengths: [10.0; MAX_JOINTS],
             stiffness: [10.0, 7.0, 5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
             joint_friction: 0.3,
@@ -1072,7 +1085,19 @@ mod tests {
 
     #[test]
     fn gradient_matches_finite_differences() {
-        let p = problem();
+        let fan = 35f64.to_radians();
+        let skew = V3::new(0.4, -0.3, -0.8);
+        for rest in [
+            -V3::Z,
+            V3::new(0.0, libm::sin(fan), -libm::cos(fan)),
+            skew * (1.0 / skew.norm()),
+        ] {
+            gradient_matches_finite_differences_for(rest);
+        }
+    }
+
+    fn gradient_matches_finite_differences_for(rest: V3) {
+        let p = problem(rest);
         let q = [
             0.3, -0.2, 0.25, 0.4, -0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
         ];
@@ -1086,7 +1111,7 @@ mod tests {
             let fd = (p.energy(&qp, &p.chain(&qp)) - p.energy(&qm, &p.chain(&qm))) / (2.0 * step);
             assert!(
                 (fd - ev.grad[v]).abs() < 1e-6 * (1.0 + fd.abs()),
-                "dE/dq_{v}: {fd} vs {}",
+                "rest {rest:?}: dE/dq_{v}: {fd} vs {}",
                 ev.grad[v]
             );
         }

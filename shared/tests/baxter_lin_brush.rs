@@ -71,8 +71,11 @@ fn a_flat_brush_writes_wide_across_its_flat_side_and_thin_along_it() {
         round_a / round_b
     );
     assert!(across / along > 2.5, "flat {across} / {along}");
+    // A round head is seven spines, a centre and a hexagon: travelling along a row of them
+    // or across the rows differs by the hexagon's corners (its width across the flats is
+    // cos 30 degrees of that across the corners), so the two agree within 15%, not exactly.
     assert!(
-        (round_a / round_b - 1.0).abs() < 0.1,
+        (round_a / round_b - 1.0).abs() < 0.15,
         "round {round_a} / {round_b}"
     );
 }

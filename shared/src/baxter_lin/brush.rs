@@ -6,7 +6,7 @@
 //! The spines carry the head's hair in parallel, so each takes its share of the head's
 //! stiffness: the head bends under a load as one spine of the base stiffness would.
 
-use super::head::{Head, SpineRoot};
+use super::head::Head;
 use super::skin::{self, SpineCurve, MAX_SPINES};
 use super::{Spine, SpineParamError, SpineParams, MAX_JOINTS};
 use crate::brush::ink::{self, InkCoefs};
@@ -33,19 +33,6 @@ pub struct InkParams {
     pub footprint_eps_mm: f32,
 }
 
-/// The spine parameters of `root`'s spine on a head whose spines share `base`'s stiffness:
-/// its root, its length, and `base`'s springs and joint friction times its share of the hair.
-pub fn spine_params(root: &SpineRoot, base: &SpineParams) -> SpineParams {
-    SpineParams {
-        root_mm: [root.position.x, root.position.y, root.position.z],
-        length_mm: root.length_mm,
-        stiffness_root: base.stiffness_root * root.share,
-        stiffness_tip: base.stiffness_tip * root.share,
-        joint_friction: base.joint_friction * root.share,
-        ..*base
-    }
-}
-
 /// Baxter & Lin's brush: its spines, its surface and its ink.
 #[derive(Clone, Debug)]
 pub struct BaxterLinBrush {
@@ -64,7 +51,8 @@ pub struct BaxterLinBrush {
 }
 
 impl BaxterLinBrush {
-    /// The brush of `head`, its spines built from `base` ([`spine_params`]), hanging at rest
+    /// The brush of `head`, its spines built from `base` ([`super::head::SpineRoot::spine_params`]),
+    /// hanging at rest
     /// from the handle at `pose`, dipped to `ink.wetness`.
     pub fn new(
         head: Head,
@@ -75,7 +63,7 @@ impl BaxterLinBrush {
         let mut spines = heapless::Vec::new();
         for root in head.spines() {
             // At most MAX_SPINES roots: the head holds no more.
-            let _ = spines.push(Spine::new(spine_params(root, &base), pose)?);
+            let _ = spines.push(Spine::new(root.spine_params(&base), pose)?);
         }
         let blank = Layer {
             short_axis: Vec3::X,

@@ -66,8 +66,8 @@
 //!   wolf hair springs. 200 ms after the model tests' 10 mm press and lift, wolf is within
 //!   0.03 mm of rest, mixed 0.08, goat 0.22 (and 0.07 after 500 ms).
 //! * Substeps: the springier wolf hair has faster modes, and at one substep per tick the
-//!   backward-Euler step's own damping slows its spring-back by 11% (beyond the 10% of
-//!   `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (5%). A board that sets
+//!   backward-Euler step's own damping slows its spring-back by 16% at 100 ms (beyond the 10%
+//!   of `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (6%). A board that sets
 //!   its own substep rate (the Black Pill: one, with the thesis's step) runs it at that.
 //! * Ink: hair holds ink by capillarity on its surface, which per volume of hair goes as
 //!   1 / d, and goat hair's scales hold more (Saitzyk): [`GOAT`] holds 0.55 units per mm^3,

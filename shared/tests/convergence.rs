@@ -5,29 +5,16 @@
 //!
 //! `cargo test --release -p maobi-shared --test convergence -- --nocapture` prints the tables.
 
+mod common;
+use common::AFTER_LIFT_MS;
 use maobi_shared::params::{ParamId, INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO};
-use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose, Quat, Vec3};
+use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose};
 
 const RATES: [u8; 5] = [1, 2, 5, 25, 100];
-/// Milliseconds after the lift at which the spring-back is read.
-const AFTER_LIFT_MS: [usize; 4] = [50, 100, 200, 500];
 
+/// The handle at (x, 0, z) mm, tilted `tilt_deg` about +y.
 fn pose<S: BrushScalar>(x: f64, z: f64, tilt_deg: f64) -> Pose<S> {
-    let h = tilt_deg.to_radians() / 2.0;
-    Pose::new(
-        Vec3::from_f64([x, 0.0, z]),
-        Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]),
-    )
-}
-
-/// Each mass's distance (mm) from where the hanging shape puts it for the current handle.
-fn offsets<S: BrushScalar>(b: &Brush<S>) -> impl Iterator<Item = f64> + '_ {
-    let h = b.handle().cast::<f64>();
-    let seg = b.segment_mm();
-    b.spine()
-        .iter()
-        .enumerate()
-        .map(move |(i, s)| (s.cast::<f64>() - (h.pos + h.down().scale(seg * i as f64))).norm())
+    common::pose_at(x, 0.0, z, tilt_deg)
 }
 
 /// What one run measures: the largest distance of any mass from the hanging shape at each of
@@ -40,31 +27,7 @@ struct Figures {
 }
 
 fn measure<S: BrushScalar>(params: BrushParams) -> Figures {
-    // The model test's press: slanted 20 degrees, down over 200 ms until the hanging tip
-    // would be 10 mm below the paper, held 500 ms, lifted over 100 ms.
-    let tilt = 20.0f64;
-    let reach = params.length_mm as f64 * tilt.to_radians().cos();
-    let above = pose::<S>(0.0, reach + 5.0, tilt);
-    let mut b = Brush::new(params, above).unwrap();
-    for k in 1..=200 {
-        b.tick(pose(0.0, reach + 5.0 - 15.0 * k as f64 / 200.0, tilt));
-    }
-    assert!(b.contacts() >= 3, "the press must put hair on the paper");
-    for _ in 0..500 {
-        b.tick(pose(0.0, reach - 10.0, tilt));
-    }
-    for k in 1..=100 {
-        b.tick(pose(0.0, reach - 10.0 + 15.0 * k as f64 / 100.0, tilt));
-    }
-    let mut spring_back = [0.0; 4];
-    let mut t = 0;
-    for (out, at) in spring_back.iter_mut().zip(AFTER_LIFT_MS) {
-        while t < at {
-            b.tick(above);
-            t += 1;
-        }
-        *out = offsets(&b).fold(0.0, f64::max);
-    }
+    let spring_back = common::spring_back::<S>(params);
 
     // Free air, upright: the handle speeds up smoothly to 100 mm/s over 100 ms (a half
     // cosine of acceleration), then moves steadily for 900 ms.
@@ -81,7 +44,7 @@ fn measure<S: BrushScalar>(params: BrushParams) -> Figures {
     for k in 1..=1000 {
         b.tick(pose(x_at(k as f64 * 1e-3), 60.0, 0.0));
     }
-    let moving_tip = offsets(&b).last().unwrap_or(0.0);
+    let moving_tip = common::offsets(&b).last().unwrap_or(0.0);
     Figures {
         spring_back,
         moving_tip,

@@ -5,7 +5,9 @@
 //!
 //! `cargo test --release -p maobi-shared --test hair -- --nocapture` prints the figures.
 
-use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose, Quat, Vec3};
+mod common;
+use common::AFTER_LIFT_MS;
+use maobi_shared::{presets, Brush, BrushParams, BrushScalar, Fx, Pose, Vec3};
 
 /// The hair types, stiffest first.
 const HAIRS: [(&str, BrushParams); 3] = [
@@ -14,16 +16,9 @@ const HAIRS: [(&str, BrushParams); 3] = [
     ("goat", presets::GOAT),
 ];
 
-/// Milliseconds after the lift at which the spring-back is read.
-const AFTER_LIFT_MS: [usize; 4] = [50, 100, 200, 500];
-
 /// The handle at (x, 0, z) mm, tilted `tilt_deg` about +y (the tip swings toward -x).
 fn pose<S: BrushScalar>(x: f64, z: f64, tilt_deg: f64) -> Pose<S> {
-    let h = tilt_deg.to_radians() / 2.0;
-    Pose::new(
-        Vec3::from_f64([x, 0.0, z]),
-        Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]),
-    )
+    common::pose_at(x, 0.0, z, tilt_deg)
 }
 
 /// The ferrule-to-tip chord's angle from the hanging axis (degrees) after 0.5 s of each of
@@ -42,48 +37,6 @@ fn bends(params: BrushParams, loads_n: [f64; 3]) -> [f64; 3] {
     })
 }
 
-/// Largest distance (mm) of any mass from where the hanging shape puts it.
-fn deviation_from_rest<S: BrushScalar>(b: &Brush<S>) -> f64 {
-    let h = b.handle().cast::<f64>();
-    let seg = b.segment_mm();
-    b.spine()
-        .iter()
-        .enumerate()
-        .map(|(i, s)| (s.cast::<f64>() - (h.pos + h.down().scale(seg * i as f64))).norm())
-        .fold(0.0, f64::max)
-}
-
-/// The model tests' press (`tests/model.rs`): slanted 20 degrees, down over 200 ms until the
-/// hanging tip would be 10 mm below the paper, held 500 ms, lifted over 100 ms; then the
-/// largest distance of any mass from the hanging shape at each of [`AFTER_LIFT_MS`].
-fn spring_back(params: BrushParams) -> [f64; 4] {
-    let tilt = 20.0f64;
-    let reach = params.length_mm as f64 * tilt.to_radians().cos();
-    let above = pose::<Fx>(0.0, reach + 5.0, tilt);
-    let mut b = Brush::new(params, above).unwrap();
-    for k in 1..=200 {
-        b.tick(pose(0.0, reach + 5.0 - 15.0 * k as f64 / 200.0, tilt));
-    }
-    assert!(b.contacts() >= 3, "the press must put hair on the paper");
-    for _ in 0..500 {
-        b.tick(pose(0.0, reach - 10.0, tilt));
-    }
-    for k in 1..=100 {
-        b.tick(pose(0.0, reach - 10.0 + 15.0 * k as f64 / 100.0, tilt));
-    }
-    let mut t = 0;
-    AFTER_LIFT_MS.map(|at| {
-        while t < at {
-            b.tick(above);
-            t += 1;
-        }
-        deviation_from_rest(&b)
-    })
-}
-
-/// Baxter & Lin's 1-2 N bends every hair type nearly flat (70 to 90 degrees). A light push
-/// (0.25 N) bends wolf and mixed hair less than 50 degrees, like the large brush; goat hair,
-/// the softest, is allowed up to 60.
 #[test]
 fn every_hair_type_bends_nearly_flat_under_one_to_two_newtons() {
     for (name, params) in HAIRS {
@@ -121,7 +74,7 @@ fn the_same_push_bends_goat_more_than_mixed_more_than_wolf() {
 /// like the large brush, goat hair, the slowest, within 0.3 mm then and 0.1 mm after 500 ms.
 #[test]
 fn after_a_press_wolf_hair_springs_back_first() {
-    let [wolf, mixed, goat] = HAIRS.map(|(_, p)| spring_back(p));
+    let [wolf, mixed, goat] = HAIRS.map(|(_, p)| common::spring_back::<Fx>(p));
     for (k, at) in AFTER_LIFT_MS.iter().enumerate() {
         println!(
             "{at} ms after the lift, from rest: wolf {:.4} mm, mixed {:.4} mm, goat {:.4} mm",

@@ -1,5 +1,8 @@
 //! Behaviour of the brush model: the scenarios of SPEC.md that the model alone must survive.
 
+mod common;
+use common::deviation_from_rest;
+
 use maobi_shared::footprint::{convex_hull, for_each_polygon, polygon_area};
 use maobi_shared::params::ParamId;
 use maobi_shared::{
@@ -8,25 +11,7 @@ use maobi_shared::{
 
 /// The handle at (x, y, z) mm, tilted `tilt_deg` about +y (the tip swings toward -x).
 pub fn pose<S: BrushScalar>(x: f64, y: f64, z: f64, tilt_deg: f64) -> Pose<S> {
-    let h = tilt_deg.to_radians() / 2.0;
-    Pose::new(
-        Vec3::from_f64([x, y, z]),
-        Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]),
-    )
-}
-
-/// Largest distance (mm) of any mass from where the rest shape puts it for the current handle.
-fn deviation_from_rest<S: BrushScalar>(b: &Brush<S>) -> f64 {
-    let h = b.handle().cast::<f64>();
-    let seg = b.segment_mm();
-    b.spine()
-        .iter()
-        .enumerate()
-        .map(|(i, s)| {
-            let rest = h.pos + h.down().scale(seg * i as f64);
-            (s.cast::<f64>() - rest).norm()
-        })
-        .fold(0.0, f64::max)
+    common::pose_at(x, y, z, tilt_deg)
 }
 
 fn ticks<S: BrushScalar>(b: &mut Brush<S>, n: usize, p: Pose<S>) {

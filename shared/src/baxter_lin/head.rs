@@ -218,53 +218,50 @@ impl Head {
     /// the outermost spines as a fraction of the middle one's along an oval: 1 for a
     /// square-ended flat, below one for a filbert's rounded end.
     pub fn flat(width: f64, thickness: f64, length: f64, end: f64) -> Head {
-        const ROW: usize = 5;
-        let half = thickness / 2.0;
-        // The outer bundles' edges on the ferrule's edges.
-        let reach = width / 2.0 - half;
-        let mut spines = [SpineRoot {
-            position: Vec3::ZERO,
-            direction: -Vec3::Z,
-            length_mm: length,
-            bundle: Bundle {
-                root_mm: half,
-                // The chisel edge: a little thinner than the ferrule.
-                tip_mm: half * 0.6,
-                belly: 0.0,
-            },
-            share: 0.0,
-        }; ROW];
-        for (k, s) in spines.iter_mut().enumerate() {
-            let u = 2.0 * k as f64 / (ROW - 1) as f64 - 1.0;
-            s.position = Vec3::new(0.0, u * reach, 0.0);
+        // The chisel edge: a little thinner than the ferrule.
+        Head::row::<5>(width, thickness, 0.6, |u, s| {
             // An oval end: the length falls from the middle's to `end` of it at the edges.
             s.length_mm = length * (end + (1.0 - end) * libm::sqrt(1.0 - u * u));
-        }
-        Head::of(&spines)
+        })
     }
 
     /// A fan `ferrule` wide at the ferrule (y), `thickness` through, `length` long, its seven
     /// spines spread evenly to `spread_deg` on either side.
     pub fn fan(ferrule: f64, thickness: f64, length: f64, spread_deg: f64) -> Head {
-        const ROW: usize = 7;
+        Head::row::<7>(ferrule, thickness, 0.5, |u, s| {
+            let angle = (u * spread_deg).to_radians();
+            s.length_mm = length;
+            s.direction = Vec3::new(0.0, libm::sin(angle), -libm::cos(angle));
+        })
+    }
+
+    /// `N` spines in a row across the ferrule's `width` (y), each a bundle as thick as the
+    /// head (`thickness`, x) tapering to `tip_ratio` of it, the outer bundles' edges on the
+    /// ferrule's edges, pointing down; `shape(u, spine)` then sets each spine's length and
+    /// direction from its place `u` in [-1, 1] across the row.
+    fn row<const N: usize>(
+        width: f64,
+        thickness: f64,
+        tip_ratio: f64,
+        shape: impl Fn(f64, &mut SpineRoot),
+    ) -> Head {
         let half = thickness / 2.0;
-        let reach = ferrule / 2.0 - half;
+        let reach = width / 2.0 - half;
         let mut spines = [SpineRoot {
             position: Vec3::ZERO,
             direction: -Vec3::Z,
-            length_mm: length,
+            length_mm: 0.0,
             bundle: Bundle {
                 root_mm: half,
-                tip_mm: half / 2.0,
+                tip_mm: half * tip_ratio,
                 belly: 0.0,
             },
             share: 0.0,
-        }; ROW];
+        }; N];
         for (k, s) in spines.iter_mut().enumerate() {
-            let u = 2.0 * k as f64 / (ROW - 1) as f64 - 1.0;
-            let angle = (u * spread_deg).to_radians();
+            let u = 2.0 * k as f64 / (N - 1) as f64 - 1.0;
             s.position = Vec3::new(0.0, u * reach, 0.0);
-            s.direction = Vec3::new(0.0, libm::sin(angle), -libm::cos(angle));
+            shape(u, s);
         }
         Head::of(&spines)
     }

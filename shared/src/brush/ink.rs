@@ -231,7 +231,10 @@ pub(crate) fn transfer<S: Scalar>(
     let mut wicked = false;
     let wick_min = S::from_f32(WICK_MIN);
     for i in (first..n).step_by(2) {
-        let (lo, hi) = layers.split_at_mut(i);
+        // Checked, not `split_at_mut`: the force path holds no panic (i < n always).
+        let Some((lo, hi)) = layers.split_at_mut_checked(i) else {
+            continue;
+        };
         let (Some(giver), Some(taker)) = (lo.last_mut(), hi.first_mut()) else {
             continue;
         };

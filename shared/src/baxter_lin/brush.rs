@@ -48,6 +48,9 @@ pub struct BaxterLinBrush {
     ink: InkCoefs,
     ink_phase: bool,
     eps: f64,
+    /// A constant force on the head's tip (N, world frame), as Liang's brush's
+    /// `set_tip_load`: the static-bend experiment of §5.
+    tip_load: Vec3<f64>,
 }
 
 impl BaxterLinBrush {
@@ -89,6 +92,7 @@ impl BaxterLinBrush {
             ink: InkCoefs::for_rings(&[0.0; LEVELS], 1, ink_params.footprint_eps_mm),
             ink_phase: false,
             eps: ink_params.footprint_eps_mm as f64,
+            tip_load: Vec3::ZERO,
         };
         brush.skin(&pose);
         // What each ring holds: its volume at rest (the ring's ellipse over the spacing
@@ -106,8 +110,10 @@ impl BaxterLinBrush {
 
     /// One tick: every spine solved at the handle's new pose, the surface over them, the ink.
     pub fn tick(&mut self, pose: &Pose<f64>) {
-        for spine in self.spines.iter_mut() {
-            spine.solve(pose, Vec3::ZERO);
+        // Each spine carries its share of the load, as it carries its share of the
+        // stiffness: every spine then bends as the whole head does.
+        for (spine, root) in self.spines.iter_mut().zip(self.head.spines()) {
+            spine.solve(pose, self.tip_load.scale(root.share));
         }
         let last = self.centres;
         self.skin(pose);
@@ -142,6 +148,12 @@ impl BaxterLinBrush {
             });
         }
         skin::skin(&curves, pose, &mut self.centres, &mut self.layers);
+    }
+
+    /// Applies a constant force (N, world frame) to the head's tip until changed, shared
+    /// between the spines' tips as their stiffness is.
+    pub fn set_tip_load(&mut self, force: Vec3<f64>) {
+        self.tip_load = force;
     }
 
     /// Fills every ring to `load` of what it holds (clamped to [0, 1]): dipping the brush.

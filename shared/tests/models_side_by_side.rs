@@ -113,7 +113,14 @@ fn liang(at: Pose<f64>) -> Box<dyn Model> {
     ))
 }
 
-fn baxter_lin(joints: u8) -> impl Fn(Pose<f64>) -> Box<dyn Model> {
+fn baxter_lin(at: Pose<f64>) -> Box<dyn Model> {
+    Box::new(BaxterLin(
+        BaxterLinBrush::of_preset(&presets::LARGE, at).unwrap(),
+    ))
+}
+
+/// [`baxter_lin`] with `joints` a spine instead of the paper's three.
+fn baxter_lin_joints(joints: u8) -> impl Fn(Pose<f64>) -> Box<dyn Model> {
     move |at| {
         let p = presets::LARGE;
         let head = Head::round(
@@ -122,15 +129,11 @@ fn baxter_lin(joints: u8) -> impl Fn(Pose<f64>) -> Box<dyn Model> {
             p.tip_radius_mm as f64,
             p.belly as f64,
         );
-        let ink = InkParams {
-            capacity: p.ink_capacity,
-            wetness: p.wetness,
-            footprint_eps_mm: p.footprint_eps_mm,
-        };
         let base = SpineParams {
             joints,
             ..SpineParams::DEFAULT
         };
+        let ink = InkParams::of_preset(&p);
         Box::new(BaxterLin(BaxterLinBrush::new(head, base, ink, at).unwrap()))
     }
 }
@@ -192,8 +195,8 @@ fn stroke(make: &dyn Fn(Pose<f64>) -> Box<dyn Model>, speed: f64) -> (f64, f64) 
 fn the_two_models_side_by_side() {
     let models: [(&str, Maker); 3] = [
         ("Liang (large)", Box::new(liang)),
-        ("Baxter & Lin, 3 joints", Box::new(baxter_lin(3))),
-        ("Baxter & Lin, 6 joints", Box::new(baxter_lin(6))),
+        ("Baxter & Lin (large)", Box::new(baxter_lin)),
+        ("Baxter & Lin, 6 joints", Box::new(baxter_lin_joints(6))),
     ];
     println!(
         "| model | bend 1 N | 1.5 N | 2 N | press {PRESS} mm at {TILT} deg: force, footprint \

@@ -12,6 +12,7 @@ use super::{Spine, SpineParamError, SpineParams, MAX_JOINTS};
 use crate::brush::ink::{self, InkCoefs};
 use crate::brush::Layer;
 use crate::footprint::Geometry;
+use crate::params::BrushParams;
 use crate::quat::Pose;
 use crate::vec::Vec3;
 
@@ -31,6 +32,18 @@ pub struct InkParams {
     pub wetness: f32,
     /// Surface at or below this height touches the paper (mm).
     pub footprint_eps_mm: f32,
+}
+
+impl InkParams {
+    /// The ink and footprint threshold of Liang's preset `p`, so both models hold and lay
+    /// the same ink.
+    pub fn of_preset(p: &BrushParams) -> InkParams {
+        InkParams {
+            capacity: p.ink_capacity,
+            wetness: p.wetness,
+            footprint_eps_mm: p.footprint_eps_mm,
+        }
+    }
 }
 
 /// Baxter & Lin's brush: its spines, its surface and its ink.
@@ -106,6 +119,20 @@ impl BaxterLinBrush {
         brush.ink = InkCoefs::for_rings(&capacity, 1, ink_params.footprint_eps_mm);
         brush.dip(ink_params.wetness as f64);
         Ok(brush)
+    }
+
+    /// The round head with the profile of Liang's preset `p` (its length, radius at the
+    /// ferrule, tip and belly) and its ink, its spines the paper's ([`SpineParams::DEFAULT`]:
+    /// three joints, the stiffness of §5): Baxter & Lin's brush for a preset, wherever a
+    /// preset names the brush.
+    pub fn of_preset(p: &BrushParams, pose: Pose<f64>) -> Result<Self, SpineParamError> {
+        let head = Head::round(
+            p.length_mm as f64,
+            p.radius_mm as f64,
+            p.tip_radius_mm as f64,
+            p.belly as f64,
+        );
+        BaxterLinBrush::new(head, SpineParams::DEFAULT, InkParams::of_preset(p), pose)
     }
 
     /// One tick: every spine solved at the handle's new pose, the surface over them, the ink.

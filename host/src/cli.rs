@@ -4,14 +4,16 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{bail, Context};
 use clap::{Args, Parser, Subcommand};
+use maobi_shared::baxter_lin::brush::BaxterLinBrush;
+use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
 
 use crate::offline::{simulate, ScalarKind};
 use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
-use crate::render::{paper_frame, render, write_png, RenderStats};
+use crate::render::{paper_frame, render, render_baxter_lin, write_png, RenderStats};
 use crate::strokes::Character;
 use crate::trace::{time_decimals, TraceWriter};
 
@@ -259,7 +261,7 @@ pub struct GuiArgs {
     #[arg(
         long,
         value_name = "NAME",
-        value_parser = parse_brush,
+        value_parser = parse_preset,
         help = format!(
             "Brush preset: {} (default: the one used last, else `large`)",
             presets::NAMES
@@ -292,20 +294,53 @@ pub struct GuiArgs {
     pub pressure_threshold: Option<f32>,
 }
 
-/// A brush preset chosen on the command line.
+/// A brush chosen on the command line: a preset, or one of Baxter & Lin's head shapes.
 #[derive(Clone, Debug)]
 pub struct BrushChoice {
     pub name: String,
+    /// The preset's parameters; for a Baxter & Lin shape, the `large` preset's (its ink and
+    /// footprint threshold).
     pub params: BrushParams,
+    /// A Baxter & Lin head shape other than round (`flat`, `filbert`, `fan`): only
+    /// `--model baxter-lin` has them.
+    pub shape: Option<HeadShape>,
 }
 
 fn parse_brush(name: &str) -> Result<BrushChoice, String> {
+    if let Ok(choice) = parse_preset(name) {
+        return Ok(choice);
+    }
+    match HeadShape::from_name(name) {
+        Ok(shape) if shape != HeadShape::Round => Ok(BrushChoice {
+            name: name.to_string(),
+            params: presets::LARGE,
+            shape: Some(shape),
+        }),
+        _ => Err(format!(
+            "{}; with --model baxter-lin also flat, filbert, fan",
+            presets::UnknownPreset(name)
+        )),
+    }
+}
+
+/// A preset (the app's `--brush`: the app runs Liang's brush).
+fn parse_preset(name: &str) -> Result<BrushChoice, String> {
     presets::find(name)
         .map(|params| BrushChoice {
             name: name.to_string(),
             params,
+            shape: None,
         })
         .map_err(|e| e.to_string())
+}
+
+/// The brush model `--model` names.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModelKind {
+    /// Liang's mass-spring spine, skeleton and surface: the pen's model.
+    Liang,
+    /// Baxter & Lin's energy-minimising spines (desktop only, `f64`).
+    BaxterLin,
 }
 
 /// A brush chosen on the command line: a preset, and parameters set on top of it. Every
@@ -333,6 +368,19 @@ pub struct BrushArgs {
 }
 
 impl BrushArgs {
+    /// [`Self::params`] for a command that runs Liang's brush (the pen's model): a Baxter &
+    /// Lin shape is refused, naming the command that draws it.
+    pub fn liang_params(&self) -> anyhow::Result<BrushParams> {
+        if let Some(shape) = self.brush.shape {
+            bail!(
+                "the {} brush is Baxter & Lin's, which only `maobi render --model baxter-lin` \
+                 draws so far",
+                shape.name()
+            );
+        }
+        self.params()
+    }
+
     /// The preset's parameters with every `--param` set in command-line order, each through
     /// [`BrushParams::set`], the check the app's parameter panel and the devices make.
     pub fn params(&self) -> anyhow::Result<BrushParams> {
@@ -484,9 +532,14 @@ pub struct RenderArgs {
         allow_negative_numbers = true
     )]
     pub px_per_mm: f64,
-    /// Number type to run the model in (the device runs fixed).
+    /// Number type to run the model in (the device runs fixed; Baxter & Lin's model runs in
+    /// f64 whatever this says).
     #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
     pub scalar: ScalarKind,
+    /// The brush model: `liang` (the pen's) or `baxter-lin` (Baxter & Lin's spines; round
+    /// heads from the preset's size, and the `flat`, `filbert` and `fan` brushes).
+    #[arg(long, value_enum, default_value_t = ModelKind::Liang, conflicts_with = "session")]
+    pub model: ModelKind,
     /// The paper: `sized` (熟宣, the ink stays where the brush laid it) or `raw` (生宣, the ink
     /// wicks outward along the fibres). Default: the stroke file's `paper`, else `sized`, since
     /// sized paper shows the brush's own deposit, which is what a render is mostly for
@@ -530,7 +583,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let server = crate::device::SimDeviceServer::spawn(
                 &a.listen,
                 crate::device::SimDeviceOptions {
-                    brush: a.brush.params()?,
+                    brush: a.brush.liang_params()?,
                     state_hz: a.state_hz,
                     ..Default::default()
                 },
@@ -620,7 +673,7 @@ fn stop_on_signals() -> &'static std::sync::atomic::AtomicBool {
 fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     use crate::phantom::device::BridgeModel;
     use crate::phantom::{Bridge, BridgeOptions, HdLib, Stopped};
-    let brush = a.brush.params()?;
+    let brush = a.brush.liang_params()?;
     let lib = HdLib::find(a.phantom.hd_lib.as_deref())?;
     eprintln!(
         "maobi bridge: loaded {} (from {})",
@@ -910,7 +963,7 @@ fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<(
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let params = a.brush.params()?;
+    let params = a.brush.liang_params()?;
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let ticks = match a.scalar {
         ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
@@ -958,12 +1011,37 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     let (track, file_paper) = load_track_and_paper(a.poses.as_deref(), a.stroke.as_deref())?;
     let paper = PaperSpec::new(a.paper.or(file_paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
-    let frame = paper_frame(&track, &params, a.px_per_mm)?;
-    log::debug!("paper: {frame:?}, {paper:?}");
-    let (canvas, stats): (_, RenderStats) = match a.scalar {
-        ScalarKind::Fixed => render::<Fx>(params, &track, frame, paper)?,
-        ScalarKind::F32 => render::<f32>(params, &track, frame, paper)?,
-        ScalarKind::F64 => render::<f64>(params, &track, frame, paper)?,
+    let (canvas, stats, scalar): (_, RenderStats, _) = match (a.model, a.brush.brush.shape) {
+        (ModelKind::Liang, Some(shape)) => bail!(
+            "the {} brush is Baxter & Lin's: use --model baxter-lin",
+            shape.name()
+        ),
+        (ModelKind::Liang, None) => {
+            let frame = paper_frame(&track, &params, a.px_per_mm)?;
+            log::debug!("paper: {frame:?}, {paper:?}");
+            let (canvas, stats) = match a.scalar {
+                ScalarKind::Fixed => render::<Fx>(params, &track, frame, paper)?,
+                ScalarKind::F32 => render::<f32>(params, &track, frame, paper)?,
+                ScalarKind::F64 => render::<f64>(params, &track, frame, paper)?,
+            };
+            (canvas, stats, a.scalar)
+        }
+        (ModelKind::BaxterLin, shape) => {
+            let shape = shape.unwrap_or(HeadShape::Round);
+            let make = |pose| BaxterLinBrush::of_shape(shape, &params, pose);
+            let first = track.resample().next().context("the pose track is empty")?;
+            // The paper's margin covers the head however its spines splay.
+            let reach = make(first)
+                .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?
+                .reach_mm();
+            let margin = BrushParams {
+                length_mm: reach as f32,
+                ..params
+            };
+            let frame = paper_frame(&track, &margin, a.px_per_mm)?;
+            let (canvas, stats) = render_baxter_lin(make, &track, frame, paper)?;
+            (canvas, stats, ScalarKind::F64)
+        }
     };
     write_png(&canvas, &a.output)?;
     eprintln!(
@@ -974,7 +1052,7 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         stats.paper_seconds * 1e6 / stats.ticks as f64,
         stats.drying_steps,
         a.brush.describe(),
-        a.scalar,
+        scalar,
         paper.kind,
         stats.width,
         stats.height,

@@ -21,6 +21,8 @@ use crate::offline::simulate;
 use crate::paper::{Canvas, PaperSpec};
 use crate::poses::PoseTrack;
 use crate::raster::{raster_area, Frame, Stamper};
+use maobi_shared::baxter_lin::{self, brush::BaxterLinBrush, SpineParamError};
+use maobi_shared::Pose;
 
 /// Paper margin beyond the ferrule's extent, on top of the brush length (mm).
 pub const EXTRA_MARGIN_MM: f64 = 10.0;
@@ -514,6 +516,53 @@ pub fn render<S: maobi_shared::BrushScalar>(
         paper_time += stamped.elapsed();
         Ok(())
     })?;
+    let started = Instant::now();
+    let drying_steps = canvas.dry(MAX_DRYING_STEPS);
+    paper_time += started.elapsed();
+    let stats = RenderStats {
+        ticks,
+        stamps,
+        width: frame.width,
+        height: frame.height,
+        ink_fraction: canvas.ink_fraction(),
+        stamp_seconds: stamp_time.as_secs_f64(),
+        paper_seconds: paper_time.as_secs_f64(),
+        drying_steps,
+    };
+    Ok((canvas, stats))
+}
+
+/// [`render`] with Baxter & Lin's brush (`maobi_shared::baxter_lin`, `f64`), built by
+/// `make` at the track's first pose, run over `track` and inked every tick through the same
+/// inker and paper as Liang's brush.
+pub fn render_baxter_lin(
+    make: impl FnOnce(Pose<f64>) -> Result<BaxterLinBrush, SpineParamError>,
+    track: &PoseTrack,
+    frame: Frame,
+    paper: PaperSpec,
+) -> anyhow::Result<(Canvas, RenderStats)> {
+    let mut canvas = Canvas::with_paper(frame.width, frame.height, paper);
+    let mut inker = Inker::new(frame, baxter_lin::brush::LEVELS - 1);
+    let mut poses = track.resample();
+    let first = poses.next().context("the pose track is empty")?;
+    let mut brush = make(first).map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
+    let (mut stamps, mut ticks) = (0, 0);
+    let mut stamp_time = Duration::ZERO;
+    let mut paper_time = Duration::ZERO;
+    for (k, pose) in std::iter::once(first).chain(poses).enumerate() {
+        if k > 0 {
+            brush.tick(&pose);
+        }
+        let started = Instant::now();
+        if inker.stamp_geometry(&brush.geometry(), &mut canvas) {
+            stamps += 1;
+        }
+        let stamped = Instant::now();
+        stamp_time += stamped - started;
+        canvas.tick();
+        paper_time += stamped.elapsed();
+        ticks += 1;
+    }
     let started = Instant::now();
     let drying_steps = canvas.dry(MAX_DRYING_STEPS);
     paper_time += started.elapsed();

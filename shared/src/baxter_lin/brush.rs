@@ -6,7 +6,7 @@
 //! The spines carry the head's hair in parallel, so each takes its share of the head's
 //! stiffness: the head bends under a load as one spine of the base stiffness would.
 
-use super::head::Head;
+use super::head::{Head, HeadShape};
 use super::skin::{self, SpineCurve, MAX_SPINES};
 use super::{Spine, SpineParamError, SpineParams, MAX_JOINTS};
 use crate::brush::ink::{self, InkCoefs};
@@ -126,13 +126,39 @@ impl BaxterLinBrush {
     /// three joints, the stiffness of §5): Baxter & Lin's brush for a preset, wherever a
     /// preset names the brush.
     pub fn of_preset(p: &BrushParams, pose: Pose<f64>) -> Result<Self, SpineParamError> {
-        let head = Head::round(
-            p.length_mm as f64,
-            p.radius_mm as f64,
-            p.tip_radius_mm as f64,
-            p.belly as f64,
-        );
+        Self::of_shape(HeadShape::Round, p, pose)
+    }
+
+    /// [`Self::of_preset`] with the head of `shape`: the round one has the preset's
+    /// profile, the others their catalogue size ([`HeadShape::head`]); the ink is the
+    /// preset's either way.
+    pub fn of_shape(
+        shape: HeadShape,
+        p: &BrushParams,
+        pose: Pose<f64>,
+    ) -> Result<Self, SpineParamError> {
+        let head = match shape {
+            HeadShape::Round => Head::round(
+                p.length_mm as f64,
+                p.radius_mm as f64,
+                p.tip_radius_mm as f64,
+                p.belly as f64,
+            ),
+            other => other.head(),
+        };
         BaxterLinBrush::new(head, SpineParams::DEFAULT, InkParams::of_preset(p), pose)
+    }
+
+    /// How far from the ferrule's centre the head can reach (mm): its longest spine from
+    /// its farthest root, however the spines splay.
+    pub fn reach_mm(&self) -> f64 {
+        self.head.length_mm()
+            + self
+                .head
+                .spines()
+                .iter()
+                .map(|s| s.position.norm())
+                .fold(0.0, f64::max)
     }
 
     /// One tick: every spine solved at the handle's new pose, the surface over them, the ink.

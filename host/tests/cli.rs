@@ -417,6 +417,72 @@ fn render_with_the_small_brush() {
     );
 }
 
+/// `--model baxter-lin` renders Baxter & Lin's brush (the large preset's round head, and
+/// the paper's flat): deterministic, and a press leaves ink.
+#[test]
+fn render_with_baxter_and_lins_brush() {
+    let p = example("press_lift.csv");
+    let a = render(&p, &["--model", "baxter-lin"]);
+    assert!(
+        a == render(&p, &["--model", "baxter-lin"]),
+        "not deterministic"
+    );
+    let (_, _, px) = decode(&a);
+    let dark = px.iter().filter(|&&v| v < 128).count();
+    assert!(dark > 500, "Baxter & Lin's press left {dark} dark pixels");
+    // The flat's head is 18 mm: press it 4 mm straight down.
+    let csv = format!("{HEADER}0,0,0,20,1,0,0,0\n0.2,0,0,14,1,0,0,0\n0.4,0,0,14,1,0,0,0\n");
+    let input = Temp::with("flat.csv", csv.as_bytes());
+    let (_, _, px) = decode(&render(
+        input.path(),
+        &["--model", "baxter-lin", "--brush", "flat"],
+    ));
+    let dark = px.iter().filter(|&&v| v < 128).count();
+    assert!(dark > 500, "the flat's press left {dark} dark pixels");
+}
+
+/// An unknown model is refused with the names; a Baxter & Lin head is refused with Liang's
+/// model and on the commands that run Liang's brush, naming the model that draws it.
+#[test]
+fn rejects_unknown_models_and_heads_of_the_other_model() {
+    let out = Temp::new("out.png");
+    let p = example("press_lift.csv");
+    let o = maobi(&[
+        "render",
+        "--poses",
+        &p,
+        "--model",
+        "nonsense",
+        "-o",
+        out.path(),
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("nonsense") && err.contains("liang") && err.contains("baxter-lin"),
+        "{err}"
+    );
+    let o = maobi(&["render", "--poses", &p, "--brush", "flat", "-o", out.path()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--model baxter-lin"), "{}", stderr(&o));
+    let o = maobi(&["trace", "--poses", &p, "--brush", "fan", "-o", out.path()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("Baxter & Lin"), "{}", stderr(&o));
+    let o = maobi(&[
+        "render",
+        "--poses",
+        &p,
+        "--brush",
+        "nonsense",
+        "-o",
+        out.path(),
+    ]);
+    let err = stderr(&o);
+    for name in ["flat", "filbert", "fan"] {
+        assert!(err.contains(name), "{name} not in {err}");
+    }
+}
+
 /// Runs `maobi trace` on `poses` with `extra` options; the trace's text, or the failed run.
 fn trace_with(poses: &str, extra: &[&str]) -> Result<String, Output> {
     let out = Temp::new("trace-param.csv");

@@ -15,7 +15,7 @@ use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
 use crate::render::{paper_frame, render, render_baxter_lin, write_png, RenderStats};
 use crate::strokes::Character;
-use crate::trace::{time_decimals, TraceWriter};
+use crate::trace::{time_decimals, BaxterLinTraceWriter, TraceWriter};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -368,14 +368,36 @@ pub struct BrushArgs {
 }
 
 impl BrushArgs {
-    /// [`Self::params`] for a command that runs Liang's brush (the pen's model): a Baxter &
-    /// Lin shape is refused, naming the command that draws it.
+    /// [`Self::params`] for Liang's brush (the pen's model): a Baxter & Lin shape is
+    /// refused, naming the commands that draw it.
     pub fn liang_params(&self) -> anyhow::Result<BrushParams> {
         if let Some(shape) = self.brush.shape {
             bail!(
-                "the {} brush is Baxter & Lin's, which only `maobi render --model baxter-lin` \
-                 draws so far",
+                "the {} brush is Baxter & Lin's: `maobi render` and `maobi trace` draw it \
+                 with --model baxter-lin",
                 shape.name()
+            );
+        }
+        self.params()
+    }
+
+    /// [`Self::params`] for Baxter & Lin's brush, which reads only the preset's head profile
+    /// and ink ([`BaxterLinBrush::PRESET_PARAMS`]): any other `--param` is refused rather
+    /// than ignored.
+    pub fn baxter_lin_params(&self) -> anyhow::Result<BrushParams> {
+        if let Some(s) = self
+            .params
+            .iter()
+            .find(|s| !BaxterLinBrush::PRESET_PARAMS.contains(&s.id))
+        {
+            let reads: Vec<&str> = BaxterLinBrush::PRESET_PARAMS
+                .iter()
+                .map(|id| id.name())
+                .collect();
+            bail!(
+                "--param {s}: Baxter & Lin's brush does not have it (of the parameters it \
+                 reads only {})",
+                reads.join(", ")
             );
         }
         self.params()
@@ -492,9 +514,14 @@ pub struct TraceArgs {
     pub stroke: Option<PathBuf>,
     #[command(flatten)]
     pub brush: BrushArgs,
-    /// Number type to run the model in.
+    /// Number type to run the model in (Baxter & Lin's model runs in f64 whatever this says).
     #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
     pub scalar: ScalarKind,
+    /// The brush model: `liang` (the pen's) or `baxter-lin` (Baxter & Lin's spines; round
+    /// heads from the preset's size, and the `flat`, `filbert` and `fan` brushes). Its trace
+    /// has every spine's joints instead of Liang's masses (see `host/src/trace.rs`).
+    #[arg(long, value_enum, default_value_t = ModelKind::Liang)]
+    pub model: ModelKind,
     /// Output trace CSV.
     #[arg(short = 'o', long = "output", value_name = "TRACE.csv")]
     pub output: PathBuf,
@@ -963,22 +990,63 @@ fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<(
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let params = a.brush.liang_params()?;
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
-    let ticks = match a.scalar {
-        ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
-        ScalarKind::F32 => trace_as::<f32>(params, &track, &a.output)?,
-        ScalarKind::F64 => trace_as::<f64>(params, &track, &a.output)?,
+    let (ticks, scalar) = match a.model {
+        ModelKind::Liang => {
+            let params = a.brush.liang_params()?;
+            let ticks = match a.scalar {
+                ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
+                ScalarKind::F32 => trace_as::<f32>(params, &track, &a.output)?,
+                ScalarKind::F64 => trace_as::<f64>(params, &track, &a.output)?,
+            };
+            (ticks, a.scalar)
+        }
+        ModelKind::BaxterLin => {
+            let params = a.brush.baxter_lin_params()?;
+            let shape = a.brush.brush.shape.unwrap_or(HeadShape::Round);
+            let ticks = trace_baxter_lin(shape, &params, &track, &a.output)?;
+            (ticks, ScalarKind::F64)
+        }
     };
     eprintln!(
         "maobi trace: {ticks} ticks ({:.3} s) of the {} brush in {}, wrote {} in {:.2} s",
         (ticks - 1) as f64 * crate::poses::TICK_S,
         a.brush.describe(),
-        a.scalar,
+        scalar,
         a.output.display(),
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// Baxter & Lin's brush of `shape` over `track`: the rest state at the first pose, then one
+/// row a tick. Returns the ticks written.
+fn trace_baxter_lin(
+    shape: HeadShape,
+    params: &BrushParams,
+    track: &PoseTrack,
+    out: &Path,
+) -> anyhow::Result<usize> {
+    let mut poses = track.resample();
+    let first = poses.next().context("the pose track is empty")?;
+    let mut brush = BaxterLinBrush::of_shape(shape, params, first)
+        .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let write_err = || format!("cannot write {}", out.display());
+    let t0 = track.start();
+    let mut w = BaxterLinTraceWriter::new(std::io::BufWriter::new(file), &brush, time_decimals(t0))
+        .with_context(write_err)?;
+    w.write_tick(t0, &first, &brush).with_context(write_err)?;
+    let mut ticks = 1;
+    for pose in poses {
+        brush.tick(&pose);
+        let t = t0 + ticks as f64 * crate::poses::TICK_S;
+        w.write_tick(t, &pose, &brush).with_context(write_err)?;
+        ticks += 1;
+    }
+    w.finish().with_context(write_err)?;
+    Ok(ticks)
 }
 
 fn trace_as<S: BrushScalar>(
@@ -1007,16 +1075,15 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     if let Some(path) = &a.session {
         return render_session(path, &a.output, started);
     }
-    let params = a.brush.params()?;
+    let params = match a.model {
+        ModelKind::Liang => a.brush.liang_params()?,
+        ModelKind::BaxterLin => a.brush.baxter_lin_params()?,
+    };
     let (track, file_paper) = load_track_and_paper(a.poses.as_deref(), a.stroke.as_deref())?;
     let paper = PaperSpec::new(a.paper.or(file_paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
     let (canvas, stats, scalar): (_, RenderStats, _) = match (a.model, a.brush.brush.shape) {
-        (ModelKind::Liang, Some(shape)) => bail!(
-            "the {} brush is Baxter & Lin's: use --model baxter-lin",
-            shape.name()
-        ),
-        (ModelKind::Liang, None) => {
+        (ModelKind::Liang, _) => {
             let frame = paper_frame(&track, &params, a.px_per_mm)?;
             log::debug!("paper: {frame:?}, {paper:?}");
             let (canvas, stats) = match a.scalar {

@@ -1,4 +1,5 @@
-//! The trace CSV: one row per 1 ms tick with the handle pose and the spine.
+//! The trace CSV: one row per 1 ms tick with the handle pose and the spine (Liang's brush;
+//! [`BaxterLinTraceWriter`] for Baxter & Lin's).
 //!
 //! Columns, in order: `t` (s), the handle pose `x,y,z,qw,qx,qy,qz` (the resampled input pose
 //! the handle was driven to), `s{i}_x,s{i}_y,s{i}_z` for every spine mass i = 0..N-1 (mm,
@@ -12,7 +13,8 @@
 use std::fmt::Write as _;
 use std::io::Write;
 
-use maobi_shared::Scalar;
+use maobi_shared::baxter_lin::brush::BaxterLinBrush;
+use maobi_shared::{Pose, Scalar, Vec3};
 
 use crate::offline::Tick;
 
@@ -140,6 +142,94 @@ impl<W: Write> TraceWriter<W> {
             self.field.clear();
             c.write_value(tick, self.t_decimals, &mut self.field);
             self.out.write_field(&self.field)?;
+        }
+        self.out.write_record(None::<&[u8]>)
+    }
+
+    /// Flushes and returns the underlying writer.
+    pub fn finish(self) -> std::io::Result<W> {
+        self.out.into_inner().map_err(|e| e.into_error())
+    }
+}
+
+/// The trace of Baxter & Lin's brush (`maobi trace --model baxter-lin`), one row per 1 ms
+/// tick. Columns: `t`, the handle pose `x,y,z,qw,qx,qy,qz` (as the trace above), then every
+/// spine's joints `p{k}_{i}_x,p{k}_{i}_y,p{k}_{i}_z` (spine k, joint i = 0..J, joint 0 the
+/// root on the ferrule, J the tip; mm), `contacts` (joints on the paper, every spine),
+/// `fx,fy,fz` (the force the spines put on the handle: the paper's push on the hair as the
+/// hand feels it, N) and `fr{k}_x,fr{k}_y` (the paper's friction on spine k, summed over its
+/// joints on the paper, N).
+pub struct BaxterLinTraceWriter<W: Write> {
+    out: csv::Writer<W>,
+    t_decimals: usize,
+    joints: usize,
+    field: String,
+}
+
+impl<W: Write> BaxterLinTraceWriter<W> {
+    /// Writes the header for `brush`'s spines.
+    pub fn new(out: W, brush: &BaxterLinBrush, t_decimals: usize) -> csv::Result<Self> {
+        let joints = brush.spines().first().map_or(0, |s| s.joints());
+        let mut names: Vec<String> = vec!["t".into()];
+        names.extend(HANDLE_NAMES.iter().map(|n| n.to_string()));
+        for k in 0..brush.spines().len() {
+            for i in 0..=joints {
+                names.extend(AXES.iter().map(|a| format!("p{k}_{i}_{a}")));
+            }
+        }
+        names.push("contacts".into());
+        names.extend(AXES.iter().map(|a| format!("f{a}")));
+        for k in 0..brush.spines().len() {
+            names.extend(AXES[..2].iter().map(|a| format!("fr{k}_{a}")));
+        }
+        let mut out = csv::WriterBuilder::new().from_writer(out);
+        out.write_record(&names)?;
+        Ok(BaxterLinTraceWriter {
+            out,
+            t_decimals,
+            joints,
+            field: String::with_capacity(32),
+        })
+    }
+
+    fn field(&mut self, v: f64, decimals: usize) -> csv::Result<()> {
+        self.field.clear();
+        push_decimal(&mut self.field, v, decimals);
+        self.out.write_field(&self.field)
+    }
+
+    /// One row: the brush after its tick at `pose`, at time `t` (s).
+    pub fn write_tick(
+        &mut self,
+        t: f64,
+        pose: &Pose<f64>,
+        brush: &BaxterLinBrush,
+    ) -> csv::Result<()> {
+        self.field(t, self.t_decimals)?;
+        for v in pose.pos.to_f64() {
+            self.field(v, MM_DECIMALS)?;
+        }
+        for v in pose.rot.to_f64() {
+            self.field(v, QUAT_DECIMALS)?;
+        }
+        let mut contacts = 0;
+        for spine in brush.spines() {
+            for i in 0..=self.joints {
+                for v in spine.position(i).to_f64() {
+                    self.field(v, MM_DECIMALS)?;
+                }
+                contacts += usize::from(spine.in_contact(i));
+            }
+        }
+        self.out.write_field(contacts.to_string())?;
+        for v in brush.handle_force().to_f64() {
+            self.field(v, FORCE_DECIMALS)?;
+        }
+        for spine in brush.spines() {
+            let friction =
+                (0..=self.joints).fold(Vec3::<f64>::ZERO, |acc, i| acc + spine.friction_force(i));
+            self.field(friction.x, FORCE_DECIMALS)?;
+            self.field(friction.y, FORCE_DECIMALS)?;
         }
         self.out.write_record(None::<&[u8]>)
     }

@@ -441,8 +441,153 @@ fn render_with_baxter_and_lins_brush() {
     assert!(dark > 500, "the flat's press left {dark} dark pixels");
 }
 
+/// A trace of `--model baxter-lin`: the header, and each row's numbers by column name.
+struct BlTrace {
+    names: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+impl BlTrace {
+    fn of(poses: &str) -> BlTrace {
+        let out = Temp::new("bl.csv");
+        let o = maobi(&[
+            "trace",
+            "--poses",
+            poses,
+            "--model",
+            "baxter-lin",
+            "-o",
+            out.path(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = std::fs::read_to_string(&out.0).unwrap();
+        let mut lines = text.lines();
+        let names: Vec<String> = lines.next().unwrap().split(',').map(String::from).collect();
+        let rows = lines
+            .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap()).collect())
+            .collect();
+        BlTrace { names, rows }
+    }
+    fn col(&self, name: &str) -> usize {
+        self.names
+            .iter()
+            .position(|n| n == name)
+            .unwrap_or_else(|| panic!("no column {name}"))
+    }
+    /// (spines, joints a spine) from the `p{k}_{i}_x` columns.
+    fn shape(&self) -> (usize, usize) {
+        let spines = (0..)
+            .take_while(|k| self.names.contains(&format!("p{k}_0_x")))
+            .count();
+        let joints = (0..)
+            .take_while(|i| self.names.contains(&format!("p0_{i}_x")))
+            .count();
+        (spines, joints - 1)
+    }
+    fn point(&self, row: usize, k: usize, i: usize) -> [f64; 3] {
+        let c = self.col(&format!("p{k}_{i}_x"));
+        [
+            self.rows[row][c],
+            self.rows[row][c + 1],
+            self.rows[row][c + 2],
+        ]
+    }
+}
+
+/// The must-show of Baxter & Lin's model, on its traces of the example strokes: no joint
+/// below the paper; at rest in free air the centre spine hangs along the handle's axis; a
+/// steady drag (橫) leaves the tip trailing the handle; and the paper's friction on each
+/// spine opposes the slide of its joints on the paper, every tick.
+#[test]
+fn baxter_lin_traces_keep_the_physical_invariants() {
+    for name in ["heng.csv", "hook.csv", "shu.csv", "press_lift.csv"] {
+        let tr = BlTrace::of(&example(name));
+        let (spines, joints) = tr.shape();
+        assert_eq!((spines, joints), (7, 3), "{name}");
+        let lowest = tr
+            .names
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| n.starts_with('p') && n.ends_with("_z"))
+            .flat_map(|(c, _)| tr.rows.iter().map(move |r| r[c]))
+            .fold(f64::MAX, f64::min);
+        assert!(lowest >= 0.0, "{name}: a joint at z = {lowest}");
+
+        // At rest (tick 0, in free air) the centre spine's chord lies along the handle's -z.
+        let (root, tip) = (tr.point(0, 0, 0), tr.point(0, 0, joints));
+        let q: Vec<f64> = ["qw", "qx", "qy", "qz"]
+            .iter()
+            .map(|n| tr.rows[0][tr.col(n)])
+            .collect();
+        let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
+        let axis = [
+            -2.0 * (x * z + w * y),
+            -2.0 * (y * z - w * x),
+            -(1.0 - 2.0 * (x * x + y * y)),
+        ];
+        let chord = [tip[0] - root[0], tip[1] - root[1], tip[2] - root[2]];
+        let len = chord.iter().map(|c| c * c).sum::<f64>().sqrt();
+        let cos = chord.iter().zip(axis).map(|(c, a)| c * a).sum::<f64>() / len;
+        assert!(
+            cos > (0.01f64).to_radians().cos(),
+            "{name}: hangs {} deg off",
+            cos.acos().to_degrees()
+        );
+
+        // Friction opposes each spine's slide on the paper.
+        let (mut slides, mut resisted) = (0, 0);
+        for r in 1..tr.rows.len() {
+            for k in 0..spines {
+                let mut slide = [0.0; 2];
+                for i in 1..=joints {
+                    let (a, b) = (tr.point(r - 1, k, i), tr.point(r, k, i));
+                    if a[2] == 0.0 && b[2] == 0.0 {
+                        slide[0] += b[0] - a[0];
+                        slide[1] += b[1] - a[1];
+                    }
+                }
+                let s = slide[0].hypot(slide[1]);
+                if s > 1e-4 {
+                    slides += 1;
+                    let c = tr.col(&format!("fr{k}_x"));
+                    let along = (tr.rows[r][c] * slide[0] + tr.rows[r][c + 1] * slide[1]) / s;
+                    assert!(
+                        along <= 1e-6,
+                        "{name}: row {r}, spine {k}: friction {along} N along the slide"
+                    );
+                    resisted += usize::from(along < -1e-4);
+                }
+            }
+        }
+        println!("{name}: {slides} slides, {resisted} of them resisted by more than 0.1 mN");
+        if name != "press_lift.csv" {
+            assert!(slides > 1000, "{name}: only {slides} slides");
+        }
+        assert!(
+            2 * resisted > slides,
+            "{name}: {resisted} of {slides} slides resisted"
+        );
+
+        // 橫 drags the pressed brush along +x: the centre spine's tip trails the handle.
+        if name == "heng.csv" {
+            let (xc, cc) = (tr.col("x"), tr.col("contacts"));
+            let mut dragged = 0;
+            for r in 1..tr.rows.len() {
+                let v = (tr.rows[r][xc] - tr.rows[r - 1][xc]) / 0.001;
+                if v > 10.0 && tr.rows[r][cc] > 0.0 {
+                    dragged += 1;
+                    let behind = tr.rows[r][xc] - tr.point(r, 0, joints)[0];
+                    assert!(behind > 0.0, "row {r}: the tip leads by {}", -behind);
+                }
+            }
+            assert!(dragged > 500, "only {dragged} rows dragged");
+        }
+    }
+}
+
 /// An unknown model is refused with the names; a Baxter & Lin head is refused with Liang's
-/// model and on the commands that run Liang's brush, naming the model that draws it.
+/// model and on the commands that run Liang's brush, naming the model that draws it; a
+/// `--param` Baxter & Lin's brush does not read is refused, naming those it does.
 #[test]
 fn rejects_unknown_models_and_heads_of_the_other_model() {
     let out = Temp::new("out.png");
@@ -467,7 +612,40 @@ fn rejects_unknown_models_and_heads_of_the_other_model() {
     assert!(stderr(&o).contains("--model baxter-lin"), "{}", stderr(&o));
     let o = maobi(&["trace", "--poses", &p, "--brush", "fan", "-o", out.path()]);
     assert!(!o.status.success());
-    assert!(stderr(&o).contains("Baxter & Lin"), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("Baxter & Lin") && err.contains("--model baxter-lin"),
+        "{err}"
+    );
+    let o = maobi(&[
+        "trace",
+        "--poses",
+        &p,
+        "--model",
+        "baxter-lin",
+        "--brush",
+        "fan",
+        "-o",
+        out.path(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = maobi(&[
+        "render",
+        "--poses",
+        &p,
+        "--model",
+        "baxter-lin",
+        "--param",
+        "mass_g=2",
+        "-o",
+        out.path(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("mass_g") && stderr(&o).contains("length_mm"),
+        "{}",
+        stderr(&o)
+    );
     let o = maobi(&[
         "render",
         "--poses",

@@ -12,7 +12,7 @@ use super::{Spine, SpineParamError, SpineParams, MAX_JOINTS};
 use crate::brush::ink::{self, InkCoefs};
 use crate::brush::Layer;
 use crate::footprint::Geometry;
-use crate::params::BrushParams;
+use crate::params::{BrushParams, ParamId};
 use crate::quat::Pose;
 use crate::vec::Vec3;
 
@@ -120,6 +120,18 @@ impl BaxterLinBrush {
         brush.dip(ink_params.wetness as f64);
         Ok(brush)
     }
+
+    /// The parameters of Liang's presets that [`Self::of_shape`] reads: the round head's
+    /// profile and the ink. The rest are Liang's model's own.
+    pub const PRESET_PARAMS: [ParamId; 7] = [
+        ParamId::LengthMm,
+        ParamId::RadiusMm,
+        ParamId::TipRadiusMm,
+        ParamId::Belly,
+        ParamId::InkCapacity,
+        ParamId::Wetness,
+        ParamId::FootprintEpsMm,
+    ];
 
     /// The round head with the profile of Liang's preset `p` (its length, radius at the
     /// ferrule, tip and belly) and its ink, its spines the paper's ([`SpineParams::DEFAULT`]:

@@ -452,7 +452,10 @@ mod tests {
         }
         let (l, _) = symmetric_eigen(k);
         for x in l {
-            assert!(x >= -1e-12 && x <= k_max * (1.0 + 1e-12), "{l:?} vs {k_max}");
+            assert!(
+                x >= -1e-12 && x <= k_max * (1.0 + 1e-12),
+                "{l:?} vs {k_max}"
+            );
         }
         assert!((m.dropped_asymmetry() - 3.0 * 2f64.sqrt()).abs() < 1e-12);
         // The field is the potential's: F = -grad U, checked by differences.

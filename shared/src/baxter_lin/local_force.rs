@@ -242,9 +242,9 @@ impl LocalForceModel {
     pub fn dropped_asymmetry(&self) -> f64 {
         let d = &self.probed;
         let mut s = 0.0;
-        for i in 0..3 {
-            for j in 0..3 {
-                let a = 0.5 * (d[i][j] - d[j][i]);
+        for (i, row) in d.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                let a = 0.5 * (v - d[j][i]);
                 s += a * a;
             }
         }
@@ -293,8 +293,8 @@ pub fn symmetric_eigen(m: Mat3x3) -> ([f64; 3], Mat3x3) {
                 row[p] = c * x - s * y;
                 row[q] = s * x + c * y;
             }
-            for k in 0..3 {
-                let (x, y) = (a[p][k], a[q][k]);
+            let (row_p, row_q) = (a[p], a[q]);
+            for (k, (x, y)) in row_p.into_iter().zip(row_q).enumerate() {
                 a[p][k] = c * x - s * y;
                 a[q][k] = s * x + c * y;
             }
@@ -349,7 +349,7 @@ impl LocalForceBrush {
     /// `pose` and the model rebuilt there; the force on the handle (N) from the model.
     pub fn tick(&mut self, pose: &Pose<f64>) -> Vec3<f64> {
         self.ticks += 1;
-        if self.ticks % self.params.rebuild_every as u64 == 0 {
+        if self.ticks.is_multiple_of(self.params.rebuild_every as u64) {
             self.brush.tick(pose);
             let motion = pose.pos - self.model.origin();
             self.model = LocalForceModel::build(
@@ -365,7 +365,7 @@ impl LocalForceBrush {
 
     /// Whether the last [`Self::tick`] solved the brush.
     pub fn rebuilt(&self) -> bool {
-        self.ticks % self.params.rebuild_every as u64 == 0
+        self.ticks.is_multiple_of(self.params.rebuild_every as u64)
     }
 
     /// The brush as last solved.
@@ -392,6 +392,8 @@ impl LocalForceBrush {
 }
 
 #[cfg(test)]
+// Matrix entries read clearest by their indices.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::baxter_lin::SpineParams;

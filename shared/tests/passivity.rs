@@ -28,6 +28,9 @@
 //! a clamp renders a *different* (saturated, and for the thermal limit time-varying) field than
 //! the model's, so E computed from the model would no longer describe what the hand felt. The
 //! clamps only ever scale the force down and are tested on their own in `tests/forces.rs`.
+//!
+//! Baxter & Lin's brush through its local force model (`baxter_lin::local_force`) has its
+//! own audit below, under the same hand and window test: `passivity baxter-lin ...` lines.
 
 use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
 use maobi_shared::baxter_lin::head::HeadShape;

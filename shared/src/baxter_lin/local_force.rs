@@ -30,19 +30,32 @@
 //!
 //! Both are the derivative `dF/dp` of the solution map, which is the KKT system's
 //! sensitivity as long as the active set and every contact's stiction state stay as they
-//! were. Over one rebuild interval they do not: a 60 mm/s stroke moves the handle 0.6 mm in
-//! 10 ms, sixty times the distance at which a sticking contact slips
-//! ([`super::SpineParams::slip_mm`]), and a sliding contact's tangential force is
-//! `mu_k F_n`, which does not grow with `dp` however far the handle goes. The exact
-//! linearisation at `p0` (a sticking contact held by the spine's bending stiffness) would
-//! then promise a force the solve never gives. So K is the **secant** of the solver itself:
-//! central differences of warm-started solves of copies of the spines at `p0 +- h e_a`
-//! (six solves a spine, the real spines untouched), with `h` ([`LocalForceParams::probe_mm`])
-//! of the size the handle moves between rebuilds. That includes the compression and the
-//! bending terms, the contacts that lift or land within `h`, and the friction's saturation:
-//! a contact that slides at both probes contributes its friction's change through `F_n`
-//! only. It costs six solves a spine a rebuild, the cheapest honest route (the KKT route
-//! needs the solver's internals and would still miss the stiction switches).
+//! were. Over one rebuild interval they do not: a 30 mm/s stroke moves the handle 0.3 mm in
+//! 10 ms, thirty times the distance at which a sticking contact slips
+//! ([`super::SpineParams::slip_mm`]). A contact pushed from rest first holds, its spine
+//! bending stiffly, then slips within about 0.1 mm and its force falls back to the sliding
+//! friction `mu_k F_n`, which does not grow with `dp` however far the handle goes; and a
+//! reversal turns the friction round, a jump of `2 mu F_n` that no stiffness describes. The
+//! exact linearisation at `p0` (the stuck contact's stiffness) would promise a force the
+//! solve never gives. So K is the **secant** of the solver itself: one-sided differences of
+//! warm-started solves of copies of the spines (the real ones untouched) at `p0` moved along
+//! each axis by the handle's move over the last interval, which it is taken to repeat, at
+//! least [`LocalForceParams::min_probe_mm`]; an axis the handle hardly moved along is probed
+//! both ways and the softer side kept (the stiffer one is mostly the friction's reversal).
+//! That includes the compression and the bending terms, the contacts that land or lift
+//! within the step, and the friction's saturation: a contact that slides contributes its
+//! friction's change through `F_n` only. It costs three to six solves a spine a rebuild, the
+//! cheapest honest route (the KKT route needs the solver's internals and would still miss
+//! the stiction switches).
+//!
+//! What this buys depends on the hair. On elastic spines (no paper or joint friction) the
+//! force is eq. 22's bending and compression and the model follows the full solve at 1 kHz
+//! several times closer than holding `F0` for the interval. With the paper's friction the
+//! force is mostly friction, which holding `F0` already gets right along a slide, and the
+//! solver's stick-slip (a contact slips when one solve moves it past `slip_mm`) makes the
+//! brush solved at 100 Hz feel different from the brush solved at 1 kHz by about half the
+//! RMS force on the example strokes, a difference no model built from the slower brush
+//! removes (the workspace's `tests/baxter_lin_local_force.rs` prints both).
 //!
 //! # Passivity
 //!

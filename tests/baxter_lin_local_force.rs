@@ -15,7 +15,7 @@ use maobi::poses::PoseTrack;
 use maobi::strokes::Character;
 use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
 use maobi_shared::baxter_lin::head::HeadShape;
-use maobi_shared::baxter_lin::local_force::{LocalForceBrush, LocalForceParams};
+use maobi_shared::baxter_lin::local_force::{symmetric_eigen, LocalForceBrush, LocalForceParams};
 use maobi_shared::baxter_lin::{Spine, SpineParams};
 use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::{Pose, Vec3};
@@ -52,6 +52,12 @@ struct Run {
     /// The largest energy the felt force created over a window (mJ): local model, full solve.
     local_active_mj: f64,
     full_active_mj: f64,
+    /// Rebuilds, those whose probed stiffness the budget clamped, the largest eigenvalue
+    /// probed (N/mm) and the largest antisymmetric part dropped (N/mm, Frobenius).
+    rebuilds: usize,
+    clamped: usize,
+    stiffest: f64,
+    max_asymmetry: f64,
 }
 
 /// The running-maximum form of the window audit: feed `W_in - E` per tick, read the largest
@@ -106,6 +112,7 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
     // The hand's work on the brush (mJ = N mm) with the force held over each tick.
     let (mut w_local, mut w_full) = (0.0, 0.0);
     let (mut win_local, mut win_full) = (Window::default(), Window::default());
+    let (mut clamped, mut stiffest, mut max_asymmetry) = (0, 0.0f64, 0.0f64);
     let (mut floor2, mut floor_n, mut m_l2, mut m_h2) = (0.0, 0, 0.0, 0.0);
     let mut last: Option<(Vec3<f64>, Vec3<f64>, Vec3<f64>)> = None;
     for pose in &poses[1..] {
@@ -130,6 +137,16 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
         }
         let (el, eh) = ((felt - exact).norm(), (held - exact).norm());
         if local.rebuilt() {
+            let m = local.model();
+            let d = m.probed();
+            let sym = [0, 1, 2].map(|i| [0, 1, 2].map(|j| -0.5 * (d[i][j] + d[j][i])));
+            let (values, _) = symmetric_eigen(sym);
+            let top = values.into_iter().fold(0.0, f64::max);
+            stiffest = stiffest.max(top);
+            if top > params.max_stiffness_n_per_mm {
+                clamped += 1;
+            }
+            max_asymmetry = max_asymmetry.max(m.dropped_asymmetry());
             floor2 += eh * eh;
             floor_n += 1;
         }
@@ -161,6 +178,10 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
         floor_rms: (floor2 / floor_n as f64).sqrt(),
         step_local_rms: (m_l2 / n).sqrt(),
         step_hold_rms: (m_h2 / n).sqrt(),
+        rebuilds: floor_n,
+        clamped,
+        stiffest,
+        max_asymmetry,
         local_active_mj: win_local.worst,
         full_active_mj: win_full.worst,
     }
@@ -181,7 +202,8 @@ fn print(r: &Run) {
         "local-force stroke={} ticks={} touching={} rms_force_n={:.4} | vs full 1 kHz: \
          local rms {:.4} N ({:.1}%) max {:.4} N ({:.1}%), hold rms {:.4} N ({:.1}%) max {:.4} N \
          ({:.1}%), hold/local {:.2}; floor {:.4} N ({:.1}%) | vs solve from the rebuild: \
-         local {:.4} N, hold {:.4} N, hold/local {:.2} | active mJ: local {:.4}, full {:.4}",
+         local {:.4} N, hold {:.4} N, hold/local {:.2} | active mJ: local {:.4}, full {:.4} | \
+         stiffest probed {:.3} N/mm, clamped {} of {} rebuilds, asymmetry dropped up to {:.3} N/mm",
         r.name,
         r.ticks,
         r.touching,
@@ -202,6 +224,10 @@ fn print(r: &Run) {
         r.step_hold_rms / r.step_local_rms,
         r.local_active_mj,
         r.full_active_mj,
+        r.stiffest,
+        r.clamped,
+        r.rebuilds,
+        r.max_asymmetry,
     );
 }
 

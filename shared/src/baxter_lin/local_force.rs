@@ -378,7 +378,7 @@ impl LocalForceBrush {
 
     /// Whether the last [`Self::tick`] solved the brush.
     pub fn rebuilt(&self) -> bool {
-        self.ticks.is_multiple_of(self.params.rebuild_every as u64)
+        self.ticks > 0 && self.ticks.is_multiple_of(self.params.rebuild_every as u64)
     }
 
     /// The brush as last solved.

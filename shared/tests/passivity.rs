@@ -28,7 +28,14 @@
 //! a clamp renders a *different* (saturated, and for the thermal limit time-varying) field than
 //! the model's, so E computed from the model would no longer describe what the hand felt. The
 //! clamps only ever scale the force down and are tested on their own in `tests/forces.rs`.
+//!
+//! Baxter & Lin's brush through its local force model (`baxter_lin::local_force`) has its
+//! own audit below, under the same hand and window test: `passivity baxter-lin ...` lines.
 
+use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
+use maobi_shared::baxter_lin::head::HeadShape;
+use maobi_shared::baxter_lin::local_force::{LocalForceBrush, LocalForceParams};
+use maobi_shared::baxter_lin::{Spine, SpineParams};
 use maobi_shared::force::{DeviceLimits, DEFAULT_FORCES, PHANTOM_OMNI};
 use maobi_shared::force_loop::{stored_energy, ForceLoop, Gate, TickIn};
 use maobi_shared::guide::DEFAULT_GUIDE;
@@ -84,7 +91,7 @@ fn run(params: BrushParams, tilt_deg: u32, seed: u64, ticks: usize) -> Audit {
         },
         start,
     );
-    // From above the brush to 40% of its length into the paper (and a little into the paper
+    // From above the brush to 70% of its length into the paper.(and a little into the paper
     // with the ferrule itself, where the god-object takes over).
     let mut script = Script::new(seed, start, (-3.0, reach + 8.0));
     script.xy_range = 30.0;
@@ -184,6 +191,152 @@ fn the_force_path_is_passive_for_every_preset_and_tilt() {
         assert!(
             a.worst_violation <= TOLERANCE_J,
             "{what}: the device created {} J over a window (tolerance {TOLERANCE_J} J)",
+            a.worst_violation
+        );
+    }
+}
+
+/// Baxter & Lin's round brush rendered through its local force model
+/// ([`LocalForceBrush`]: solved at 100 Hz, the model at every 1 kHz tick, its stiffness
+/// clamped to the Phantom's Colgate-Brown budget) under the same simulated hand and the same
+/// window audit; beside it, for scale, the full solve at every tick. E counts the stylus's
+/// kinetic energy, the spines' springs as last solved and the model's spring since
+/// ([`LocalForceBrush::stored_energy`]). The force goes to the hand as the model gives it (no
+/// output stage: the audit is of the model).
+fn run_local_force(seed: u64, ticks: usize, local: bool, spine: SpineParams) -> Audit {
+    let tilt = 20f64.to_radians();
+    let head = HeadShape::Round.head();
+    let reach = head.length_mm() * tilt.cos();
+    let h = tilt / 2.0;
+    let rot = Quat::new(h.cos(), 0.0, h.sin(), 0.0);
+    let start = [0.0, 0.0, reach + 5.0];
+    let pose = |p: [f64; 3]| Pose::new(Vec3::from_f64(p), rot);
+    let ink = InkParams {
+        capacity: 0.4,
+        wetness: 0.6,
+        footprint_eps_mm: 0.1,
+    };
+    let brush = BaxterLinBrush::new(head, spine, ink, pose(start)).unwrap();
+    let mut full = brush.clone();
+    let mut model = LocalForceBrush::new(
+        brush,
+        &pose(start),
+        LocalForceParams::for_device(&PHANTOM_OMNI),
+    );
+    let mut hand = SimHand::new(
+        HandParams {
+            device_damping: PHANTOM_OMNI.damping_ns_per_m as f64,
+            ..HandParams::WRITER
+        },
+        start,
+    );
+    // From above the brush to 70% of its length into the paper.
+    let mut script = Script::new(seed, start, (reach - 0.7 * head.length_mm(), reach + 8.0));
+    script.xy_range = 30.0;
+    let mut cmd = Vec3::ZERO;
+    let (mut best, mut best_at) = (f64::MIN, 0);
+    let mut audit = Audit {
+        worst_violation: 0.0,
+        worst_window: (0, 0),
+        peak_force: 0.0,
+        peak_friction: 0.0,
+        touching_ticks: 0,
+    };
+    for k in 0..ticks {
+        let (target, push) = script.tick();
+        hand.tick_with_push(target, cmd.to_f64(), push);
+        let p = hand.stylus();
+        let springs = if local {
+            cmd = model.tick(&pose(p));
+            model.stored_energy(Vec3::from_f64(p))
+        } else {
+            full.tick(&pose(p));
+            cmd = full.handle_force();
+            full.spines().iter().map(Spine::spring_energy).sum()
+        };
+        let brush = if local { model.brush() } else { &full };
+        if brush
+            .spines()
+            .iter()
+            .any(|s| (1..=s.joints()).any(|i| s.in_contact(i)))
+        {
+            audit.touching_ticks += 1;
+        }
+        audit.peak_force = audit.peak_force.max(cmd.norm());
+        audit.peak_friction = audit.peak_friction.max(cmd.xy().norm());
+        // Spring energies in N mm = mJ.
+        let stored = hand.stylus_kinetic_energy() + springs * 1e-3;
+        let phi = hand.energy_in() - stored;
+        if phi > best {
+            (best, best_at) = (phi, k);
+        }
+        if best - phi > audit.worst_violation {
+            audit.worst_violation = best - phi;
+            audit.worst_window = (best_at, k);
+        }
+    }
+    audit
+}
+
+/// Largest energy the Baxter & Lin audit lets the model create over any window (J): ten times
+/// what it measures, a fortieth of the Liang force path's `TOLERANCE_J` (its brush is soft, a
+/// few tenths of a newton pressed, and the audit sees no output stage's step limit).
+const LOCAL_FORCE_TOLERANCE_J: f64 = 5e-5;
+
+#[test]
+fn the_local_force_model_of_baxter_lin_is_passive_under_the_simulated_hand() {
+    const LOCAL_TICKS: usize = 30_000;
+    // Also spines without friction, where the model's stiffness carries all the force.
+    let elastic = SpineParams {
+        friction_static: 0.0,
+        friction_kinetic: 0.0,
+        joint_friction: 0.0,
+        ..SpineParams::DEFAULT
+    };
+    let runs: Vec<_> = [
+        (true, "local", SpineParams::DEFAULT),
+        (false, "full", SpineParams::DEFAULT),
+        (true, "local-elastic", elastic),
+        (false, "full-elastic", elastic),
+    ]
+    .into_iter()
+    .map(|(local, name, spine)| {
+        (
+            name,
+            std::thread::spawn(move || run_local_force(7, LOCAL_TICKS, local, spine)),
+        )
+    })
+    .collect();
+    let audits: Vec<_> = runs
+        .into_iter()
+        .map(|(name, run)| (name, run.join().expect("audit thread")))
+        .collect();
+    for (name, a) in &audits {
+        println!(
+            "passivity baxter-lin {name} max_window_mj={:.4} (touching {} of {LOCAL_TICKS} ticks, \
+             peak force {:.2} N, peak tangential {:.2} N, window ticks {} to {})",
+            a.worst_violation * 1e3,
+            a.touching_ticks,
+            a.peak_force,
+            a.peak_friction,
+            a.worst_window.0,
+            a.worst_window.1
+        );
+    }
+    for (name, a) in audits {
+        assert!(
+            a.touching_ticks > LOCAL_TICKS / 10,
+            "{name}: hardly touched"
+        );
+        // The round head's 40 mm of soft hair: a few tenths of a newton pressed.
+        assert!(
+            a.peak_force > 0.15,
+            "{name}: forces too small to test anything"
+        );
+        assert!(
+            a.worst_violation <= LOCAL_FORCE_TOLERANCE_J,
+            "{name}: the model created {} J over a window (tolerance \
+             {LOCAL_FORCE_TOLERANCE_J} J)",
             a.worst_violation
         );
     }

@@ -6,6 +6,8 @@
 //! * [`skin`]: the surface over the spines as layer rings, and the hair strips between them.
 //! * [`Spine`]: one spine and its solver, below.
 //! * [`brush`]: the brush as a whole: a head's spines, their surface, their ink.
+//! * [`local_force`]: the local force model (eqs. 21-22): the hand's force at 1 kHz from the
+//!   brush solved at a lower rate.
 //!
 //! A spine is a chain of J joints hanging from a root on the ferrule. It has no mass: each
 //! [`Spine::solve`] carries it rigidly with the new handle pose (§3.1 steps 1-2, the angles
@@ -103,10 +105,11 @@
 //! and the load put on it, so that force is their sum and the torque about the root their
 //! moment, whose components about the root joint's axes are that joint's spring and
 //! friction torques (`tests/baxter_lin.rs` checks this). The local force model of eqs. 21-22
-//! is built from these by a later step.
+//! ([`local_force`]) is built from these.
 
 pub mod brush;
 pub mod head;
+pub mod local_force;
 pub mod skin;
 
 mod chain;

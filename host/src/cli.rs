@@ -382,22 +382,18 @@ impl BrushArgs {
     }
 
     /// [`Self::params`] for Baxter & Lin's brush, which reads only the preset's head profile
-    /// and ink ([`BaxterLinBrush::PRESET_PARAMS`]): any other `--param` is refused rather
-    /// than ignored.
+    /// (round heads) and ink ([`BaxterLinBrush::preset_params`]): any other `--param` is
+    /// refused rather than ignored.
     pub fn baxter_lin_params(&self) -> anyhow::Result<BrushParams> {
-        if let Some(s) = self
-            .params
-            .iter()
-            .find(|s| !BaxterLinBrush::PRESET_PARAMS.contains(&s.id))
-        {
-            let reads: Vec<&str> = BaxterLinBrush::PRESET_PARAMS
-                .iter()
-                .map(|id| id.name())
-                .collect();
+        let shape = self.brush.shape.unwrap_or(HeadShape::Round);
+        let reads = BaxterLinBrush::preset_params(shape);
+        if let Some(s) = self.params.iter().find(|s| !reads.contains(&s.id)) {
+            let names: Vec<&str> = reads.iter().map(|id| id.name()).collect();
             bail!(
-                "--param {s}: Baxter & Lin's brush does not have it (of the parameters it \
+                "--param {s}: Baxter & Lin's {} brush does not have it (of the parameters it \
                  reads only {})",
-                reads.join(", ")
+                shape.name(),
+                names.join(", ")
             );
         }
         self.params()

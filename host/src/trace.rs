@@ -157,7 +157,7 @@ impl<W: Write> TraceWriter<W> {
 /// spine's joints `p{k}_{i}_x,p{k}_{i}_y,p{k}_{i}_z` (spine k, joint i = 0..J, joint 0 the
 /// root on the ferrule, J the tip; mm), `contacts` (joints on the paper, every spine),
 /// `fx,fy,fz` (the force the spines put on the handle: the paper's push on the hair as the
-/// hand feels it, N) and `fr{k}_x,fr{k}_y` (the paper's friction on spine k, summed over its
+/// hand feels it, N; zero in free air, where Liang's trace has the brush's weight) and `fr{k}_x,fr{k}_y` (the paper's friction on spine k, summed over its
 /// joints on the paper, N).
 pub struct BaxterLinTraceWriter<W: Write> {
     out: csv::Writer<W>,

@@ -32,6 +32,8 @@ trait Model {
     fn press_force(&self) -> f64;
     /// The footprint's extent along x and along y (mm).
     fn footprint(&self) -> (f64, f64);
+    /// Ink the brush holds (ink units).
+    fn ink(&self) -> f64;
 }
 
 fn extent(points: impl Iterator<Item = (f64, f64)>) -> (f64, f64) {
@@ -75,6 +77,9 @@ impl Model for Liang {
         });
         extent(pts.into_iter())
     }
+    fn ink(&self) -> f64 {
+        self.0.ink_load()
+    }
 }
 
 struct BaxterLin(BaxterLinBrush);
@@ -99,6 +104,9 @@ impl Model for BaxterLin {
             .geometry()
             .for_each_polygon(|_, poly| pts.extend(poly.iter().map(|p| (p.x, p.y))));
         extent(pts.into_iter())
+    }
+    fn ink(&self) -> f64 {
+        self.0.ink_load()
     }
 }
 
@@ -174,10 +182,12 @@ fn press(make: &dyn Fn(Pose<f64>) -> Box<dyn Model>) -> (Box<dyn Model>, f64, (f
 }
 
 /// After the press, 60 mm along +x at `speed` mm/s: the footprint's width across the
-/// travel and the press force, means over the last 10 mm.
-fn stroke(make: &dyn Fn(Pose<f64>) -> Box<dyn Model>, speed: f64) -> (f64, f64) {
+/// travel and the press force, means over the last 10 mm, and the share of its ink the
+/// brush still holds.
+fn stroke(make: &dyn Fn(Pose<f64>) -> Box<dyn Model>, speed: f64) -> (f64, f64, f64) {
     let reach = LENGTH * TILT.to_radians().cos();
     let (mut b, _, _) = press(make);
+    let dipped = b.ink();
     let ticks = (60.0 / speed * 1000.0) as usize;
     let tail = (10.0 / speed * 1000.0) as usize;
     let (mut width, mut force) = (0.0, 0.0);
@@ -188,7 +198,7 @@ fn stroke(make: &dyn Fn(Pose<f64>) -> Box<dyn Model>, speed: f64) -> (f64, f64) 
             force += b.press_force();
         }
     }
-    (width / tail as f64, force / tail as f64)
+    (width / tail as f64, force / tail as f64, b.ink() / dipped)
 }
 
 #[test]
@@ -200,18 +210,26 @@ fn the_two_models_side_by_side() {
     ];
     println!(
         "| model | bend 1 N | 1.5 N | 2 N | press {PRESS} mm at {TILT} deg: force, footprint \
-         x by y | 20 mm/s: width, force | 100 mm/s: width, force |"
+         x by y | 20 mm/s: width, force, ink left | 100 mm/s: width, force, ink left |"
     );
     println!("|---|---|---|---|---|---|---|");
     for (name, make) in &models {
         let bends = [1.0, 1.5, 2.0].map(|f| bend(make.as_ref(), f));
         let (_, f, (fx, fy)) = press(make.as_ref());
-        let (w_slow, f_slow) = stroke(make.as_ref(), 20.0);
-        let (w_fast, f_fast) = stroke(make.as_ref(), 100.0);
+        let (w_slow, f_slow, ink_slow) = stroke(make.as_ref(), 20.0);
+        let (w_fast, f_fast, ink_fast) = stroke(make.as_ref(), 100.0);
         println!(
             "| {name} | {:.0} deg | {:.0} deg | {:.0} deg | {f:.2} N, {fx:.1} x {fy:.1} mm | \
-             {w_slow:.1} mm, {f_slow:.2} N | {w_fast:.1} mm, {f_fast:.2} N |",
-            bends[0], bends[1], bends[2]
+             {w_slow:.1} mm, {f_slow:.2} N, {:.0}% | {w_fast:.1} mm, {f_fast:.2} N, {:.0}% |",
+            bends[0],
+            bends[1],
+            bends[2],
+            ink_slow * 100.0,
+            ink_fast * 100.0
+        );
+        assert!(
+            ink_slow < ink_fast && ink_fast < 1.0,
+            "{name}: ink left {ink_slow} / {ink_fast}"
         );
         // The calibration both models share (issue #24, item 4).
         for (f, a) in [1.0, 1.5, 2.0].iter().zip(bends) {

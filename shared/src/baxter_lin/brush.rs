@@ -121,17 +121,24 @@ impl BaxterLinBrush {
         Ok(brush)
     }
 
-    /// The parameters of Liang's presets that [`Self::of_shape`] reads: the round head's
-    /// profile and the ink. The rest are Liang's model's own.
-    pub const PRESET_PARAMS: [ParamId; 7] = [
-        ParamId::LengthMm,
-        ParamId::RadiusMm,
-        ParamId::TipRadiusMm,
-        ParamId::Belly,
-        ParamId::InkCapacity,
-        ParamId::Wetness,
-        ParamId::FootprintEpsMm,
-    ];
+    /// The parameters of Liang's presets that [`Self::of_shape`] reads for a head of
+    /// `shape`: the round head's profile and the ink; for the other shapes (their catalogue
+    /// size) the ink only. The rest are Liang's model's own.
+    pub fn preset_params(shape: HeadShape) -> &'static [ParamId] {
+        const ALL: [ParamId; 7] = [
+            ParamId::InkCapacity,
+            ParamId::Wetness,
+            ParamId::FootprintEpsMm,
+            ParamId::LengthMm,
+            ParamId::RadiusMm,
+            ParamId::TipRadiusMm,
+            ParamId::Belly,
+        ];
+        match shape {
+            HeadShape::Round => &ALL,
+            _ => &ALL[..3],
+        }
+    }
 
     /// The round head with the profile of Liang's preset `p` (its length, radius at the
     /// ferrule, tip and belly) and its ink, its spines the paper's ([`SpineParams::DEFAULT`]:

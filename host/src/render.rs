@@ -491,6 +491,63 @@ fn centroid(poly: &[[f64; 2]]) -> [f64; 2] {
 /// Most paper steps a render waits, after the last tick, for raw paper to dry.
 pub const MAX_DRYING_STEPS: usize = 100_000;
 
+/// The paper side of a render, whichever brush model inks it: the canvas, the inker, and
+/// the time each takes.
+struct PaperRun {
+    frame: Frame,
+    canvas: Canvas,
+    inker: Inker,
+    stamps: usize,
+    ticks: usize,
+    stamp_time: Duration,
+    paper_time: Duration,
+}
+
+impl PaperRun {
+    fn new(frame: Frame, paper: PaperSpec, bands: usize) -> PaperRun {
+        PaperRun {
+            frame,
+            canvas: Canvas::with_paper(frame.width, frame.height, paper),
+            inker: Inker::new(frame, bands),
+            stamps: 0,
+            ticks: 0,
+            stamp_time: Duration::ZERO,
+            paper_time: Duration::ZERO,
+        }
+    }
+
+    /// One tick: the brush's surface inked onto the canvas, then the paper's step.
+    fn tick<S: Scalar>(&mut self, geometry: &Geometry<'_, S>) {
+        let started = Instant::now();
+        if self.inker.stamp_geometry(geometry, &mut self.canvas) {
+            self.stamps += 1;
+        }
+        let stamped = Instant::now();
+        self.stamp_time += stamped - started;
+        self.canvas.tick();
+        self.paper_time += stamped.elapsed();
+        self.ticks += 1;
+    }
+
+    /// The paper left to dry after the last tick, and the render's figures.
+    fn finish(mut self) -> (Canvas, RenderStats) {
+        let started = Instant::now();
+        let drying_steps = self.canvas.dry(MAX_DRYING_STEPS);
+        self.paper_time += started.elapsed();
+        let stats = RenderStats {
+            ticks: self.ticks,
+            stamps: self.stamps,
+            width: self.frame.width,
+            height: self.frame.height,
+            ink_fraction: self.canvas.ink_fraction(),
+            stamp_seconds: self.stamp_time.as_secs_f64(),
+            paper_seconds: self.paper_time.as_secs_f64(),
+            drying_steps,
+        };
+        (self.canvas, stats)
+    }
+}
+
 /// Simulates `track` in scalar type `S` and inks every tick onto new paper of `paper`; the
 /// paper takes its step every [`crate::paper::TICKS_PER_STEP`] ticks, as in the app, and
 /// after the last tick it is left to dry.
@@ -500,36 +557,13 @@ pub fn render<S: maobi_shared::BrushScalar>(
     frame: Frame,
     paper: PaperSpec,
 ) -> anyhow::Result<(Canvas, RenderStats)> {
-    let mut canvas = Canvas::with_paper(frame.width, frame.height, paper);
-    let mut inker = Inker::new(frame, params.layers as usize - 1);
-    let mut stamps = 0;
-    let mut stamp_time = Duration::ZERO;
-    let mut paper_time = Duration::ZERO;
+    let mut run = PaperRun::new(frame, paper, params.layers as usize - 1);
     let ticks = simulate::<S>(params, track, |tick| {
-        let started = Instant::now();
-        if inker.stamp(tick.brush, &mut canvas) {
-            stamps += 1;
-        }
-        let stamped = Instant::now();
-        stamp_time += stamped - started;
-        canvas.tick();
-        paper_time += stamped.elapsed();
+        run.tick(&Geometry::of(tick.brush));
         Ok(())
     })?;
-    let started = Instant::now();
-    let drying_steps = canvas.dry(MAX_DRYING_STEPS);
-    paper_time += started.elapsed();
-    let stats = RenderStats {
-        ticks,
-        stamps,
-        width: frame.width,
-        height: frame.height,
-        ink_fraction: canvas.ink_fraction(),
-        stamp_seconds: stamp_time.as_secs_f64(),
-        paper_seconds: paper_time.as_secs_f64(),
-        drying_steps,
-    };
-    Ok((canvas, stats))
+    debug_assert_eq!(ticks, run.ticks);
+    Ok(run.finish())
 }
 
 /// [`render`] with Baxter & Lin's brush (`maobi_shared::baxter_lin`, `f64`), built by
@@ -541,42 +575,16 @@ pub fn render_baxter_lin(
     frame: Frame,
     paper: PaperSpec,
 ) -> anyhow::Result<(Canvas, RenderStats)> {
-    let mut canvas = Canvas::with_paper(frame.width, frame.height, paper);
-    let mut inker = Inker::new(frame, baxter_lin::brush::LEVELS - 1);
+    let mut run = PaperRun::new(frame, paper, baxter_lin::brush::LEVELS - 1);
     let mut poses = track.resample();
     let first = poses.next().context("the pose track is empty")?;
     let mut brush = make(first).map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
-    let (mut stamps, mut ticks) = (0, 0);
-    let mut stamp_time = Duration::ZERO;
-    let mut paper_time = Duration::ZERO;
-    for (k, pose) in std::iter::once(first).chain(poses).enumerate() {
-        if k > 0 {
-            brush.tick(&pose);
-        }
-        let started = Instant::now();
-        if inker.stamp_geometry(&brush.geometry(), &mut canvas) {
-            stamps += 1;
-        }
-        let stamped = Instant::now();
-        stamp_time += stamped - started;
-        canvas.tick();
-        paper_time += stamped.elapsed();
-        ticks += 1;
+    run.tick(&brush.geometry());
+    for pose in poses {
+        brush.tick(&pose);
+        run.tick(&brush.geometry());
     }
-    let started = Instant::now();
-    let drying_steps = canvas.dry(MAX_DRYING_STEPS);
-    paper_time += started.elapsed();
-    let stats = RenderStats {
-        ticks,
-        stamps,
-        width: frame.width,
-        height: frame.height,
-        ink_fraction: canvas.ink_fraction(),
-        stamp_seconds: stamp_time.as_secs_f64(),
-        paper_seconds: paper_time.as_secs_f64(),
-        drying_steps,
-    };
-    Ok((canvas, stats))
+    Ok(run.finish())
 }
 
 /// Encodes the canvas as an 8-bit greyscale PNG (black = ink). The bytes depend only on the

@@ -168,15 +168,15 @@ impl BaxterLinBrush {
         BaxterLinBrush::new(head, SpineParams::DEFAULT, InkParams::of_preset(p), pose)
     }
 
-    /// How far from the ferrule's centre the head can reach (mm): its longest spine from
-    /// its farthest root, however the spines splay.
+    /// How far from the ferrule's centre the head's hair can reach (mm): its longest spine
+    /// from its farthest root, and that spine's bundle around it, however the spines splay.
     pub fn reach_mm(&self) -> f64 {
         self.head.length_mm()
             + self
                 .head
                 .spines()
                 .iter()
-                .map(|s| s.position.norm())
+                .map(|s| s.position.norm() + s.bundle.root_mm.max(s.bundle.tip_mm))
                 .fold(0.0, f64::max)
     }
 

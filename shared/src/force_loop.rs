@@ -60,6 +60,16 @@ impl Gate {
             faulted: !faults.is_empty(),
         }
     }
+
+    /// This gate once the tick has raised `raised`: a fault raised now counts this tick, as
+    /// one latched before it would.
+    #[inline(always)]
+    pub fn with_raised(self, raised: Faults) -> Gate {
+        Gate {
+            allowed: self.allowed && raised.is_empty(),
+            faulted: self.faulted || !raised.is_empty(),
+        }
+    }
 }
 
 /// One tick's input.
@@ -206,13 +216,137 @@ impl<S: Scalar> HandGuide<S> {
     }
 }
 
+/// What a tick does after the brush's force, whichever brush model made it: the guide's
+/// pull added to it, the gate, and the output stage that turns the wanted force into the
+/// command. Liang's [`ForceLoop`] and Baxter & Lin's loop
+/// ([`crate::baxter_lin::force_loop`]) both end their ticks here.
+#[derive(Clone, Debug)]
+pub struct HandStage<S> {
+    out: OutputStage<S>,
+    guide: HandGuide<S>,
+}
+
+/// What [`HandStage::tick_with`] made of a brush's force.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct StageOut<S> {
+    /// The output stage's command: the force on the hand (N, paper frame).
+    pub command: Vec3<S>,
+    /// The brush's force plus the guide's, before the output stage (N).
+    pub wanted: Vec3<S>,
+    /// The guide's force, distance and source energy this tick (zero while it is idle).
+    pub guide: GuideForce<S>,
+}
+
+impl<S: Scalar> HandStage<S> {
+    /// The output stage for `limits` (disabled until a tick's gate opens) and the guide
+    /// `guide`.
+    #[inline(always)]
+    pub fn new(limits: DeviceLimits, guide: GuideParams) -> Result<Self, LimitError> {
+        Ok(HandStage {
+            out: OutputStage::new(limits)?,
+            guide: HandGuide::new(guide)?,
+        })
+    }
+
+    #[inline]
+    pub fn output(&self) -> &OutputStage<S> {
+        &self.out
+    }
+
+    #[inline]
+    pub fn guide(&self) -> &HandGuide<S> {
+        &self.guide
+    }
+
+    /// The guide starts afresh ([`HandGuide::restart`]).
+    #[inline]
+    pub fn restart_guide(&mut self) {
+        self.guide.restart();
+    }
+
+    /// Puts a device's force limits in force. The output stage starts over disabled, so
+    /// forces ramp in again from zero. Invalid limits are refused and the old ones kept.
+    #[inline]
+    pub fn set_limits(&mut self, limits: DeviceLimits) -> Result<(), LimitError> {
+        if *self.out.limits() != limits {
+            self.out = OutputStage::new(limits)?;
+        }
+        Ok(())
+    }
+
+    /// What the output stage is doing under a device's switch `enabled` with `faults`
+    /// latched (the gate the next tick gets): faulted, disabled, ramping in or active.
+    #[inline]
+    pub fn output_state(&self, enabled: bool, faults: Faults) -> OutputState {
+        if !faults.is_empty() {
+            OutputState::Faulted
+        } else if !enabled {
+            OutputState::Disabled
+        } else if self.out.state() == OutputState::Active {
+            OutputState::Active
+        } else {
+            OutputState::RampingIn
+        }
+    }
+
+    /// The brush's `force` with the hand at `hand` (`fresh`: a new pose came this tick):
+    /// the guide's tick (through `guide_tick`, see [`TickParts`]) on `sample`, its pull
+    /// added unless `gate` is faulted, and the output stage driving if `gate` allows.
+    #[inline(always)]
+    pub fn tick_with(
+        &mut self,
+        force: Vec3<S>,
+        sample: Option<GuideInput<S>>,
+        hand: Vec3<S>,
+        fresh: bool,
+        gate: Gate,
+        guide_tick: GuideTick<S>,
+    ) -> StageOut<S> {
+        let (step, guide) = guide_tick(&mut self.guide, sample, hand, fresh, gate.faulted);
+        let wanted = if gate.faulted {
+            force
+        } else {
+            force + guide.force
+        };
+        if gate.allowed {
+            if self.out.faulted() {
+                self.out.clear_fault();
+            }
+            self.out.enable();
+        } else {
+            self.out.fault();
+        }
+        let command = self.out.apply_with_source(wanted, step, guide.source_mj);
+        StageOut {
+            command,
+            wanted,
+            guide,
+        }
+    }
+
+    /// The energy the guide's spring stores with the hand at `hand` (J).
+    pub fn guide_energy(&self, hand: Vec3<S>) -> f64 {
+        let stream = self.guide.stream();
+        match stream.anchor() {
+            Some(a) => stream.guide().stored_energy(a, hand),
+            None => 0.0,
+        }
+    }
+}
+
+/// Whether a pose at `pos` after one at `last` is a sensor fault: further apart than
+/// `limit2`, the square of [`SENSOR_JUMP_MM`] in the caller's scalar.
+#[inline(always)]
+pub fn jumped<S: Scalar>(last: Vec3<S>, pos: Vec3<S>, limit2: S) -> bool {
+    (pos - last).norm2() > limit2
+}
+
 /// The force loop's state: the brush, the force model, the guide and the output stage.
 #[derive(Clone, Debug)]
 pub struct ForceLoop<S: Scalar> {
     brush: Brush<S>,
     model: ForceModel<S>,
-    out: OutputStage<S>,
-    guide: HandGuide<S>,
+    stage: HandStage<S>,
     last_pose: Option<Pose<S>>,
     /// The next pose places the brush at rest rather than dragging it there.
     reanchor: bool,
@@ -263,13 +397,11 @@ impl<S: BrushScalar> ForceLoop<S> {
         guide: GuideParams,
     ) -> Result<Self, LoopError> {
         let model = ForceModel::new(forces)?;
-        let out = OutputStage::new(limits)?;
-        let guide = HandGuide::new(guide)?;
+        let stage = HandStage::new(limits, guide)?;
         Ok(ForceLoop {
             brush: Brush::unplaced(params, pose)?,
             model,
-            out,
-            guide,
+            stage,
             last_pose: None,
             reanchor: false,
             brush_ticks: 0,
@@ -291,11 +423,11 @@ impl<S: BrushScalar> ForceLoop<S> {
     }
 
     pub fn output(&self) -> &OutputStage<S> {
-        &self.out
+        self.stage.output()
     }
 
     pub fn guide(&self) -> &GuideStream<S> {
-        self.guide.stream()
+        self.stage.guide().stream()
     }
 
     /// Brush ticks (poses consumed) since the brush was last put at rest.
@@ -328,7 +460,7 @@ impl<S: BrushScalar> ForceLoop<S> {
     /// no step for the next hand position.
     pub fn restart_forces(&mut self) {
         self.model.reset();
-        self.guide.restart();
+        self.stage.restart_guide();
     }
 
     /// The brush at rest at `pose`, the forces afresh, the tick count from zero.
@@ -350,24 +482,13 @@ impl<S: BrushScalar> ForceLoop<S> {
     /// Puts a device's force limits in force. The output stage starts over disabled, so
     /// forces ramp in again from zero. Invalid limits are refused and the old ones kept.
     pub fn set_limits(&mut self, limits: DeviceLimits) -> Result<(), LimitError> {
-        if *self.out.limits() != limits {
-            self.out = OutputStage::new(limits)?;
-        }
-        Ok(())
+        self.stage.set_limits(limits)
     }
 
     /// What the output stage is doing under a device's switch `enabled` with `faults`
     /// latched (the gate the next tick gets): faulted, disabled, ramping in or active.
     pub fn output_state(&self, enabled: bool, faults: Faults) -> OutputState {
-        if !faults.is_empty() {
-            OutputState::Faulted
-        } else if !enabled {
-            OutputState::Disabled
-        } else if self.out.state() == OutputState::Active {
-            OutputState::Active
-        } else {
-            OutputState::RampingIn
-        }
+        self.stage.output_state(enabled, faults)
     }
 
     /// One tick (see the module docs).
@@ -389,7 +510,7 @@ impl<S: BrushScalar> ForceLoop<S> {
             }
             Some(pose) => {
                 if let Some(prev) = self.last_pose {
-                    if (pose.pos - prev.pos).norm2() > self.jump2 {
+                    if jumped(prev.pos, pose.pos, self.jump2) {
                         raised |= Faults::SENSOR_JUMP;
                     }
                 }
@@ -400,34 +521,20 @@ impl<S: BrushScalar> ForceLoop<S> {
             }
             None => false,
         };
-        // A fault raised now counts this tick, as one latched before it would.
-        let faulted = input.gate.faulted || !raised.is_empty();
-        let allowed = input.gate.allowed && raised.is_empty();
+        let gate = input.gate.with_raised(raised);
         let hand = match self.last_pose {
             Some(p) => p.pos,
             None => Vec3::ZERO,
         };
         let forces = self.model.tick(&self.brush, hand);
-        let (step, guide) = (parts.guide)(&mut self.guide, input.guide, hand, fresh, faulted);
-        let wanted = if faulted {
-            forces.total
-        } else {
-            forces.total + guide.force
-        };
-        if allowed {
-            if self.out.faulted() {
-                self.out.clear_fault();
-            }
-            self.out.enable();
-        } else {
-            self.out.fault();
-        }
-        let command = self.out.apply_with_source(wanted, step, guide.source_mj);
+        let out = self
+            .stage
+            .tick_with(forces.total, input.guide, hand, fresh, gate, parts.guide);
         TickOut {
-            command,
+            command: out.command,
             forces,
-            wanted,
-            guide,
+            wanted: out.wanted,
+            guide: out.guide,
             faults: raised,
         }
     }
@@ -440,12 +547,7 @@ impl<S: BrushScalar> ForceLoop<S> {
             Some(p) => p.pos,
             None => Vec3::ZERO,
         };
-        let stream = self.guide.stream();
-        let guide = match stream.anchor() {
-            Some(a) => stream.guide().stored_energy(a, hand),
-            None => 0.0,
-        };
-        stored_energy(&self.brush, &self.model, hand) + guide
+        stored_energy(&self.brush, &self.model, hand) + self.stage.guide_energy(hand)
     }
 }
 

@@ -386,6 +386,12 @@ impl LocalForceBrush {
         &self.brush
     }
 
+    /// Fills every ring to `load` of what it holds ([`BaxterLinBrush::dip`]); the hair's
+    /// shape, and so the model, does not change.
+    pub fn dip(&mut self, load: f64) {
+        self.brush.dip(load);
+    }
+
     /// The current model.
     pub fn model(&self) -> &LocalForceModel {
         &self.model

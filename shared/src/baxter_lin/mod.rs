@@ -8,6 +8,8 @@
 //! * [`brush`]: the brush as a whole: a head's spines, their surface, their ink.
 //! * [`local_force`]: the local force model (eqs. 21-22): the hand's force at 1 kHz from the
 //!   brush solved at a lower rate.
+//! * [`force_loop`]: that brush in a device's 1 kHz loop, ending in the guide, gate and
+//!   output stage Liang's loop ends in.
 //!
 //! A spine is a chain of J joints hanging from a root on the ferrule. It has no mass: each
 //! [`Spine::solve`] carries it rigidly with the new handle pose (§3.1 steps 1-2, the angles
@@ -108,6 +110,7 @@
 //! ([`local_force`]) is built from these.
 
 pub mod brush;
+pub mod force_loop;
 pub mod head;
 pub mod local_force;
 pub mod skin;

@@ -10,6 +10,7 @@ use maobi_shared::baxter_lin::brush::BaxterLinBrush;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
 
+use crate::device::{BrushChoice, ModelKind};
 use crate::offline::{simulate, ScalarKind};
 use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
@@ -261,13 +262,19 @@ pub struct GuiArgs {
     #[arg(
         long,
         value_name = "NAME",
-        value_parser = parse_preset,
+        value_parser = parse_brush,
         help = format!(
-            "Brush preset: {} (default: the one used last, else `large`)",
+            "Brush preset: {}; with --model baxter-lin also flat, filbert, fan (default: the \
+             one used last, else `large`)",
             presets::NAMES
         )
     )]
     pub brush: Option<BrushChoice>,
+    /// The brush model the built-in simulator runs: `liang` (the pen's) or `baxter-lin`
+    /// (Baxter & Lin's spines, with the local force model for the hand); the app's model
+    /// choice changes it (default: the one used last, else `liang`).
+    #[arg(long, value_enum)]
+    pub model: Option<ModelKind>,
     /// The paper at start: `sized` (熟宣) or `raw` (生宣); the app's paper choice changes it.
     #[arg(long, value_name = "NAME", value_parser = parse_paper, default_value = "sized")]
     pub paper: PaperKind,
@@ -294,53 +301,8 @@ pub struct GuiArgs {
     pub pressure_threshold: Option<f32>,
 }
 
-/// A brush chosen on the command line: a preset, or one of Baxter & Lin's head shapes.
-#[derive(Clone, Debug)]
-pub struct BrushChoice {
-    pub name: String,
-    /// The preset's parameters; for a Baxter & Lin shape, the `large` preset's (its ink and
-    /// footprint threshold).
-    pub params: BrushParams,
-    /// A Baxter & Lin head shape other than round (`flat`, `filbert`, `fan`): only
-    /// `--model baxter-lin` has them.
-    pub shape: Option<HeadShape>,
-}
-
 fn parse_brush(name: &str) -> Result<BrushChoice, String> {
-    if let Ok(choice) = parse_preset(name) {
-        return Ok(choice);
-    }
-    match HeadShape::from_name(name) {
-        Ok(shape) if shape != HeadShape::Round => Ok(BrushChoice {
-            name: name.to_string(),
-            params: presets::LARGE,
-            shape: Some(shape),
-        }),
-        _ => Err(format!(
-            "{}; with --model baxter-lin also flat, filbert, fan",
-            presets::UnknownPreset(name)
-        )),
-    }
-}
-
-/// A preset (the app's `--brush`: the app runs Liang's brush).
-fn parse_preset(name: &str) -> Result<BrushChoice, String> {
-    presets::find(name)
-        .map(|params| BrushChoice {
-            name: name.to_string(),
-            params,
-            shape: None,
-        })
-        .map_err(|e| e.to_string())
-}
-
-/// The brush model `--model` names.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum ModelKind {
-    /// Liang's mass-spring spine, skeleton and surface: the pen's model.
-    Liang,
-    /// Baxter & Lin's energy-minimising spines (desktop only, `f64`).
-    BaxterLin,
+    BrushChoice::parse(name)
 }
 
 /// A brush chosen on the command line: a preset, and parameters set on top of it. Every
@@ -653,6 +615,7 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
             .brush
             .as_ref()
             .map_or(defaults.brush.clone(), |b| b.name.clone()),
+        model: a.model.unwrap_or(defaults.model),
         paper_kind: a.paper,
         replay: a.replay,
         screenshot: a.screenshot,
@@ -663,7 +626,7 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
         pressure_curve: curve.unwrap_or(defaults.pressure_curve),
         given: crate::gui::Given {
             device: a.device.is_some(),
-            brush: a.brush.is_some(),
+            brush: a.brush.is_some() || a.model.is_some(),
             tablet: curve.is_some(),
             paper: a.paper_mm.is_some() || a.px_per_mm.is_some(),
         },

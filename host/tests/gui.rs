@@ -176,3 +176,43 @@ fn dip_ink_loads_the_brush_as_much_as_asked() {
         assert!((w - 0.3).abs() < 0.02, "wetness {w} after a 0.3 dip");
     }
 }
+
+#[test]
+fn the_model_choice_runs_baxter_and_lins_brush_with_its_heads() {
+    use egui_kittest::kittest::NodeT;
+    use maobi::device::ModelKind;
+    let mut h = harness();
+    h.run_steps(2);
+    assert_eq!(h.state().status().model, ModelKind::Liang);
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "model")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("Baxter & Lin (spines)").click();
+    h.run_steps(3);
+    assert_eq!(h.state().status().model, ModelKind::BaxterLin);
+    h.get_by_label("model: Baxter & Lin (spines)");
+    let f = h.state().latest().expect("frames arrive");
+    assert_eq!(f.hairs.len(), 7, "the round head's spines are drawn");
+    // Its heads join the brush choice.
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "brush")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("flat").click();
+    h.run_steps(3);
+    assert_eq!(h.state().status().preset, "flat");
+    // The parameters the flat head does not read are shown but cannot be edited.
+    let substeps = h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "substeps_per_tick");
+    assert!(substeps.accesskit_node().is_disabled());
+    let wetness = h.get_by_role_and_label(egui::accesskit::Role::SpinButton, "wetness");
+    assert!(!wetness.accesskit_node().is_disabled());
+    // It writes: the hook (posed for the large brush's length) replayed with Baxter &
+    // Lin's large round head leaves ink.
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "brush")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("large").click();
+    h.run_steps(3);
+    assert_eq!(h.state().status().model, ModelKind::BaxterLin);
+    replay(&mut h, "hook.csv");
+    assert!(ink(&h) > 0.0, "ink fraction {}", ink(&h));
+}

@@ -39,7 +39,8 @@ fn settings_survive_a_restart_and_the_command_line_wins() {
     let mut a = harness(Automation::default());
     a.run_steps(1);
     let choice: DeviceChoice = "tcp:127.0.0.1:7999".parse().unwrap();
-    a.state_mut().set_device_choice(&choice, "small");
+    a.state_mut()
+        .set_device_choice(&choice, "small", maobi::device::ModelKind::Liang);
     a.state_mut()
         .set_pressure_curve(PressureCurve::new(1.8, 0.1).unwrap());
     let ctx = a.ctx.clone();

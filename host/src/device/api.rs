@@ -22,6 +22,7 @@ use maobi_shared::guide::{GuideForce, GuideStream};
 use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Scalar, Vec3};
 
 use super::journal::Journal;
+use super::model::ModelKind;
 use crate::poses::PoseTrack;
 
 /// The brush's state after one model tick, as a device reports it.
@@ -57,6 +58,9 @@ pub struct BrushFrame {
     pub received: std::time::Instant,
     /// Guided writing, while the guide is active.
     pub guide: Option<GuideFrame>,
+    /// Baxter & Lin's brush: each spine's joints from its root to its tip (mm), for the
+    /// drawing; empty for Liang's (its spine and skeleton are above).
+    pub hairs: Vec<Vec<Vec3<f64>>>,
 }
 
 impl BrushFrame {
@@ -114,8 +118,12 @@ pub enum DeviceCommand {
     ClearFault,
     /// Wet every layer to this wetness in [0, 1].
     Dip(f32),
-    /// Replace all parameters with a preset's (by name, see `maobi_shared::presets`).
+    /// Replace all parameters with a preset's (by name, see `maobi_shared::presets`; with
+    /// Baxter & Lin's model also one of their heads, see [`super::model::BrushChoice`]).
     Preset(String),
+    /// Run this brush model from now on, the brush as it stands, at rest where the hand is.
+    /// Only the built-in simulator has a choice: a pen runs Liang's model.
+    Model(ModelKind),
     /// Set one parameter; validated before it is sent.
     SetParam(ParamId, f32),
     /// Drive the model from a pose file, tick by tick, then hand control back.
@@ -168,7 +176,7 @@ pub struct GuideFrame {
 impl GuideFrame {
     /// The frame of a guide `stream` whose tick gave `force`; `None` while it has no moving
     /// point.
-    pub fn of(stream: &GuideStream<Fx>, force: &GuideForce<Fx>) -> Option<GuideFrame> {
+    pub fn of<S: Scalar>(stream: &GuideStream<S>, force: &GuideForce<S>) -> Option<GuideFrame> {
         let anchor = stream.anchor()?;
         Some(GuideFrame {
             anchor: anchor.to_f64(),
@@ -229,6 +237,8 @@ pub struct DeviceStatus {
     pub params: BrushParams,
     /// Name of the preset the parameters started from.
     pub preset: String,
+    /// The brush model the device runs.
+    pub model: ModelKind,
     pub forces_enabled: bool,
     /// A replay is running.
     pub replaying: bool,

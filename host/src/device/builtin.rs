@@ -1,5 +1,7 @@
-//! The built-in simulated device: the shared force loop (`ForceLoop<Fx>`, the device's
-//! number type: brush, force model, guide, output stage), ticking at 1 kHz.
+//! The built-in simulated device: a brush model in its 1 kHz loop ([`SimModel`]): Liang's
+//! in the shared force loop (`ForceLoop<Fx>`, the pen's number type: brush, force model,
+//! guide, output stage), or Baxter & Lin's with its local force model, ending in the same
+//! guide and output stage.
 //!
 //! Two clocks:
 //! * [`SimClock::RealTime`]: a background thread runs the ticks that are due by the wall
@@ -16,16 +18,16 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use maobi_shared::force::{DEFAULT_FORCES, PHANTOM_OMNI};
-use maobi_shared::force_loop::{Gate, TickIn};
-use maobi_shared::guide::{GuidePlay, DEFAULT_GUIDE};
+use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::force_loop::Gate;
+use maobi_shared::guide::DEFAULT_GUIDE;
 use maobi_shared::protocol::Faults;
-use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3};
+use maobi_shared::{BrushParams, Pose, Quat};
 
-use super::api::{
-    BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput,
-};
+use super::api::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 use super::journal::{Journal, JournalEvent};
+use super::model::{BrushChoice, ModelKind};
+use super::sim_model::SimModel;
 
 /// Fastest the simulated hand moves toward the pointer (mm per 1 ms tick, i.e. m/s).
 pub const HAND_SPEED_MM_PER_TICK: f64 = 0.4;
@@ -46,8 +48,8 @@ pub enum SimClock {
 
 /// The model and its inputs; no threads, no clock.
 pub struct SimCore {
-    /// The shared force loop (the pen's): brush, force model, guide, output stage.
-    fl: ForceLoop<Fx>,
+    /// The brush model in its loop: brush, forces, guide, output stage.
+    model: Box<SimModel>,
     /// The forces switch, and the faults latched (a sensor jump) until cleared.
     enabled: bool,
     faults: Faults,
@@ -57,8 +59,6 @@ pub struct SimCore {
     replay: Option<(Vec<Pose<f64>>, usize)>,
     replays_done: u64,
     tick: u64,
-    /// Guided writing: the stroke being played into the loop's guide.
-    guide_play: Option<GuidePlay<Vec<Vec3<Fx>>>>,
     /// Every pose and brush command since the start, for saving the session
     /// ([`super::journal`]). Shared so the GUI can read it while the model thread runs.
     journal: Arc<Mutex<Journal>>,
@@ -67,35 +67,54 @@ pub struct SimCore {
 impl SimCore {
     /// The brush `preset`, hanging at rest at `hand`.
     pub fn new(preset: &str, hand: HandInput) -> Result<SimCore, DeviceError> {
-        let mut core = SimCore::at_pose(preset, hand.pose())?;
+        SimCore::with_model(ModelKind::Liang, preset, hand)
+    }
+
+    /// The brush `brush` of `model`, hanging at rest at `hand`.
+    pub fn with_model(
+        model: ModelKind,
+        brush: &str,
+        hand: HandInput,
+    ) -> Result<SimCore, DeviceError> {
+        let mut core = SimCore::of_model(model, brush, hand.pose())?;
         core.target = hand;
         Ok(core)
     }
 
-    /// The brush `preset`, hanging at rest at `pose`; the hand's target is that pose.
+    /// The brush `preset` (Liang's model), hanging at rest at `pose`; the hand's target is
+    /// that pose.
     pub fn at_pose(preset: &str, pose: Pose<f64>) -> Result<SimCore, DeviceError> {
-        let params = presets::find(preset)?;
-        let fl = ForceLoop::new(
-            params,
-            pose.cast(),
-            DEFAULT_FORCES,
-            PHANTOM_OMNI,
-            DEFAULT_GUIDE,
-        )
-        .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+        SimCore::of_model(ModelKind::Liang, preset, pose)
+    }
+
+    /// The brush `brush` of `model`, hanging at rest at `pose`; the hand's target is that
+    /// pose.
+    pub fn of_model(
+        model: ModelKind,
+        brush: &str,
+        pose: Pose<f64>,
+    ) -> Result<SimCore, DeviceError> {
+        let choice = BrushChoice::for_model(brush, model).map_err(DeviceError::Rejected)?;
+        let params = choice.params;
+        let sim = SimModel::new(model, &choice, params, pose, PHANTOM_OMNI, DEFAULT_GUIDE)?;
+        let journal = Journal::new(brush, params, pose).with_model(model);
         Ok(SimCore {
-            fl,
+            model: Box::new(sim),
             enabled: false,
             faults: Faults::empty(),
-            preset: preset.to_string(),
+            preset: brush.to_string(),
             hand: pose,
             target: hand_at(pose),
             replay: None,
             replays_done: 0,
             tick: 0,
-            guide_play: None,
-            journal: Arc::new(Mutex::new(Journal::new(preset, params, pose))),
+            journal: Arc::new(Mutex::new(journal)),
         })
+    }
+
+    /// The brush model this core runs.
+    pub fn model(&self) -> ModelKind {
+        self.model.kind()
     }
 
     /// The journal of this model (shared with the thread that runs it).
@@ -118,10 +137,41 @@ impl SimCore {
 
     /// Replaces all parameters (validated by the model).
     pub fn set_params(&mut self, p: BrushParams) -> Result<(), DeviceError> {
-        self.fl
-            .brush_mut()
-            .set_params(p)
-            .map_err(|e| DeviceError::Rejected(e.to_string()))
+        self.model.set_params(p, self.hand)
+    }
+
+    /// Checks `cmd` as the model in force would take it, before it is queued: the shared
+    /// checks ([`DeviceCommand::validate`]) for Liang's brush; for Baxter & Lin's, a brush
+    /// name may also be one of their heads, and only the parameters its head reads are
+    /// taken.
+    pub fn validate(
+        cmd: &DeviceCommand,
+        model: ModelKind,
+        brush: &str,
+        params: &BrushParams,
+    ) -> Result<(), DeviceError> {
+        let reject = DeviceError::Rejected;
+        match (cmd, model) {
+            (DeviceCommand::Preset(name), m) => {
+                BrushChoice::for_model(name, m).map(|_| ()).map_err(reject)
+            }
+            (DeviceCommand::SetParam(id, _), ModelKind::BaxterLin) => {
+                BrushChoice::parse(brush)
+                    .and_then(|b| b.baxter_lin_reads(*id))
+                    .map_err(reject)?;
+                cmd.validate(params)
+            }
+            (DeviceCommand::Model(ModelKind::Liang), _) => {
+                BrushChoice::for_model(brush, ModelKind::Liang)
+                    .map(|_| ())
+                    .map_err(|_| {
+                        reject(format!(
+                            "Liang's model has no {brush} brush: choose one of its presets first"
+                        ))
+                    })
+            }
+            _ => cmd.validate(params),
+        }
     }
 
     /// Carries out a journaled event again (re-rendering a session).
@@ -130,6 +180,7 @@ impl SimCore {
             JournalEvent::Dip(w) => self.apply(DeviceCommand::Dip(*w)),
             JournalEvent::Param(id, v) => self.apply(DeviceCommand::SetParam(*id, *v)),
             JournalEvent::Preset(n) => self.apply(DeviceCommand::Preset(n.clone())),
+            JournalEvent::Model(m) => self.apply(DeviceCommand::Model(*m)),
             JournalEvent::Reset(p) => {
                 self.reset_at(*p);
                 Ok(())
@@ -140,13 +191,12 @@ impl SimCore {
     /// The brush at rest at `p`, the forces afresh; the next pose is not checked for a jump
     /// from the last.
     fn reset_at(&mut self, p: Pose<f64>) {
-        self.fl.reset_brush(p.cast());
-        self.fl.forget_pose();
+        self.model.reset_at(p);
         self.hand = p;
     }
 
     pub fn params(&self) -> &BrushParams {
-        self.fl.brush().params()
+        self.model.params()
     }
 
     /// The last tick run.
@@ -161,27 +211,44 @@ impl SimCore {
     /// Carries out a command. Parameter changes are validated by the model itself; on error
     /// nothing changes.
     pub fn apply(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        SimCore::validate(&cmd, self.model(), &self.preset, self.params())?;
         match cmd {
             DeviceCommand::Hand(h) => self.target = h,
             DeviceCommand::EnableForces(on) => self.enabled = on,
             DeviceCommand::ClearFault => self.faults = Faults::empty(),
             DeviceCommand::Dip(w) => {
-                self.fl.brush_mut().dip(Fx::from_f32(w));
+                self.model.dip(w);
                 self.note(JournalEvent::Dip(w));
             }
             DeviceCommand::Preset(name) => {
-                let p = presets::find(&name)?;
-                self.fl
-                    .set_params(p)
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                let choice =
+                    BrushChoice::for_model(&name, self.model()).map_err(DeviceError::Rejected)?;
+                if let SimModel::BaxterLin { brush, .. } = &mut *self.model {
+                    *brush = choice.clone();
+                }
+                self.model.set_params(choice.params, self.hand)?;
                 self.note(JournalEvent::Preset(name.clone()));
                 self.preset = name;
             }
+            DeviceCommand::Model(kind) => {
+                if kind != self.model() {
+                    let choice = BrushChoice::for_model(&self.preset, kind)
+                        .map_err(DeviceError::Rejected)?;
+                    // The new model starts from the brush's parameters as they stand.
+                    let params = *self.params();
+                    *self.model = SimModel::new(
+                        kind,
+                        &choice,
+                        params,
+                        self.hand,
+                        PHANTOM_OMNI,
+                        DEFAULT_GUIDE,
+                    )?;
+                    self.note(JournalEvent::Model(kind));
+                }
+            }
             DeviceCommand::SetParam(id, v) => {
-                self.fl
-                    .brush_mut()
-                    .set_param(id, v)
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                self.model.set_param(id, v, self.hand)?;
                 self.note(JournalEvent::Param(id, v));
             }
             DeviceCommand::Replay(track) => {
@@ -192,18 +259,14 @@ impl SimCore {
             }
             DeviceCommand::StopReplay => self.end_replay(),
             DeviceCommand::Guide(Some(track)) => {
-                let points: Vec<Vec3<Fx>> = track.resample().map(|p| p.pos.cast()).collect();
+                let points: Vec<_> = track.resample().map(|p| p.pos).collect();
                 if points.is_empty() {
                     return Err(DeviceError::Rejected("the stroke is empty".into()));
                 }
-                self.guide_play = Some(GuidePlay::new(points));
+                self.model.guide(points);
             }
-            DeviceCommand::Guide(None) => {
-                // Hold the point reached and fade out.
-                if let Some(play) = &mut self.guide_play {
-                    play.stop();
-                }
-            }
+            // Hold the point reached and fade out.
+            DeviceCommand::Guide(None) => self.model.stop_guide(),
         }
         Ok(())
     }
@@ -255,45 +318,39 @@ impl SimCore {
 
     fn run_tick(&mut self, pose: Pose<f64>, replaying: bool) -> BrushFrame {
         self.hand = pose;
-        let guide = GuidePlay::next_sample_of(&mut self.guide_play, self.fl.guide());
-        let out = self.fl.tick(TickIn {
-            pose: Some(pose.cast()),
-            guide,
-            gate: Gate::new(self.enabled, self.faults),
-        });
+        let out = self
+            .model
+            .tick(Some(pose), Gate::new(self.enabled, self.faults));
         self.faults |= out.faults;
         self.tick += 1;
         if let Ok(mut j) = self.journal.lock() {
             j.tick(self.tick, pose);
         }
-        let b = self.fl.brush();
-        let stream = self.fl.guide();
+        let shape = self.model.shape();
         BrushFrame {
             tick: self.tick,
             pose,
-            spine: b.spine().to_vec(),
-            skeleton: b.skeleton().to_vec(),
-            layers: b.layers().to_vec(),
-            in_contact: b.in_contact().to_vec(),
-            ring_nodes: b.ring_nodes(),
-            eps: Fx::from_f32(b.params().footprint_eps_mm),
-            force_total: out.forces.total.to_f64(),
-            force_normal: out.forces.normal.to_f64(),
-            depth_mm: out.forces.depth_mm.to_f64(),
-            command: out.command.to_f64(),
-            output: self.fl.output_state(self.enabled, self.faults),
+            spine: shape.spine,
+            skeleton: shape.skeleton,
+            layers: shape.layers,
+            in_contact: shape.in_contact,
+            ring_nodes: shape.ring_nodes,
+            eps: shape.eps,
+            hairs: shape.hairs,
+            force_total: out.force_total,
+            force_normal: out.force_normal,
+            depth_mm: out.depth_mm,
+            command: out.command,
+            output: self.model.output_state(self.enabled, self.faults),
             replaying,
             received: Instant::now(),
-            guide: self
-                .guide_play
-                .as_ref()
-                .and_then(|_| GuideFrame::of(stream, &out.guide)),
+            guide: out.guide,
         }
     }
 
     /// Guided writing is on (or fading out).
     pub fn guiding(&self) -> bool {
-        self.guide_play.is_some()
+        self.model.guiding()
     }
 
     fn status(&self, name: &str, connected: bool) -> DeviceStatus {
@@ -311,8 +368,9 @@ impl SimCore {
             frames_dropped: 0,
             ticks_late: 0,
             tick_period_ms: None,
-            params: *self.fl.brush().params(),
+            params: *self.params(),
             preset: self.preset.clone(),
+            model: self.model(),
             forces_enabled: self.enabled,
             replaying: self.replay.is_some(),
             replays_done: self.replays_done,
@@ -346,6 +404,9 @@ struct Running {
 /// The built-in simulator as a [`Device`].
 pub struct SimDevice {
     clock: SimClock,
+    /// The model and brush a new model starts with (as last chosen), and the ones in
+    /// force, for validating commands before they are sent.
+    model: ModelKind,
     preset: String,
     start_hand: HandInput,
     /// Stepped clock: the model itself. Real-time clock: kept while disconnected, moved
@@ -362,7 +423,17 @@ pub struct SimDevice {
 
 impl SimDevice {
     pub fn new(clock: SimClock, preset: &str, hand: HandInput) -> Result<SimDevice, DeviceError> {
-        let core = SimCore::new(preset, hand)?;
+        SimDevice::with_model(clock, ModelKind::Liang, preset, hand)
+    }
+
+    /// The simulator running the brush `brush` of `model`.
+    pub fn with_model(
+        clock: SimClock,
+        model: ModelKind,
+        brush: &str,
+        hand: HandInput,
+    ) -> Result<SimDevice, DeviceError> {
+        let core = SimCore::with_model(model, brush, hand)?;
         Ok(SimDevice::from_core(clock, core))
     }
 
@@ -370,6 +441,7 @@ impl SimDevice {
     pub fn from_core(clock: SimClock, core: SimCore) -> SimDevice {
         SimDevice {
             clock,
+            model: core.model(),
             preset: core.preset.clone(),
             start_hand: hand_at(core.hand),
             params: *core.params(),
@@ -393,7 +465,7 @@ impl Device for SimDevice {
         }
         let core = match self.core.take() {
             Some(c) => c,
-            None => SimCore::new(&self.preset, self.start_hand)?,
+            None => SimCore::with_model(self.model, &self.preset, self.start_hand)?,
         };
         self.journal = core.journal();
         match self.clock {
@@ -453,7 +525,7 @@ impl Device for SimDevice {
         match &self.core {
             Some(c) => c.status(NAME, true),
             None => {
-                let mut s = SimCore::new(&self.preset, self.start_hand)
+                let mut s = SimCore::with_model(self.model, &self.preset, self.start_hand)
                     .map(|c| c.status(NAME, false))
                     .expect("the preset was valid at start");
                 s.params = self.params;
@@ -482,10 +554,21 @@ impl Device for SimDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        cmd.validate(&self.params)?;
+        SimCore::validate(&cmd, self.model, &self.preset, &self.params)?;
+        // Keep the local copies current so the next validation sees this change (the
+        // next model started, on a reconnect, has the model and brush last chosen).
+        match &cmd {
+            DeviceCommand::Model(m) => self.model = *m,
+            DeviceCommand::Preset(name) => {
+                self.preset = name.clone();
+                if let Ok(b) = BrushChoice::parse(name) {
+                    self.params = b.params;
+                }
+            }
+            _ => {}
+        }
         if let Some(r) = &self.running {
             if let DeviceCommand::SetParam(id, v) = cmd {
-                // Keep the local copy current so the next validation sees this change.
                 let _ = self.params.set(id, v);
             }
             r.cmds
@@ -494,6 +577,8 @@ impl Device for SimDevice {
         } else if let Some(core) = &mut self.core {
             let r = core.apply(cmd);
             self.params = *core.params();
+            self.model = core.model();
+            self.preset = core.preset.clone();
             r
         } else {
             Err(DeviceError::NotConnected)

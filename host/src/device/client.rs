@@ -33,6 +33,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::OutputState;
+
+use super::model::ModelKind;
 use maobi_shared::force_loop::HandGuide;
 use maobi_shared::guide::{GuideForce, GuidePlay, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
@@ -217,6 +219,7 @@ impl LinkDevice {
             tick_period_ms: None,
             params,
             preset: opts.preset.clone(),
+            model: ModelKind::Liang,
             forces_enabled: false,
             replaying: false,
             replays_done: 0,
@@ -371,6 +374,12 @@ impl Device for LinkDevice {
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
         cmd.validate(&self.params)?;
+        if let DeviceCommand::Model(m) = cmd {
+            // The pen runs Liang's model: nothing to send.
+            return m
+                .on_liang_only_device("a pen")
+                .map_err(DeviceError::Rejected);
+        }
         let Some(r) = &self.running else {
             return Err(DeviceError::NotConnected);
         };
@@ -907,6 +916,7 @@ pub fn frame_from_state(state: &BrushState, tick: u64, replaying: bool) -> Brush
             .map(|i| state.in_contact(i))
             .collect(),
         ring_nodes: usize::from(state.ring_nodes),
+        hairs: Vec::new(),
         eps: Fx::from_bits(state.footprint_eps),
         force_total: force,
         force_normal: [0.0, 0.0, force[2]],
@@ -981,6 +991,8 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                 Err(RecvTimeoutError::Disconnected) => return,
             };
             let msg = match cmd {
+                // Refused in `send`: a pen has one model.
+                DeviceCommand::Model(_) => None,
                 DeviceCommand::Hand(h) => {
                     target = h;
                     None

@@ -7,6 +7,8 @@
 
 use maobi_shared::{BrushParams, ParamId, Pose};
 
+use super::model::ModelKind;
+
 /// Pose changes a journal keeps (64 bytes each): 1,000,000 is about 17 minutes of
 /// continuous motion; a hand at rest costs nothing. Past it the journal stops, and saving
 /// says so.
@@ -21,11 +23,15 @@ pub enum JournalEvent {
     Preset(String),
     /// The brush (and force model) reset at rest at this pose (a replay's start).
     Reset(Pose<f64>),
+    /// Another brush model from here on, the brush as it stands, at rest where the hand is.
+    Model(ModelKind),
 }
 
 /// What the simulator did, tick by tick, since it started.
 #[derive(Clone, Debug)]
 pub struct Journal {
+    /// The brush model the device started with.
+    pub model: ModelKind,
     pub preset: String,
     pub params: BrushParams,
     /// The brush was created at rest at this pose, before tick 1.
@@ -44,6 +50,7 @@ pub struct Journal {
 impl Journal {
     pub fn new(preset: &str, params: BrushParams, start: Pose<f64>) -> Journal {
         Journal {
+            model: ModelKind::Liang,
             preset: preset.to_string(),
             params,
             start,
@@ -72,6 +79,12 @@ impl Journal {
             events,
             ..Journal::new(preset, params, start)
         }
+    }
+
+    /// This journal with its device started on `model`.
+    pub fn with_model(mut self, model: ModelKind) -> Journal {
+        self.model = model;
+        self
     }
 
     /// Notes that tick `tick` ran with the handle at `pose`.

@@ -6,6 +6,9 @@
 //!   device does before carrying one out), its [`DeviceStatus`] and [`DeviceError`].
 //! * [`builtin`]: the built-in simulated device ([`SimDevice`]): the shared model on the
 //!   host, in real time on a thread or stepped for tests.
+//! * [`model`]: the brush models ([`ModelKind`]: Liang's, Baxter & Lin's) and a brush
+//!   chosen by name for one ([`BrushChoice`]); [`sim_model`]: the chosen model in its 1 kHz
+//!   loop, what the built-in device ticks.
 //! * [`journal`]: what the built-in device did, tick by tick (poses and brush commands): what a
 //!   session file stores and a re-render runs again.
 //! * [`endpoint`]: where a device is (`tcp:HOST:PORT`, `serial:PATH`) and opening a byte
@@ -26,7 +29,9 @@ pub mod client;
 pub mod config_file;
 pub mod endpoint;
 pub mod journal;
+pub mod model;
 pub mod server;
+pub mod sim_model;
 
 pub use api::{
     BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, GuideFrame, HandInput, LinkReport,
@@ -34,4 +39,6 @@ pub use api::{
 pub use builtin::{SimClock, SimCore, SimDevice};
 pub use client::{identify, probe_serial_ports, LinkDevice, LinkOptions, LINK_TIMEOUT};
 pub use endpoint::{available_serial_ports, serial_ports, Conn, Endpoint, PortInfo, UsbIds};
+pub use model::{BrushChoice, ModelKind};
 pub use server::{ProtocolModel, SimDeviceOptions, SimDeviceServer};
+pub use sim_model::SimModel;

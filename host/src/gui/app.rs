@@ -19,9 +19,10 @@ use super::files::{DeviceKind, FileKind, Recent, Settings};
 use super::rerender::{rerender, Rerender};
 use super::session::{CanvasOp, InkLog, Session};
 use super::timeline::{Timeline, TimelineAction};
+use crate::device::model::HEAD_NAMES;
 use crate::device::{
-    serial_ports, BrushFrame, Device, DeviceCommand, DeviceStatus, Endpoint, HandInput, PortInfo,
-    SimClock, SimDevice,
+    serial_ports, BrushChoice, BrushFrame, Device, DeviceCommand, DeviceStatus, Endpoint,
+    HandInput, ModelKind, PortInfo, SimClock, SimDevice,
 };
 use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
@@ -178,6 +179,8 @@ pub struct MaobiApp {
     probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
     brush_name: String,
+    /// The model a newly chosen built-in simulator runs (as last chosen).
+    model_choice: ModelKind,
     /// Wetness a dip leaves the brush with (0..=1).
     ink_load: f32,
     /// The stroke editor (keyframed strokes on a timeline) and whether it is shown.
@@ -271,6 +274,7 @@ impl MaobiApp {
             serial_ports: Vec::new(),
             probe: None,
             brush_name: "large".into(),
+            model_choice: ModelKind::Liang,
             ink_load: 1.0,
             timeline: Timeline::default(),
             show_timeline: false,
@@ -410,9 +414,10 @@ impl MaobiApp {
     }
 
     /// Shows `choice` in the device chooser; `brush` is the preset a newly chosen device
-    /// starts with.
-    pub fn set_device_choice(&mut self, choice: &DeviceChoice, brush: &str) {
+    /// starts with, `model` the model a newly chosen simulator runs.
+    pub fn set_device_choice(&mut self, choice: &DeviceChoice, brush: &str, model: ModelKind) {
         self.brush_name = brush.to_string();
+        self.model_choice = model;
         match choice {
             DeviceChoice::Sim => self.device_kind = DeviceKind::Sim,
             DeviceChoice::Link(Endpoint::Tcp(a)) => {
@@ -475,7 +480,7 @@ impl MaobiApp {
         };
         let c2 = ctx.clone();
         let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || c2.request_repaint());
-        match make_device(&choice, &self.brush_name, Some(wake)) {
+        match make_device(&choice, &self.brush_name, self.model_choice, Some(wake)) {
             Ok(mut d) => {
                 self.device.disconnect();
                 self.message = Some(match d.connect() {
@@ -974,6 +979,29 @@ impl MaobiApp {
                 self.restart_ink_log();
             }
             ui.separator();
+            let mut model = self.status.model;
+            egui::ComboBox::from_label("model")
+                .selected_text(model.label())
+                .show_ui(ui, |ui| {
+                    for m in ModelKind::ALL {
+                        ui.selectable_value(&mut model, m, m.label());
+                    }
+                })
+                .response
+                .on_hover_text(
+                    "Liang: the pen's mass-spring brush. Baxter & Lin: spines that find their \
+                     shape by minimising energy, with stiction and the flat, filbert and fan \
+                     heads (desktop only: the built-in simulator)",
+                );
+            if model != self.status.model {
+                match self.device.send(DeviceCommand::Model(model)) {
+                    Ok(()) => {
+                        self.model_choice = model;
+                        self.message = Some((format!("model: {}", model.label()), false));
+                    }
+                    Err(e) => self.message = Some((e.to_string(), true)),
+                }
+            }
             let mut preset = self.status.preset.clone();
             egui::ComboBox::from_label("brush")
                 .selected_text(preset.clone())
@@ -981,12 +1009,18 @@ impl MaobiApp {
                     for (name, _) in presets::PRESETS {
                         ui.selectable_value(&mut preset, name.to_string(), name);
                     }
+                    if self.status.model == ModelKind::BaxterLin {
+                        for name in HEAD_NAMES {
+                            ui.selectable_value(&mut preset, name.to_string(), name);
+                        }
+                    }
                 });
             if preset != self.status.preset {
                 match self.device.send(DeviceCommand::Preset(preset.clone())) {
                     Ok(()) => {
-                        if let Some(p) = presets::by_name(&preset) {
-                            self.param_edit = ParamId::ALL.iter().map(|&i| p.get(i)).collect();
+                        if let Ok(b) = BrushChoice::parse(&preset) {
+                            self.param_edit =
+                                ParamId::ALL.iter().map(|&i| b.params.get(i)).collect();
                         }
                         self.message = Some((format!("brush: {preset}"), false));
                     }
@@ -1170,6 +1204,14 @@ impl MaobiApp {
             ui.label(RichText::new(m).color(c));
         }
         let mut changed = None;
+        // Baxter & Lin's brush reads only its head's profile and its ink: the rest are
+        // Liang's model's own, shown but not editable.
+        let brush = BrushChoice::parse(&self.status.preset).ok();
+        let reads = |id: ParamId| match (self.status.model, &brush) {
+            (ModelKind::BaxterLin, Some(b)) => b.baxter_lin_reads(id).is_ok(),
+            (ModelKind::BaxterLin, None) => false,
+            (ModelKind::Liang, _) => true,
+        };
         egui::ScrollArea::vertical().show(ui, |ui| {
             egui::Grid::new("params")
                 .num_columns(2)
@@ -1188,7 +1230,7 @@ impl MaobiApp {
                             // brush's tie damping of 0.014 to "0.01".
                             dv.custom_formatter(|v, _| format!("{}", v as f32))
                         };
-                        let r = ui.add(dv).labelled_by(label.id);
+                        let r = ui.add_enabled(reads(id), dv).labelled_by(label.id);
                         if r.changed() {
                             changed = Some((id, self.param_edit[i]));
                         }
@@ -1512,8 +1554,9 @@ impl MaobiApp {
     pub fn restore(&mut self, s: &Settings, keep_tablet: bool) {
         self.device_kind = s.device_kind;
         self.device_addr = s.device_addr.clone();
-        if presets::by_name(&s.brush).is_some() {
+        if BrushChoice::for_model(&s.brush, s.model).is_ok() {
             self.brush_name = s.brush.clone();
+            self.model_choice = s.model;
         }
         self.save_path = s.png_path.clone();
         self.record_path = s.record_path.clone();
@@ -1540,6 +1583,7 @@ impl MaobiApp {
             device_kind: self.device_kind,
             device_addr: self.device_addr.clone(),
             brush: self.status.preset.clone(),
+            model: self.status.model,
             tablet: self
                 .tablet
                 .as_ref()

@@ -316,6 +316,20 @@ pub fn show(ui: &mut egui::Ui, orbit: &mut Orbit, frame: Option<&BrushFrame>) ->
     };
     line(&f.skeleton, Color32::from_rgb(90, 150, 255));
     line(&f.spine, Color32::from_rgb(235, 70, 60));
+    // Baxter & Lin's spines (their joints), in the skeleton's blue.
+    for hair in &f.hairs {
+        let p: Vec<Pos2> = hair
+            .iter()
+            .filter_map(|p| cam.project(p.to_f64()).map(|q| q.0))
+            .collect();
+        for q in &p {
+            painter.circle_filled(*q, 1.5, Color32::from_rgb(90, 150, 255));
+        }
+        painter.add(Shape::line(
+            p,
+            Stroke::new(1.0, Color32::from_rgb(90, 150, 255)),
+        ));
+    }
 
     let info = format!(
         "contacts {}  depth {:.2} mm  |F_n| {:.3} N",

@@ -5,7 +5,8 @@
 use std::sync::Arc;
 
 use crate::device::{
-    Device, DeviceError, Endpoint, HandInput, LinkDevice, LinkOptions, SimClock, SimDevice,
+    BrushChoice, Device, DeviceError, Endpoint, HandInput, LinkDevice, LinkOptions, ModelKind,
+    SimClock, SimDevice,
 };
 
 /// Which device the GUI talks to.
@@ -39,19 +40,21 @@ impl std::fmt::Display for DeviceChoice {
 }
 
 /// The device for `choice` with the brush `preset`, not yet connected; `wake` is called
-/// from its threads when frames arrive.
+/// from its threads when frames arrive. The built-in simulator runs `model`; a device on a
+/// link runs its own (a pen: Liang's).
 pub fn make_device(
     choice: &DeviceChoice,
     preset: &str,
+    model: ModelKind,
     wake: Option<Arc<dyn Fn() + Send + Sync>>,
 ) -> Result<Box<dyn Device>, DeviceError> {
-    let length = maobi_shared::presets::by_name(preset)
-        .map(|p| p.length_mm as f64)
+    let length = BrushChoice::parse(preset)
+        .map(|b| b.params.length_mm as f64)
         .unwrap_or(50.0);
     let hand = start_hand(length);
     Ok(match choice {
         DeviceChoice::Sim => {
-            let mut d = SimDevice::new(SimClock::RealTime, preset, hand)?;
+            let mut d = SimDevice::with_model(SimClock::RealTime, model, preset, hand)?;
             if let Some(w) = wake {
                 d.on_frames(w);
             }

@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::device::ModelKind;
+
 /// The kinds of file the app opens and saves.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FileKind {
@@ -162,8 +164,10 @@ pub struct Settings {
     /// connected by a click, not by a start.
     pub device_kind: DeviceKind,
     pub device_addr: String,
-    /// The brush preset.
+    /// The brush preset (or Baxter & Lin's head).
     pub brush: String,
+    /// The brush model the built-in simulator runs.
+    pub model: ModelKind,
     /// The pen tablet in use (its evdev node), if any.
     pub tablet: Option<PathBuf>,
     pub pressure_exponent: f32,
@@ -185,6 +189,7 @@ impl Default for Settings {
             device_kind: DeviceKind::Sim,
             device_addr: String::new(),
             brush: "large".into(),
+            model: ModelKind::Liang,
             tablet: None,
             pressure_exponent: 1.0,
             pressure_threshold: 0.02,

@@ -49,8 +49,10 @@ pub struct GuiOptions {
     /// A Phantom instead of `device` (falling back to the built-in simulator, with the reason
     /// in the status bar, when it cannot be used).
     pub phantom: Option<PhantomChoice>,
-    /// Brush preset name.
+    /// Brush preset name (with Baxter & Lin's model also one of their heads).
     pub brush: String,
+    /// The brush model the built-in simulator runs.
+    pub model: crate::device::ModelKind,
     pub replay: Option<PathBuf>,
     pub screenshot: Option<PathBuf>,
     /// A session file to open at start.
@@ -73,6 +75,7 @@ pub struct GuiOptions {
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
 pub struct Given {
     pub device: bool,
+    /// The brush, or its model.
     pub brush: bool,
     /// The tablet or its pressure curve.
     pub tablet: bool,
@@ -86,6 +89,7 @@ impl Default for GuiOptions {
             device: DeviceChoice::Sim,
             phantom: None,
             brush: "large".into(),
+            model: crate::device::ModelKind::Liang,
             paper_kind: crate::paper::PaperKind::Sized,
             replay: None,
             screenshot: None,
@@ -148,7 +152,8 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     if let Some(p) = &opts.replay {
         crate::poses::PoseTrack::from_path(p)?;
     }
-    maobi_shared::presets::find(&opts.brush).map_err(|e| anyhow::anyhow!("{e}"))?;
+    crate::device::BrushChoice::for_model(&opts.brush, opts.model)
+        .map_err(|e| anyhow::anyhow!("--brush: {e}"))?;
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.
@@ -164,6 +169,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let choice = opts.device.clone();
     let phantom = opts.phantom.clone();
     let brush = opts.brush.clone();
+    let model = opts.model;
     let paper_kind = opts.paper_kind;
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let automation = Automation {
@@ -197,18 +203,21 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
                 cc.storage
                     .and_then(|s| eframe::get_value(s, files::SETTINGS_KEY))
             };
-            let brush = match &saved {
-                Some(s) if !given.brush && maobi_shared::presets::by_name(&s.brush).is_some() => {
-                    s.brush.clone()
+            let (brush, model) = match &saved {
+                Some(s)
+                    if !given.brush
+                        && crate::device::BrushChoice::for_model(&s.brush, s.model).is_ok() =>
+                {
+                    (s.brush.clone(), s.model)
                 }
-                _ => brush,
+                _ => (brush, model),
             };
             let ctx = cc.egui_ctx.clone();
             let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || ctx.request_repaint());
             let device = match &phantom {
                 Some(p) => {
-                    let length = maobi_shared::presets::by_name(&brush)
-                        .map(|p| p.length_mm as f64)
+                    let length = crate::device::BrushChoice::parse(&brush)
+                        .map(|b| b.params.length_mm as f64)
                         .unwrap_or(50.0);
                     crate::phantom::device::gui_device(
                         p.hd_lib.clone(),
@@ -217,7 +226,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
                         Some(wake),
                     )?
                 }
-                None => make_device(&choice, &brush, Some(wake))?,
+                None => make_device(&choice, &brush, model, Some(wake))?,
             };
             // The last run's paper, unless the command line gave one (a remembered paper that
             // no longer passes the checks is ignored).
@@ -227,11 +236,11 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
             };
             let mut app = MaobiApp::new(device, frame, automation, out2);
             app.set_paper(paper_kind);
-            app.set_device_choice(&choice, &brush);
+            app.set_device_choice(&choice, &brush, model);
             if let Some(s) = &saved {
                 app.restore(s, given.tablet);
                 if given.device {
-                    app.set_device_choice(&choice, &brush);
+                    app.set_device_choice(&choice, &brush, model);
                 }
             }
             if saved.is_none() || given.tablet {

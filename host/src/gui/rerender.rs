@@ -28,8 +28,8 @@ pub struct Rerender {
 /// called now and then with the fraction done.
 pub fn rerender(session: &Session, mut progress: impl FnMut(f64)) -> anyhow::Result<Rerender> {
     let j = &session.journal;
-    let mut core =
-        SimCore::at_pose(&j.preset, j.start).map_err(|e: DeviceError| anyhow::anyhow!("{e}"))?;
+    let mut core = SimCore::of_model(j.model, &j.preset, j.start)
+        .map_err(|e: DeviceError| anyhow::anyhow!("{e}"))?;
     core.set_params(j.params)
         .map_err(|e| anyhow::anyhow!("[params]: {e}"))?;
     let mut paper = PaperView::new(session.paper, session.paper_spec);

@@ -32,10 +32,11 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{bail, Context as _};
-use maobi_shared::{presets, ParamId, Pose, Quat, Vec3};
+use maobi_shared::{ParamId, Pose, Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::device::journal::{Journal, JournalEvent, MAX_JOURNAL_POSES};
+use crate::device::model::{BrushChoice, ModelKind};
 use crate::paper::{PaperKind, PaperSpec, DEFAULT_SEED};
 use crate::raster::Frame;
 
@@ -160,6 +161,7 @@ impl Session {
             format: FORMAT.into(),
             version: VERSION,
             model: Some(self.model.unwrap_or(MODEL_VERSION)),
+            brush_model: (j.model != ModelKind::Liang).then(|| j.model.name().to_string()),
             device: self.device.clone(),
             preset: j.preset.clone(),
             ticks: j.ticks,
@@ -194,6 +196,7 @@ impl Session {
                         }
                         JournalEvent::Preset(n) => f.preset = Some(n.clone()),
                         JournalEvent::Reset(p) => f.reset = Some(pose_values(p)),
+                        JournalEvent::Model(m) => f.brush_model = Some(m.name().to_string()),
                     }
                     f
                 })
@@ -227,7 +230,13 @@ impl Session {
             (1, Some(_)) => bail!("version 1 has no `model` (it came with version 2)"),
             (v, _) => bail!("session version {v} (this build reads versions 1 and {VERSION})"),
         }
-        let preset_params = presets::find(&f.preset).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let brush_model = match &f.brush_model {
+            None => ModelKind::Liang,
+            Some(m) => ModelKind::from_name(m).map_err(|e| anyhow::anyhow!("brush_model: {e}"))?,
+        };
+        let preset_params = BrushChoice::for_model(&f.preset, brush_model)
+            .map_err(|e| anyhow::anyhow!("preset: {e}"))?
+            .params;
         let mut params = preset_params;
         for (name, v) in &f.params {
             let id = ParamId::from_name(name)
@@ -295,9 +304,10 @@ impl Session {
                 e.param.is_some(),
                 e.preset.is_some(),
                 e.reset.is_some(),
+                e.brush_model.is_some(),
             ];
             if kinds.iter().filter(|&&k| k).count() != 1 {
-                bail!("event {n}: needs exactly one of dip, param, preset, reset");
+                bail!("event {n}: needs exactly one of dip, param, preset, reset, brush_model");
             }
             let ev = if let Some(w) = e.dip {
                 if !(0.0..=1.0).contains(&w) {
@@ -312,10 +322,12 @@ impl Session {
                     .ok_or_else(|| anyhow::anyhow!("event {n}: param `{name}` has no value"))?;
                 JournalEvent::Param(id, v)
             } else if let Some(name) = &e.preset {
-                if presets::by_name(name).is_none() {
-                    bail!("event {n}: unknown brush `{name}`");
-                }
+                BrushChoice::parse(name).map_err(|e| anyhow::anyhow!("event {n}: {e}"))?;
                 JournalEvent::Preset(name.clone())
+            } else if let Some(m) = &e.brush_model {
+                JournalEvent::Model(
+                    ModelKind::from_name(m).map_err(|e| anyhow::anyhow!("event {n}: {e}"))?,
+                )
             } else {
                 let v = e.reset.unwrap_or_default();
                 JournalEvent::Reset(pose_from(&v).map_err(|e| anyhow::anyhow!("event {n}: {e}"))?)
@@ -347,7 +359,8 @@ impl Session {
         }
         Ok(Session {
             device: f.device,
-            journal: Journal::restored(&f.preset, params, start, f.ticks, poses, events),
+            journal: Journal::restored(&f.preset, params, start, f.ticks, poses, events)
+                .with_model(brush_model),
             paper,
             paper_spec,
             ink: InkLog {
@@ -461,6 +474,9 @@ struct SessionFile {
     version: u32,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     model: Option<u32>,
+    /// The brush model the device started with (`liang`, `baxter-lin`); absent: `liang`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    brush_model: Option<String>,
     device: String,
     preset: String,
     ticks: u64,
@@ -505,6 +521,9 @@ struct EventFile {
     preset: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     reset: Option<[f64; 7]>,
+    /// Another brush model from here on (`liang`, `baxter-lin`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    brush_model: Option<String>,
 }
 
 #[derive(Serialize, Deserialize)]

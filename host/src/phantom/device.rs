@@ -16,6 +16,7 @@ use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared
 use crate::device::builtin::{SimClock, SimDevice};
 use crate::device::client::frame_from_state;
 use crate::device::journal::Journal;
+use crate::device::model::ModelKind;
 use crate::device::ProtocolModel;
 use crate::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 
@@ -240,6 +241,7 @@ impl Device for PhantomDevice {
             tick_period_ms: None,
             params: self.params,
             preset: self.preset.clone(),
+            model: ModelKind::Liang,
             forces_enabled: forces,
             replaying: false,
             replays_done: 0,
@@ -263,6 +265,9 @@ impl Device for PhantomDevice {
         match cmd {
             // The stylus is the hand.
             DeviceCommand::Hand(_) | DeviceCommand::StopReplay => Ok(()),
+            DeviceCommand::Model(m) => m
+                .on_liang_only_device("the Phantom bridge")
+                .map_err(DeviceError::Rejected),
             DeviceCommand::EnableForces(on) => self.servo(ServoCommand::EnableForces(on)),
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),

@@ -222,6 +222,14 @@ impl BaxterLinBrush {
         skin::skin(&curves, pose, &mut self.centres, &mut self.layers);
     }
 
+    /// The time between this brush's ticks (s; a 1 kHz tick unless set): every spine's
+    /// [`Spine::set_solve_interval`].
+    pub fn set_solve_interval(&mut self, interval_s: f64) {
+        for s in &mut self.spines {
+            s.set_solve_interval(interval_s);
+        }
+    }
+
     /// Applies a constant force (N, world frame) to the head's tip until changed, shared
     /// between the spines' tips as their stiffness is.
     pub fn set_tip_load(&mut self, force: Vec3<f64>) {

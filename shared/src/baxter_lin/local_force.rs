@@ -78,7 +78,7 @@
 
 use super::brush::BaxterLinBrush;
 use super::Spine;
-use crate::force::DeviceLimits;
+use crate::force::{DeviceLimits, TICK_S};
 use crate::quat::Pose;
 use crate::vec::Vec3;
 
@@ -343,6 +343,8 @@ impl LocalForceBrush {
             rebuild_every: params.rebuild_every.max(1),
             ..params
         };
+        let mut brush = brush;
+        brush.set_solve_interval(params.rebuild_every as f64 * TICK_S);
         let model = LocalForceModel::build(
             brush.spines(),
             pose,

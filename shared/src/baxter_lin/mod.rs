@@ -65,8 +65,9 @@
 //!
 //! A contact sticks until a solve moves it more than [`SpineParams::slip_mm`] from its
 //! anchor; then it slides and the minimisation runs again with `mu_k` from where it was. A
-//! sliding contact that a solve moves less than [`SpineParams::stick_mm`] (smaller: the
-//! hysteresis) sticks where it is. A contact that lifts off is free; a new one starts
+//! sliding contact that moves slower than [`SpineParams::stick_speed_mm_s`] over a solve
+//! ([`Spine::set_solve_interval`]: a speed, so that catching does not depend on the solve
+//! rate; the hysteresis) sticks where it is. A contact that lifts off is free; a new one starts
 //! sliding and sticks when it stops.
 //!
 //! # The solver
@@ -123,6 +124,6 @@ mod spine;
 pub use chain::MAX_JOINTS;
 pub use params::{SpineParamError, SpineParams};
 pub use spine::{
-    bend_angle, ContactState, SolveReport, Spine, FRICTION_SMOOTHING_MM, PENETRATION_TOLERANCE_MM,
-    PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, THETA_LIMIT,
+    bend_angle, ContactState, SolveReport, Spine, DEFAULT_SOLVE_INTERVAL_S, FRICTION_SMOOTHING_MM,
+    PENETRATION_TOLERANCE_MM, PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, THETA_LIMIT,
 };

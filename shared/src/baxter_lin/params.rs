@@ -48,9 +48,10 @@ pub struct SpineParams {
     /// A sticking contact slips when a solve moves it farther than this from where it stuck
     /// (mm).
     pub slip_mm: f64,
-    /// A sliding contact sticks again when a solve moves it less than this (mm), below
-    /// `slip_mm`: the hysteresis of §3.4.1.
-    pub stick_mm: f64,
+    /// A sliding contact sticks again when it moves slower than this over a solve (mm/s):
+    /// the hysteresis of §3.4.1. A speed, not a distance per solve, so that whether a
+    /// contact catches does not depend on how often the spine is solved.
+    pub stick_speed_mm_s: f64,
     /// Most SQP iterations of one minimisation.
     pub max_iterations: u8,
 }
@@ -72,7 +73,7 @@ impl SpineParams {
         anisotropy: 0.5,
         anisotropy_exponent: 4.0,
         slip_mm: 0.01,
-        stick_mm: 0.002,
+        stick_speed_mm_s: 2.0,
         max_iterations: 30,
     };
 
@@ -142,7 +143,7 @@ impl SpineParams {
         range("anisotropy", self.anisotropy, 0.0, 1.0)?;
         range("anisotropy_exponent", self.anisotropy_exponent, 2.0, 256.0)?;
         range("slip_mm", self.slip_mm, 1e-4, 10.0)?;
-        range("stick_mm", self.stick_mm, 1e-5, 10.0)?;
+        range("stick_speed_mm_s", self.stick_speed_mm_s, 1e-3, 100.0)?;
         range("max_iterations", self.max_iterations as f64, 1.0, 200.0)?;
         if self.stiffness_tip > self.stiffness_root {
             return Err(SpineParamError::Inconsistent {
@@ -154,12 +155,6 @@ impl SpineParams {
             return Err(SpineParamError::Inconsistent {
                 field: "friction_kinetic",
                 why: "sliding friction cannot exceed the static friction",
-            });
-        }
-        if self.stick_mm >= self.slip_mm {
-            return Err(SpineParamError::Inconsistent {
-                field: "stick_mm",
-                why: "must be below slip_mm (the hysteresis)",
             });
         }
         Ok(())
@@ -271,8 +266,8 @@ mod tests {
         p.stiffness_tip = 20.0;
         assert_eq!(p.validate().unwrap_err().field(), "stiffness_tip");
         let mut p = SpineParams::DEFAULT;
-        p.stick_mm = p.slip_mm;
-        assert_eq!(p.validate().unwrap_err().field(), "stick_mm");
+        p.stick_speed_mm_s = 0.0;
+        assert_eq!(p.validate().unwrap_err().field(), "stick_speed_mm_s");
         for bad in [
             [0.0; 3],
             [0.0, f64::NAN, -1.0],

@@ -17,6 +17,9 @@ use crate::vec::Vec3;
 /// `eps T / sqrt((mu F_n)^2 - T^2)`: far below [`SpineParams::slip_mm`] until T is within a
 /// hair of the limit.
 pub const FRICTION_SMOOTHING_MM: f64 = 1e-4;
+
+/// A spine is solved once a 1 kHz tick unless told otherwise ([`Spine::set_solve_interval`]).
+pub const DEFAULT_SOLVE_INTERVAL_S: f64 = crate::force::TICK_S;
 /// The joint friction's `|d beta|` is rounded the same way over this angle (rad).
 pub const PLASTICITY_SMOOTHING_RAD: f64 = 1e-4;
 /// A joint's friction is measured from a reference bend that follows the joint only as far
@@ -658,6 +661,9 @@ pub struct Spine {
     handle_force: V3,
     handle_torque: V3,
     pose: Pose<f64>,
+    /// The time between solves (s): a sliding contact catches below
+    /// [`SpineParams::stick_speed_mm_s`] over it.
+    interval_s: f64,
     solves: u64,
     fallbacks: u64,
     unconverged: u64,
@@ -683,6 +689,7 @@ impl Spine {
             handle_force: V3::ZERO,
             handle_torque: V3::ZERO,
             pose: Pose::default(),
+            interval_s: DEFAULT_SOLVE_INTERVAL_S,
             solves: 0,
             fallbacks: 0,
             unconverged: 0,
@@ -691,6 +698,20 @@ impl Spine {
         s.derive();
         s.solve(&pose, V3::ZERO);
         Ok(s)
+    }
+
+    /// The time between this spine's solves (s; [`DEFAULT_SOLVE_INTERVAL_S`] unless set):
+    /// what turns the stick speed into a distance per solve. Not finite or not positive
+    /// keeps the interval it had.
+    pub fn set_solve_interval(&mut self, interval_s: f64) {
+        if interval_s.is_finite() && interval_s > 0.0 {
+            self.interval_s = interval_s;
+        }
+    }
+
+    /// The time between this spine's solves (s).
+    pub fn solve_interval(&self) -> f64 {
+        self.interval_s
     }
 
     fn derive(&mut self) {
@@ -1022,7 +1043,9 @@ impl Spine {
                 }
             } else {
                 let moved = libm::hypot(c.x[i].x - self.x[i].x, c.x[i].y - self.x[i].y);
-                if moved < self.params.stick_mm && p.friction[i].mu_fn > 0.0 {
+                if moved < self.params.stick_speed_mm_s * self.interval_s
+                    && p.friction[i].mu_fn > 0.0
+                {
                     ContactState::Sticking {
                         anchor: [c.x[i].x, c.x[i].y],
                     }

@@ -151,8 +151,18 @@ fn a_press_is_felt_through_the_output_stage_and_inks_the_paper() {
             );
         }
     }
-    let ink = paper.canvas().ink_fraction();
-    assert!(ink > 0.002, "ink on {:.3}% of the paper", ink * 100.0);
+    // The stroke runs the drag's length: ink in the columns from the press to its end.
+    let c = paper.canvas();
+    let inked = |x_mm: f64| {
+        let px = frame.to_px(x_mm, 0.0)[0].round() as usize;
+        (0..c.height()).any(|y| c.at(px, y) > 0.0)
+    };
+    let written: Vec<f64> = (0..=15).map(|x| x as f64).filter(|x| inked(*x)).collect();
+    assert!(
+        written.len() >= 12,
+        "ink at x = {written:?} mm of the 15 mm drag ({:.3}% of the paper)",
+        c.ink_fraction() * 100.0
+    );
 
     // Forces off: the output stage ramps out.
     core.apply(DeviceCommand::EnableForces(false)).unwrap();

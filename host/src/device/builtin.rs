@@ -326,26 +326,8 @@ impl SimCore {
         if let Ok(mut j) = self.journal.lock() {
             j.tick(self.tick, pose);
         }
-        let shape = self.model.shape();
-        BrushFrame {
-            tick: self.tick,
-            pose,
-            spine: shape.spine,
-            skeleton: shape.skeleton,
-            layers: shape.layers,
-            in_contact: shape.in_contact,
-            ring_nodes: shape.ring_nodes,
-            eps: shape.eps,
-            hairs: shape.hairs,
-            force_total: out.force_total,
-            force_normal: out.force_normal,
-            depth_mm: out.depth_mm,
-            command: out.command,
-            output: self.model.output_state(self.enabled, self.faults),
-            replaying,
-            received: Instant::now(),
-            guide: out.guide,
-        }
+        let output = self.model.output_state(self.enabled, self.faults);
+        self.model.frame(self.tick, pose, out, output, replaying)
     }
 
     /// Guided writing is on (or fading out).

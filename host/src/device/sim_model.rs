@@ -2,7 +2,7 @@
 //! or Baxter & Lin's [`BaxterLinLoop`] (the local force model between solves), both ending
 //! in the shared guide, gate and output stage, each with the stroke its guide plays.
 
-use maobi_shared::baxter_lin::brush::{BaxterLinBrush, LEVELS, RING_NODES};
+use maobi_shared::baxter_lin::brush::{BaxterLinBrush, RING_NODES};
 use maobi_shared::baxter_lin::force_loop::BaxterLinLoop;
 use maobi_shared::brush::Layer;
 use maobi_shared::force::{DeviceLimits, OutputState, DEFAULT_FORCES};
@@ -11,7 +11,9 @@ use maobi_shared::guide::{GuideParams, GuidePlay};
 use maobi_shared::protocol::Faults;
 use maobi_shared::{BrushParams, ForceLoop, Fx, ParamId, Pose, Scalar, Vec3};
 
-use super::api::{DeviceError, GuideFrame};
+use std::time::Instant;
+
+use super::api::{BrushFrame, DeviceError, GuideFrame};
 use super::model::{BrushChoice, ModelKind};
 
 /// The part of a tick every model reports, in the units a [`super::BrushFrame`] carries.
@@ -251,72 +253,63 @@ impl SimModel {
         }
     }
 
-    /// The brush's surface and the spines a frame draws, in the frame's number type.
-    pub fn shape(&self) -> FrameShape {
+    /// The frame of the tick just run: `tick` with the handle at `pose`, what the loop
+    /// gave (`out`), the output stage's state and whether a replay drove it; the brush's
+    /// surface in the frame's number type, and Baxter & Lin's spines for the drawing.
+    pub fn frame(
+        &self,
+        tick: u64,
+        pose: Pose<f64>,
+        out: ModelTick,
+        output: OutputState,
+        replaying: bool,
+    ) -> BrushFrame {
+        let mut frame = BrushFrame {
+            tick,
+            pose,
+            spine: Vec::new(),
+            skeleton: Vec::new(),
+            layers: Vec::new(),
+            in_contact: Vec::new(),
+            ring_nodes: 0,
+            eps: Fx::ZERO,
+            hairs: Vec::new(),
+            force_total: out.force_total,
+            force_normal: out.force_normal,
+            depth_mm: out.depth_mm,
+            command: out.command,
+            output,
+            replaying,
+            received: Instant::now(),
+            guide: out.guide,
+        };
         match self {
             SimModel::Liang { fl, .. } => {
                 let b = fl.brush();
-                FrameShape {
-                    spine: b.spine().to_vec(),
-                    skeleton: b.skeleton().to_vec(),
-                    layers: b.layers().to_vec(),
-                    in_contact: b.in_contact().to_vec(),
-                    ring_nodes: b.ring_nodes(),
-                    eps: Fx::from_f32(b.params().footprint_eps_mm),
-                    hairs: Vec::new(),
-                }
+                frame.spine = b.spine().to_vec();
+                frame.skeleton = b.skeleton().to_vec();
+                frame.layers = b.layers().to_vec();
+                frame.in_contact = b.in_contact().to_vec();
+                frame.ring_nodes = b.ring_nodes();
+                frame.eps = Fx::from_f32(b.params().footprint_eps_mm);
             }
             SimModel::BaxterLin { lp, .. } => {
                 let b = lp.brush();
-                let g = b.geometry();
-                let layers: Vec<Layer<Fx>> = b.layers().iter().map(layer_to_fx).collect();
+                let eps = b.geometry().eps;
+                frame.spine = b.centres().iter().map(|c| c.cast()).collect();
+                frame.layers = b.layers().iter().map(Layer::cast).collect();
                 // A ring inks where its lowest point reaches the footprint's threshold.
-                let in_contact = b
+                frame.in_contact = b
                     .centres()
                     .iter()
                     .zip(b.layers())
-                    .map(|(c, l)| c.z - l.long_radius.max(l.short_radius) <= g.eps)
+                    .map(|(c, l)| c.z - l.long_radius.max(l.short_radius) <= eps)
                     .collect();
-                FrameShape {
-                    spine: b.centres().iter().map(|c| c.cast()).collect(),
-                    skeleton: Vec::new(),
-                    layers,
-                    in_contact,
-                    ring_nodes: RING_NODES,
-                    eps: Fx::from_f64(g.eps),
-                    hairs: b.spines().iter().map(|s| s.positions().to_vec()).collect(),
-                }
+                frame.ring_nodes = RING_NODES;
+                frame.eps = Fx::from_f64(eps);
+                frame.hairs = b.spines().iter().map(|s| s.positions().to_vec()).collect();
             }
         }
-    }
-
-    /// Surface rings the model draws (Liang's: its layers; Baxter & Lin's: [`LEVELS`]).
-    pub fn levels(&self) -> usize {
-        match self {
-            SimModel::Liang { fl, .. } => fl.brush().layers().len(),
-            SimModel::BaxterLin { .. } => LEVELS,
-        }
-    }
-}
-
-/// What a frame shows of the brush (see [`super::BrushFrame`]).
-pub struct FrameShape {
-    pub spine: Vec<Vec3<Fx>>,
-    pub skeleton: Vec<Vec3<Fx>>,
-    pub layers: Vec<Layer<Fx>>,
-    pub in_contact: Vec<bool>,
-    pub ring_nodes: usize,
-    pub eps: Fx,
-    pub hairs: Vec<Vec<Vec3<f64>>>,
-}
-
-fn layer_to_fx(l: &Layer<f64>) -> Layer<Fx> {
-    Layer {
-        short_axis: l.short_axis.cast(),
-        long_axis: l.long_axis.cast(),
-        long_radius: Fx::from_f64(l.long_radius),
-        short_radius: Fx::from_f64(l.short_radius),
-        wetness: Fx::from_f64(l.wetness),
-        deposited: Fx::from_f64(l.deposited),
+        frame
     }
 }

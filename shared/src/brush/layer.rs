@@ -22,3 +22,18 @@ pub struct Layer<S> {
     /// in fixed point it saturates after some two thousand million units).
     pub deposited: S,
 }
+
+impl<S: crate::scalar::Scalar> Layer<S> {
+    /// The same layer in another number type (a model's `f64` layers drawn by a host that
+    /// holds frames in the pen's fixed point).
+    pub fn cast<T: crate::scalar::Scalar>(&self) -> Layer<T> {
+        Layer {
+            short_axis: self.short_axis.cast(),
+            long_axis: self.long_axis.cast(),
+            long_radius: T::from_f64(self.long_radius.to_f64()),
+            short_radius: T::from_f64(self.short_radius.to_f64()),
+            wetness: T::from_f64(self.wetness.to_f64()),
+            deposited: T::from_f64(self.deposited.to_f64()),
+        }
+    }
+}

@@ -665,6 +665,17 @@ fn rejects_unknown_models_and_heads_of_the_other_model() {
     for name in ["flat", "filbert", "fan"] {
         assert!(err.contains(name), "{name} not in {err}");
     }
+    // The app: a Baxter & Lin head needs their model; the Phantom runs Liang's. Both are
+    // refused before any window opens (no display is needed to see it).
+    let o = maobi(&["gui", "--brush", "flat"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("baxter-lin"), "{}", stderr(&o));
+    let o = maobi(&["gui", "--device", "phantom", "--model", "baxter-lin"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("Liang's model"), "{}", stderr(&o));
+    let o = maobi(&["gui", "--model", "spline"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("baxter-lin"), "{}", stderr(&o));
 }
 
 /// Runs `maobi trace` on `poses` with `extra` options; the trace's text, or the failed run.

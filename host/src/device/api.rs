@@ -22,7 +22,7 @@ use maobi_shared::guide::{GuideForce, GuideStream};
 use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Scalar, Vec3};
 
 use super::journal::Journal;
-use super::model::ModelKind;
+use super::model::{BrushChoice, ModelKind};
 use crate::poses::PoseTrack;
 
 /// The brush's state after one model tick, as a device reports it.
@@ -148,10 +148,7 @@ impl DeviceCommand {
                     .and_then(|()| p.validate())
                     .map_err(|e| DeviceError::Rejected(e.to_string()))
             }
-            DeviceCommand::Preset(name) => {
-                presets::find(name)?;
-                Ok(())
-            }
+            DeviceCommand::Preset(name) => BrushChoice::liang_params(name).map(|_| ()),
             DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
                 format!("wetness {w} is outside 0 ..= 1"),
             )),

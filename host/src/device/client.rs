@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 
 use maobi_shared::force::OutputState;
 
-use super::model::ModelKind;
+use super::model::{BrushChoice, ModelKind};
 use maobi_shared::force_loop::HandGuide;
 use maobi_shared::guide::{GuideForce, GuidePlay, DEFAULT_GUIDE};
 use maobi_shared::protocol::{
@@ -207,7 +207,7 @@ pub struct LinkDevice {
 
 impl LinkDevice {
     pub fn new(opts: LinkOptions) -> Result<LinkDevice, DeviceError> {
-        let params = presets::find(&opts.preset)?;
+        let params = BrushChoice::liang_params(&opts.preset)?;
         let status = DeviceStatus {
             name: opts.endpoint.to_string(),
             connected: false,

@@ -125,11 +125,21 @@ impl BrushChoice {
         let choice = BrushChoice::parse(name)?;
         if let (Some(shape), ModelKind::Liang) = (choice.shape, model) {
             return Err(format!(
-                "the {} brush is Baxter & Lin's: choose their model (baxter-lin) to use it",
+                "the {} brush is Baxter & Lin's: their model (baxter-lin, in the built-in \
+                 simulator) draws it",
                 shape.name()
             ));
         }
         Ok(choice)
+    }
+
+    /// The parameters of Liang's brush called `name` (a preset): what a device that runs
+    /// only Liang's model (a pen, the Phantom bridge) takes; a Baxter & Lin head or an
+    /// unknown name is refused with the names.
+    pub fn liang_params(name: &str) -> Result<BrushParams, super::api::DeviceError> {
+        BrushChoice::for_model(name, ModelKind::Liang)
+            .map(|b| b.params)
+            .map_err(super::api::DeviceError::Rejected)
     }
 
     /// Baxter & Lin's head for this brush (a preset is a round head of its profile).

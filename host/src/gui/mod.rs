@@ -154,6 +154,11 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     }
     crate::device::BrushChoice::for_model(&opts.brush, opts.model)
         .map_err(|e| anyhow::anyhow!("--brush: {e}"))?;
+    if opts.phantom.is_some() {
+        opts.model
+            .on_liang_only_device("the Phantom bridge")
+            .map_err(|e| anyhow::anyhow!("--model with --device phantom: {e}"))?;
+    }
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.

@@ -9,14 +9,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, Faults, PoseSample};
-use maobi_shared::{presets, BrushParams, Fx, ParamError, ParamId, Scalar};
+use maobi_shared::{BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
 use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared};
 use crate::device::builtin::{SimClock, SimDevice};
 use crate::device::client::frame_from_state;
 use crate::device::journal::Journal;
-use crate::device::model::ModelKind;
+use crate::device::model::{BrushChoice, ModelKind};
 use crate::device::ProtocolModel;
 use crate::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 
@@ -124,7 +124,7 @@ impl PhantomDevice {
         preset: &str,
         opts: BridgeOptions,
     ) -> Result<PhantomDevice, DeviceError> {
-        let params = presets::find(preset)?;
+        let params = BrushChoice::liang_params(preset)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
@@ -272,7 +272,7 @@ impl Device for PhantomDevice {
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let p = presets::find(&name)?;
+                let p = BrushChoice::liang_params(&name)?;
                 self.servo(ServoCommand::SetParams(p))?;
                 self.params = p;
                 self.preset = name;

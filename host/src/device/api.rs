@@ -148,7 +148,9 @@ impl DeviceCommand {
                     .and_then(|()| p.validate())
                     .map_err(|e| DeviceError::Rejected(e.to_string()))
             }
-            DeviceCommand::Preset(name) => BrushChoice::liang_params(name).map(|_| ()),
+            DeviceCommand::Preset(name) => BrushChoice::liang_params(name)
+                .map(|_| ())
+                .map_err(DeviceError::Rejected),
             DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
                 format!("wetness {w} is outside 0 ..= 1"),
             )),

@@ -207,7 +207,7 @@ pub struct LinkDevice {
 
 impl LinkDevice {
     pub fn new(opts: LinkOptions) -> Result<LinkDevice, DeviceError> {
-        let params = BrushChoice::liang_params(&opts.preset)?;
+        let params = BrushChoice::liang_params(&opts.preset).map_err(DeviceError::Rejected)?;
         let status = DeviceStatus {
             name: opts.endpoint.to_string(),
             connected: false,

@@ -136,10 +136,8 @@ impl BrushChoice {
     /// The parameters of Liang's brush called `name` (a preset): what a device that runs
     /// only Liang's model (a pen, the Phantom bridge) takes; a Baxter & Lin head or an
     /// unknown name is refused with the names.
-    pub fn liang_params(name: &str) -> Result<BrushParams, super::api::DeviceError> {
-        BrushChoice::for_model(name, ModelKind::Liang)
-            .map(|b| b.params)
-            .map_err(super::api::DeviceError::Rejected)
+    pub fn liang_params(name: &str) -> Result<BrushParams, String> {
+        BrushChoice::for_model(name, ModelKind::Liang).map(|b| b.params)
     }
 
     /// Baxter & Lin's head for this brush (a preset is a round head of its profile).

@@ -124,7 +124,7 @@ impl PhantomDevice {
         preset: &str,
         opts: BridgeOptions,
     ) -> Result<PhantomDevice, DeviceError> {
-        let params = BrushChoice::liang_params(preset)?;
+        let params = BrushChoice::liang_params(preset).map_err(DeviceError::Rejected)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
@@ -272,7 +272,7 @@ impl Device for PhantomDevice {
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let p = BrushChoice::liang_params(&name)?;
+                let p = BrushChoice::liang_params(&name).map_err(DeviceError::Rejected)?;
                 self.servo(ServoCommand::SetParams(p))?;
                 self.params = p;
                 self.preset = name;

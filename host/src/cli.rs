@@ -472,9 +472,10 @@ pub struct TraceArgs {
     pub stroke: Option<PathBuf>,
     #[command(flatten)]
     pub brush: BrushArgs,
-    /// Number type to run the model in (Baxter & Lin's model runs in f64 whatever this says).
-    #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
-    pub scalar: ScalarKind,
+    /// Number type to run the model in (default: fixed, the pen's; Baxter & Lin's model runs
+    /// in f64 only, and refuses another).
+    #[arg(long, value_enum)]
+    pub scalar: Option<ScalarKind>,
     /// The brush model: `liang` (the pen's) or `baxter-lin` (Baxter & Lin's spines; round
     /// heads from the preset's size, and the `flat`, `filbert` and `fan` brushes). Its trace
     /// has every spine's joints instead of Liang's masses (see `host/src/trace.rs`).
@@ -517,10 +518,10 @@ pub struct RenderArgs {
         allow_negative_numbers = true
     )]
     pub px_per_mm: f64,
-    /// Number type to run the model in (the device runs fixed; Baxter & Lin's model runs in
-    /// f64 whatever this says).
-    #[arg(long, value_enum, default_value_t = ScalarKind::Fixed)]
-    pub scalar: ScalarKind,
+    /// Number type to run the model in (default: fixed, as the device runs it; Baxter & Lin's
+    /// model runs in f64 only, and refuses another).
+    #[arg(long, value_enum)]
+    pub scalar: Option<ScalarKind>,
     /// The brush model: `liang` (the pen's) or `baxter-lin` (Baxter & Lin's spines; round
     /// heads from the preset's size, and the `flat`, `filbert` and `fan` brushes).
     #[arg(long, value_enum, default_value_t = ModelKind::Liang, conflicts_with = "session")]
@@ -947,20 +948,33 @@ fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<(
     Ok(())
 }
 
+/// Baxter & Lin's model runs in `f64` only: another `--scalar` is refused, not ignored.
+fn baxter_lin_scalar(scalar: Option<ScalarKind>) -> anyhow::Result<()> {
+    match scalar {
+        None | Some(ScalarKind::F64) => Ok(()),
+        Some(other) => bail!(
+            "--scalar {other}: Baxter & Lin's model runs in f64 only (give --scalar f64 or \
+             none)"
+        ),
+    }
+}
+
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
     let (ticks, scalar) = match a.model {
         ModelKind::Liang => {
             let params = a.brush.liang_params()?;
-            let ticks = match a.scalar {
+            let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
+            let ticks = match scalar {
                 ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
                 ScalarKind::F32 => trace_as::<f32>(params, &track, &a.output)?,
                 ScalarKind::F64 => trace_as::<f64>(params, &track, &a.output)?,
             };
-            (ticks, a.scalar)
+            (ticks, scalar)
         }
         ModelKind::BaxterLin => {
+            baxter_lin_scalar(a.scalar)?;
             let params = a.brush.baxter_lin_params()?;
             let shape = a.brush.brush.shape.unwrap_or(HeadShape::Round);
             let ticks = trace_baxter_lin(shape, &params, &track, &a.output)?;
@@ -1036,7 +1050,10 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     }
     let params = match a.model {
         ModelKind::Liang => a.brush.liang_params()?,
-        ModelKind::BaxterLin => a.brush.baxter_lin_params()?,
+        ModelKind::BaxterLin => {
+            baxter_lin_scalar(a.scalar)?;
+            a.brush.baxter_lin_params()?
+        }
     };
     let (track, file_paper) = load_track_and_paper(a.poses.as_deref(), a.stroke.as_deref())?;
     let paper = PaperSpec::new(a.paper.or(file_paper).unwrap_or_default());
@@ -1045,12 +1062,13 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         (ModelKind::Liang, _) => {
             let frame = paper_frame(&track, &params, a.px_per_mm)?;
             log::debug!("paper: {frame:?}, {paper:?}");
-            let (canvas, stats) = match a.scalar {
+            let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
+            let (canvas, stats) = match scalar {
                 ScalarKind::Fixed => render::<Fx>(params, &track, frame, paper)?,
                 ScalarKind::F32 => render::<f32>(params, &track, frame, paper)?,
                 ScalarKind::F64 => render::<f64>(params, &track, frame, paper)?,
             };
-            (canvas, stats, a.scalar)
+            (canvas, stats, scalar)
         }
         (ModelKind::BaxterLin, shape) => {
             let shape = shape.unwrap_or(HeadShape::Round);

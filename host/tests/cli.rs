@@ -665,6 +665,20 @@ fn rejects_unknown_models_and_heads_of_the_other_model() {
     for name in ["flat", "filbert", "fan"] {
         assert!(err.contains(name), "{name} not in {err}");
     }
+    // Baxter & Lin's model runs in f64: another number type is refused, not ignored.
+    let o = maobi(&[
+        "render",
+        "--poses",
+        &p,
+        "--model",
+        "baxter-lin",
+        "--scalar",
+        "fixed",
+        "-o",
+        out.path(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("f64 only"), "{}", stderr(&o));
     // The app: a Baxter & Lin head needs their model; the Phantom runs Liang's. Both are
     // refused before any window opens (no display is needed to see it).
     let o = maobi(&["gui", "--brush", "flat"]);

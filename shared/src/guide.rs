@@ -391,12 +391,25 @@ impl<P> GuidePlay<P> {
     where
         P: AsRef<[Vec3<S>]>,
     {
+        self.next_sample_as(stream, |p| p)
+    }
+
+    /// [`Self::next_sample`] of a stroke held in another number type than the guide's,
+    /// each point converted by `convert` as it is played (no copy of the stroke).
+    pub fn next_sample_as<Q: Copy, S: Scalar>(
+        &mut self,
+        stream: &GuideStream<S>,
+        convert: impl Fn(Q) -> Vec3<S>,
+    ) -> Option<GuideInput<S>>
+    where
+        P: AsRef<[Q]>,
+    {
         let points = self.points.as_ref();
         let k = self.next;
         if let Some(&anchor) = points.get(k) {
             self.next += 1;
             return Some(GuideInput {
-                anchor,
+                anchor: convert(anchor),
                 on: k + 1 < points.len(),
             });
         }
@@ -405,6 +418,7 @@ impl<P> GuidePlay<P> {
             _ => None,
         }
     }
+
     /// [`Self::next_sample`] of a play that may be absent, which ends (becomes `None`) when
     /// it is done: what a device that plays strokes into its guide calls every tick.
     pub fn next_sample_of<S: Scalar>(
@@ -414,7 +428,19 @@ impl<P> GuidePlay<P> {
     where
         P: AsRef<[Vec3<S>]>,
     {
-        let sample = play.as_mut()?.next_sample(stream);
+        Self::next_sample_of_as(play, stream, |p| p)
+    }
+
+    /// [`Self::next_sample_of`] with the points converted as [`Self::next_sample_as`] does.
+    pub fn next_sample_of_as<Q: Copy, S: Scalar>(
+        play: &mut Option<Self>,
+        stream: &GuideStream<S>,
+        convert: impl Fn(Q) -> Vec3<S>,
+    ) -> Option<GuideInput<S>>
+    where
+        P: AsRef<[Q]>,
+    {
+        let sample = play.as_mut()?.next_sample_as(stream, convert);
         if sample.is_none() {
             *play = None;
         }

@@ -127,6 +127,14 @@ pub struct LocalForceModel {
 }
 
 impl LocalForceModel {
+    /// No force anywhere: what a servo loop feels before its solver's first model.
+    pub const NONE: LocalForceModel = LocalForceModel {
+        p0: Vec3::ZERO,
+        f0: Vec3::ZERO,
+        k: [[0.0; 3]; 3],
+        probed: [[0.0; 3]; 3],
+    };
+
     /// The model of `spines`, solved at `pose`, from one-sided differences of copies of them
     /// solved at `pose` moved along each axis by `motion`'s component there (the handle's move
     /// over the last rebuild interval, which it is taken to repeat), at least `min_probe_mm`
@@ -365,17 +373,31 @@ impl LocalForceBrush {
     pub fn tick(&mut self, pose: &Pose<f64>) -> Vec3<f64> {
         self.ticks += 1;
         if self.ticks.is_multiple_of(self.params.rebuild_every as u64) {
-            self.brush.tick(pose);
-            let motion = pose.pos - self.model.origin();
-            self.model = LocalForceModel::build(
-                self.brush.spines(),
-                pose,
-                motion,
-                self.params.min_probe_mm,
-                self.params.max_stiffness_n_per_mm,
-            );
+            self.solve(pose);
         }
         self.model.force(pose.pos)
+    }
+
+    /// Solves the brush at `pose` now and rebuilds the model there: what [`Self::tick`] does
+    /// every [`LocalForceParams::rebuild_every`]-th tick, and what a solver thread does when
+    /// the servo loop asks. The spines' friction takes the time since the last solve from
+    /// [`Self::set_solve_interval`].
+    pub fn solve(&mut self, pose: &Pose<f64>) {
+        self.brush.tick(pose);
+        let motion = pose.pos - self.model.origin();
+        self.model = LocalForceModel::build(
+            self.brush.spines(),
+            pose,
+            motion,
+            self.params.min_probe_mm,
+            self.params.max_stiffness_n_per_mm,
+        );
+    }
+
+    /// The time the next [`Self::solve`] covers (s): a solver thread's solves are as far
+    /// apart as the servo ticks between the poses it was given, not a fixed count.
+    pub fn set_solve_interval(&mut self, interval_s: f64) {
+        self.brush.set_solve_interval(interval_s);
     }
 
     /// Whether the last [`Self::tick`] solved the brush.

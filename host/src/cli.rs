@@ -270,9 +270,9 @@ pub struct GuiArgs {
         )
     )]
     pub brush: Option<BrushChoice>,
-    /// The brush model the built-in simulator runs: `liang` (the pen's) or `baxter-lin`
-    /// (Baxter & Lin's spines, with the local force model for the hand); the app's model
-    /// choice changes it (default: the one used last, else `liang`).
+    /// The brush model the built-in simulator (or the Phantom) runs: `liang` (the pen's) or
+    /// `baxter-lin` (Baxter & Lin's spines, with the local force model for the hand); the
+    /// app's model choice changes it (default: the one used last, else `liang`).
     #[arg(long, value_enum)]
     pub model: Option<ModelKind>,
     /// The paper at start: `sized` (熟宣) or `raw` (生宣); the app's paper choice changes it.
@@ -667,8 +667,10 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
         lib.path().display(),
         lib.source()
     );
+    // The wire protocol's states carry Liang's brush, the pen's: the bridge over TCP runs it.
     let opts = BridgeOptions {
         brush,
+        model: crate::phantom::ServoBrush::Liang,
         mapping: a.phantom.mapping(),
         state_hz: a.state_hz,
         forces_on: !a.no_forces,

@@ -409,6 +409,30 @@ fn configure(lib: &HdLib, config: &str) {
     assert_eq!(unsafe { f(c.as_ptr()) }, 0, "config `{config}`");
 }
 
+/// `maobi --device phantom` with the large brush of `model` on the stand-in, which plays the
+/// device poses of `poses` and records its forces to `record`; the library stays loaded as
+/// long as the returned handle lives.
+fn gui_device_playing(
+    poses: &Path,
+    record: &Path,
+    model: maobi::device::ModelKind,
+) -> (Arc<HdLib>, Box<dyn maobi::device::Device>) {
+    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
+    configure(
+        &lib,
+        &format!("poses={};record={}", poses.display(), record.display()),
+    );
+    let d = maobi::phantom::device::gui_device(
+        Some(standin()),
+        model,
+        "large",
+        maobi::gui::start_hand(46.0),
+        None,
+    )
+    .unwrap();
+    (lib, d)
+}
+
 /// An HD error in the middle of the stroke: zero force from that callback on, the error
 /// reported with the library's text, a clean stop (the device released, the record written).
 #[test]
@@ -531,6 +555,7 @@ fn the_gui_falls_back_to_the_simulator_with_the_reason() {
     let hand = maobi::gui::start_hand(46.0);
     let mut d = maobi::phantom::device::gui_device(
         Some(PathBuf::from("/nonexistent/z/libHD.so")),
+        maobi::device::ModelKind::Liang,
         "large",
         hand,
         None,
@@ -706,9 +731,38 @@ fn servo_step_cost() {
         }
     }
     let f32_us = t.elapsed().as_secs_f64() * 1e6 / (reps * poses.len()) as f64;
-    eprintln!("servo step: Fx {fx_us:.1} us, f32 {f32_us:.1} us (mean per 1 ms tick)");
+    // Baxter & Lin's brush: the step with its solver on a thread of its own, as the bridge
+    // runs it (the step only evaluates the solver's last model).
+    use maobi::phantom::solver::{SolverLink, SolverThread};
+    use maobi_shared::baxter_lin::head::HeadShape;
+    use maobi_shared::baxter_lin::local_force::LocalForceParams;
+    let link = SolverLink::new();
+    let local = LocalForceParams::for_device(&PHANTOM_OMNI);
+    let mut solver = SolverThread::spawn(link.clone(), HeadShape::Round, local).unwrap();
+    let mut core =
+        ServoCore::baxter_lin(params, PHANTOM_OMNI, Mapping::default(), true, link.clone())
+            .unwrap();
+    let (mut total, mut worst) = (0.0f64, 0.0f64);
+    for m in &transforms {
+        let t = Instant::now();
+        std::hint::black_box(core.step(m, 0));
+        let us = t.elapsed().as_secs_f64() * 1e6;
+        total += us;
+        worst = worst.max(us);
+        // In real time, so the solver keeps up as it would beside the servo loop.
+        std::thread::sleep(Duration::from_micros(900));
+    }
+    solver.stop();
+    let bl_us = total / transforms.len() as f64;
+    eprintln!(
+        "servo step: Fx {fx_us:.1} us, f32 {f32_us:.1} us (mean per 1 ms tick); Baxter & Lin's \
+         local model {bl_us:.2} us mean, {worst:.1} us worst, its solver {} solves beside it",
+        link.counts().0
+    );
     // The callback shares its millisecond with libHD's own work: keep it well inside.
     assert!(fx_us < 250.0, "Fx step {fx_us} us");
+    assert!(bl_us < 250.0, "Baxter & Lin step {bl_us} us");
+    assert!(link.counts().0 > 0);
 }
 
 /// The stylus buttons, through the stand-in's script: button 2 toggles forces, both together
@@ -848,18 +902,7 @@ fn the_gui_device_runs_the_servo_loop() {
     )
     .unwrap();
     let record = scratch("gui_record.csv");
-    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
-    configure(
-        &lib,
-        &format!("poses={};record={}", poses.display(), record.display()),
-    );
-    let mut d = maobi::phantom::device::gui_device(
-        Some(standin()),
-        "large",
-        maobi::gui::start_hand(46.0),
-        None,
-    )
-    .unwrap();
+    let (lib, mut d) = gui_device_playing(&poses, &record, maobi::device::ModelKind::Liang);
     let s = d.status();
     assert!(s.name.starts_with("Phantom (") && s.connected, "{s:?}");
     assert!(s.faults.is_empty(), "{:?}", s.faults);
@@ -1035,18 +1078,7 @@ fn the_gui_device_guides_the_stylus() {
     )
     .unwrap();
     let record = scratch("guide_record.csv");
-    let lib = HdLib::open(&standin(), Source::Flag).unwrap();
-    configure(
-        &lib,
-        &format!("poses={};record={}", poses.display(), record.display()),
-    );
-    let mut d = maobi::phantom::device::gui_device(
-        Some(standin()),
-        "large",
-        maobi::gui::start_hand(46.0),
-        None,
-    )
-    .unwrap();
+    let (lib, mut d) = gui_device_playing(&poses, &record, maobi::device::ModelKind::Liang);
     assert!(d.status().connected);
     let mut frames = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -1542,4 +1574,231 @@ fn maobi_bridge_reports_a_device_warning_and_runs_on() {
     let got = read_record(&record);
     assert_eq!(got[400], [0.0; 3]);
     assert_eq!(read_summary(&record)["frame_errors"], "0");
+}
+
+/// The hook's device poses, the transforms the servo loop reads, and the paper poses.
+fn hook_transforms() -> (Vec<[f64; 16]>, Vec<Pose<f64>>) {
+    let (device, paper) = hook_device_poses();
+    let m = device
+        .iter()
+        .map(|(p, q)| transform_of_pose(*p, *q))
+        .collect();
+    (m, paper)
+}
+
+/// Baxter & Lin's brush in the servo loop, its solver served in lock-step after every servo
+/// tick (no library, no thread: `ServoCore::step` is the callback's model, `Solver::serve`
+/// the thread's): on the hook, the forces follow the built-in simulator's one-thread loop
+/// (`BaxterLinLoop`, the solve inside the tick) within a stated share of the force, and
+/// press the hand out of the paper; a solver that falls behind solves the newest pose and
+/// counts the skipped ones; a new brush feels no force of the old one.
+#[test]
+fn the_servo_loop_feels_baxter_and_lins_brush_from_its_solver() {
+    use maobi::phantom::servo::{ServoCommand, ServoState};
+    use maobi::phantom::solver::{Solver, SolverLink};
+    use maobi_shared::baxter_lin::brush::BaxterLinBrush;
+    use maobi_shared::baxter_lin::force_loop::BaxterLinLoop;
+    use maobi_shared::baxter_lin::head::HeadShape;
+    use maobi_shared::baxter_lin::local_force::LocalForceParams;
+    let (transforms, paper) = hook_transforms();
+    let params = presets::LARGE;
+    let limits = PHANTOM_OMNI;
+    let local = LocalForceParams::for_device(&limits);
+    let map = Mapping::default();
+    let gate = Gate {
+        allowed: true,
+        faulted: false,
+    };
+
+    // The one-thread loop, from rest at the first pose, its solves `lag` ticks later than
+    // at every tenth (the first pose held that long).
+    let one_thread = |lag: usize| -> Vec<[f64; 3]> {
+        let brush = BaxterLinBrush::of_shape(HeadShape::Round, &params, paper[0]).unwrap();
+        let mut lp = BaxterLinLoop::new(brush, paper[0], limits, DEFAULT_GUIDE).unwrap();
+        let poses = std::iter::repeat_n(&paper[0], lag).chain(&paper);
+        let all: Vec<[f64; 3]> = poses
+            .map(|p| {
+                let out = lp.tick(TickIn {
+                    pose: Some(*p),
+                    guide: None,
+                    gate,
+                });
+                Mapping::force_to_device(out.command.to_f64())
+            })
+            .collect();
+        all[lag..].to_vec()
+    };
+    let want = one_thread(0);
+
+    // The servo loop and its solver, `every` servo ticks per serve.
+    let start = || {
+        let link = SolverLink::new();
+        let mut core = ServoCore::baxter_lin(params, limits, map, false, link.clone()).unwrap();
+        core.apply(ServoCommand::EnableForces(true));
+        let solver = Solver::new(link.clone(), HeadShape::Round, local);
+        (core, solver, link)
+    };
+    let run = |every: usize| {
+        let (mut core, mut solver, link) = start();
+        let got: Vec<[f64; 3]> = transforms
+            .iter()
+            .enumerate()
+            .map(|(k, m)| {
+                let f = core.step(m, 0);
+                if (k + 1) % every == 0 {
+                    solver.serve();
+                }
+                f
+            })
+            .collect();
+        (got, link.counts(), core, link)
+    };
+    let (got, (solves, skipped, deferred), core, link) = run(1);
+    let rms =
+        |v: &[[f64; 3]]| (v.iter().map(|f| norm(*f).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+    let apart = |a: &[[f64; 3]], b: &[[f64; 3]]| {
+        let d: Vec<[f64; 3]> = a
+            .iter()
+            .zip(b)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        rms(&d)
+    };
+    let (rms_want, rms_diff) = (rms(&want), apart(&got, &want));
+    // How far the one-thread loop moves when its solves fall at other ticks: a friction
+    // contact's path depends on the poses it was solved at.
+    let phase = (1..10)
+        .map(|lag| apart(&one_thread(lag), &want))
+        .fold(0.0, f64::max);
+    let peak = got.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    eprintln!(
+        "Baxter & Lin in the servo loop, the hook: {} ticks, {solves} solves; force {rms_want:.3} N \
+         RMS, apart from the one-thread loop by {rms_diff:.4} N RMS ({:.1}%); the one-thread \
+         loop with its solves 1-9 ticks later, by up to {phase:.4} N ({:.1}%); peak {peak:.3} N",
+        got.len(),
+        100.0 * rms_diff / rms_want,
+        100.0 * phase / rms_want
+    );
+    assert!(
+        rms_want > 0.05,
+        "the hook presses the brush: {rms_want} N RMS"
+    );
+    assert!(peak <= limits.peak_n as f64 + 1e-9, "{peak}");
+    // One solve per `rebuild_every` ticks, and the first (the brush placed).
+    let expect = got.len().div_ceil(local.rebuild_every as usize) as u64;
+    assert!(
+        solves.abs_diff(expect) <= 1,
+        "{solves} solves, {expect} expected"
+    );
+    assert_eq!((skipped, deferred), (0, 0));
+    // The servo loop's model is one tick older than the one-thread loop's, solved at other
+    // ticks: it is no further from it than the one-thread loop is from itself when its
+    // solves fall at other ticks.
+    assert!(
+        rms_diff <= phase,
+        "{rms_diff} N RMS apart from the one-thread loop ({phase} N between its phases)"
+    );
+    // The brush the solver published is the one the GUI draws.
+    let drawn = link.brush().expect("a solved brush");
+    assert_eq!(drawn.spines().len(), 7);
+    assert!(matches!(core.servo_state(), Some(ServoState::Hand(_))));
+    assert!(
+        core.state().is_none(),
+        "no wire-protocol state of this model"
+    );
+
+    // New parameters mid-press: the next tick feels no force, though the old brush's model
+    // (published after the last tick) pushes back hard there.
+    let pressed = (0..got.len())
+        .max_by(|&a, &b| norm(got[a]).total_cmp(&norm(got[b])))
+        .unwrap();
+    let (mut core, mut solver, _) = start();
+    for m in &transforms[..pressed] {
+        core.step(m, 0);
+        solver.serve();
+    }
+    let before = core.step(&transforms[pressed], 0);
+    solver.serve();
+    assert!(norm(before) > 0.05, "pressed: {before:?}");
+    core.apply(ServoCommand::SetParams(params));
+    core.step(&transforms[pressed], 0);
+    let Some(ServoState::Hand(h)) = core.servo_state() else {
+        panic!("{:?}", core.servo_state());
+    };
+    assert_eq!(h.force, [0.0; 3], "the old brush felt");
+    // The new brush's first model arrives with the next solve.
+    solver.serve();
+    core.step(&transforms[pressed], 0);
+    let Some(ServoState::Hand(h)) = core.servo_state() else {
+        panic!("{:?}", core.servo_state());
+    };
+    assert_ne!(h.force, [0.0; 3], "the new brush's model");
+
+    // A solver serving every 25 ticks solves the newest request and counts the rest.
+    let (slow, (solves, skipped, _), ..) = run(25);
+    let peak = slow.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    eprintln!("a solver every 25 ticks: {solves} solves, {skipped} requests skipped");
+    assert!(skipped > 0 && solves > 0, "{solves} {skipped}");
+    assert!(peak <= limits.peak_n as f64 + 1e-9);
+    assert!(rms(&slow) > 0.05, "still felt: {} N RMS", rms(&slow));
+}
+
+/// `maobi --device phantom --model baxter-lin`: the servo loop on the stand-in runs Baxter &
+/// Lin's brush, solved on its own thread; the GUI's frames carry its spines, the stand-in
+/// recorded the press pushing back within the device's limit, and switching the model back
+/// to Liang's starts the loop again with the pen's brush.
+#[test]
+fn the_gui_device_runs_baxter_and_lins_brush() {
+    use maobi::device::{DeviceCommand, ModelKind};
+    let _turn = STANDIN.lock().unwrap_or_else(|p| p.into_inner());
+    let (poses, n) = hook_script("bl_gui.csv");
+    let record = scratch("bl_gui_record.csv");
+    let (lib, mut d) = gui_device_playing(&poses, &record, ModelKind::BaxterLin);
+    let s = d.status();
+    assert!(s.name.starts_with("Phantom (") && s.connected, "{s:?}");
+    assert_eq!(s.model, ModelKind::BaxterLin);
+    // A parameter the round head does not read is refused, naming those it reads.
+    let e = d
+        .send(DeviceCommand::SetParam(maobi_shared::ParamId::Layers, 8.0))
+        .unwrap_err();
+    assert!(e.to_string().contains("does not have"), "{e}");
+    let mut frames = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while frames.len() < n * 120 / 1000 && Instant::now() < deadline {
+        d.poll(&mut frames);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(frames.len() > 100, "{} frames", frames.len());
+    assert!(
+        frames.iter().all(|f| f.hairs.len() == 7),
+        "the round head's spines"
+    );
+    assert!(
+        frames.iter().any(|f| f.in_contact.iter().any(|c| *c)),
+        "the hook's press reaches the paper"
+    );
+    // Switching back to Liang's model starts the loop again with the pen's brush (the
+    // stand-in writes the first loop's record as it releases the device).
+    d.send(DeviceCommand::Model(ModelKind::Liang)).unwrap();
+    assert_eq!(d.status().model, ModelKind::Liang);
+    let got = read_record(&record);
+    let peak = got.iter().map(|f| norm(*f)).fold(0.0, f64::max);
+    eprintln!(
+        "the stand-in recorded {} ticks, peak {peak:.3} N",
+        got.len()
+    );
+    assert!(got.len() >= n, "{} ticks of {n}", got.len());
+    assert!(peak > 0.05 && peak <= 3.3, "{peak}");
+    assert_eq!(*got.last().unwrap(), [0.0; 3]);
+    let mut liang = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while liang.is_empty() && Instant::now() < deadline {
+        d.poll(&mut liang);
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(liang
+        .iter()
+        .all(|f| f.hairs.is_empty() && !f.skeleton.is_empty()));
+    d.disconnect();
+    drop(lib);
 }

@@ -52,14 +52,14 @@ impl ModelKind {
             .ok_or_else(|| format!("unknown brush model `{name}`; the models: liang, baxter-lin"))
     }
 
-    /// What a device that runs only Liang's model (a pen, the Phantom bridge) says to a
+    /// What a device that runs only Liang's model (a pen, `maobi bridge`) says to a
     /// choice of this model: nothing to do, or why not.
     pub fn on_liang_only_device(self, device: &str) -> Result<(), String> {
         match self {
             ModelKind::Liang => Ok(()),
             ModelKind::BaxterLin => Err(format!(
                 "{device} runs Liang's model; Baxter & Lin's runs in the built-in simulator \
-                 (and `maobi render`/`trace --model baxter-lin`)"
+                 and on the Phantom (and `maobi render`/`trace --model baxter-lin`)"
             )),
         }
     }
@@ -125,8 +125,7 @@ impl BrushChoice {
         let choice = BrushChoice::parse(name)?;
         if let (Some(shape), ModelKind::Liang) = (choice.shape, model) {
             return Err(format!(
-                "the {} brush is Baxter & Lin's: their model (baxter-lin, in the built-in \
-                 simulator) draws it",
+                "the {} brush is Baxter & Lin's: their model (baxter-lin) draws it",
                 shape.name()
             ));
         }
@@ -134,7 +133,7 @@ impl BrushChoice {
     }
 
     /// The parameters of Liang's brush called `name` (a preset): what a device that runs
-    /// only Liang's model (a pen, the Phantom bridge) takes; a Baxter & Lin head or an
+    /// only Liang's model (a pen, `maobi bridge` over TCP) takes; a Baxter & Lin head or an
     /// unknown name is refused with the names.
     pub fn liang_params(name: &str) -> Result<BrushParams, String> {
         BrushChoice::for_model(name, ModelKind::Liang).map(|b| b.params)

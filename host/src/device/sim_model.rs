@@ -33,6 +33,26 @@ pub struct ModelTick {
     pub guide: Option<GuideFrame>,
 }
 
+impl ModelTick {
+    /// Baxter & Lin's tick: the output stage's `command`, the local model's `force` (its
+    /// normal part along the paper's normal), no skeleton below the paper.
+    pub fn of_baxter_lin(
+        command: Vec3<f64>,
+        force: Vec3<f64>,
+        faults: Faults,
+        guide: Option<GuideFrame>,
+    ) -> ModelTick {
+        ModelTick {
+            command: command.to_f64(),
+            force_total: force.to_f64(),
+            force_normal: [0.0, 0.0, force.z],
+            depth_mm: 0.0,
+            faults,
+            guide,
+        }
+    }
+}
+
 /// A simulated brush model in its 1 kHz loop.
 // Both loops are large; the enum is boxed where it lives (one per device).
 #[allow(clippy::large_enum_variant)]
@@ -239,16 +259,10 @@ impl SimModel {
             SimModel::BaxterLin { lp, play, .. } => {
                 let guide = GuidePlay::next_sample_of(play, lp.guide());
                 let out = lp.tick(TickIn { pose, guide, gate });
-                ModelTick {
-                    command: out.command.to_f64(),
-                    force_total: out.force.to_f64(),
-                    force_normal: [0.0, 0.0, out.force.z],
-                    depth_mm: 0.0,
-                    faults: out.faults,
-                    guide: play
-                        .as_ref()
-                        .and_then(|_| GuideFrame::of(lp.guide(), &out.guide)),
-                }
+                let guide = play
+                    .as_ref()
+                    .and_then(|_| GuideFrame::of(lp.guide(), &out.guide));
+                ModelTick::of_baxter_lin(out.command, out.force, out.faults, guide)
             }
         }
     }
@@ -264,25 +278,7 @@ impl SimModel {
         output: OutputState,
         replaying: bool,
     ) -> BrushFrame {
-        let mut frame = BrushFrame {
-            tick,
-            pose,
-            spine: Vec::new(),
-            skeleton: Vec::new(),
-            layers: Vec::new(),
-            in_contact: Vec::new(),
-            ring_nodes: 0,
-            eps: Fx::ZERO,
-            hairs: Vec::new(),
-            force_total: out.force_total,
-            force_normal: out.force_normal,
-            depth_mm: out.depth_mm,
-            command: out.command,
-            output,
-            replaying,
-            received: Instant::now(),
-            guide: out.guide,
-        };
+        let mut frame = frame_of_tick(tick, pose, out, output, replaying);
         match self {
             SimModel::Liang { fl, .. } => {
                 let b = fl.brush();
@@ -293,23 +289,56 @@ impl SimModel {
                 frame.ring_nodes = b.ring_nodes();
                 frame.eps = Fx::from_f32(b.params().footprint_eps_mm);
             }
-            SimModel::BaxterLin { lp, .. } => {
-                let b = lp.brush();
-                let eps = b.geometry().eps;
-                frame.spine = b.centres().iter().map(|c| c.cast()).collect();
-                frame.layers = b.layers().iter().map(Layer::cast).collect();
-                // A ring inks where its lowest point reaches the footprint's threshold.
-                frame.in_contact = b
-                    .centres()
-                    .iter()
-                    .zip(b.layers())
-                    .map(|(c, l)| c.z - l.long_radius.max(l.short_radius) <= eps)
-                    .collect();
-                frame.ring_nodes = RING_NODES;
-                frame.eps = Fx::from_f64(eps);
-                frame.hairs = b.spines().iter().map(|s| s.positions().to_vec()).collect();
-            }
+            SimModel::BaxterLin { lp, .. } => fill_baxter_lin(&mut frame, lp.brush()),
         }
         frame
     }
+}
+
+/// A frame of tick `tick` with the handle at `pose`, what the loop gave (`out`), the output
+/// stage's state and whether a replay drove it; no brush in it yet.
+pub fn frame_of_tick(
+    tick: u64,
+    pose: Pose<f64>,
+    out: ModelTick,
+    output: OutputState,
+    replaying: bool,
+) -> BrushFrame {
+    BrushFrame {
+        tick,
+        pose,
+        spine: Vec::new(),
+        skeleton: Vec::new(),
+        layers: Vec::new(),
+        in_contact: Vec::new(),
+        ring_nodes: 0,
+        eps: Fx::ZERO,
+        hairs: Vec::new(),
+        force_total: out.force_total,
+        force_normal: out.force_normal,
+        depth_mm: out.depth_mm,
+        command: out.command,
+        output,
+        replaying,
+        received: Instant::now(),
+        guide: out.guide,
+    }
+}
+
+/// Puts Baxter & Lin's brush `b` into `frame`: its rings as the surface's layers (in the
+/// frame's number type) and its spines for the drawing.
+pub fn fill_baxter_lin(frame: &mut BrushFrame, b: &BaxterLinBrush) {
+    let eps = b.geometry().eps;
+    frame.spine = b.centres().iter().map(|c| c.cast()).collect();
+    frame.layers = b.layers().iter().map(Layer::cast).collect();
+    // A ring inks where its lowest point reaches the footprint's threshold.
+    frame.in_contact = b
+        .centres()
+        .iter()
+        .zip(b.layers())
+        .map(|(c, l)| c.z - l.long_radius.max(l.short_radius) <= eps)
+        .collect();
+    frame.ring_nodes = RING_NODES;
+    frame.eps = Fx::from_f64(eps);
+    frame.hairs = b.spines().iter().map(|s| s.positions().to_vec()).collect();
 }

@@ -445,10 +445,12 @@ impl MaobiApp {
             let wake: Arc<dyn Fn() + Send + Sync> = Arc::new(move || c2.request_repaint());
             let lib = self.device_addr.trim();
             let lib = (!lib.is_empty()).then(|| PathBuf::from(lib));
-            let len = presets::by_name(&self.brush_name).map_or(50.0, |p| p.length_mm as f64);
+            let len = crate::device::BrushChoice::parse(&self.brush_name)
+                .map_or(50.0, |b| b.params.length_mm as f64);
             // Connects, or falls back to the simulator with the reason in the status.
             match crate::phantom::device::gui_device(
                 lib,
+                self.model_choice,
                 &self.brush_name,
                 start_hand(len),
                 Some(wake),

@@ -154,11 +154,6 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     }
     crate::device::BrushChoice::for_model(&opts.brush, opts.model)
         .map_err(|e| anyhow::anyhow!("--brush: {e}"))?;
-    if opts.phantom.is_some() {
-        opts.model
-            .on_liang_only_device("the Phantom bridge")
-            .map_err(|e| anyhow::anyhow!("--model with --device phantom: {e}"))?;
-    }
     let curve = crate::tablet::PressureCurve::new(opts.pressure_curve.0, opts.pressure_curve.1)
         .map_err(|e| anyhow::anyhow!("--pressure-curve / --pressure-threshold: {e}"))?;
     // A tablet that cannot be opened is an error before any window opens.
@@ -226,6 +221,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
                         .unwrap_or(50.0);
                     crate::phantom::device::gui_device(
                         p.hd_lib.clone(),
+                        model,
                         &brush,
                         start_hand(length),
                         Some(wake),

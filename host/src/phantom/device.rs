@@ -12,11 +12,16 @@ use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, Fa
 use maobi_shared::{BrushParams, Fx, ParamError, ParamId, Scalar};
 
 use super::loader::HdLib;
-use super::servo::{Bridge, BridgeOptions, GuidePoints, ServoCommand, ServoShared};
+use super::servo::{
+    Bridge, BridgeOptions, GuidePoints, HandState, ServoBrush, ServoCommand, ServoShared,
+    ServoState,
+};
+use super::solver::SolverLink;
 use crate::device::builtin::{SimClock, SimDevice};
 use crate::device::client::frame_from_state;
 use crate::device::journal::Journal;
 use crate::device::model::{BrushChoice, ModelKind};
+use crate::device::sim_model::{fill_baxter_lin, frame_of_tick, ModelTick};
 use crate::device::ProtocolModel;
 use crate::device::{BrushFrame, Device, DeviceCommand, DeviceError, DeviceStatus, HandInput};
 
@@ -108,6 +113,8 @@ pub struct PhantomDevice {
     last_faults: Faults,
     opts: BridgeOptions,
     bridge: Option<Bridge>,
+    model: ModelKind,
+    brush: BrushChoice,
     params: BrushParams,
     preset: String,
     last_error: Option<String>,
@@ -117,21 +124,34 @@ pub struct PhantomDevice {
 
 impl PhantomDevice {
     /// Not yet connected: [`Device::connect`] loads libHD (`hd_lib`, `$MAOBI_HD_LIB`, the
-    /// install paths) and starts the servo loop with the brush `preset` (`opts.brush` is
-    /// replaced by it).
+    /// install paths) and starts the servo loop with the brush `preset` (`opts.brush` and
+    /// `opts.model` are replaced by it), Liang's model.
     pub fn new(
         hd_lib: Option<PathBuf>,
         preset: &str,
         opts: BridgeOptions,
     ) -> Result<PhantomDevice, DeviceError> {
-        let params = BrushChoice::liang_params(preset).map_err(DeviceError::Rejected)?;
+        PhantomDevice::with_model(hd_lib, ModelKind::Liang, preset, opts)
+    }
+
+    /// As [`Self::new`], running `model`: Baxter & Lin's brush (`brush` a preset's round
+    /// head, or flat, filbert, fan) is solved on a thread beside the servo loop.
+    pub fn with_model(
+        hd_lib: Option<PathBuf>,
+        model: ModelKind,
+        brush: &str,
+        opts: BridgeOptions,
+    ) -> Result<PhantomDevice, DeviceError> {
+        let choice = BrushChoice::for_model(brush, model).map_err(DeviceError::Rejected)?;
         Ok(PhantomDevice {
             hd_lib,
             last_faults: Faults::empty(),
-            preset: preset.to_string(),
+            preset: brush.to_string(),
             opts,
             bridge: None,
-            params,
+            model,
+            params: choice.params,
+            brush: choice,
             last_error: None,
             wake: None,
             waker: None,
@@ -141,6 +161,39 @@ impl PhantomDevice {
     /// Calls `wake` (about 60 times a second) while connected, so the UI redraws.
     pub fn on_frames(&mut self, wake: Arc<dyn Fn() + Send + Sync>) {
         self.wake = Some(wake);
+    }
+
+    /// The servo loop's model for the brush chosen.
+    fn servo_brush(&self) -> ServoBrush {
+        match self.model {
+            ModelKind::Liang => ServoBrush::Liang,
+            ModelKind::BaxterLin => ServoBrush::BaxterLin(self.brush.head_shape()),
+        }
+    }
+
+    /// Starts the servo loop again with the model and brush now chosen (a new model or head
+    /// needs a new loop; the brush starts at rest at the next pose), if it was running.
+    fn restart(&mut self) -> Result<(), DeviceError> {
+        if self.bridge.is_none() {
+            return Ok(());
+        }
+        self.disconnect();
+        self.connect()
+    }
+
+    /// A brush frame of Baxter & Lin's model: the servo loop's side `h` and the brush the
+    /// solver last published (`None` before its first solve).
+    fn hand_frame(link: &SolverLink, h: &HandState) -> Option<BrushFrame> {
+        let brush = link.brush()?;
+        let out = ModelTick::of_baxter_lin(
+            maobi_shared::Vec3::from_f64(h.command),
+            maobi_shared::Vec3::from_f64(h.force),
+            h.faults,
+            None,
+        );
+        let mut frame = frame_of_tick(u64::from(h.tick), h.pose, out, h.output, false);
+        fill_baxter_lin(&mut frame, &brush);
+        Some(frame)
     }
 
     fn servo(&self, cmd: ServoCommand) -> Result<(), DeviceError> {
@@ -171,6 +224,7 @@ impl Device for PhantomDevice {
         // The brush as it stands, with any parameter changed since the preset was chosen.
         let mut opts = self.opts.clone();
         opts.brush = self.params;
+        opts.model = self.servo_brush();
         let bridge = Bridge::start(lib, &opts).map_err(|e| {
             let e = DeviceError::Link(format!("{e:#}"));
             self.last_error = Some(e.to_string());
@@ -241,7 +295,7 @@ impl Device for PhantomDevice {
             tick_period_ms: None,
             params: self.params,
             preset: self.preset.clone(),
-            model: ModelKind::Liang,
+            model: self.model,
             forces_enabled: forces,
             replaying: false,
             replays_done: 0,
@@ -253,10 +307,20 @@ impl Device for PhantomDevice {
         if let Some(b) = &self.bridge {
             let shared = b.shared();
             while let Some((s, guide)) = shared.take_state_with_guide() {
-                self.last_faults = s.faults;
-                let mut frame = frame_from_state(&s, u64::from(s.tick), false);
-                frame.guide = guide;
-                out.push(frame);
+                let frame = match s {
+                    ServoState::Brush(s) => {
+                        self.last_faults = s.faults;
+                        Some(frame_from_state(&s, u64::from(s.tick), false))
+                    }
+                    ServoState::Hand(h) => {
+                        self.last_faults = h.faults;
+                        b.solver_link().and_then(|l| Self::hand_frame(l, &h))
+                    }
+                };
+                if let Some(mut frame) = frame {
+                    frame.guide = guide;
+                    out.push(frame);
+                }
             }
         }
     }
@@ -265,20 +329,44 @@ impl Device for PhantomDevice {
         match cmd {
             // The stylus is the hand.
             DeviceCommand::Hand(_) | DeviceCommand::StopReplay => Ok(()),
-            DeviceCommand::Model(m) => m
-                .on_liang_only_device("the Phantom bridge")
-                .map_err(DeviceError::Rejected),
+            DeviceCommand::Model(m) => {
+                if m == self.model {
+                    return Ok(());
+                }
+                let choice = BrushChoice::for_model(&self.preset, m).map_err(|e| {
+                    DeviceError::Rejected(format!("{e}; choose one of its brushes first"))
+                })?;
+                self.model = m;
+                self.params = choice.params;
+                self.brush = choice;
+                self.restart()
+            }
             DeviceCommand::EnableForces(on) => self.servo(ServoCommand::EnableForces(on)),
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let p = BrushChoice::liang_params(&name).map_err(DeviceError::Rejected)?;
-                self.servo(ServoCommand::SetParams(p))?;
+                let choice =
+                    BrushChoice::for_model(&name, self.model).map_err(DeviceError::Rejected)?;
+                let same_loop = choice.head_shape() == self.brush.head_shape();
+                let p = choice.params;
+                if same_loop || self.model == ModelKind::Liang {
+                    self.servo(ServoCommand::SetParams(p))?;
+                }
                 self.params = p;
                 self.preset = name;
+                self.brush = choice;
+                if !(same_loop || self.model == ModelKind::Liang) {
+                    // Another of Baxter & Lin's heads: its solver is built for one head.
+                    self.restart()?;
+                }
                 Ok(())
             }
             DeviceCommand::SetParam(id, v) => {
+                if self.model == ModelKind::BaxterLin {
+                    self.brush
+                        .baxter_lin_reads(id)
+                        .map_err(DeviceError::Rejected)?;
+                }
                 let mut p = self.params;
                 p.set(id, v)
                     .and_then(|()| p.validate())
@@ -345,11 +433,12 @@ impl Device for FallbackDevice {
 /// used, the built-in simulator with the reason in its status (also printed to stderr).
 pub fn gui_device(
     hd_lib: Option<PathBuf>,
-    preset: &str,
+    model: ModelKind,
+    brush: &str,
     hand: HandInput,
     wake: Option<Arc<dyn Fn() + Send + Sync>>,
 ) -> Result<Box<dyn Device>, DeviceError> {
-    let mut d = PhantomDevice::new(hd_lib, preset, BridgeOptions::default())?;
+    let mut d = PhantomDevice::with_model(hd_lib, model, brush, BridgeOptions::default())?;
     if let Some(w) = wake.clone() {
         d.on_frames(w);
     }
@@ -358,7 +447,7 @@ pub fn gui_device(
         Err(e) => {
             let why = format!("Phantom unavailable, using the built-in simulator: {e}");
             eprintln!("maobi: {why}");
-            let mut sim = SimDevice::new(SimClock::RealTime, preset, hand)?;
+            let mut sim = SimDevice::with_model(SimClock::RealTime, model, brush, hand)?;
             if let Some(w) = wake {
                 sim.on_frames(w);
             }

@@ -8,6 +8,8 @@
 //! * [`servo`]: the servo loop ([`servo::Bridge`]): the workspace-to-paper mapping and its
 //!   calibration, the model in the scheduler callback (one frame per tick, device warnings,
 //!   the device's calibration, the safe start), the non-blocking handoff of states.
+//! * [`solver`]: Baxter & Lin's brush solved on a thread of its own beside the servo loop,
+//!   which runs their local force model.
 //! * [`device`]: the bridge behind the wire protocol (`maobi bridge`) and as a GUI device
 //!   (`maobi --device phantom`).
 
@@ -15,6 +17,9 @@ pub mod device;
 pub mod hd;
 pub mod loader;
 pub mod servo;
+pub mod solver;
 
 pub use loader::{HdLib, LoadError};
-pub use servo::{Bridge, BridgeOptions, Mapping, ServoCommand, ServoCore, Stopped};
+pub use servo::{
+    Bridge, BridgeOptions, Mapping, ServoBrush, ServoCommand, ServoCore, ServoState, Stopped,
+};

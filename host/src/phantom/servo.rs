@@ -6,6 +6,10 @@
 //! HD_NOMINAL_MAX_CONTINUOUS_FORCE, ramp-in on enable), the command mapped back to device
 //! axes. [`Bridge`] runs it in an `hdScheduleAsynchronous` callback.
 //!
+//! With Baxter & Lin's brush ([`ServoBrush::BaxterLin`]) the callback runs only the loop's
+//! 1 kHz half, their local force model and the same guide, gate and output stage; the brush
+//! itself is solved on a thread of its own ([`super::solver`]).
+//!
 //! # One frame per tick, the force decided inside it
 //! libHD allows one `hdBeginFrame`/`hdEndFrame` pair per servo tick (a second is refused with
 //! HD_ILLEGAL_BEGIN, and its force never reaches the motors). So each callback opens exactly
@@ -52,6 +56,9 @@ use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use maobi_shared::baxter_lin::force_loop::BaxterLinHand;
+use maobi_shared::baxter_lin::head::HeadShape;
+use maobi_shared::baxter_lin::local_force::{LocalForceModel, LocalForceParams};
 use maobi_shared::force::DEFAULT_FORCES;
 use maobi_shared::force::{DeviceLimits, OutputState, PHANTOM_OMNI};
 use maobi_shared::force_loop::{Gate, TickIn};
@@ -61,6 +68,7 @@ use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
+use super::solver::{SolveRequest, SolverLink, SolverThread};
 use crate::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
@@ -328,12 +336,78 @@ pub enum ServoCommand {
 /// A guide stroke's moving point, one per servo tick, in the paper frame (mm).
 pub type GuidePoints = Arc<[Vec3<Fx>]>;
 
-/// The servo loop's model, with no HD calls: the shared force loop, with the forces switch,
-/// the safe start and the latched faults that make its gate.
-pub struct ServoCore {
+/// The brush model the servo loop runs.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
+pub enum ServoBrush {
+    /// Liang's brush in the pen's own loop and number type, inside the callback.
+    #[default]
+    Liang,
+    /// Baxter & Lin's brush of this head, solved on a thread of its own
+    /// ([`super::solver`]); the callback runs its local force model.
+    BaxterLin(HeadShape),
+}
+
+/// What the servo loop hands over for the GUI at a state's tick.
+// Not boxed: the callback hands states over into a queue whose room is reserved up front, and
+// a box would be an allocation in the callback.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug, PartialEq)]
+pub enum ServoState {
+    /// Liang's brush: the wire protocol's state, the pen's own.
+    Brush(BrushState),
+    /// Baxter & Lin's brush: the hand's side only (the brush's shape comes from the solver
+    /// thread, [`SolverLink::brush`]).
+    Hand(HandState),
+}
+
+/// The servo loop's side of a Baxter & Lin state.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct HandState {
+    pub tick: u32,
+    /// The handle, paper frame (mm).
+    pub pose: Pose<f64>,
+    /// The brush's force from the local model, and the output stage's command (N, paper
+    /// frame).
+    pub force: [f64; 3],
+    pub command: [f64; 3],
+    pub output: OutputState,
+    pub faults: Faults,
+}
+
+/// Baxter & Lin's brush in the servo callback: the hand's half of the loop, the last model
+/// the solver thread published, and what the next request to it carries.
+struct BaxterLinServo {
+    hand: BaxterLinHand,
+    model: LocalForceModel,
+    params: BrushParams,
+    link: Arc<SolverLink>,
+    /// The brush's generation (see [`super::solver`]); a restart starts the next at the next
+    /// pose.
+    generation: u32,
+    restart: bool,
+    /// The servo tick of this generation's last request.
+    last_request: Option<u32>,
+    rebuild_every: u32,
+    /// The last pose and the brush's force there.
+    pose: Option<Pose<f64>>,
+    force: Vec3<f64>,
+}
+
+/// The model inside the servo loop.
+// One per bridge, boxed inside the callback's context.
+#[allow(clippy::large_enum_variant)]
+enum ServoModel {
     /// Re-anchored until the first valid pose (the brush starts at rest where the hand is),
     /// and again after every restart of the brush.
-    fl: ForceLoop<Fx>,
+    Liang(ForceLoop<Fx>),
+    BaxterLin(BaxterLinServo),
+}
+
+/// The servo loop's model, with no HD calls: the shared force loop (or Baxter & Lin's hand
+/// stage and its solver's models), with the forces switch, the safe start and the latched
+/// faults that make its gate.
+pub struct ServoCore {
+    model: ServoModel,
     mapping: Mapping,
     buttons: Buttons,
     /// The forces switch (the user's, or the safe start's).
@@ -350,7 +424,8 @@ pub struct ServoCore {
     paper_cal_pending: bool,
     device_cal_requested: bool,
     tick: u32,
-    command: Vec3<Fx>,
+    /// The output stage's last command (N, paper frame).
+    command: Vec3<f64>,
     /// Guided writing: the stroke being played into the loop's guide, and this tick's
     /// figures for the state.
     guide_play: Option<GuidePlay<GuidePoints>>,
@@ -367,14 +442,49 @@ impl ServoCore {
         mapping: Mapping,
         forces_on: bool,
     ) -> Result<ServoCore, String> {
-        mapping.validate()?;
         // Placed at the first valid pose.
         let nowhere = Pose::new(Vec3::ZERO, Quat::IDENTITY);
         let mut fl = ForceLoop::new(params, nowhere, DEFAULT_FORCES, limits, DEFAULT_GUIDE)
             .map_err(|e| e.to_string())?;
         fl.reanchor();
+        Self::with_model(ServoModel::Liang(fl), mapping, forces_on)
+    }
+
+    /// As [`Self::new`], with Baxter & Lin's brush: `params` (validated, and read as
+    /// [`crate::device::BrushChoice::baxter_lin_reads`] says) go to the solver serving
+    /// `link` with each new brush; the callback's local model is rebuilt at the rate
+    /// [`LocalForceParams::for_device`] gives for `limits`.
+    pub fn baxter_lin(
+        params: BrushParams,
+        limits: DeviceLimits,
+        mapping: Mapping,
+        forces_on: bool,
+        link: Arc<SolverLink>,
+    ) -> Result<ServoCore, String> {
+        let hand = BaxterLinHand::new(limits, DEFAULT_GUIDE).map_err(|e| e.to_string())?;
+        let servo = BaxterLinServo {
+            hand,
+            model: LocalForceModel::NONE,
+            params,
+            link,
+            generation: 0,
+            restart: true,
+            last_request: None,
+            rebuild_every: LocalForceParams::for_device(&limits).rebuild_every.max(1),
+            pose: None,
+            force: Vec3::ZERO,
+        };
+        Self::with_model(ServoModel::BaxterLin(servo), mapping, forces_on)
+    }
+
+    fn with_model(
+        model: ServoModel,
+        mapping: Mapping,
+        forces_on: bool,
+    ) -> Result<ServoCore, String> {
+        mapping.validate()?;
         Ok(ServoCore {
-            fl,
+            model,
             mapping,
             buttons: Buttons::default(),
             enabled: false,
@@ -397,10 +507,16 @@ impl ServoCore {
         self.mapping
     }
     pub fn params(&self) -> &BrushParams {
-        self.fl.brush().params()
+        match &self.model {
+            ServoModel::Liang(fl) => fl.brush().params(),
+            ServoModel::BaxterLin(b) => &b.params,
+        }
     }
     pub fn output_state(&self) -> OutputState {
-        self.fl.output_state(self.enabled, self.faults)
+        match &self.model {
+            ServoModel::Liang(fl) => fl.output_state(self.enabled, self.faults),
+            ServoModel::BaxterLin(b) => b.hand.output_state(self.enabled, self.faults),
+        }
     }
     /// The faults to report: the latched ones, and [`Faults::NOT_CALIBRATED`] while the
     /// library asks for the inkwell.
@@ -446,7 +562,11 @@ impl ServoCore {
                 } else {
                     0.0
                 };
-                self.fl.brush_mut().dip(Fx::from_f32(w));
+                match &mut self.model {
+                    ServoModel::Liang(fl) => fl.brush_mut().dip(Fx::from_f32(w)),
+                    // At the solver's next solve.
+                    ServoModel::BaxterLin(b) => b.link.dip(w),
+                }
             }
             ServoCommand::Calibrate => {
                 // The device's calibration is checked first (by the servo callback, before
@@ -455,7 +575,15 @@ impl ServoCore {
                 self.device_cal_requested = true;
             }
             ServoCommand::SetParams(p) => {
-                if self.fl.brush_mut().set_params(p).is_ok() {
+                let taken = match &mut self.model {
+                    ServoModel::Liang(fl) => fl.brush_mut().set_params(p).is_ok(),
+                    // Checked by the sender; the solver builds the next brush with them.
+                    ServoModel::BaxterLin(b) => {
+                        b.params = p;
+                        true
+                    }
+                };
+                if taken {
                     self.restart_brush();
                 }
             }
@@ -476,8 +604,20 @@ impl ServoCore {
     /// The brush starts afresh, at rest, at the next pose (no sensor-jump check), the forces
     /// from zero, the guide cut.
     fn restart_brush(&mut self) {
-        self.fl.reanchor();
-        self.fl.restart_forces();
+        match &mut self.model {
+            ServoModel::Liang(fl) => {
+                fl.reanchor();
+                fl.restart_forces();
+            }
+            ServoModel::BaxterLin(b) => {
+                // No force until the new brush's first model: none of the old brush's is
+                // felt at the new pose.
+                b.restart = true;
+                b.model = LocalForceModel::NONE;
+                b.hand.restart_guide();
+                b.hand.forget_pose();
+            }
+        }
         self.cut_guide();
     }
 
@@ -571,7 +711,8 @@ impl ServoCore {
             // The paper moved under the hand: start the brush afresh where it now is.
             self.restart_brush();
         }
-        let pose: Pose<Fx> = self.mapping.to_paper(pos, rot).cast();
+        let paper = self.mapping.to_paper(pos, rot);
+        let pose: Pose<Fx> = paper.cast();
         // The safe start: the brush (hanging at most its length below the ferrule) clear of
         // the paper, the device calibrated, no fault.
         if self.await_lift
@@ -586,20 +727,52 @@ impl ServoCore {
         if !self.faults.is_empty() {
             self.cut_guide();
         }
-        let guide = GuidePlay::next_sample_of(&mut self.guide_play, self.fl.guide());
-        let out = self.fl.tick(TickIn {
-            pose: Some(pose),
-            guide,
-            gate: Gate::new(self.enabled, self.faults),
-        });
+        let gate = Gate::new(self.enabled, self.faults);
+        let tick = self.tick;
+        let (faults, guide_frame, command) = match &mut self.model {
+            ServoModel::Liang(fl) => {
+                let guide = GuidePlay::next_sample_of(&mut self.guide_play, fl.guide());
+                let out = fl.tick(TickIn {
+                    pose: Some(pose),
+                    guide,
+                    gate,
+                });
+                let frame = self
+                    .guide_play
+                    .as_ref()
+                    .and_then(|_| GuideFrame::of(fl.guide(), &out.guide));
+                (out.faults, frame, out.command.to_f64())
+            }
+            ServoModel::BaxterLin(b) => {
+                // Baxter & Lin's model runs in f64: the device's pose as mapped, unrounded.
+                let pose = paper;
+                b.exchange(tick, pose);
+                let guide = GuidePlay::next_sample_of_as(
+                    &mut self.guide_play,
+                    b.hand.guide(),
+                    Vec3::cast::<f64>,
+                );
+                let out = b.hand.tick(
+                    TickIn {
+                        pose: Some(pose),
+                        guide,
+                        gate,
+                    },
+                    &b.model,
+                );
+                b.pose = Some(pose);
+                b.force = out.force;
+                let frame = self
+                    .guide_play
+                    .as_ref()
+                    .and_then(|_| GuideFrame::of(b.hand.guide(), &out.guide));
+                (out.faults, frame, out.command.to_f64())
+            }
+        };
         // A sensor jump latches (the loop held the forces this tick already).
-        self.faults |= out.faults;
-        let stream = self.fl.guide();
-        self.guide_frame = self
-            .guide_play
-            .as_ref()
-            .and_then(|_| GuideFrame::of(stream, &out.guide));
-        self.command = out.command;
+        self.faults |= faults;
+        self.guide_frame = guide_frame;
+        self.command = Vec3::from_f64(command);
         self.device_force()
     }
 
@@ -613,14 +786,26 @@ impl ServoCore {
 
     /// A tick of the loop without a pose, under the gate in force (held while a fault is
     /// latched): the brush holds, the output stage ramps out.
-    fn tick_without_pose(&mut self) -> Vec3<Fx> {
-        self.fl
-            .tick(TickIn {
-                pose: None,
-                guide: None,
-                gate: Gate::new(self.enabled, self.faults),
-            })
-            .command
+    fn tick_without_pose(&mut self) -> Vec3<f64> {
+        let gate = Gate::new(self.enabled, self.faults);
+        match &mut self.model {
+            ServoModel::Liang(fl) => fl
+                .tick(TickIn {
+                    pose: None,
+                    guide: None,
+                    gate,
+                })
+                .command
+                .cast(),
+            ServoModel::BaxterLin(b) => {
+                let input = TickIn {
+                    pose: None,
+                    guide: None,
+                    gate,
+                };
+                b.hand.tick(input, &b.model).command
+            }
+        }
     }
 
     /// The stage's command in device axes, guarded once more against the peak force: the
@@ -628,7 +813,10 @@ impl ServoCore {
     /// maximum must not reach the motors.
     fn device_force(&self) -> [f64; 3] {
         let f = self.command.to_f64();
-        let peak = self.fl.output().limits().peak_n as f64;
+        let peak = match &self.model {
+            ServoModel::Liang(fl) => fl.output().limits().peak_n,
+            ServoModel::BaxterLin(b) => b.hand.output().limits().peak_n,
+        } as f64;
         let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
         let f = if n.is_finite() && n <= peak {
             f
@@ -644,16 +832,77 @@ impl ServoCore {
     /// The wire-protocol state of the brush now (`None` before the first valid pose, and
     /// after a restart of the brush until the next).
     pub fn state(&self) -> Option<BrushState> {
-        if self.fl.reanchoring() {
-            return None;
+        match self.servo_state()? {
+            ServoState::Brush(s) => Some(s),
+            ServoState::Hand(_) => None,
         }
-        Some(BrushState::from_brush(
-            self.fl.brush(),
-            self.tick,
-            0,
-            Haptics::new(self.command, [Fx::ZERO; 3], self.forces_enabled()),
-            self.faults(),
-        ))
+    }
+
+    /// What the loop hands over for the GUI now: Liang's brush as the wire protocol's
+    /// state, Baxter & Lin's as the hand's side (`None` before the first valid pose, and
+    /// after a restart of the brush until the next).
+    pub fn servo_state(&self) -> Option<ServoState> {
+        match &self.model {
+            ServoModel::Liang(fl) => {
+                if fl.reanchoring() {
+                    return None;
+                }
+                Some(ServoState::Brush(BrushState::from_brush(
+                    fl.brush(),
+                    self.tick,
+                    0,
+                    Haptics::new(self.command.cast(), [Fx::ZERO; 3], self.forces_enabled()),
+                    self.faults(),
+                )))
+            }
+            ServoModel::BaxterLin(b) => {
+                if b.restart {
+                    return None;
+                }
+                Some(ServoState::Hand(HandState {
+                    tick: self.tick,
+                    pose: b.pose?,
+                    force: b.force.to_f64(),
+                    command: self.command.to_f64(),
+                    output: self.output_state(),
+                    faults: self.faults(),
+                }))
+            }
+        }
+    }
+}
+
+impl BaxterLinServo {
+    /// The callback's side of the exchange with the solver at servo tick `tick`, the handle
+    /// at `pose`: a restart begins the next generation here; a request is left every
+    /// `rebuild_every` ticks (at once for a new generation, and retried the next tick if
+    /// the slot was busy); the newest model of this generation is taken.
+    fn exchange(&mut self, tick: u32, pose: Pose<f64>) {
+        if self.restart {
+            self.restart = false;
+            self.generation = self.generation.wrapping_add(1);
+            self.last_request = None;
+            self.model = LocalForceModel::NONE;
+        }
+        let due = self
+            .last_request
+            .is_none_or(|t| tick.wrapping_sub(t) >= self.rebuild_every);
+        if due {
+            let req = SolveRequest {
+                generation: self.generation,
+                tick,
+                pose,
+                params: self.params,
+            };
+            if self.link.request(req) {
+                self.last_request = Some(tick);
+            }
+        }
+        if let Some(p) = self.link.take_published() {
+            if p.generation == self.generation {
+                self.model = p.model;
+            }
+        }
     }
 }
 
@@ -663,6 +912,8 @@ pub struct BridgeOptions {
     /// The brush at start (a preset, or one with parameters changed: `maobi bridge --param`);
     /// the host can change it over the protocol.
     pub brush: BrushParams,
+    /// The brush model (Liang's by default; Baxter & Lin's is solved on a thread of its own).
+    pub model: ServoBrush,
     pub mapping: Mapping,
     /// States per second to the GUI / TCP side (1 ..= 1000).
     pub state_hz: u32,
@@ -679,6 +930,7 @@ impl Default for BridgeOptions {
     fn default() -> Self {
         BridgeOptions {
             brush: presets::LARGE,
+            model: ServoBrush::Liang,
             mapping: Mapping::default(),
             state_hz: 120,
             forces_on: true,
@@ -727,7 +979,7 @@ impl std::fmt::Display for Stopped {
 /// is an atomic or a `try_lock`.
 pub struct ServoShared {
     /// States with the guide's figures at their tick.
-    states_q: Mutex<VecDeque<(BrushState, Option<GuideFrame>)>>,
+    states_q: Mutex<VecDeque<(ServoState, Option<GuideFrame>)>>,
     commands: Mutex<VecDeque<ServoCommand>>,
     /// Every guide stroke handed to the servo loop, kept alive here until the loop has let go
     /// of it. When a stroke ends or is replaced the callback only drops *a* reference: the
@@ -883,15 +1135,21 @@ impl ServoShared {
         self.forces_on.load(Ordering::Relaxed)
     }
 
-    /// The oldest state the callback handed over that was not taken yet.
+    /// The oldest wire-protocol state (Liang's brush) the callback handed over that was not
+    /// taken yet; Baxter & Lin's hand states before it are passed over.
     pub fn take_state(&self) -> Option<BrushState> {
-        self.take_state_with_guide().map(|(s, _)| s)
+        loop {
+            match self.take_state_with_guide()?.0 {
+                ServoState::Brush(s) => return Some(s),
+                ServoState::Hand(_) => continue,
+            }
+        }
     }
 
-    /// As [`Self::take_state`], with guided writing's figures at the state's tick.
-    /// (The reader calls this all the time, so it also frees the strokes the servo loop has
-    /// finished with.)
-    pub fn take_state_with_guide(&self) -> Option<(BrushState, Option<GuideFrame>)> {
+    /// The oldest state the callback handed over that was not taken yet, with guided
+    /// writing's figures at its tick. (The reader calls this all the time, so it also frees
+    /// the strokes the servo loop has finished with.)
+    pub fn take_state_with_guide(&self) -> Option<(ServoState, Option<GuideFrame>)> {
         self.release_played_guides();
         self.states_q.lock().ok()?.pop_front()
     }
@@ -1207,7 +1465,7 @@ impl ServoCtx {
         if (u64::from(tick) * hz) / 1000 == (u64::from(tick.wrapping_sub(1)) * hz) / 1000 {
             return;
         }
-        let Some(state) = self.core.state() else {
+        let Some(state) = self.core.servo_state() else {
             return;
         };
         match self.shared.states_q.try_lock() {
@@ -1328,6 +1586,8 @@ pub struct Bridge {
     shared: Arc<ServoShared>,
     limits: DeviceLimits,
     params: BrushParams,
+    /// Baxter & Lin's solver thread, when the servo loop runs their brush.
+    solver: Option<SolverThread>,
     shut: bool,
 }
 
@@ -1397,6 +1657,7 @@ impl Bridge {
             shared: Arc::new(ServoShared::new()),
             limits: PHANTOM_OMNI,
             params,
+            solver: None,
             shut: false,
         };
         let mut peak = 0.0f64;
@@ -1426,8 +1687,22 @@ impl Bridge {
             }
         }
         let cal_style = calibration_style(style_mask);
-        let core = ServoCore::new(params, bridge.limits, opts.mapping, opts.forces_on)
-            .map_err(anyhow::Error::msg)?;
+        let core = match opts.model {
+            ServoBrush::Liang => {
+                ServoCore::new(params, bridge.limits, opts.mapping, opts.forces_on)
+            }
+            ServoBrush::BaxterLin(shape) => {
+                // The solver runs before the callback first asks it for anything.
+                let link = SolverLink::new();
+                let local = LocalForceParams::for_device(&bridge.limits);
+                bridge.solver = Some(
+                    SolverThread::spawn(link.clone(), shape, local)
+                        .map_err(|e| anyhow::anyhow!("cannot start the brush's solver: {e}"))?,
+                );
+                ServoCore::baxter_lin(params, bridge.limits, opts.mapping, opts.forces_on, link)
+            }
+        }
+        .map_err(anyhow::Error::msg)?;
         bridge.ctx = Box::into_raw(Box::new(ServoCtx {
             fns: f,
             hhd,
@@ -1491,6 +1766,12 @@ impl Bridge {
         &self.lib
     }
 
+    /// What the servo loop shares with Baxter & Lin's solver thread, when it runs their
+    /// brush.
+    pub fn solver_link(&self) -> Option<&Arc<SolverLink>> {
+        self.solver.as_ref().map(SolverThread::link)
+    }
+
     /// Why the servo loop stopped, if it has.
     pub fn stopped(&self) -> Option<Stopped> {
         self.shared.stopped(&self.lib)
@@ -1538,6 +1819,10 @@ impl Bridge {
             }
         }
         self.ctx = std::ptr::null_mut();
+        // The callback is gone: nothing asks the solver for more.
+        if let Some(mut solver) = self.solver.take() {
+            solver.stop();
+        }
     }
 }
 

@@ -24,6 +24,7 @@
 //! old brush is ever felt at the new pose.
 //!
 //! [`BaxterLinLoop`]: maobi_shared::baxter_lin::force_loop::BaxterLinLoop
+//! [`BaxterLinHand`]: maobi_shared::baxter_lin::force_loop::BaxterLinHand
 
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};

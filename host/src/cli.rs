@@ -344,8 +344,8 @@ impl BrushArgs {
     }
 
     /// [`Self::params`] for Baxter & Lin's brush, which reads only the preset's head profile
-    /// (round heads) and ink ([`BaxterLinBrush::preset_params`]): any other `--param` is
-    /// refused rather than ignored.
+    /// (round heads), hair stiffness and ink ([`BaxterLinBrush::preset_params`]): any other
+    /// `--param` is refused rather than ignored.
     pub fn baxter_lin_params(&self) -> anyhow::Result<BrushParams> {
         let shape = self.brush.shape.unwrap_or(HeadShape::Round);
         let reads = BaxterLinBrush::preset_params(shape);

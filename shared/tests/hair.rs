@@ -97,3 +97,46 @@ fn after_a_press_wolf_hair_springs_back_first() {
     );
     assert!(goat[2] < 0.3 && goat[3] < 0.1, "200 and 500 ms: {goat:?}");
 }
+
+/// Baxter & Lin's round head of each hair type (`SpineParams::of_hair`): the chord's bend
+/// under each of `loads_n` across the tip, as [`bends`] for Liang's.
+fn baxter_lin_bends(params: BrushParams, loads_n: [f64; 3]) -> [f64; 3] {
+    use maobi_shared::baxter_lin::brush::BaxterLinBrush;
+    let upright = pose::<f64>(0.0, 60.0, 0.0);
+    let mut b = BaxterLinBrush::of_preset(&params, upright).unwrap();
+    loads_n.map(|f| {
+        b.set_tip_load(Vec3::new(f, 0.0, 0.0));
+        // Each solve is quasi-static: a few settle the joints' friction.
+        for _ in 0..50 {
+            b.tick(&upright);
+        }
+        let c = b.centres();
+        let chord = c[c.len() - 1] - c[0];
+        chord.x.atan2(-chord.z).to_degrees()
+    })
+}
+
+/// The hair types in Baxter & Lin's model: the same order as in Liang's (goat bends most,
+/// wolf least, at every load), and 1-2 N still bends each 70-90 degrees.
+#[test]
+fn baxter_and_lins_brush_bends_each_hair_type_in_the_same_order() {
+    let loads = [0.25, 1.0, 2.0];
+    let [wolf, mixed, goat] = HAIRS.map(|(_, p)| baxter_lin_bends(p, loads));
+    for (k, f) in loads.iter().enumerate() {
+        println!(
+            "Baxter & Lin, {f} N across the tip: wolf {:.1} deg, mixed {:.1} deg, goat {:.1} deg",
+            wolf[k], mixed[k], goat[k]
+        );
+        assert!(
+            wolf[k] < mixed[k] && mixed[k] < goat[k],
+            "{f} N: wolf {}, mixed {}, goat {}",
+            wolf[k],
+            mixed[k],
+            goat[k]
+        );
+    }
+    for (name, b) in [("wolf", wolf), ("mixed", mixed), ("goat", goat)] {
+        assert!((70.0..90.0).contains(&b[1]), "{name} 1 N: {}", b[1]);
+        assert!((70.0..90.0).contains(&b[2]), "{name} 2 N: {}", b[2]);
+    }
+}

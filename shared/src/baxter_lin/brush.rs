@@ -122,13 +122,15 @@ impl BaxterLinBrush {
     }
 
     /// The parameters of Liang's presets that [`Self::of_shape`] reads for a head of
-    /// `shape`: the round head's profile and the ink; for the other shapes (their catalogue
-    /// size) the ink only. The rest are Liang's model's own.
+    /// `shape`: the ink and the hair's stiffness ([`SpineParams::of_hair`]), and the round
+    /// head's profile (the other shapes have their catalogue size). The rest are Liang's
+    /// model's own.
     pub fn preset_params(shape: HeadShape) -> &'static [ParamId] {
-        const ALL: [ParamId; 7] = [
+        const ALL: [ParamId; 8] = [
             ParamId::InkCapacity,
             ParamId::Wetness,
             ParamId::FootprintEpsMm,
+            ParamId::TieStiffness,
             ParamId::LengthMm,
             ParamId::RadiusMm,
             ParamId::TipRadiusMm,
@@ -136,7 +138,7 @@ impl BaxterLinBrush {
         ];
         match shape {
             HeadShape::Round => &ALL,
-            _ => &ALL[..3],
+            _ => &ALL[..4],
         }
     }
 
@@ -149,8 +151,8 @@ impl BaxterLinBrush {
     }
 
     /// [`Self::of_preset`] with the head of `shape`: the round one has the preset's
-    /// profile, the others their catalogue size ([`HeadShape::head`]); the ink is the
-    /// preset's either way.
+    /// profile, the others their catalogue size ([`HeadShape::head`]); the ink and the
+    /// hair's stiffness ([`SpineParams::of_hair`]) are the preset's either way.
     pub fn of_shape(
         shape: HeadShape,
         p: &BrushParams,
@@ -165,7 +167,7 @@ impl BaxterLinBrush {
             ),
             other => other.head(),
         };
-        BaxterLinBrush::new(head, SpineParams::DEFAULT, InkParams::of_preset(p), pose)
+        BaxterLinBrush::new(head, SpineParams::of_hair(p), InkParams::of_preset(p), pose)
     }
 
     /// How far from the ferrule's centre the head's hair can reach (mm): its longest spine

@@ -77,6 +77,26 @@ impl SpineParams {
         max_iterations: 30,
     };
 
+    /// The paper's spine ([`Self::DEFAULT`]) with the hair of Liang's preset `p`: its
+    /// joints' springs scaled by `p`'s bending stiffness (its ties to the skeleton,
+    /// `tie_stiffness`) over the `large` preset's, whose head the paper's K (§5) is taken
+    /// for. So wolf hair (狼毫) is stiffer and goat hair (羊毫) softer in either model, in
+    /// the same proportion. (Their spring, Liang's damping, has no counterpart here: each
+    /// solve is quasi-static.)
+    pub fn of_hair(p: &crate::params::BrushParams) -> SpineParams {
+        let scale = p.tie_stiffness as f64 / crate::presets::LARGE.tie_stiffness as f64;
+        let scale = if scale.is_finite() && scale > 0.0 {
+            scale
+        } else {
+            1.0
+        };
+        SpineParams {
+            stiffness_root: Self::DEFAULT.stiffness_root * scale,
+            stiffness_tip: Self::DEFAULT.stiffness_tip * scale,
+            ..Self::DEFAULT
+        }
+    }
+
     /// The spring constant K_i of joint `i` (0-based, N mm/rad).
     pub fn stiffness(&self, i: usize) -> f64 {
         let j = self.joints.max(1) as usize;

@@ -203,7 +203,12 @@ fn the_force_path_is_passive_for_every_preset_and_tilt() {
 /// kinetic energy, the spines' springs as last solved and the model's spring since
 /// ([`LocalForceBrush::stored_energy`]). The force goes to the hand as the model gives it (no
 /// output stage: the audit is of the model).
-fn run_local_force(seed: u64, ticks: usize, local: bool, spine: SpineParams) -> Audit {
+///
+/// [`Render::Late`] is the Phantom's servo loop (`host/src/phantom/solver.rs`): the brush
+/// solved on another thread at the pose of every tenth tick, its model felt from that many
+/// ticks later, until the next arrives.
+fn run_local_force(seed: u64, ticks: usize, render: Render, spine: SpineParams) -> Audit {
+    let local = render != Render::Full;
     let tilt = 20f64.to_radians();
     let head = HeadShape::Round.head();
     let reach = head.length_mm() * tilt.cos();
@@ -234,6 +239,13 @@ fn run_local_force(seed: u64, ticks: usize, local: bool, spine: SpineParams) -> 
     let mut script = Script::new(seed, start, (reach - 0.7 * head.length_mm(), reach + 8.0));
     script.xy_range = 30.0;
     let mut cmd = Vec3::ZERO;
+    // The late render: the models solved and not yet felt, with the tick each arrives at
+    // and the spines' spring energy at its solve, and the one felt now. The environment the
+    // hand meets is the brush as of the felt model's solve and that model's spring since.
+    let spring_energy =
+        |b: &BaxterLinBrush| -> f64 { b.spines().iter().map(Spine::spring_energy).sum() };
+    let mut in_flight = std::collections::VecDeque::new();
+    let mut felt = (*model.model(), spring_energy(model.brush()));
     let (mut best, mut best_at) = (f64::MIN, 0);
     let mut audit = Audit {
         worst_violation: 0.0,
@@ -246,7 +258,22 @@ fn run_local_force(seed: u64, ticks: usize, local: bool, spine: SpineParams) -> 
         let (target, push) = script.tick();
         hand.tick_with_push(target, cmd.to_f64(), push);
         let p = hand.stylus();
-        let springs = if local {
+        let springs = if let Render::Late(lag) = render {
+            if k % model.params().rebuild_every as usize == 0 {
+                model.solve(&pose(p));
+                in_flight.push_back((k + lag, *model.model(), spring_energy(model.brush())));
+            }
+            while let Some(&(at, m, e)) = in_flight.front() {
+                if at > k {
+                    break;
+                }
+                felt = (m, e);
+                in_flight.pop_front();
+            }
+            let at = Vec3::from_f64(p);
+            cmd = felt.0.force(at);
+            felt.1 + felt.0.potential(at)
+        } else if local {
             cmd = model.tick(&pose(p));
             model.stored_energy(Vec3::from_f64(p))
         } else {
@@ -278,6 +305,18 @@ fn run_local_force(seed: u64, ticks: usize, local: bool, spine: SpineParams) -> 
     audit
 }
 
+/// How the Baxter & Lin audit renders the brush's force.
+#[derive(Copy, Clone, Debug, PartialEq)]
+enum Render {
+    /// Solved at every tick.
+    Full,
+    /// The local force model, solved in the tick that rebuilds it (the built-in simulator).
+    Local,
+    /// The local force model solved elsewhere and felt this many ticks after the pose it was
+    /// solved at (the Phantom's solver thread).
+    Late(usize),
+}
+
 /// Largest energy the Baxter & Lin audit lets the model create over any window (J): ten times
 /// what it measures, a fortieth of the Liang force path's `TOLERANCE_J` (its brush is soft, a
 /// few tenths of a newton pressed, and the audit sees no output stage's step limit).
@@ -294,16 +333,21 @@ fn the_local_force_model_of_baxter_lin_is_passive_under_the_simulated_hand() {
         ..SpineParams::DEFAULT
     };
     let runs: Vec<_> = [
-        (true, "local", SpineParams::DEFAULT),
-        (false, "full", SpineParams::DEFAULT),
-        (true, "local-elastic", elastic),
-        (false, "full-elastic", elastic),
+        (Render::Local, "local", SpineParams::DEFAULT),
+        (Render::Full, "full", SpineParams::DEFAULT),
+        (Render::Local, "local-elastic", elastic),
+        (Render::Full, "full-elastic", elastic),
+        // The Phantom's solver thread: its model a tick late (a solve as fast as the lock-step
+        // test's), and a whole rebuild interval late (a solver that falls behind).
+        (Render::Late(1), "late-1", SpineParams::DEFAULT),
+        (Render::Late(10), "late-10", SpineParams::DEFAULT),
+        (Render::Late(10), "late-10-elastic", elastic),
     ]
     .into_iter()
-    .map(|(local, name, spine)| {
+    .map(|(render, name, spine)| {
         (
             name,
-            std::thread::spawn(move || run_local_force(7, LOCAL_TICKS, local, spine)),
+            std::thread::spawn(move || run_local_force(7, LOCAL_TICKS, render, spine)),
         )
     })
     .collect();

@@ -157,6 +157,41 @@ impl DeviceCommand {
             _ => Ok(()),
         }
     }
+
+    /// Checks the command as a device running `model` with the brush `brush` (parameters
+    /// `params`) would take it, before it is queued: the shared checks ([`Self::validate`])
+    /// for Liang's brush; for Baxter & Lin's, a brush name may also be one of their heads,
+    /// and only the parameters its head reads are taken; a switch to Liang's model needs one
+    /// of its presets. The built-in simulator and the Phantom check with this.
+    pub fn validate_for(
+        &self,
+        model: ModelKind,
+        brush: &str,
+        params: &BrushParams,
+    ) -> Result<(), DeviceError> {
+        let reject = DeviceError::Rejected;
+        match (self, model) {
+            (DeviceCommand::Preset(name), m) => {
+                BrushChoice::for_model(name, m).map(|_| ()).map_err(reject)
+            }
+            (DeviceCommand::SetParam(id, _), ModelKind::BaxterLin) => {
+                BrushChoice::parse(brush)
+                    .and_then(|b| b.baxter_lin_reads(*id))
+                    .map_err(reject)?;
+                self.validate(params)
+            }
+            (DeviceCommand::Model(ModelKind::Liang), _) => {
+                BrushChoice::for_model(brush, ModelKind::Liang)
+                    .map(|_| ())
+                    .map_err(|_| {
+                        reject(format!(
+                            "Liang's model has no {brush} brush: choose one of its presets first"
+                        ))
+                    })
+            }
+            _ => self.validate(params),
+        }
+    }
 }
 
 /// Guided writing at one tick, as the device reports it.

@@ -140,40 +140,6 @@ impl SimCore {
         self.model.set_params(p, self.hand)
     }
 
-    /// Checks `cmd` as the model in force would take it, before it is queued: the shared
-    /// checks ([`DeviceCommand::validate`]) for Liang's brush; for Baxter & Lin's, a brush
-    /// name may also be one of their heads, and only the parameters its head reads are
-    /// taken.
-    pub fn validate(
-        cmd: &DeviceCommand,
-        model: ModelKind,
-        brush: &str,
-        params: &BrushParams,
-    ) -> Result<(), DeviceError> {
-        let reject = DeviceError::Rejected;
-        match (cmd, model) {
-            (DeviceCommand::Preset(name), m) => {
-                BrushChoice::for_model(name, m).map(|_| ()).map_err(reject)
-            }
-            (DeviceCommand::SetParam(id, _), ModelKind::BaxterLin) => {
-                BrushChoice::parse(brush)
-                    .and_then(|b| b.baxter_lin_reads(*id))
-                    .map_err(reject)?;
-                cmd.validate(params)
-            }
-            (DeviceCommand::Model(ModelKind::Liang), _) => {
-                BrushChoice::for_model(brush, ModelKind::Liang)
-                    .map(|_| ())
-                    .map_err(|_| {
-                        reject(format!(
-                            "Liang's model has no {brush} brush: choose one of its presets first"
-                        ))
-                    })
-            }
-            _ => cmd.validate(params),
-        }
-    }
-
     /// Carries out a journaled event again (re-rendering a session).
     pub fn replay_event(&mut self, e: &JournalEvent) -> Result<(), DeviceError> {
         match e {
@@ -211,7 +177,7 @@ impl SimCore {
     /// Carries out a command. Parameter changes are validated by the model itself; on error
     /// nothing changes.
     pub fn apply(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        SimCore::validate(&cmd, self.model(), &self.preset, self.params())?;
+        cmd.validate_for(self.model(), &self.preset, self.params())?;
         match cmd {
             DeviceCommand::Hand(h) => self.target = h,
             DeviceCommand::EnableForces(on) => self.enabled = on,
@@ -536,7 +502,7 @@ impl Device for SimDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
-        SimCore::validate(&cmd, self.model, &self.preset, &self.params)?;
+        cmd.validate_for(self.model, &self.preset, &self.params)?;
         // Keep the local copies current so the next validation sees this change (the
         // next model started, on a reconnect, has the model and brush last chosen).
         match &cmd {

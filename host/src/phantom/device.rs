@@ -326,6 +326,9 @@ impl Device for PhantomDevice {
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
+        // Checked as the built-in simulator checks it, for the model in force.
+        cmd.validate_for(self.model, &self.preset, &self.params)?;
+        let rejected = DeviceError::Rejected;
         match cmd {
             // The stylus is the hand.
             DeviceCommand::Hand(_) | DeviceCommand::StopReplay => Ok(()),
@@ -333,9 +336,7 @@ impl Device for PhantomDevice {
                 if m == self.model {
                     return Ok(());
                 }
-                let choice = BrushChoice::for_model(&self.preset, m).map_err(|e| {
-                    DeviceError::Rejected(format!("{e}; choose one of its brushes first"))
-                })?;
+                let choice = BrushChoice::for_model(&self.preset, m).map_err(rejected)?;
                 self.model = m;
                 self.params = choice.params;
                 self.brush = choice;
@@ -345,8 +346,7 @@ impl Device for PhantomDevice {
             DeviceCommand::ClearFault => self.servo(ServoCommand::ClearFaults),
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
-                let choice =
-                    BrushChoice::for_model(&name, self.model).map_err(DeviceError::Rejected)?;
+                let choice = BrushChoice::for_model(&name, self.model).map_err(rejected)?;
                 let same_loop = choice.head_shape() == self.brush.head_shape();
                 let p = choice.params;
                 if same_loop || self.model == ModelKind::Liang {
@@ -362,15 +362,8 @@ impl Device for PhantomDevice {
                 Ok(())
             }
             DeviceCommand::SetParam(id, v) => {
-                if self.model == ModelKind::BaxterLin {
-                    self.brush
-                        .baxter_lin_reads(id)
-                        .map_err(DeviceError::Rejected)?;
-                }
                 let mut p = self.params;
-                p.set(id, v)
-                    .and_then(|()| p.validate())
-                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                p.set(id, v).map_err(|e| rejected(e.to_string()))?;
                 self.servo(ServoCommand::SetParams(p))?;
                 self.params = p;
                 Ok(())

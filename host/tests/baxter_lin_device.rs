@@ -13,7 +13,6 @@ use maobi::paper::PaperSpec;
 use maobi::raster::Frame;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::force::{OutputState, PHANTOM_OMNI};
-use maobi_shared::guide::DEFAULT_GUIDE;
 use maobi_shared::ParamId;
 
 mod common;
@@ -242,37 +241,13 @@ fn a_baxter_lin_session_saves_and_re_renders_as_it_was_drawn() {
 fn guided_writing_leads_the_hand_with_baxter_and_lins_brush_as_with_liangs() {
     // The guide line 50 mm up: the brush hangs in free air, so what the hand feels is the
     // guide's pull alone (Baxter & Lin's hair has no weight).
-    let track = common::guide_line(0.0, 50.0);
     let mut core =
         SimCore::with_model(ModelKind::BaxterLin, "large", start_hand(LENGTH_MM)).unwrap();
-    core.apply(DeviceCommand::EnableForces(true)).unwrap();
-    run(&mut core, 600);
-    core.apply(DeviceCommand::Guide(Some(std::sync::Arc::new(track))))
-        .unwrap();
-    assert!(core.guiding());
-    let mut pulled = 0;
-    let mut ended_at = None;
-    for k in 0..1200 {
-        let f = core.step();
-        let Some(g) = f.guide else {
-            ended_at.get_or_insert(k);
-            continue;
-        };
-        assert!(ended_at.is_none(), "the guide came back at tick {k}");
-        assert!(
-            norm(g.force) <= DEFAULT_GUIDE.max_force_n as f64 + 1e-6,
-            "tick {k}"
-        );
+    let pulled = common::guide_along_a_line(&mut core, |k, f, g| {
         if g.distance_mm > 1.0 && g.gain > 0.0 {
-            // The moving point runs ahead along +x; the hand stays: the pull is toward +x,
-            // and it is the output stage's whole input here.
-            assert!(g.force[0] > 0.0, "tick {k}: {:?}", g.force);
+            // The pull is the output stage's whole input here.
             assert!((f.command[0] - g.force[0]).abs() < 0.05, "tick {k}");
-            pulled += 1;
         }
-    }
+    });
     assert!(pulled > 300, "pulled on {pulled} ticks");
-    let ended_at = ended_at.expect("the guide lets go after the stroke");
-    assert!((750..=850).contains(&ended_at), "ended at tick {ended_at}");
-    assert!(!core.guiding());
 }

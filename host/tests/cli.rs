@@ -598,85 +598,59 @@ fn baxter_lin_traces_keep_the_physical_invariants() {
 fn rejects_unknown_models_and_heads_of_the_other_model() {
     let out = Temp::new("out.png");
     let p = example("press_lift.csv");
-    let o = maobi(&[
-        "render",
-        "--poses",
-        &p,
-        "--model",
-        "nonsense",
-        "-o",
-        out.path(),
-    ]);
+    // `maobi CMD --poses P ARGS.. -o OUT`.
+    let on = |cmd: &str, args: &[&str]| {
+        let mut all = vec![cmd, "--poses", &p];
+        all.extend_from_slice(args);
+        all.extend_from_slice(&["-o", out.path()]);
+        maobi(&all)
+    };
+    let o = on("render", &["--model", "nonsense"]);
     let err = stderr(&o);
     assert!(!o.status.success());
     assert!(
         err.contains("nonsense") && err.contains("liang") && err.contains("baxter-lin"),
         "{err}"
     );
-    let o = maobi(&["render", "--poses", &p, "--brush", "flat", "-o", out.path()]);
+    let o = on("render", &["--brush", "flat"]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--model baxter-lin"), "{}", stderr(&o));
-    let o = maobi(&["trace", "--poses", &p, "--brush", "fan", "-o", out.path()]);
+    let o = on("trace", &["--brush", "fan"]);
     assert!(!o.status.success());
     let err = stderr(&o);
     assert!(
         err.contains("Baxter & Lin") && err.contains("--model baxter-lin"),
         "{err}"
     );
-    let o = maobi(&[
-        "trace",
-        "--poses",
-        &p,
-        "--model",
-        "baxter-lin",
-        "--brush",
-        "fan",
-        "-o",
-        out.path(),
-    ]);
+    let o = on("trace", &["--model", "baxter-lin", "--brush", "fan"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = maobi(&[
-        "render",
-        "--poses",
-        &p,
-        "--model",
-        "baxter-lin",
-        "--param",
-        "mass_g=2",
-        "-o",
-        out.path(),
-    ]);
+    let o = on("render", &["--model", "baxter-lin", "--param", "mass_g=2"]);
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("mass_g") && stderr(&o).contains("length_mm"),
         "{}",
         stderr(&o)
     );
-    let o = maobi(&[
+    // The hair's stiffness is one it reads (its joints' springs).
+    let o = on(
         "render",
-        "--poses",
-        &p,
-        "--brush",
-        "nonsense",
-        "-o",
-        out.path(),
-    ]);
+        &[
+            "--model",
+            "baxter-lin",
+            "--brush",
+            "goat",
+            "--param",
+            "tie_stiffness_n_per_m=2",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = on("render", &["--brush", "nonsense"]);
     let err = stderr(&o);
     for name in ["flat", "filbert", "fan"] {
         assert!(err.contains(name), "{name} not in {err}");
     }
     // Baxter & Lin's model runs in f64: another number type is refused, not ignored.
-    let o = maobi(&[
-        "render",
-        "--poses",
-        &p,
-        "--model",
-        "baxter-lin",
-        "--scalar",
-        "fixed",
-        "-o",
-        out.path(),
-    ]);
+    let o = on("render", &["--model", "baxter-lin", "--scalar", "fixed"]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("f64 only"), "{}", stderr(&o));
     // The app: a Baxter & Lin head needs their model, on the simulator as on the Phantom.

@@ -1,5 +1,5 @@
 //! What the host's tests share: the app in a kittest harness (no window), the example files,
-//! the guide stroke, and the stderr of a `maobi` server process.
+//! the guide stroke and a guided run along it, and the stderr of a `maobi` server process.
 
 // Each test binary includes this module and uses a part of it.
 #![allow(dead_code)]
@@ -11,11 +11,12 @@ use std::sync::mpsc::Receiver;
 use std::sync::{Arc, Mutex};
 
 use egui_kittest::Harness;
-use maobi::device::builtin::{SimClock, SimDevice};
-use maobi::device::Device;
+use maobi::device::builtin::{SimClock, SimCore, SimDevice};
+use maobi::device::{BrushFrame, Device, DeviceCommand, GuideFrame};
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::{start_hand, GuiOptions};
 use maobi::poses::PoseTrack;
+use maobi_shared::guide::DEFAULT_GUIDE;
 
 /// The app on the `large` brush's simulator running on `clock`, with a square paper of
 /// `paper_mm` at `px_per_mm`, driven by `automation`.
@@ -63,6 +64,53 @@ pub fn example(name: &str) -> PathBuf {
 pub fn guide_line(y: f64, z: f64) -> PoseTrack {
     let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,0,{y},{z},1,0,0,0\n0.5,30,{y},{z},1,0,0,0\n");
     PoseTrack::from_reader("line.csv", csv.as_bytes()).expect("the guide line parses")
+}
+
+/// Guided writing on the simulator `core`, forces on: the brush settles 600 ticks, then the
+/// guide plays [`guide_line`]`(0, 50)` (the brush in free air) while the hand stays put.
+/// Checks what every model's guide must do: the pull within the guide's limit and toward
+/// the point running ahead along +x, the fade-in, and the guide letting go once, after the
+/// stroke and its fade-out. `each` sees every guided tick's frame and guide for the model's
+/// own checks; returns the ticks the guide pulled on.
+pub fn guide_along_a_line(
+    core: &mut SimCore,
+    mut each: impl FnMut(usize, &BrushFrame, &GuideFrame),
+) -> usize {
+    core.apply(DeviceCommand::EnableForces(true)).unwrap();
+    for _ in 0..600 {
+        core.step();
+    }
+    core.apply(DeviceCommand::Guide(Some(Arc::new(guide_line(0.0, 50.0)))))
+        .unwrap();
+    assert!(core.guiding());
+    let (mut pulled, mut last_gain, mut ended_at) = (0, 0.0, None);
+    for k in 0..1200 {
+        let f = core.step();
+        let Some(g) = f.guide else {
+            ended_at.get_or_insert(k);
+            continue;
+        };
+        assert!(ended_at.is_none(), "the guide came back at tick {k}");
+        let gf = (g.force[0].powi(2) + g.force[1].powi(2) + g.force[2].powi(2)).sqrt();
+        assert!(
+            gf <= DEFAULT_GUIDE.max_force_n as f64 + 1e-6,
+            "tick {k}: {gf} N"
+        );
+        if g.distance_mm > 1.0 && g.gain > 0.0 {
+            assert!(g.force[0] > 0.0, "tick {k}: pulls toward +x: {:?}", g.force);
+            pulled += 1;
+        }
+        if k < 300 {
+            assert!(g.gain >= last_gain, "fades in");
+        }
+        last_gain = g.gain;
+        each(k, &f, &g);
+    }
+    let ended_at = ended_at.expect("the guide lets go after the stroke");
+    // 500 ticks of stroke, then the 0.3 s fade-out.
+    assert!((750..=850).contains(&ended_at), "ended at tick {ended_at}");
+    assert!(!core.guiding());
+    pulled
 }
 
 /// The last line of a server's log: its stderr has been read to the end.

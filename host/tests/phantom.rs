@@ -1712,7 +1712,7 @@ fn the_servo_loop_feels_baxter_and_lins_brush_from_its_solver() {
     let pressed = (0..got.len())
         .max_by(|&a, &b| norm(got[a]).total_cmp(&norm(got[b])))
         .unwrap();
-    let (mut core, mut solver, _) = start();
+    let (mut core, mut solver, solver_link) = start();
     for m in &transforms[..pressed] {
         core.step(m, 0);
         solver.serve();
@@ -1733,6 +1733,34 @@ fn the_servo_loop_feels_baxter_and_lins_brush_from_its_solver() {
         panic!("{:?}", core.servo_state());
     };
     assert_ne!(h.force, [0.0; 3], "the new brush's model");
+
+    // The solver stalls with the brush pressed: its last model is felt until it is
+    // STALE_MODEL_TICKS old, then no brush force until it serves again.
+    use maobi::phantom::solver::STALE_MODEL_TICKS;
+    let force_now = |core: &ServoCore| match core.servo_state() {
+        Some(ServoState::Hand(h)) => h.force,
+        other => panic!("{other:?}"),
+    };
+    let link = solver_link.clone();
+    let mut held = 0;
+    for _ in 0..2 * STALE_MODEL_TICKS {
+        core.step(&transforms[pressed], 0);
+        if force_now(&core) != [0.0; 3] {
+            held += 1;
+        }
+    }
+    let (stale, stale_ticks) = link.stale();
+    eprintln!("a stalled solver: its last model felt {held} ticks, then {stale_ticks} without");
+    assert!(stale, "the servo loop says its model is stale");
+    assert!(
+        (STALE_MODEL_TICKS as usize - 10..=STALE_MODEL_TICKS as usize).contains(&held),
+        "{held}"
+    );
+    assert_eq!(force_now(&core), [0.0; 3]);
+    solver.serve();
+    core.step(&transforms[pressed], 0);
+    assert!(!link.stale().0);
+    assert_ne!(force_now(&core), [0.0; 3], "a fresh model is felt again");
 
     // A solver serving every 25 ticks solves the newest request and counts the rest.
     let (slow, (solves, skipped, _), ..) = run(25);

@@ -267,6 +267,13 @@ impl Device for PhantomDevice {
                     faults.push(s.to_string());
                 } else {
                     faults.extend(b.shared().notices(self.last_faults));
+                    if b.solver_link().is_some_and(|l| l.stale().0) {
+                        faults.push(
+                            "the brush's solver has fallen behind the servo loop: no brush \
+                             force until it catches up"
+                                .to_string(),
+                        );
+                    }
                 }
                 (
                     format!("Phantom ({})", b.lib().path().display()),

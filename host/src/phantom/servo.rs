@@ -68,7 +68,7 @@ use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
-use super::solver::{SolveRequest, SolverLink, SolverThread};
+use super::solver::{SolveRequest, SolverLink, SolverThread, STALE_MODEL_TICKS};
 use crate::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
@@ -385,8 +385,11 @@ struct BaxterLinServo {
     /// pose.
     generation: u32,
     restart: bool,
-    /// The servo tick of this generation's last request.
+    /// The servo tick this generation began at, of its last request, and of the pose the
+    /// model felt was solved at.
+    began: u32,
     last_request: Option<u32>,
+    solved_at: Option<u32>,
     rebuild_every: u32,
     /// The last pose and the brush's force there.
     pose: Option<Pose<f64>>,
@@ -469,7 +472,9 @@ impl ServoCore {
             link,
             generation: 0,
             restart: true,
+            began: 0,
             last_request: None,
+            solved_at: None,
             rebuild_every: LocalForceParams::for_device(&limits).rebuild_every.max(1),
             pose: None,
             force: Vec3::ZERO,
@@ -876,12 +881,15 @@ impl BaxterLinServo {
     /// The callback's side of the exchange with the solver at servo tick `tick`, the handle
     /// at `pose`: a restart begins the next generation here; a request is left every
     /// `rebuild_every` ticks (at once for a new generation, and retried the next tick if
-    /// the slot was busy); the newest model of this generation is taken.
+    /// the slot was busy); the newest model of this generation is taken; one older than
+    /// [`STALE_MODEL_TICKS`] is not felt.
     fn exchange(&mut self, tick: u32, pose: Pose<f64>) {
         if self.restart {
             self.restart = false;
             self.generation = self.generation.wrapping_add(1);
+            self.began = tick;
             self.last_request = None;
+            self.solved_at = None;
             self.model = LocalForceModel::NONE;
         }
         let due = self
@@ -901,8 +909,16 @@ impl BaxterLinServo {
         if let Some(p) = self.link.take_published() {
             if p.generation == self.generation {
                 self.model = p.model;
+                self.solved_at = Some(p.tick);
             }
         }
+        // (A generation whose first model has not come is as late as a stale model.)
+        let since = self.solved_at.unwrap_or(self.began);
+        let stale = tick.wrapping_sub(since) > STALE_MODEL_TICKS;
+        if stale {
+            self.model = LocalForceModel::NONE;
+        }
+        self.link.set_stale(stale);
     }
 }
 

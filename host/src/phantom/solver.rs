@@ -16,6 +16,13 @@
 //! feels is one solve old at most, plus however long the solve took: the local model is built
 //! for exactly that, a force field valid around the solved pose.
 //!
+//! # A solver that stalls
+//! A model is a force field valid about the pose it was solved at. One felt more than
+//! [`STALE_MODEL_TICKS`] after that pose (the solver starved of the processor, or stuck)
+//! would push the hand by a field extrapolated far from where it holds: the callback then
+//! feels no brush force (the output stage ramps it out) until a fresh model arrives, and the
+//! GUI says so.
+//!
 //! # Brushes afresh
 //! Each request carries the brush's generation. The servo loop starts a new generation
 //! whenever it restarts the brush (the first pose, a calibration, a device warning, new
@@ -36,6 +43,11 @@ use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::baxter_lin::local_force::{LocalForceBrush, LocalForceModel, LocalForceParams};
 use maobi_shared::force::TICK_S;
 use maobi_shared::{BrushParams, Pose};
+
+/// The oldest a model may be, in servo ticks since the pose it was solved at, and still be
+/// felt: five rebuild intervals of the Phantom's 100 Hz solves. On time, a model is felt
+/// from a tick or two after its pose until the next arrives ten ticks later.
+pub const STALE_MODEL_TICKS: u32 = 50;
 
 /// What the servo loop asks the solver to do: solve the brush of generation `generation`
 /// at `pose`, as of servo tick `tick`.
@@ -72,6 +84,10 @@ pub struct SolverLink {
     skipped: AtomicU64,
     /// Requests the servo could not leave (the solver held the slot) and left a tick later.
     deferred: AtomicU64,
+    /// Servo ticks without brush force because the newest model was stale, and whether the
+    /// last tick was one.
+    stale_ticks: AtomicU64,
+    stale: AtomicBool,
     /// Brushes the solver could not build (parameters the model refuses), and the last reason.
     refused: AtomicU64,
     refusal: Mutex<Option<String>>,
@@ -90,6 +106,8 @@ impl SolverLink {
             solves: AtomicU64::new(0),
             skipped: AtomicU64::new(0),
             deferred: AtomicU64::new(0),
+            stale_ticks: AtomicU64::new(0),
+            stale: AtomicBool::new(false),
             refused: AtomicU64::new(0),
             refusal: Mutex::new(None),
             stop: AtomicBool::new(false),
@@ -142,6 +160,23 @@ impl SolverLink {
             self.solves.load(Ordering::Relaxed),
             self.skipped.load(Ordering::Relaxed),
             self.deferred.load(Ordering::Relaxed),
+        )
+    }
+
+    /// The servo side: whether this tick's model was stale (see [`STALE_MODEL_TICKS`]).
+    pub fn set_stale(&self, stale: bool) {
+        if stale {
+            self.stale_ticks.fetch_add(1, Ordering::Relaxed);
+        }
+        self.stale.store(stale, Ordering::Relaxed);
+    }
+
+    /// Whether the servo loop is holding the brush's force for want of a fresh model, and
+    /// the ticks it has done so in all.
+    pub fn stale(&self) -> (bool, u64) {
+        (
+            self.stale.load(Ordering::Relaxed),
+            self.stale_ticks.load(Ordering::Relaxed),
         )
     }
 

@@ -33,6 +33,7 @@
 //! own audit below, under the same hand and window test: `passivity baxter-lin ...` lines.
 
 use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
+use maobi_shared::baxter_lin::force_loop::BaxterLinHand;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::baxter_lin::local_force::{LocalForceBrush, LocalForceParams};
 use maobi_shared::baxter_lin::{Spine, SpineParams};
@@ -64,6 +65,14 @@ struct Audit {
     touching_ticks: usize,
 }
 
+/// The Phantom's limits widened, so that the output stage's passivity control, not its
+/// clamp, is what the audits see.
+const WIDE_LIMITS: DeviceLimits = DeviceLimits {
+    peak_n: 20.0,
+    continuous_n: 20.0,
+    ..PHANTOM_OMNI
+};
+
 fn run(params: BrushParams, tilt_deg: u32, seed: u64, ticks: usize) -> Audit {
     let tilt = (tilt_deg as f64).to_radians();
     let reach = params.length_mm as f64 * tilt.cos();
@@ -71,11 +80,7 @@ fn run(params: BrushParams, tilt_deg: u32, seed: u64, ticks: usize) -> Audit {
     let rot = Quat::from_f64([h.cos(), 0.0, h.sin(), 0.0]);
     let start = [0.0, 0.0, reach + 5.0];
     let pose = |p: Vec3<Fx>| Pose::new(p, rot);
-    let device = DeviceLimits {
-        peak_n: 20.0,
-        continuous_n: 20.0,
-        ..PHANTOM_OMNI
-    };
+    let device = WIDE_LIMITS;
     let mut fl = ForceLoop::<Fx>::new(
         params,
         pose(Vec3::from_f64(start)),
@@ -206,7 +211,7 @@ fn the_force_path_is_passive_for_every_preset_and_tilt() {
 ///
 /// [`Render::Late`] is the Phantom's servo loop (`host/src/phantom/solver.rs`): the brush
 /// solved on another thread at the pose of every tenth tick, its model felt from that many
-/// ticks later, until the next arrives.
+/// ticks later until the next arrives.
 fn run_local_force(seed: u64, ticks: usize, render: Render, spine: SpineParams) -> Audit {
     let local = render != Render::Full;
     let tilt = 20f64.to_radians();
@@ -246,6 +251,11 @@ fn run_local_force(seed: u64, ticks: usize, render: Render, spine: SpineParams) 
         |b: &BaxterLinBrush| -> f64 { b.spines().iter().map(Spine::spring_energy).sum() };
     let mut in_flight = std::collections::VecDeque::new();
     let mut felt = (*model.model(), spring_energy(model.brush()));
+    let mut felt_solved = 0;
+    // The device's output stage (limits wide, as the Liang audit has them, so that its
+    // passivity control and not its clamp is what is audited).
+    let mut stage = matches!(render, Render::LateGated(_))
+        .then(|| BaxterLinHand::new(WIDE_LIMITS, DEFAULT_GUIDE).unwrap());
     let (mut best, mut best_at) = (f64::MIN, 0);
     let mut audit = Audit {
         worst_violation: 0.0,
@@ -258,7 +268,7 @@ fn run_local_force(seed: u64, ticks: usize, render: Render, spine: SpineParams) 
         let (target, push) = script.tick();
         hand.tick_with_push(target, cmd.to_f64(), push);
         let p = hand.stylus();
-        let springs = if let Render::Late(lag) = render {
+        let springs = if let Render::Late(lag) | Render::LateGated(lag) = render {
             if k % model.params().rebuild_every as usize == 0 {
                 model.solve(&pose(p));
                 in_flight.push_back((k + lag, *model.model(), spring_energy(model.brush())));
@@ -268,10 +278,27 @@ fn run_local_force(seed: u64, ticks: usize, render: Render, spine: SpineParams) 
                     break;
                 }
                 felt = (m, e);
+                felt_solved = at - lag;
                 in_flight.pop_front();
             }
+            let stale = k - felt_solved >= model.params().stale_after_ticks() as usize;
             let at = Vec3::from_f64(p);
-            cmd = felt.0.force(at);
+            cmd = match &mut stage {
+                Some(s) => {
+                    let input = TickIn {
+                        pose: Some(pose(p)),
+                        guide: None,
+                        // A stale model is not let through: the stage ramps out until a
+                        // fresh one arrives, as the servo loop's gate does.
+                        gate: Gate {
+                            allowed: !stale,
+                            faulted: false,
+                        },
+                    };
+                    s.tick(input, &felt.0).command
+                }
+                None => felt.0.force(at),
+            };
             felt.1 + felt.0.potential(at)
         } else if local {
             cmd = model.tick(&pose(p));
@@ -315,6 +342,10 @@ enum Render {
     /// The local force model solved elsewhere and felt this many ticks after the pose it was
     /// solved at (the Phantom's solver thread).
     Late(usize),
+    /// [`Render::Late`] through the output stage the Phantom's servo loop ends in
+    /// ([`BaxterLinHand`]), its gate closed while the felt model is stale
+    /// ([`LocalForceParams::stale_after_ticks`]), as the servo loop's is.
+    LateGated(usize),
 }
 
 /// Largest energy the Baxter & Lin audit lets the model create over any window (J): ten times
@@ -341,6 +372,13 @@ fn the_local_force_model_of_baxter_lin_is_passive_under_the_simulated_hand() {
         // test's), and a whole rebuild interval late (a solver that falls behind).
         (Render::Late(1), "late-1", SpineParams::DEFAULT),
         (Render::Late(10), "late-10", SpineParams::DEFAULT),
+        // Later than that a model, felt, creates energy (0.42 mJ over a window at 15 ticks
+        // late, 3.9 mJ at 50): the servo loop does not let a stale one through.
+        (Render::LateGated(15), "late-15-gated", SpineParams::DEFAULT),
+        (Render::LateGated(50), "late-50-gated", SpineParams::DEFAULT),
+        // The same models let through, for the record (not audited: they are not passive).
+        (Render::Late(15), "late-15-ungated", SpineParams::DEFAULT),
+        (Render::Late(50), "late-50-ungated", SpineParams::DEFAULT),
         (Render::Late(10), "late-10-elastic", elastic),
     ]
     .into_iter()
@@ -356,6 +394,13 @@ fn the_local_force_model_of_baxter_lin_is_passive_under_the_simulated_hand() {
         .map(|(name, run)| (name, run.join().expect("audit thread")))
         .collect();
     for (name, a) in &audits {
+        if name.ends_with("-gated") {
+            println!(
+                "passivity baxter-lin {name}: stale models held off, peak force {:.3} N",
+                a.peak_force
+            );
+            continue;
+        }
         println!(
             "passivity baxter-lin {name} max_window_mj={:.4} (touching {} of {LOCAL_TICKS} ticks, \
              peak force {:.2} N, peak tangential {:.2} N, window ticks {} to {})",
@@ -372,6 +417,19 @@ fn the_local_force_model_of_baxter_lin_is_passive_under_the_simulated_hand() {
             a.touching_ticks > LOCAL_TICKS / 10,
             "{name}: hardly touched"
         );
+        if name.ends_with("-gated") {
+            // The hand feels next to nothing: each model is stale before the output stage
+            // has ramped far in.
+            assert!(
+                a.peak_force < 0.05,
+                "{name}: {} N let through",
+                a.peak_force
+            );
+            continue;
+        }
+        if name.ends_with("-ungated") {
+            continue;
+        }
         // The round head's 40 mm of soft hair: a few tenths of a newton pressed.
         assert!(
             a.peak_force > 0.15,

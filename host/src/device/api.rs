@@ -122,7 +122,7 @@ pub enum DeviceCommand {
     /// Baxter & Lin's model also one of their heads, see [`super::model::BrushChoice`]).
     Preset(String),
     /// Run this brush model from now on, the brush as it stands, at rest where the hand is.
-    /// Only the built-in simulator has a choice: a pen runs Liang's model.
+    /// The built-in simulator and the Phantom have the choice; a pen runs Liang's model.
     Model(ModelKind),
     /// Set one parameter; validated before it is sent.
     SetParam(ParamId, f32),
@@ -174,11 +174,18 @@ impl DeviceCommand {
             (DeviceCommand::Preset(name), m) => {
                 BrushChoice::for_model(name, m).map(|_| ()).map_err(reject)
             }
-            (DeviceCommand::SetParam(id, _), ModelKind::BaxterLin) => {
-                BrushChoice::parse(brush)
-                    .and_then(|b| b.baxter_lin_reads(*id))
-                    .map_err(reject)?;
-                self.validate(params)
+            (DeviceCommand::SetParam(id, v), ModelKind::BaxterLin) => {
+                let choice = BrushChoice::parse(brush).map_err(reject)?;
+                choice.baxter_lin_reads(*id).map_err(reject)?;
+                self.validate(params)?;
+                let mut p = *params;
+                p.set(*id, *v).map_err(|e| reject(e.to_string()))?;
+                choice.baxter_lin_builds(&p).map_err(reject)
+            }
+            (DeviceCommand::Model(ModelKind::BaxterLin), _) => {
+                BrushChoice::for_model(brush, ModelKind::BaxterLin)
+                    .and_then(|b| b.baxter_lin_builds(params))
+                    .map_err(reject)
             }
             (DeviceCommand::Model(ModelKind::Liang), _) => {
                 BrushChoice::for_model(brush, ModelKind::Liang)

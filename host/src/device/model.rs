@@ -10,7 +10,7 @@
 
 use maobi_shared::baxter_lin::brush::BaxterLinBrush;
 use maobi_shared::baxter_lin::head::HeadShape;
-use maobi_shared::{presets, BrushParams, ParamId};
+use maobi_shared::{presets, BrushParams, ParamId, Pose, Quat, Vec3};
 
 /// The brush model a command or a device runs.
 #[derive(
@@ -142,6 +142,19 @@ impl BrushChoice {
     /// Baxter & Lin's head for this brush (a preset is a round head of its profile).
     pub fn head_shape(&self) -> HeadShape {
         self.shape.unwrap_or(HeadShape::Round)
+    }
+
+    /// Checks that Baxter & Lin's brush of this head builds with `params` (its spines'
+    /// springs, scaled by the hair's stiffness, must stay in their range): what the built-in
+    /// simulator and the Phantom's solver would refuse is refused before it is sent.
+    pub fn baxter_lin_builds(&self, params: &BrushParams) -> Result<(), String> {
+        let above = Pose::new(
+            Vec3::new(0.0, 0.0, 2.0 * params.length_mm as f64 + 10.0),
+            Quat::IDENTITY,
+        );
+        BaxterLinBrush::of_shape(self.head_shape(), params, above)
+            .map(|_| ())
+            .map_err(|e| format!("Baxter & Lin's {} brush: {e}", self.head_shape().name()))
     }
 
     /// Checks that Baxter & Lin's brush of this head reads parameter `id`

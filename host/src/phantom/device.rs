@@ -172,11 +172,18 @@ impl PhantomDevice {
     }
 
     /// Starts the servo loop again with the model and brush now chosen (a new model or head
-    /// needs a new loop; the brush starts at rest at the next pose), if it was running.
+    /// needs a new loop; the brush starts at rest at the next pose), if it was running. The
+    /// paper's calibration and the forces switch carry over: forces the user turned off
+    /// stay off.
     fn restart(&mut self) -> Result<(), DeviceError> {
-        if self.bridge.is_none() {
+        let Some(b) = &self.bridge else {
             return Ok(());
+        };
+        let shared = b.shared();
+        if let Some(h) = shared.paper_height_mm() {
+            self.opts.mapping.paper_height_mm = h;
         }
+        self.opts.forces_on = shared.forces_on() || shared.awaiting_lift();
         self.disconnect();
         self.connect()
     }
@@ -184,7 +191,7 @@ impl PhantomDevice {
     /// A brush frame of Baxter & Lin's model: the servo loop's side `h` and the brush the
     /// solver last published (`None` before its first solve).
     fn hand_frame(link: &SolverLink, h: &HandState) -> Option<BrushFrame> {
-        let brush = link.brush()?;
+        let brush = link.brush_of(h.generation)?;
         let out = ModelTick::of_baxter_lin(
             maobi_shared::Vec3::from_f64(h.command),
             maobi_shared::Vec3::from_f64(h.force),
@@ -267,12 +274,16 @@ impl Device for PhantomDevice {
                     faults.push(s.to_string());
                 } else {
                     faults.extend(b.shared().notices(self.last_faults));
-                    if b.solver_link().is_some_and(|l| l.stale().0) {
-                        faults.push(
-                            "the brush's solver has fallen behind the servo loop: no brush \
-                             force until it catches up"
-                                .to_string(),
-                        );
+                    if let Some(l) = b.solver_link() {
+                        if let Some(why) = l.refusal() {
+                            faults.push(format!("the brush could not be built: {why}"));
+                        } else if l.stale().0 {
+                            faults.push(
+                                "the brush's solver has fallen behind the servo loop: no \
+                                 brush force until it catches up"
+                                    .to_string(),
+                            );
+                        }
                     }
                 }
                 (
@@ -343,9 +354,9 @@ impl Device for PhantomDevice {
                 if m == self.model {
                     return Ok(());
                 }
+                // The brush's parameters as they stand (as the built-in simulator does).
                 let choice = BrushChoice::for_model(&self.preset, m).map_err(rejected)?;
                 self.model = m;
-                self.params = choice.params;
                 self.brush = choice;
                 self.restart()
             }
@@ -354,16 +365,18 @@ impl Device for PhantomDevice {
             DeviceCommand::Dip(w) => self.servo(ServoCommand::Dip(w)),
             DeviceCommand::Preset(name) => {
                 let choice = BrushChoice::for_model(&name, self.model).map_err(rejected)?;
-                let same_loop = choice.head_shape() == self.brush.head_shape();
-                let p = choice.params;
-                if same_loop || self.model == ModelKind::Liang {
-                    self.servo(ServoCommand::SetParams(p))?;
+                // Another of Baxter & Lin's heads needs a new loop (its solver is built for
+                // one head); otherwise the loop takes the parameters. Disconnected, the
+                // next connection starts with them.
+                let new_loop = self.model == ModelKind::BaxterLin
+                    && choice.head_shape() != self.brush.head_shape();
+                if self.bridge.is_some() && !new_loop {
+                    self.servo(ServoCommand::SetParams(choice.params))?;
                 }
-                self.params = p;
+                self.params = choice.params;
                 self.preset = name;
                 self.brush = choice;
-                if !(same_loop || self.model == ModelKind::Liang) {
-                    // Another of Baxter & Lin's heads: its solver is built for one head.
+                if new_loop {
                     self.restart()?;
                 }
                 Ok(())

@@ -68,7 +68,7 @@ use maobi_shared::{presets, BrushParams, ForceLoop, Fx, Pose, Quat, Scalar, Vec3
 
 use super::hd::*;
 use super::loader::{HdFns, HdLib};
-use super::solver::{SolveRequest, SolverLink, SolverThread, STALE_MODEL_TICKS};
+use super::solver::{SolveRequest, SolverLink, SolverThread};
 use crate::device::GuideFrame;
 
 /// States the handoff queue holds (half a second at 120 Hz).
@@ -364,6 +364,9 @@ pub enum ServoState {
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct HandState {
     pub tick: u32,
+    /// The brush's generation (see [`super::solver`]): the solver's brush of the same one
+    /// is drawn with it.
+    pub generation: u32,
     /// The handle, paper frame (mm).
     pub pose: Pose<f64>,
     /// The brush's force from the local model, and the output stage's command (N, paper
@@ -391,6 +394,9 @@ struct BaxterLinServo {
     last_request: Option<u32>,
     solved_at: Option<u32>,
     rebuild_every: u32,
+    /// A model felt this many ticks after its pose is stale
+    /// ([`LocalForceParams::stale_after_ticks`]).
+    stale_after: u32,
     /// The last pose and the brush's force there.
     pose: Option<Pose<f64>>,
     force: Vec3<f64>,
@@ -465,6 +471,7 @@ impl ServoCore {
         link: Arc<SolverLink>,
     ) -> Result<ServoCore, String> {
         let hand = BaxterLinHand::new(limits, DEFAULT_GUIDE).map_err(|e| e.to_string())?;
+        let local = LocalForceParams::for_device(&limits);
         let servo = BaxterLinServo {
             hand,
             model: LocalForceModel::NONE,
@@ -475,7 +482,8 @@ impl ServoCore {
             began: 0,
             last_request: None,
             solved_at: None,
-            rebuild_every: LocalForceParams::for_device(&limits).rebuild_every.max(1),
+            rebuild_every: local.rebuild_every.max(1),
+            stale_after: local.stale_after_ticks(),
             pose: None,
             force: Vec3::ZERO,
         };
@@ -619,8 +627,7 @@ impl ServoCore {
                 // felt at the new pose.
                 b.restart = true;
                 b.model = LocalForceModel::NONE;
-                b.hand.restart_guide();
-                b.hand.forget_pose();
+                b.hand.restart();
             }
         }
         self.cut_guide();
@@ -751,7 +758,16 @@ impl ServoCore {
             ServoModel::BaxterLin(b) => {
                 // Baxter & Lin's model runs in f64: the device's pose as mapped, unrounded.
                 let pose = paper;
-                b.exchange(tick, pose);
+                // A stale model is not let through: the output stage ramps out, as for a
+                // stalled loop, and back in with a fresh one (not latched).
+                let gate = if b.exchange(tick, pose) {
+                    Gate {
+                        allowed: false,
+                        ..gate
+                    }
+                } else {
+                    gate
+                };
                 let guide = GuidePlay::next_sample_of_as(
                     &mut self.guide_play,
                     b.hand.guide(),
@@ -866,6 +882,7 @@ impl ServoCore {
                 }
                 Some(ServoState::Hand(HandState {
                     tick: self.tick,
+                    generation: b.generation,
                     pose: b.pose?,
                     force: b.force.to_f64(),
                     command: self.command.to_f64(),
@@ -881,9 +898,9 @@ impl BaxterLinServo {
     /// The callback's side of the exchange with the solver at servo tick `tick`, the handle
     /// at `pose`: a restart begins the next generation here; a request is left every
     /// `rebuild_every` ticks (at once for a new generation, and retried the next tick if
-    /// the slot was busy); the newest model of this generation is taken; one older than
-    /// [`STALE_MODEL_TICKS`] is not felt.
-    fn exchange(&mut self, tick: u32, pose: Pose<f64>) {
+    /// the slot was busy); the newest model of this generation is taken. Returns whether
+    /// the model is stale: the caller closes the output stage's gate then.
+    fn exchange(&mut self, tick: u32, pose: Pose<f64>) -> bool {
         if self.restart {
             self.restart = false;
             self.generation = self.generation.wrapping_add(1);
@@ -914,11 +931,9 @@ impl BaxterLinServo {
         }
         // (A generation whose first model has not come is as late as a stale model.)
         let since = self.solved_at.unwrap_or(self.began);
-        let stale = tick.wrapping_sub(since) > STALE_MODEL_TICKS;
-        if stale {
-            self.model = LocalForceModel::NONE;
-        }
+        let stale = tick.wrapping_sub(since) >= self.stale_after;
         self.link.set_stale(stale);
+        stale
     }
 }
 
@@ -1019,6 +1034,9 @@ pub struct ServoShared {
     forces_on: AtomicBool,
     /// The safe start is holding forces (see [`ServoCore::awaiting_lift`]).
     awaiting_lift: AtomicBool,
+    /// The mapping's paper height as the loop last had it (`f64` bits; a calibration moves
+    /// it), so a loop started again keeps it. NaN before the first tick.
+    paper_height_bits: AtomicU64,
     /// Device warnings seen, and the last one (code, internal code, tick).
     warnings: AtomicU64,
     warning_code: AtomicU32,
@@ -1051,6 +1069,7 @@ impl ServoShared {
             cost_ns_max: AtomicU64::new(0),
             forces_on: AtomicBool::new(false),
             awaiting_lift: AtomicBool::new(false),
+            paper_height_bits: AtomicU64::new(f64::NAN.to_bits()),
             warnings: AtomicU64::new(0),
             warning_code: AtomicU32::new(0),
             warning_internal: AtomicI32::new(0),
@@ -1135,6 +1154,13 @@ impl ServoShared {
             }
         }
         out
+    }
+
+    /// The paper height the loop has now (a calibration moves it); `None` before its first
+    /// tick.
+    pub fn paper_height_mm(&self) -> Option<f64> {
+        let h = f64::from_bits(self.paper_height_bits.load(Ordering::Relaxed));
+        h.is_finite().then_some(h)
     }
 
     /// Servo ticks run so far.
@@ -1347,6 +1373,10 @@ impl ServoCtx {
         self.shared
             .awaiting_lift
             .store(self.core.awaiting_lift(), Ordering::Relaxed);
+        self.shared.paper_height_bits.store(
+            self.core.mapping().paper_height_mm.to_bits(),
+            Ordering::Relaxed,
+        );
         if stepped {
             self.hand_over_state(tick);
         }

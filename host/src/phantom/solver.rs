@@ -17,11 +17,12 @@
 //! for exactly that, a force field valid around the solved pose.
 //!
 //! # A solver that stalls
-//! A model is a force field valid about the pose it was solved at. One felt more than
-//! [`STALE_MODEL_TICKS`] after that pose (the solver starved of the processor, or stuck)
-//! would push the hand by a field extrapolated far from where it holds: the callback then
-//! feels no brush force (the output stage ramps it out) until a fresh model arrives, and the
-//! GUI says so.
+//! A model is a force field valid about the pose it was solved at. One felt longer than
+//! [`LocalForceParams::stale_after_ticks`] after that pose (the solver starved of the
+//! processor, or stuck) pushes the hand by a field extrapolated from where it no longer is
+//! and creates energy (the passivity audit measures it). As for a stalled loop, the
+//! callback then closes the output stage's gate, so the force ramps out, until a fresh model
+//! arrives; the GUI says why.
 //!
 //! # Brushes afresh
 //! Each request carries the brush's generation. The servo loop starts a new generation
@@ -43,11 +44,6 @@ use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::baxter_lin::local_force::{LocalForceBrush, LocalForceModel, LocalForceParams};
 use maobi_shared::force::TICK_S;
 use maobi_shared::{BrushParams, Pose};
-
-/// The oldest a model may be, in servo ticks since the pose it was solved at, and still be
-/// felt: five rebuild intervals of the Phantom's 100 Hz solves. On time, a model is felt
-/// from a tick or two after its pose until the next arrives ten ticks later.
-pub const STALE_MODEL_TICKS: u32 = 50;
 
 /// What the servo loop asks the solver to do: solve the brush of generation `generation`
 /// at `pose`, as of servo tick `tick`.
@@ -74,8 +70,9 @@ pub struct Published {
 pub struct SolverLink {
     request: Mutex<Option<SolveRequest>>,
     published: Mutex<Option<Published>>,
-    /// The brush as last solved, for the GUI's frames (replaced, never mutated in place).
-    brush: Mutex<Option<Arc<BaxterLinBrush>>>,
+    /// The brush as last solved and its generation, for the GUI's frames (replaced, never
+    /// mutated in place).
+    brush: Mutex<Option<(u32, Arc<BaxterLinBrush>)>>,
     /// Dips asked for (a counter), and the last one's load (`f32` bits).
     dips: AtomicU32,
     dip_load: AtomicU32,
@@ -88,7 +85,8 @@ pub struct SolverLink {
     /// last tick was one.
     stale_ticks: AtomicU64,
     stale: AtomicBool,
-    /// Brushes the solver could not build (parameters the model refuses), and the last reason.
+    /// Brushes the solver could not build (parameters the model refuses), and the reason for
+    /// the one in force.
     refused: AtomicU64,
     refusal: Mutex<Option<String>>,
     stop: AtomicBool,
@@ -116,7 +114,8 @@ impl SolverLink {
     }
 
     /// The servo side: leaves `req` for the solver (replacing one it has not taken) and
-    /// wakes it. Never blocks; `false` if the slot was busy this instant (try next tick).
+    /// wakes it (`unpark`: at most a futex wake, which never waits). Never blocks; `false`
+    /// if the slot was busy this instant (try next tick).
     pub fn request(&self, req: SolveRequest) -> bool {
         match self.request.try_lock() {
             Ok(mut slot) => {
@@ -150,7 +149,16 @@ impl SolverLink {
 
     /// The brush as last solved (`None` before the first solve).
     pub fn brush(&self) -> Option<Arc<BaxterLinBrush>> {
-        self.brush.lock().ok()?.clone()
+        self.brush.lock().ok()?.as_ref().map(|(_, b)| b.clone())
+    }
+
+    /// The brush as last solved if it is of `generation` (a restarted brush is not drawn
+    /// as the old one).
+    pub fn brush_of(&self, generation: u32) -> Option<Arc<BaxterLinBrush>> {
+        match self.brush.lock().ok()?.as_ref() {
+            Some((g, b)) if *g == generation => Some(b.clone()),
+            _ => None,
+        }
     }
 
     /// Solves done, requests the solver never took (it fell behind), and requests the servo
@@ -163,7 +171,8 @@ impl SolverLink {
         )
     }
 
-    /// The servo side: whether this tick's model was stale (see [`STALE_MODEL_TICKS`]).
+    /// The servo side: whether this tick's model was stale (see
+    /// [`LocalForceParams::stale_after_ticks`]).
     pub fn set_stale(&self, stale: bool) {
         if stale {
             self.stale_ticks.fetch_add(1, Ordering::Relaxed);
@@ -180,12 +189,14 @@ impl SolverLink {
         )
     }
 
-    /// Why the last brush could not be built, if one could not.
+    /// Why the brush in force could not be built, if it could not (the next that builds
+    /// clears it); and how many brushes were refused in all.
     pub fn refusal(&self) -> Option<String> {
-        if self.refused.load(Ordering::Relaxed) == 0 {
-            return None;
-        }
         self.refusal.lock().ok()?.clone()
+    }
+
+    pub fn refused(&self) -> u64 {
+        self.refused.load(Ordering::Relaxed)
     }
 }
 
@@ -231,6 +242,9 @@ impl Solver {
             }
             _ => match BaxterLinBrush::of_shape(self.shape, &req.params, req.pose) {
                 Ok(b) => {
+                    if let Ok(mut r) = self.link.refusal.lock() {
+                        *r = None;
+                    }
                     let brush = LocalForceBrush::new(b, &req.pose, self.params);
                     self.current = Some((req.generation, req.tick, brush));
                 }
@@ -267,7 +281,7 @@ impl Solver {
                 model: *brush.model(),
             });
         }
-        let snapshot = Arc::new(brush.brush().clone());
+        let snapshot = (*generation, Arc::new(brush.brush().clone()));
         if let Ok(mut b) = self.link.brush.lock() {
             *b = Some(snapshot);
         }

@@ -92,9 +92,10 @@ impl BaxterLinHand {
         self.last_pose = None;
     }
 
-    /// The guide afresh (a new brush, a fault).
-    pub fn restart_guide(&mut self) {
+    /// A new brush: the guide afresh, the next pose not checked for a jump.
+    pub fn restart(&mut self) {
         self.stage.restart_guide();
+        self.last_pose = None;
     }
 
     pub fn output(&self) -> &OutputStage<f64> {
@@ -160,8 +161,7 @@ impl BaxterLinLoop {
     /// the guide afresh, the next pose not checked for a jump.
     pub fn reset_brush(&mut self, brush: BaxterLinBrush, pose: Pose<f64>) {
         self.brush = LocalForceBrush::new(brush, &pose, *self.brush.params());
-        self.hand.restart_guide();
-        self.hand.forget_pose();
+        self.hand.restart();
     }
 
     /// The brush as last solved.

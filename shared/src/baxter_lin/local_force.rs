@@ -115,6 +115,17 @@ impl LocalForceParams {
     }
 }
 
+impl LocalForceParams {
+    /// How long a model may be felt, in ticks after the pose it was solved at: twice the
+    /// rebuild interval. A model is a force field valid about that pose; felt later, by a
+    /// device whose solver runs elsewhere and fell behind, it is extrapolated from a hand
+    /// that has moved on, and the passivity audit (`shared/tests/passivity.rs`, models felt
+    /// late) finds the energy it creates rising tenfold once it is felt longer than this.
+    pub fn stale_after_ticks(&self) -> u32 {
+        2 * self.rebuild_every.max(1)
+    }
+}
+
 /// The first-order model of the handle force around one solved pose.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct LocalForceModel {

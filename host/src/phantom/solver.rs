@@ -85,9 +85,7 @@ pub struct SolverLink {
     /// last tick was one.
     stale_ticks: AtomicU64,
     stale: AtomicBool,
-    /// Brushes the solver could not build (parameters the model refuses), and the reason for
-    /// the one in force.
-    refused: AtomicU64,
+    /// Why the solver could not build the brush in force (parameters the model refuses).
     refusal: Mutex<Option<String>>,
     stop: AtomicBool,
     thread: OnceLock<Thread>,
@@ -106,7 +104,6 @@ impl SolverLink {
             deferred: AtomicU64::new(0),
             stale_ticks: AtomicU64::new(0),
             stale: AtomicBool::new(false),
-            refused: AtomicU64::new(0),
             refusal: Mutex::new(None),
             stop: AtomicBool::new(false),
             thread: OnceLock::new(),
@@ -190,13 +187,9 @@ impl SolverLink {
     }
 
     /// Why the brush in force could not be built, if it could not (the next that builds
-    /// clears it); and how many brushes were refused in all.
+    /// clears it).
     pub fn refusal(&self) -> Option<String> {
         self.refusal.lock().ok()?.clone()
-    }
-
-    pub fn refused(&self) -> u64 {
-        self.refused.load(Ordering::Relaxed)
     }
 }
 
@@ -251,7 +244,6 @@ impl Solver {
                 Err(e) => {
                     // The parameters were validated before they reached the servo loop; a
                     // brush the model still refuses leaves the hand feeling nothing.
-                    self.link.refused.fetch_add(1, Ordering::Relaxed);
                     if let Ok(mut r) = self.link.refusal.lock() {
                         *r = Some(e.to_string());
                     }

@@ -534,7 +534,11 @@ fn baxter_lin_traces_keep_the_physical_invariants() {
             cos.acos().to_degrees()
         );
 
-        // Friction opposes each spine's slide on the paper.
+        // Friction opposes each spine's slide on the paper. A contact that sticks creeps up
+        // to the slip distance from where it stuck, and back as its load eases (the friction
+        // cone's rounding, `FRICTION_SMOOTHING_MM`), its friction pulling it home: a move
+        // between two ticks is a slide when it is longer than that creep can be.
+        let creep = 2.0 * maobi_shared::baxter_lin::SpineParams::DEFAULT.slip_mm;
         let (mut slides, mut resisted) = (0, 0);
         for r in 1..tr.rows.len() {
             for k in 0..spines {
@@ -547,7 +551,7 @@ fn baxter_lin_traces_keep_the_physical_invariants() {
                     }
                 }
                 let s = slide[0].hypot(slide[1]);
-                if s > 1e-4 {
+                if s > creep {
                     slides += 1;
                     let c = tr.col(&format!("fr{k}_x"));
                     let along = (tr.rows[r][c] * slide[0] + tr.rows[r][c + 1] * slide[1]) / s;

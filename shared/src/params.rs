@@ -397,7 +397,9 @@ impl BrushParams {
         // soften the spring (at most one) and stiffen the damper (at least one) with ink,
         // so the dry spring and the saturated damper.
         let c_tv = (h * h * self.tie_stiffness + h * self.tie_damping * self.tie_damping_wet()) / m;
-        1.0 + c_tv + 2.0 * (c_k + c_d)
+        // The paper's drag on a mass lying on it (in the paper's plane).
+        let c_drag = h * self.paper_drag / m;
+        1.0 + c_tv + c_drag + 2.0 * (c_k + c_d)
     }
 
     /// The tie's stiffness of a saturated layer as a fraction of the dry's

@@ -277,10 +277,10 @@ impl SpineChain<Fx> for FxChain {
     }
 
     #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, own: Vec3<Fx>) {
+    fn row(&mut self, i: usize, a: Fx, drag: Fx, own: Vec3<Fx>) {
         match self {
-            FxChain::Compact(c) => c.row(i, a, own),
-            FxChain::General(c) => SpineChain::row(c, i, a, own),
+            FxChain::Compact(c) => c.row(i, a, drag, own),
+            FxChain::General(c) => SpineChain::row(c, i, a, drag, own),
         }
     }
 
@@ -375,7 +375,7 @@ impl SpineChain<Fx> for FixedChain {
     }
 
     #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, own: Vec3<Fx>) {
+    fn row(&mut self, i: usize, a: Fx, drag: Fx, own: Vec3<Fx>) {
         let i = i.clamp(1, MAX_LAYERS - 1);
         let f = BLOCK_FRAC;
         let sat = &mut self.saturated;
@@ -388,14 +388,16 @@ impl SpineChain<Fx> for FixedChain {
             to_vec_from(sum, BLOCK_FRAC, sat)
         });
         let (g, g_next) = (self.g_below, self.g_above);
-        // a I + G_i + G_{i+1}, in the blocks' format (each below the diagonal's bound).
+        // a I + c (x x^T + y y^T) + G_i + G_{i+1}, in the blocks' format (each below the
+        // diagonal's bound).
         let a = round_clamp(a.to_bits(), 32 - BLOCK_FRAC, LIMIT);
+        let in_plane = a.wrapping_add(round_clamp(drag.to_bits(), 32 - BLOCK_FRAC, LIMIT));
         let diag = QSym(core::array::from_fn(|k| {
             let sum = g.0[k].wrapping_add(g_next.0[k]);
-            if k < 3 {
-                sum.wrapping_add(a)
-            } else {
-                sum
+            match k {
+                0 | 1 => sum.wrapping_add(in_plane),
+                2 => sum.wrapping_add(a),
+                _ => sum,
             }
         }));
         let (d, y) = if i == 1 {
@@ -554,7 +556,7 @@ mod tests {
                 let full = term(i + 1) - term(i) + rhs[i];
                 exact.row(i, diag, &g, full);
                 model.row(i, to_fx(diag), &to_fx(g), vfx(full));
-                fixed.row(i, fx(a[i]), vfx(rhs[i]));
+                fixed.row(i, fx(a[i]), Fx::ZERO, vfx(rhs[i]));
             }
             let want = *exact.solve(n);
             let own = *model.solve(n);
@@ -631,7 +633,7 @@ mod tests {
                     rel,
                     ..Segment::BEYOND_TIP
                 });
-                fixed.row(i, fx(1.0), Vec3::new(big, big, big));
+                fixed.row(i, fx(1.0), Fx::ZERO, Vec3::new(big, big, big));
             }
             fixed.solve(n);
             let inside = big.to_f64().abs() < 16.0;

@@ -89,7 +89,7 @@ pub const HAIR_STRIPS: usize = 16;
 /// its wetness, the speed its footprint's, mm/s); below that only the strips whose seeded
 /// readiness is under it do: a slow stroke with a loaded brush is full, a fast flick or a dry
 /// brush splits into streaks. At the presets' dip (W = 0.6) every hair inks up to 560 mm/s.
-pub const DRY_GAIN: f64 = 3.0;
+pub const DRY_GAIN: f64 = 2.5;
 /// See [`DRY_GAIN`].
 pub const DRY_SPEED_MM_S: f64 = 700.0;
 

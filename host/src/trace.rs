@@ -288,7 +288,7 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 5);
         let width = lines[0].split(',').count();
-        assert_eq!(width, 1 + 7 + 3 * 16 + 1 + 4);
+        assert_eq!(width, 1 + 7 + 3 * params.layers as usize + 1 + 4);
         for l in &lines[1..] {
             assert_eq!(l.split(',').count(), width, "{l}");
         }
@@ -296,7 +296,10 @@ mod tests {
         assert!(lines[4].starts_with("0.003,0.000000,0.000000,44.000000,"));
         // At rest the ferrule is s0 = handle position, and nothing touches the paper: the
         // only force is the brush's weight, and the skeleton is above the paper.
-        assert!(lines[1].contains(",0.000000,0.000000,45.000000,0.000000,0.000000,42.333333,"));
+        let s1_z = 45.0 - params.length_mm as f64 / (params.layers as f64 - 1.0);
+        assert!(lines[1].contains(&format!(
+            ",0.000000,0.000000,45.000000,0.000000,0.000000,{s1_z:.6},"
+        )));
         assert!(
             lines[1].ends_with(",0,0.000000,0.000000,-0.147100,0.000000"),
             "{}",

@@ -95,19 +95,19 @@ pub const TIE_DAMPING_WET_PCT: u8 = 150;
 
 /// 大楷: large regular-script brush.
 pub const LARGE: BrushParams = BrushParams {
-    layers: 16,
+    layers: 12,
     ring_nodes: 16,
     length_mm: 40.0,
     radius_mm: 6.0,
     tip_radius_mm: 0.15,
     belly: 0.5,
     mass_g: 1.0,
-    axial_stiffness: 2000.0,
-    axial_damping: 0.06,
+    axial_stiffness: 1470.0,
+    axial_damping: 0.044,
     compression_ratio: 0.001,
-    tie_stiffness: 1.5,
-    tie_damping: 0.01,
-    paper_drag: 0.05,
+    tie_stiffness: 2.05,
+    tie_damping: 0.0136,
+    paper_drag: 0.068,
     plasticity: 0.0,
     jacobi_iterations: 4,
     substeps_per_tick: 1,
@@ -156,9 +156,9 @@ pub const SMALL: BrushParams = BrushParams {
 /// module's notes on the hair types).
 pub const WOLF: BrushParams = BrushParams {
     substeps_per_tick: 2,
-    axial_damping: 0.05,
-    tie_stiffness: 1.9,
-    tie_damping: 0.008,
+    axial_damping: 0.0367,
+    tie_stiffness: 2.59,
+    tie_damping: 0.0109,
     wetness: 0.5,
     ink_capacity: 0.3,
     ..LARGE
@@ -167,9 +167,9 @@ pub const WOLF: BrushParams = BrushParams {
 /// 羊毫 (goat hair): a soft, slow head of the large brush's size (大楷, 40 mm) that holds much
 /// ink (see the module's notes on the hair types).
 pub const GOAT: BrushParams = BrushParams {
-    axial_damping: 0.08,
-    tie_stiffness: 1.1,
-    tie_damping: 0.014,
+    axial_damping: 0.0587,
+    tie_stiffness: 1.5,
+    tie_damping: 0.0191,
     wetness: 0.75,
     ink_capacity: 0.55,
     ..LARGE
@@ -178,9 +178,9 @@ pub const GOAT: BrushParams = BrushParams {
 /// 兼毫 (mixed hair): wolf and goat hair half and half, a head of the large brush's size (大楷,
 /// 40 mm) between the two (see the module's notes on the hair types).
 pub const MIXED: BrushParams = BrushParams {
-    axial_damping: 0.065,
-    tie_stiffness: 1.6,
-    tie_damping: 0.011,
+    axial_damping: 0.0477,
+    tie_stiffness: 2.18,
+    tie_damping: 0.015,
     wetness: 0.6,
     ink_capacity: 0.42,
     ..LARGE

@@ -51,7 +51,7 @@ pub const VERSION: u32 = 2;
 /// says so. Raised with every change to the re-rendered result; `tests/model_version.rs`
 /// keeps a digest of a reference session's re-render for the current version and fails when
 /// the result changes and the version does not.
-pub const MODEL_VERSION: u32 = 2;
+pub const MODEL_VERSION: u32 = 3;
 /// A change to the paper that is not ink.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

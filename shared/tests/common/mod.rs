@@ -41,13 +41,16 @@ pub fn spring_back<S: BrushScalar>(params: BrushParams) -> [f64; 4] {
     let at = |z: f64| pose_at::<S>(0.0, 0.0, z, tilt);
     let above = at(reach + 5.0);
     let mut b = Brush::new(params, above).unwrap();
+    let mut most = 0;
     for k in 1..=200 {
         b.tick(at(reach + 5.0 - 15.0 * k as f64 / 200.0));
+        most = most.max(b.contacts());
     }
-    assert!(b.contacts() >= 3, "the press must put hair on the paper");
     for _ in 0..500 {
         b.tick(at(reach - 10.0));
+        most = most.max(b.contacts());
     }
+    assert!(most >= 3, "the press must put hair on the paper");
     for k in 1..=100 {
         b.tick(at(reach - 10.0 + 15.0 * k as f64 / 100.0));
     }

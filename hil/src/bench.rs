@@ -58,13 +58,6 @@ impl Report {
             t.integrator == u64::from(p.integrator) && t.substeps == u64::from(p.substeps_per_tick)
         })
     }
-    /// The thesis's integrator at one substep per tick: what an image without the presets'
-    /// integrator (the Black Pill's) runs.
-    pub fn thesis_one_substep(&self) -> Option<&TickCost> {
-        self.ticks
-            .iter()
-            .find(|t| t.integrator == u64::from(INTEGRATOR_KANG_CHO) && t.substeps == 1)
-    }
     /// The largest measured substep rate whose worst tick fits [`BUDGET`], with `integrator`.
     pub fn largest_fitting(&self, integrator: u8) -> Option<u64> {
         self.ticks
@@ -291,13 +284,6 @@ pub fn render(r: &Report) -> String {
                 );
             }
         }
-    }
-    if let Some(t) = r.thesis_one_substep() {
-        let _ = writeln!(
-            s,
-            "the Black Pill's brush (the thesis's integrator, 1 substep): worst tick {}",
-            t.max
-        );
     }
     let worst = r.per_tick().map(|t| t.max).unwrap_or(0);
     let _ = write!(s, "instructions_per_tick={worst}");

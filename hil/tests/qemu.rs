@@ -39,20 +39,17 @@ fn bench_reports_instructions_per_tick() {
             );
         }
     }
-    // The Black Pill runs the thesis's integrator at one substep per tick (its image lacks the
-    // presets' backward Euler; `BoardInfo::substeps_per_tick`) on a 96 MHz core, from an image
-    // built like this one (`firmware/Cargo.toml`: the same code
-    // generation, so these are its instructions). The bench's tick is the whole of the
-    // board's: the sensors through the encoder unwrap and ADC filter, forward kinematics,
-    // the brush, the force model, the output stage with forces enabled, and the joint
-    // torques. It must fit the 50,000 (half of a 100 MHz millisecond at one
-    // instruction per cycle): about half of the board's millisecond, the rest left for the
-    // link, USB and the flash's wait states (the count today: docs/figures.md; its history:
-    // CHANGELOG.md).
-    // (What the Black Pill's image runs: the thesis's integrator, at one substep.)
-    let one = r
-        .thesis_one_substep()
-        .expect("a line for the thesis's integrator at one substep per tick");
+    // The Black Pill runs the default brush, as the desktop does (backward Euler at one
+    // substep per tick), on a 96 MHz core, from an image built like this one
+    // (`firmware/Cargo.toml`: the same code generation, so these are its instructions). The
+    // bench's tick is the whole of the board's: the sensors through the encoder unwrap and
+    // ADC filter, forward kinematics, the brush, the force model, the output stage with
+    // forces enabled, and the joint torques. It must fit the 50,000 (half of a
+    // 100 MHz millisecond at one instruction per cycle): about half of the board's
+    // millisecond, the rest left for the link, USB and the flash's wait states (the count
+    // today: docs/figures.md; its history: CHANGELOG.md).
+    let one = r.per_tick().expect("a line for the default brush");
+    assert_eq!(one.substeps, 1, "the pen's rate");
     assert!(one.max <= 50_000, "{one:?}");
     let kinematics = r.kinematics.expect("a kinematics line");
     assert!(kinematics.0 > 1000 && kinematics.1 > 100, "{kinematics:?}");
@@ -165,13 +162,11 @@ fn the_force_path_holds_no_index_panic() {
 
 /// The targets are 128 KiB of flash and 32 KiB of static RAM, which the Black Pill's
 /// image meets (checked by `.ci/run`, `hil size --board blackpill --check`). This image also
-/// carries the presets' backward-Euler step, which the Black Pill's leaves out (it does not
-/// fit that board yet): it may exceed the targets by that step's code and its state, and no
-/// more, so growth past that fails here, to be seen and answered, not found later. (The
-/// chips have more: 512 KiB of flash, 128 KiB of RAM; the QEMU board more still.) The step's
-/// code is two solves, the 32-bit one and the general one it falls back to, each with the
-/// segments' terms formed in line for the tick's sake: the allowance was raised from 8 KiB
-/// when the terms moved into the chain's formats.
+/// carries the thesis's step (Kang & Cho, the `integrator` kept for comparison with the
+/// paper), which the Black Pill's leaves out for room: it may exceed the targets by that
+/// step's code and its state, and no more, so growth past that fails here, to be seen and
+/// answered, not found later. (The chips have more: 512 KiB of flash, 128 KiB of RAM; the
+/// QEMU board more still.)
 #[test]
 fn image_fits_the_budget() {
     let Some(elf) = image() else { return };

@@ -100,6 +100,9 @@
 // The solver walks chains of masses touching i-1, i and i+1 of several arrays at once; index
 // loops say that more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
+// A build without the thesis's step (the Black Pill's image) leaves its solves, rows and
+// coefficients unread; they are compiled out as dead code there.
+#![cfg_attr(not(feature = "kang-cho"), allow(dead_code))]
 
 use core::mem::MaybeUninit;
 
@@ -129,14 +132,22 @@ use crate::scalar::Fx;
 
 /// A number format the brush runs in: a [`Scalar`], and how the backward-Euler step solves
 /// its spine's chain in it. The float formats solve in their own arithmetic; the fixed-point
-/// format (`Fx`, the pen's) in 32-bit fixed point where the brush's blocks fit it
-/// (`brush/chain_fixed.rs`: its own 64-bit products cost the pen's tick several times as
-/// much), else in its own. Implemented for `f32`, `f64` and `Fx`; sealed (its solver trait
+/// format (`Fx`, the pen's) in 32-bit fixed point (`brush/chain_fixed.rs`: its own 64-bit
+/// products cost the pen's tick several times as much), which bounds the brushes it takes
+/// ([`Self::check_params`]). Implemented for `f32`, `f64` and `Fx`; sealed (its solver trait
 /// is private to the brush).
 pub trait BrushScalar: Scalar {
     #[cfg(feature = "backward-euler")]
     #[doc(hidden)]
     type Chain: SpineChain<Self>;
+    /// Whether the format can run a brush of `params` (validated): the float formats run
+    /// every brush; fixed point refuses one whose backward-Euler step's blocks leave its
+    /// chain's formats at the brush's substep rate ([`MAX_DIAGONAL`]).
+    #[inline]
+    fn check_params(params: &BrushParams) -> Result<(), ParamError> {
+        let _ = params;
+        Ok(())
+    }
     /// A unit vector (a segment's direction) in the form the surface's products take it in
     /// ([`Self::unit`]).
     #[doc(hidden)]
@@ -266,7 +277,21 @@ impl BrushScalar for f32 {
 
 impl BrushScalar for Fx {
     #[cfg(feature = "backward-euler")]
-    type Chain = chain_fixed::FxChain;
+    type Chain = chain_fixed::FixedChain;
+    #[cfg(feature = "backward-euler")]
+    fn check_params(params: &BrushParams) -> Result<(), ParamError> {
+        // One chain solve for the format, the 32-bit one (the pen's flash holds no second):
+        // a brush stiffer than its blocks hold, at its substep rate, is refused.
+        if params.integrator == crate::params::INTEGRATOR_BACKWARD_EULER
+            && params.backward_euler_diagonal_bound() >= MAX_DIAGONAL
+        {
+            return Err(ParamError::Inconsistent {
+                param: ParamId::SubstepsPerTick,
+                why: "too stiff for the fixed-point step: raise it or soften the hair",
+            });
+        }
+        Ok(())
+    }
     // In 32-bit words (`brush/unit_fixed.rs`): a surface update's worth of 64-bit products
     // saved on the pen's every tick. A direction enters its words once, for the layer's
     // axes and for the tilts on either side.
@@ -407,9 +432,6 @@ struct Implicit<S> {
     c_f: S,
     /// h C_f / m: the paper's drag on a mass lying on it, in the paper's plane.
     c_drag: S,
-    /// Whether the brush's blocks fit the number format's compact chain solve, if it has one
-    /// ([`BrushScalar`]; [`MAX_DIAGONAL`]).
-    fits_format_chain: bool,
 }
 
 /// Everything derived from the parameters that the substep needs: recomputed by
@@ -517,6 +539,8 @@ pub struct Brush<S> {
     seg_rsqrt: [S; MAX_LAYERS],
     segments_cached: bool,
     substeps_done: u64,
+    /// Substeps the fixed-point solve could not hold, each a restart at rest.
+    restarts: u32,
 }
 
 impl<S: BrushScalar> Brush<S> {
@@ -553,6 +577,7 @@ impl<S: BrushScalar> Brush<S> {
     #[inline(always)]
     pub(crate) fn unplaced(params: BrushParams, pose: Pose<S>) -> Result<Self, ParamError> {
         params.validate()?;
+        S::check_params(&params)?;
         Ok(Brush {
             params,
             d: derive::<S>(&params),
@@ -580,6 +605,7 @@ impl<S: BrushScalar> Brush<S> {
             seg_rsqrt: [S::ZERO; MAX_LAYERS],
             segments_cached: false,
             substeps_done: 0,
+            restarts: 0,
         })
     }
 
@@ -600,6 +626,9 @@ impl<S: BrushScalar> Brush<S> {
         let sa = pose.rot.rotate(Vec3::X);
         let la = pose.rot.rotate(Vec3::Y);
         let w = S::from_f32(self.params.wetness);
+        // The wicking's alternation starts again with the ink, as in a new brush (a host
+        // that mirrors a reset pen builds one).
+        self.ink_phase = false;
         for i in 0..n {
             self.layers[i] = Layer {
                 short_axis: sa,
@@ -621,6 +650,7 @@ impl<S: BrushScalar> Brush<S> {
     /// current pose.
     pub fn set_params(&mut self, params: BrushParams) -> Result<(), ParamError> {
         params.validate()?;
+        S::check_params(&params)?;
         let relayout = params.layers != self.params.layers
             || params.length_mm != self.params.length_mm
             || params.wetness != self.params.wetness;
@@ -685,6 +715,11 @@ impl<S: Scalar> Brush<S> {
     pub fn substeps_done(&self) -> u64 {
         self.substeps_done
     }
+    /// Substeps whose motion the fixed-point solve could not hold (a pose that jumped), after
+    /// each of which the brush restarted at rest on its skeleton; zero in the float formats.
+    pub fn restarts(&self) -> u32 {
+        self.restarts
+    }
     pub fn substeps_per_tick(&self) -> usize {
         self.d.substeps
     }
@@ -737,6 +772,10 @@ impl<S: Scalar> Brush<S> {
     }
 
     /// Applies a constant external force (newtons, world frame) to the tip mass until changed.
+    /// In fixed point, a load that moves the free tip further in one substep than the step's
+    /// format holds (about a newton on the large brush at one substep per tick) restarts
+    /// the brush every substep ([`Self::restarts`]): the static-bend experiment, whose
+    /// equilibrium does not depend on the step, takes two substeps there.
     pub fn set_tip_load(&mut self, force: Vec3<S>) {
         self.tip_load = force;
     }
@@ -856,33 +895,60 @@ impl<S: BrushScalar> Brush<S> {
         for (t, x) in ties[1..n].iter_mut().zip(&self.spine[1..n]) {
             *t = tie_weight_at(&self.d, x.z);
         }
-        // A build without the backward-Euler step has only the thesis's in `integrator`'s
-        // range (see `params::DEFAULT_INTEGRATOR`), so `backward_euler` is never set there.
+        // A build with one step has only it in `integrator`'s range (see
+        // `params::DEFAULT_INTEGRATOR`): without the thesis's, backward Euler is taken
+        // unconditionally, so the thesis's code is not in the build at all.
         #[cfg(feature = "backward-euler")]
-        if self.d.backward_euler {
-            let mut solve = S::Chain::new(self.d.implicit.fits_format_chain);
-            // A compact solve whose values left its formats (a pose that flings the brush)
-            // is done again by the general one, which never saturates: one call site, so
-            // one inlined copy, and the solve built in place (a move copies kilobytes).
-            loop {
-                self.backward_euler(u0, &ties, &mut solve);
-                if !solve.saturated() {
-                    break;
-                }
-                solve = S::Chain::new(false);
+        if cfg!(not(feature = "kang-cho")) || self.d.backward_euler {
+            let mut solve = S::Chain::new();
+            self.backward_euler(u0, &ties, &mut solve);
+            if solve.saturated() {
+                // The substep's motion left the fixed-point solve's formats: a pose that
+                // jumped (a tracker's glitch, a hostile stream) further in one substep than
+                // a hand moves. Nothing physical happened, and no solution is to be had in
+                // the format: the brush restarts at rest on its skeleton, its ink kept.
+                self.restart_on_skeleton();
+                return;
             }
             self.integrate(u0, &ties, S::ZERO, (1..n).map(|i| solve.du(i)));
             return;
         }
-        let p = self.kang_cho(u0 - old_ferrule_vel, &ties);
-        self.integrate(
-            u0,
-            &ties,
-            self.d.drag_loss,
-            p[3..3 * n]
-                .chunks_exact(3)
-                .map(|e| Vec3::new(e[0], e[1], e[2])),
-        );
+        // The ferrule's last displacement is the thesis's step's alone.
+        #[cfg(not(feature = "kang-cho"))]
+        let _ = old_ferrule_vel;
+        #[cfg(feature = "kang-cho")]
+        {
+            let p = self.kang_cho(u0 - old_ferrule_vel, &ties);
+            self.integrate(
+                u0,
+                &ties,
+                self.d.drag_loss,
+                p[3..3 * n]
+                    .chunks_exact(3)
+                    .map(|e| Vec3::new(e[0], e[1], e[2])),
+            );
+        }
+    }
+
+    /// The spine put back on its skeleton at rest, where the substep placed the skeleton, the
+    /// layers (their ink) kept: what a substep the fixed-point solve cannot hold leaves.
+    /// Counted ([`Self::restarts`]).
+    #[cfg(feature = "backward-euler")]
+    #[inline(never)]
+    fn restart_on_skeleton(&mut self) {
+        let n = self.d.n();
+        for ((s, u), node) in self.spine[..n]
+            .iter_mut()
+            .zip(&mut self.vel[..n])
+            .zip(&self.skel[..n])
+        {
+            *s = *node;
+            *u = Vec3::ZERO;
+        }
+        // Its segments are measured again where they are next needed (the step left them
+        // unmeasured: `segments_cached` is false).
+        self.project_onto_paper();
+        self.restarts = self.restarts.wrapping_add(1);
     }
 
     /// The substep's end, once the velocity change `du` of each free mass (from mass 1 on) is
@@ -915,6 +981,7 @@ impl<S: BrushScalar> Brush<S> {
     /// The thesis's step (eqs. 2.19-2.33, Kang & Cho; see the module docs): the velocity
     /// change of each free mass, flattened (mass i at `3i..3i + 3`), given the ferrule's
     /// `du0` and the tie weights.
+    #[cfg(feature = "kang-cho")]
     #[inline(always)]
     fn kang_cho(&mut self, du0: Vec3<S>, ties: &[S; MAX_LAYERS]) -> [S; FLAT] {
         let n = self.d.n();
@@ -1857,7 +1924,6 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         },
         c_f: S::from_f32(h * h * 1e3 / m),
         c_drag: S::from_f32(h * p.paper_drag / m),
-        fits_format_chain: p.backward_euler_diagonal_bound() < MAX_DIAGONAL,
     };
     Derived {
         #[cfg(feature = "backward-euler")]
@@ -1938,32 +2004,50 @@ mod tests {
         )
     }
 
-    /// The fixed-point brush solves its chain in 32 bits where its blocks fit the format (the
-    /// presets at one substep per tick), and a brush too stiff for it, at its substep rate,
-    /// takes the general solve: both stay within a micrometre of the `f64` brush over a
-    /// pressed, dragged and lifted stroke.
+    /// The fixed-point brush solves its chain in 32 bits and stays within a micrometre of
+    /// the `f64` brush over a pressed, dragged and lifted stroke. A brush too stiff for the
+    /// chain's formats at its substep rate is refused in fixed point (it runs in `f64`, and
+    /// in fixed point at a substep rate where it fits).
     #[cfg(feature = "backward-euler")]
     #[test]
-    fn fixed_point_chain_solve_by_the_brush_s_stiffness() {
-        for (params, fits) in [
-            (crate::presets::LARGE, true),
-            (crate::presets::SMALL, true),
-            // Without the ink's law in the ties (`ink`): this brush, pressed, leaves layers
-            // where the ink's deposit starts (a step, `ink::PRESS_FLOOR`), and the rounding
-            // that puts a layer on the other side of it in one format but not the other
-            // gives the two different wetness (5e-3), which the ties turn into tens of
-            // micrometres; the solve, which this tests, is the same either way.
-            (
-                BrushParams {
-                    axial_stiffness: crate::presets::LARGE.axial_stiffness * 20.0,
-                    tie_stiffness_wet_pct: 100,
-                    tie_damping_wet_pct: 100,
-                    ..crate::presets::LARGE
-                },
-                false,
-            ),
-        ] {
-            assert_eq!(derive::<Fx>(&params).implicit.fits_format_chain, fits);
+    fn the_fixed_point_brush_runs_what_its_chain_holds() {
+        use crate::presets::{LARGE, SMALL};
+        // Without the ink's law in the ties (`ink`): this brush, pressed, leaves layers
+        // where the ink's deposit starts (a step, `ink::PRESS_FLOOR`), and the rounding
+        // that puts a layer on the other side of it in one format but not the other gives
+        // the two different wetness, which the ties turn into tens of micrometres; the
+        // solve, which this tests, is the same either way.
+        let stiff = BrushParams {
+            axial_stiffness: LARGE.axial_stiffness * 20.0,
+            tie_stiffness_wet_pct: 100,
+            tie_damping_wet_pct: 100,
+            ..LARGE
+        };
+        assert!(stiff.backward_euler_diagonal_bound() >= MAX_DIAGONAL);
+        let refused = |r: Result<(), ParamError>| {
+            matches!(
+                r,
+                Err(ParamError::Inconsistent {
+                    param: ParamId::SubstepsPerTick,
+                    ..
+                })
+            )
+        };
+        assert!(refused(
+            Brush::<Fx>::new(stiff, pressed_stroke(0)).map(|_| ())
+        ));
+        assert!(Brush::<f64>::new(stiff, pressed_stroke(0)).is_ok());
+        let mut b = Brush::<Fx>::new(LARGE, pressed_stroke(0)).unwrap();
+        assert!(refused(b.set_params(stiff)));
+        assert_eq!(b.params(), &LARGE, "a refused brush changes nothing");
+        let finer = (2..=100)
+            .map(|s| BrushParams {
+                substeps_per_tick: s,
+                ..stiff
+            })
+            .find(|p| p.backward_euler_diagonal_bound() < MAX_DIAGONAL)
+            .unwrap();
+        for params in [LARGE, SMALL, finer] {
             let mut fixed = Brush::<Fx>::new(params, pressed_stroke(0)).unwrap();
             let mut float = Brush::<f64>::new(params, pressed_stroke(0)).unwrap();
             let mut worst = 0.0f64;
@@ -1977,38 +2061,56 @@ mod tests {
                     }
                 }
             }
-            assert!(worst < 1e-3, "fits {fits}: {worst} mm from f64");
+            assert_eq!(fixed.restarts(), 0);
+            assert!(
+                worst < 1e-3,
+                "{} substeps: {worst} mm from f64",
+                params.substeps_per_tick
+            );
         }
     }
 
     /// A pose that jumps (the hand's first reading far from where the brush was made, a
     /// tracker's glitch) moves the brush further in one substep than the 32-bit solve's
-    /// vectors hold: that substep is solved again by the general solve, and the brush
-    /// stays with the `f64` brush, in free air and pressed onto the paper after the jump.
+    /// vectors hold: that substep restarts the fixed-point brush at rest on its skeleton,
+    /// counted, and the stroke goes on from there as for a brush made at rest where the jump
+    /// put it, with no other restart and no mass below the paper. The `f64` brush solves
+    /// the jump.
     #[cfg(feature = "backward-euler")]
     #[test]
-    fn a_jump_beyond_the_compact_solve_s_range_is_solved_exactly() {
+    fn a_jump_beyond_the_fixed_point_range_restarts_the_brush_at_rest() {
         let at = |k: u32, jump: [f64; 3]| -> [f64; 3] {
             let p = pressed_stroke::<f64>(k).pos;
             [p.x + jump[0], p.y + jump[1], p.z + jump[2]]
         };
         let rot = pressed_stroke::<f64>(0).rot.to_f64();
-        for jump in [[30.0, 0.0, 0.0], [0.0, -25.0, 20.0], [-40.0, 40.0, 5.0]] {
+        fn pose<S: Scalar>(p: [f64; 3], rot: [f64; 4]) -> Pose<S> {
+            Pose::new(Vec3::from_f64(p), Quat::from_f64(rot))
+        }
+        for jump in [[100.0, 0.0, 0.0], [0.0, -80.0, 60.0], [-120.0, 120.0, -5.0]] {
             let mut fixed = Brush::<Fx>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
             let mut float = Brush::<f64>::new(crate::presets::LARGE, pressed_stroke(0)).unwrap();
+            fixed.tick(pose(at(1, jump), rot));
+            float.tick(pose(at(1, jump), rot));
+            assert_eq!((fixed.restarts(), float.restarts()), (1, 0), "{jump:?}");
+            for (s, node) in fixed.spine().iter().zip(fixed.skeleton()) {
+                let (s, node) = (s.to_f64(), node.to_f64());
+                assert_eq!([s[0], s[1], s[2]], [node[0], node[1], node[2].max(0.0)]);
+            }
+            // From there on it is a brush made at rest where the jump put it.
+            let mut fresh =
+                Brush::<Fx>::new(crate::presets::LARGE, pose(at(1, jump), rot)).unwrap();
             let mut worst = 0.0f64;
-            for k in 1..200 {
-                let p = at(k, jump);
-                fixed.tick(Pose::new(Vec3::from_f64(p), Quat::from_f64(rot)));
-                float.tick(Pose::new(Vec3::from_f64(p), Quat::from_f64(rot)));
-                for (a, b) in fixed.spine().iter().zip(float.spine()) {
-                    let (a, b) = (a.to_f64(), b.to_f64());
-                    for c in 0..3 {
-                        worst = worst.max((a[c] - b[c]).abs());
-                    }
+            for k in 2..300 {
+                fixed.tick(pose(at(k, jump), rot));
+                fresh.tick(pose(at(k, jump), rot));
+                assert!(fixed.spine().iter().all(|s| s.z >= Fx::ZERO));
+                for (a, b) in fixed.spine().iter().zip(fresh.spine()) {
+                    worst = worst.max((a.cast::<f64>() - b.cast::<f64>()).norm());
                 }
             }
-            assert!(worst < 1e-3, "jump {jump:?}: {worst} mm from f64");
+            assert_eq!(fixed.restarts(), 1, "{jump:?}: restarted again");
+            assert!(worst < 1e-3, "{jump:?}: {worst} mm from a brush made there");
         }
     }
 

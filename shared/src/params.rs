@@ -278,13 +278,17 @@ pub const INTEGRATOR_BACKWARD_EULER: u8 = 0;
 pub const INTEGRATOR_KANG_CHO: u8 = 1;
 
 /// The integrators this build has, lowest and highest, and the presets' choice: all of them
-/// and backward Euler, except in a build without it (`maobi-shared`'s `backward-euler`
-/// feature: the Black Pill's image, which the step does not fit yet), where `integrator`'s
-/// valid range is the thesis's alone and the presets use that.
-#[cfg(feature = "backward-euler")]
+/// and backward Euler, unless the build leaves one out (`maobi-shared`'s `backward-euler`
+/// and `kang-cho` features; the Black Pill's image has backward Euler alone), where
+/// `integrator`'s valid range is the one it has and the presets use that.
+#[cfg(all(feature = "backward-euler", feature = "kang-cho"))]
 const INTEGRATORS: (u8, u8) = (INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO);
-#[cfg(not(feature = "backward-euler"))]
+#[cfg(all(feature = "backward-euler", not(feature = "kang-cho")))]
+const INTEGRATORS: (u8, u8) = (INTEGRATOR_BACKWARD_EULER, INTEGRATOR_BACKWARD_EULER);
+#[cfg(all(not(feature = "backward-euler"), feature = "kang-cho"))]
 const INTEGRATORS: (u8, u8) = (INTEGRATOR_KANG_CHO, INTEGRATOR_KANG_CHO);
+#[cfg(not(any(feature = "backward-euler", feature = "kang-cho")))]
+compile_error!("maobi-shared needs an integrator: enable `backward-euler` or `kang-cho`");
 /// The presets' integrator: the lowest this build has (see `INTEGRATORS`).
 pub const DEFAULT_INTEGRATOR: u8 = INTEGRATORS.0;
 

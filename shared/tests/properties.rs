@@ -80,9 +80,11 @@ proptest! {
         params.mass_g = mass_g.unwrap_or(params.mass_g);
         params.tie_stiffness = tie.unwrap_or(params.tie_stiffness);
         params.axial_damping = damping.unwrap_or(params.axial_damping);
-        prop_assume!(params.validate().is_ok());
         let ((x, y, z), t, a) = jumps[0];
-        let mut b = Brush::<Fx>::new(params, pose([x, y, z], t, a)).unwrap();
+        // A brush too stiff for the fixed-point step at its substep rate is refused, not run.
+        let made = Brush::<Fx>::new(params, pose([x, y, z], t, a));
+        prop_assume!(made.is_ok());
+        let Ok(mut b) = made else { unreachable!() };
         for &((x, y, z), t, a) in &jumps {
             for _ in 0..20 {
                 b.tick(pose([x, y, z], t, a));

@@ -109,13 +109,12 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    // The thesis's integrator (Kang & Cho) at one substep per 1 ms tick: the presets'
-    // backward-Euler step does not fit this core's 50,000-instruction tick or the image's
-    // flash yet (`hil bench`, `hil size`; docs/figures.md has the counts), so the image is
-    // built without it (`maobi-shared`'s `backward-euler` feature), where the presets run the
-    // thesis's step, whose large steps damp the spine: the hairs creep back after a press instead of
-    // springing back (`shared/tests/convergence.rs` prints both integrators' tables).
-    // Not measured on a board yet.
+    // One substep per 1 ms tick, the default brush's own rate: what fits this core's
+    // 50,000-instruction tick (`hil bench`; docs/figures.md has the counts). A preset that
+    // asks for more (the springy wolf hair's two) runs at one here, springing back a little
+    // slower than at its own rate (`shared/tests/convergence.rs` prints the tables). The image is
+    // built with the presets' backward-Euler step only (`maobi-shared`'s `kang-cho` feature
+    // left out). Not measured on a board yet.
     substeps_per_tick: Some(1),
 };
 

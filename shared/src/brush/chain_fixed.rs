@@ -1,13 +1,13 @@
 //! The spine's block-tridiagonal solve ([`super::chain_solve`]) in 32-bit fixed point: the
 //! fixed-point brush's kernel, on the pen and on the host alike.
 //!
-//! The same elimination and back substitution as [`ChainSolve`],
+//! The same elimination and back substitution as [`ChainSolve`](super::chain_solve::ChainSolve),
 //! with the model's `I32F32` replaced by three 32-bit formats chosen for what each quantity
 //! can be:
 //!
 //! * **blocks** (`G_j`, the diagonal blocks and their Schur complements `D_i`): `Q11.20`,
-//!   for diagonals up to [`MAX_DIAGONAL`] (a stiffer brush, at its substep rate, takes the
-//!   model's general solve in `I32F32`), and
+//!   for diagonals up to [`MAX_DIAGONAL`] (the fixed-point brush refuses a stiffer one at
+//!   its substep rate: `BrushScalar::check_params`), and
 //!   `P_i = D_{i-1}^-1 G_i` in `Q6.25` ([`P_FRAC`]);
 //! * **inverses** (`E_i = D_i^-1`): `Q0.31`. Every `D_i` is at least the identity (see
 //!   `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1). They are computed
@@ -15,8 +15,11 @@
 //! * **vectors** (right-hand sides, eliminated `y_i`, solutions `z_i`: millimetres per
 //!   substep): `Q4.27` ([`VEC_FRAC`]): a chain of segments in different directions
 //!   multiplies a vector's rounding by the stiffness, row after row, so they keep more
-//!   fractional bits than the blocks; a substep whose vectors leave the range is solved
-//!   again by the general solve ([`SpineChain::saturated`]).
+//!   fractional bits than the blocks; a substep whose vectors leave the range (a pose that
+//!   jumped) is reported ([`SpineChain::saturated`]), and the brush restarts at rest.
+//!
+//! This is the fixed-point brush's only chain solve: the model's general one in `I32F32`
+//! would be a second copy of the step in the pen's flash, which has no room for it.
 //!
 //! A product of two 32-bit numbers is one `SMULL` (and a sum of three one `SMULL` and two
 //! `SMLAL`) on the Cortex-M4, where `I32F32`'s is a 64 x 64-bit product of about thirty
@@ -29,13 +32,13 @@
 //! exact computation they are clamped to their formats' range. Inside, the bounds hold
 //! by construction and are not tested again, which would double the kernel's cost: every
 //! block is symmetric positive semi-definite with diagonal entries below [`MAX_DIAGONAL`]
-//! (the brush checks its bound before it chooses this solve), so the Schur complements stay
+//! (the fixed-point brush is refused beyond that bound), so the Schur complements stay
 //! below that bound, `P`'s entries below its square root, the inverse's below one, and
 //! every sum of three products below `2^63`. Out of those bounds (no brush that takes this
 //! solve reaches them) the arithmetic wraps, as `wrapping_*` says, and panics in no build;
 //! the vectors stay clamped.
 
-use super::chain_solve::{ChainSolve, Segment, SpineChain};
+use super::chain_solve::{Segment, SpineChain};
 use super::unit_fixed::saturated_word;
 use crate::params::MAX_LAYERS;
 use crate::scalar::Fx;
@@ -57,10 +60,10 @@ const DIR_FRAC: u32 = 30;
 const P_FRAC: u32 = (BLOCK_FRAC + 30) / 2;
 
 /// The largest diagonal entry the blocks' format holds with room for rounding: the bound
-/// on `1 + c_tv + 2 (c_k + c_d)` (`BrushParams::backward_euler_diagonal_bound`) below which
-/// the fixed-point brush solves its chain here; above it (a brush several times stiffer
-/// than the presets at one substep per tick) it takes the general `I32F32` solve. The
-/// presets sit at about a fifth and a quarter of it.
+/// on `1 + c_tv + c_p + 2 (c_k + c_d)` (`BrushParams::backward_euler_diagonal_bound`) below
+/// which the fixed-point brush solves its chain; a brush beyond it at its substep rate
+/// (several times stiffer than the presets at one substep per tick) is refused in fixed
+/// point, and runs in the float formats or at more substeps.
 pub const MAX_DIAGONAL: f32 = (LIMIT >> (BLOCK_FRAC + 1)) as f32;
 
 /// `v >> shift` (`shift >= 1`), rounded to nearest (ties up), clamped to `+-limit`: where the
@@ -90,9 +93,10 @@ fn dot(a: [i32; 3], b: [i32; 3]) -> i64 {
 /// `z_i`, in millimetres per substep, and the relative velocities the blocks multiply): a
 /// brush's motion, even a fast stroke's, stays far inside 16 mm per substep, and 27
 /// fractional bits keep the chain's rounding, multiplied by the stiffness row after row,
-/// well inside the model's tolerance. A substep that leaves the range (a pose that jumps,
-/// a hostile stream) is [`SpineChain::saturated`], and the brush solves it again with the
-/// general solve.
+/// within the model's tolerance at a hundred substeps per tick (26 do not). A substep that
+/// leaves the range is [`SpineChain::saturated`], and the brush restarts at rest: a pose
+/// that jumps, a hostile stream, or a force on a mass beyond its format (a load on the tip,
+/// `Brush::set_tip_load`, of more than about a newton at one substep per tick).
 const VEC_FRAC: u32 = 27;
 
 /// `v >> shift` rounded to nearest, in the vectors' format; a value beyond it saturates
@@ -229,7 +233,7 @@ fn recip_q63(x: u32) -> i64 {
 #[derive(Copy, Clone, Debug)]
 struct QMat([[i32; 3]; 3]);
 
-/// The fixed-point brush's chain solve: [`ChainSolve`]'s
+/// The fixed-point brush's chain solve: [`ChainSolve`](super::chain_solve::ChainSolve)'s
 /// interface, its arithmetic in the formats of the module docs.
 pub struct FixedChain {
     /// `P_i` of each row from the second.
@@ -250,65 +254,6 @@ pub struct FixedChain {
     t_above: [i64; 3],
 }
 
-/// The fixed-point brush's chain solve: [`FixedChain`] for a brush whose blocks fit its
-/// formats, the model's own `I32F32` [`ChainSolve`] for a stiffer one.
-// Lives on the stack for one substep, and the pen has no allocator to box the larger one.
-#[allow(clippy::large_enum_variant)]
-pub enum FxChain {
-    Compact(FixedChain),
-    General(ChainSolve<Fx>),
-}
-
-impl SpineChain<Fx> for FxChain {
-    fn new(compact: bool) -> Self {
-        if compact {
-            FxChain::Compact(FixedChain::EMPTY)
-        } else {
-            FxChain::General(ChainSolve::new())
-        }
-    }
-
-    #[inline(always)]
-    fn segment(&mut self, segment: Segment<Fx>) {
-        match self {
-            FxChain::Compact(c) => c.segment(segment),
-            FxChain::General(c) => SpineChain::segment(c, segment),
-        }
-    }
-
-    #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, drag: Fx, own: Vec3<Fx>) {
-        match self {
-            FxChain::Compact(c) => c.row(i, a, drag, own),
-            FxChain::General(c) => SpineChain::row(c, i, a, drag, own),
-        }
-    }
-
-    #[inline(always)]
-    fn solve(&mut self, n: usize) {
-        match self {
-            FxChain::Compact(c) => c.solve(n),
-            FxChain::General(c) => SpineChain::solve(c, n),
-        }
-    }
-
-    #[inline(always)]
-    fn du(&self, i: usize) -> Vec3<Fx> {
-        match self {
-            FxChain::Compact(c) => c.du(i),
-            FxChain::General(c) => SpineChain::du(c, i),
-        }
-    }
-
-    #[inline(always)]
-    fn saturated(&self) -> bool {
-        match self {
-            FxChain::Compact(c) => c.saturated,
-            FxChain::General(_) => false,
-        }
-    }
-}
-
 impl FixedChain {
     /// A solve before its first segment: a constant, so that a new one is one block copy
     /// (building it field by field, then moving it into [`FxChain`], cost the pen's tick
@@ -326,7 +271,7 @@ impl FixedChain {
 }
 
 impl SpineChain<Fx> for FixedChain {
-    fn new(_compact: bool) -> Self {
+    fn new() -> Self {
         Self::EMPTY
     }
 
@@ -363,8 +308,8 @@ impl SpineChain<Fx> for FixedChain {
         let spring = [s.spring.x, s.spring.y, s.spring.z];
         let term = [0, 1, 2].map(|r| {
             let force = spring[r].to_bits();
-            // A force beyond the terms' range (2^16 mm per substep, never a brush's) is the
-            // general solve's.
+            // A force beyond the terms' range (2^16 mm per substep, never a brush's) is
+            // reported as saturated.
             if force.unsigned_abs() >> (63 - shift) != 0 {
                 *sat = true;
             }
@@ -526,7 +471,7 @@ mod tests {
             let vfx = |v: Vec3<f64>| Vec3::new(fx(v.x), fx(v.y), fx(v.z));
             let mut exact = ChainSolve::<f64>::new();
             let mut model = ChainSolve::<Fx>::new();
-            let mut fixed = FixedChain::new(true);
+            let mut fixed = FixedChain::new();
             // Each segment's spring force: its term T_j = spring + G_j rel, and the rows'
             // right-hand sides T_{i+1} - T_i + own.
             let springs: [Vec3<f64>; MAX_LAYERS + 1] =
@@ -605,8 +550,8 @@ mod tests {
 
     /// Vectors at the ends of their range (a brush flung by a hostile stream) saturate through
     /// the elimination and the back substitution, no overflow in a build that checks, and
-    /// the solve says so (the brush then solves the substep with the general solve); a
-    /// system inside the range does not.
+    /// the solve says so (the brush then restarts at rest); a system inside the range does
+    /// not.
     #[test]
     fn saturated_vectors_do_not_overflow_and_are_reported() {
         for big in [
@@ -615,7 +560,7 @@ mod tests {
             fx(17.0),
             fx(1.0),
         ] {
-            let mut fixed = FixedChain::new(true);
+            let mut fixed = FixedChain::new();
             let n = 6;
             fixed.segment(Segment {
                 iso: fx(1.0),

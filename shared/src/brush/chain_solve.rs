@@ -212,7 +212,7 @@ pub trait SpineChain<S> {
     /// A solve for one substep; `compact`: whether the brush's blocks fit the format's
     /// compact solve, if it has one (the fixed-point format's, see
     /// [`super::chain_fixed::MAX_DIAGONAL`]).
-    fn new(compact: bool) -> Self;
+    fn new() -> Self;
     /// The next segment (in order from the first, then [`Segment::BEYOND_TIP`]): its
     /// Jacobian block `G_j = iso I + axial dir dir^T`, kept for the rows on either side of
     /// it, and its term `T_j = spring + G_j rel`, kept for their right-hand sides.
@@ -231,14 +231,14 @@ pub trait SpineChain<S> {
     fn du(&self, i: usize) -> Vec3<S>;
     /// Whether a value left the solve's formats in this substep (a compact format's range,
     /// under a pose that flings the brush): its `du` is then not the system's solution, and
-    /// the substep is solved again with the general solve (`new(false)`).
+    /// the brush restarts at rest instead (`Brush::restart_on_skeleton`).
     fn saturated(&self) -> bool {
         false
     }
 }
 
 impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
-    fn new(_compact: bool) -> Self {
+    fn new() -> Self {
         ChainSolve::new()
     }
     #[inline(always)]

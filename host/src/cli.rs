@@ -1029,6 +1029,8 @@ fn trace_as<S: BrushScalar>(
     track: &PoseTrack,
     out: &Path,
 ) -> anyhow::Result<usize> {
+    // A brush the number format cannot run is refused before the file is made.
+    S::check_params(&params).map_err(anyhow::Error::msg)?;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
     let write_err = || format!("cannot write {}", out.display());

@@ -784,6 +784,29 @@ fn repeated_params_apply_in_command_line_order() {
     trace_with(p, &[&small[..], &root_first].concat()).unwrap_or_else(|o| panic!("{}", stderr(&o)));
 }
 
+/// A brush too stiff for the fixed-point step at its substep rate is refused in fixed point
+/// (the pen's format, whose one chain solve has a range), naming what to raise; the same
+/// brush runs in `f64`, and in fixed point at more substeps a tick.
+#[test]
+fn a_brush_too_stiff_for_fixed_point_is_refused_saying_what_to_raise() {
+    let input = short_press();
+    let p = input.path();
+    let stiff = ["--param", "axial_stiffness_n_per_m=50000"];
+    let o = trace_with(p, &stiff).expect_err("a brush beyond the fixed-point step's range");
+    let err = stderr(&o);
+    assert!(
+        err.contains("substeps_per_tick") && err.contains("too stiff"),
+        "{err}"
+    );
+    trace_with(p, &[&stiff[..], &["--scalar", "f64"]].concat())
+        .unwrap_or_else(|o| panic!("{}", stderr(&o)));
+    trace_with(
+        p,
+        &[&stiff[..], &["--param", "substeps_per_tick=5"]].concat(),
+    )
+    .unwrap_or_else(|o| panic!("{}", stderr(&o)));
+}
+
 #[test]
 fn rejects_unknown_param_listing_valid_ones() {
     let input = short_press();

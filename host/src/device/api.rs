@@ -19,7 +19,7 @@ use std::sync::Arc;
 use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
 use maobi_shared::guide::{GuideForce, GuideStream};
-use maobi_shared::{presets, BrushParams, Fx, Layer, ParamId, Pose, Scalar, Vec3};
+use maobi_shared::{presets, BrushParams, BrushScalar, Fx, Layer, ParamId, Pose, Scalar, Vec3};
 
 use super::journal::Journal;
 use super::model::{BrushChoice, ModelKind};
@@ -143,9 +143,13 @@ impl DeviceCommand {
     pub fn validate(&self, params: &BrushParams) -> Result<(), DeviceError> {
         match self {
             DeviceCommand::SetParam(id, v) => {
+                // Every device runs Liang's brush in fixed point (the pen, the built-in
+                // simulator, the bridge's servo loop by default), whose step refuses a brush
+                // too stiff for its formats: refused here, before the panel shows it.
                 let mut p = *params;
                 p.set(*id, *v)
                     .and_then(|()| p.validate())
+                    .and_then(|()| <Fx as BrushScalar>::check_params(&p))
                     .map_err(|e| DeviceError::Rejected(e.to_string()))
             }
             DeviceCommand::Preset(name) => BrushChoice::liang_params(name)
@@ -337,5 +341,27 @@ pub trait Device {
     /// ([`super::journal`]); `None` from devices that keep no journal (a pen on a link).
     fn journal(&self) -> Option<Journal> {
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A parameter that makes the brush too stiff for the fixed-point step at its substep
+    /// rate is refused before it is queued, naming what to raise; at more substeps it is
+    /// taken.
+    #[test]
+    fn a_brush_too_stiff_for_fixed_point_is_rejected_before_it_is_queued() {
+        let stiff = DeviceCommand::SetParam(ParamId::AxialStiffness, 50_000.0);
+        match stiff.validate(&presets::LARGE) {
+            Err(DeviceError::Rejected(why)) => assert!(why.contains("substeps_per_tick"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        let finer = BrushParams {
+            substeps_per_tick: 5,
+            ..presets::LARGE
+        };
+        assert!(stiff.validate(&finer).is_ok());
     }
 }

@@ -38,8 +38,9 @@
 //!    4.1) on a mass as far as it lies on the paper (`1 - t_i`), `P` the projection onto the
 //!    paper's plane: in the system, not applied after it, because a drag that stops a mass
 //!    in about a millisecond split from the springs it holds back makes the step's result
-//!    depend on the step (`tests/convergence.rs` checks each preset's spring-back at its own
-//!    rate within 5% of the converged brush, which the split drag missed). The prescribed
+//!    depend on the step (`tests/convergence.rs` checks the spring-back of each preset that
+//!    runs one substep per tick within 5% of the converged brush there, which the split
+//!    drag missed). The prescribed
 //!    motion so enters once, and a spine
 //!    moving steadily with its skeleton stays where it hangs. The system is block-tridiagonal
 //!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`; the

@@ -32,6 +32,10 @@ const INK: InkParams = InkParams {
 /// (`shared/tests/passivity.rs`).
 const TOLERANCE_MJ: f64 = 0.2;
 
+/// How far the nudged run's stroke is moved sideways (mm): a nanometre, far below anything a
+/// hand or a sensor resolves.
+const NUDGE_MM: f64 = 1e-6;
+
 /// What one stroke measured.
 struct Run {
     name: String,
@@ -45,6 +49,10 @@ struct Run {
     /// The 100 Hz brush's force against the 1 kHz brush's at the ticks where both solved (N,
     /// RMS): what no model built from the slower brush can remove.
     floor_rms: f64,
+    /// The 1 kHz brush's force against its own on the stroke moved [`NUDGE_MM`] sideways (N,
+    /// RMS): how much of the floor is the brush's sensitivity to where it starts (which
+    /// spine catches first), not the rate it runs at.
+    chaos_rms: f64,
     /// The model's and the hold's error against a solve of the slower brush's spines at each
     /// tick's pose (N, RMS): the first-order expansion's own error.
     step_local_rms: f64,
@@ -106,6 +114,8 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
     let poses: Vec<Pose<f64>> = track.resample().collect();
     let brush = || BaxterLinBrush::new(HeadShape::Round.head(), spine, INK, poses[0]).unwrap();
     let mut full = brush();
+    let mut nudged = brush();
+    let mut chaos2 = 0.0;
     let mut local = LocalForceBrush::new(brush(), &poses[0], params);
     let (mut touching, mut sum_f2, mut sum_l2, mut sum_h2) = (0, 0.0, 0.0, 0.0);
     let (mut local_max, mut hold_max) = (0.0f64, 0.0f64);
@@ -117,6 +127,8 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
     let mut last: Option<(Vec3<f64>, Vec3<f64>, Vec3<f64>)> = None;
     for pose in &poses[1..] {
         full.tick(pose);
+        nudged.tick(&Pose::new(pose.pos + Vec3::Y.scale(NUDGE_MM), pose.rot));
+        chaos2 += (nudged.handle_force() - full.handle_force()).norm2();
         let felt = local.tick(pose);
         let exact = full.handle_force();
         let held = local.model().base_force();
@@ -176,6 +188,7 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
         hold_rms: (sum_h2 / n).sqrt(),
         hold_max,
         floor_rms: (floor2 / floor_n as f64).sqrt(),
+        chaos_rms: (chaos2 / n).sqrt(),
         step_local_rms: (m_l2 / n).sqrt(),
         step_hold_rms: (m_h2 / n).sqrt(),
         rebuilds: floor_n,
@@ -201,7 +214,7 @@ fn print(r: &Run) {
     println!(
         "local-force stroke={} ticks={} touching={} rms_force_n={:.4} | vs full 1 kHz: \
          local rms {:.4} N ({:.1}%) max {:.4} N ({:.1}%), hold rms {:.4} N ({:.1}%) max {:.4} N \
-         ({:.1}%), hold/local {:.2}; floor {:.4} N ({:.1}%) | vs solve from the rebuild: \
+         ({:.1}%), hold/local {:.2}; floor {:.4} N ({:.1}%), nudged 1 nm {:.4} N ({:.1}%) | vs solve from the rebuild: \
          local {:.4} N, hold {:.4} N, hold/local {:.2} | active mJ: local {:.4}, full {:.4} | \
          stiffest probed {:.3} N/mm, clamped {} of {} rebuilds, asymmetry dropped up to {:.3} N/mm",
         r.name,
@@ -219,6 +232,8 @@ fn print(r: &Run) {
         r.hold_rms / r.local_rms,
         r.floor_rms,
         pct(r.floor_rms),
+        r.chaos_rms,
+        pct(r.chaos_rms),
         r.step_local_rms,
         r.step_hold_rms,
         r.step_hold_rms / r.step_local_rms,
@@ -262,6 +277,11 @@ fn the_local_model_follows_the_full_solve_and_stays_passive_on_the_example_strok
             // Elastic spines: the 100 Hz brush is the 1 kHz brush (no state depends on the
             // rate), and the model beats the hold clearly; most on the smooth strokes.
             assert!(r.floor_rms < 1e-3, "{what}: floor {}", r.floor_rms);
+            assert!(
+                r.chaos_rms < 1e-6,
+                "{what}: a nanometre moved it {} N",
+                r.chaos_rms
+            );
             let factor = r.hold_rms / r.local_rms;
             let wanted = if ["heng-elastic", "yong-elastic"].contains(&what.as_str()) {
                 3.0

@@ -8,6 +8,9 @@
 //! which spines catch on the paper (stiction, §3.4.1) depends on the rate, because each
 //! minimisation holds the friction's normal force at the last solve's (§3.4) and re-solves
 //! at most twice when it moved; and a slow drag, which starts from the press's stuck spines.
+//! Beside them, the reference run again with its path moved a nanometre sideways: a brush
+//! whose stick-slip amplified such a nudge would differ between rates for no fault of the
+//! rate (docs/models.md).
 //!
 //! `cargo test --release -p maobi-shared --test baxter_lin_rate -- --nocapture` prints the
 //! table `docs/models.md` quotes.
@@ -32,6 +35,9 @@ fn pose(x: f64, z: f64, tilt_deg: f64) -> Pose<f64> {
     )
 }
 
+/// How far the nudged reference is moved sideways (mm): a nanometre.
+const NUDGE_MM: f64 = 1e-6;
+
 /// The handle at time `t` (s): from 6 mm above the paper at rest to 6 mm into it over
 /// 0.3 s (the large head is 40 mm), held 0.1 s, then dragged 40 mm along +x at `speed` mm/s.
 fn handle_at(t: f64, speed: f64) -> Pose<f64> {
@@ -45,9 +51,14 @@ fn handle_at(t: f64, speed: f64) -> Pose<f64> {
     }
 }
 
-/// The force on the handle every [`SAMPLE_S`], the brush solved every `interval` s.
-fn forces(speed: f64, interval: f64) -> Vec<Vec3<f64>> {
+/// The force on the handle every [`SAMPLE_S`], the brush solved every `interval` s, its
+/// path moved `nudge` mm sideways.
+fn forces(speed: f64, interval: f64, nudge: f64) -> Vec<Vec3<f64>> {
     let end = 0.4 + 40.0 / speed;
+    let handle_at = |t: f64, speed: f64| {
+        let p = handle_at(t, speed);
+        Pose::new(p.pos + Vec3::Y.scale(nudge), p.rot)
+    };
     let mut b = BaxterLinBrush::of_shape(HeadShape::Round, &presets::LARGE, handle_at(0.0, speed))
         .expect("the large preset's head");
     b.set_solve_interval(interval);
@@ -79,11 +90,18 @@ fn mean(v: &[Vec3<f64>]) -> Vec3<f64> {
 #[test]
 fn the_force_converges_with_the_solve_interval_where_the_brush_slides() {
     for speed in [20.0, 100.0] {
-        let reference = forces(speed, REFERENCE_S);
+        let reference = forces(speed, REFERENCE_S, 0.0);
         let n = reference.len();
         let drag_ref = mean(&reference[DRAG_START..]);
+        let nudged = forces(speed, REFERENCE_S, NUDGE_MM);
+        println!(
+            "{speed:>3} mm/s, every 0.25 ms, the path moved 1 nm sideways: press {:>5.1}%, drag \
+             {:>5.1}% (RMS from the same unmoved)",
+            100.0 * relative_rms(&nudged, &reference, 0..PRESS_END),
+            100.0 * relative_rms(&nudged, &reference, DRAG_START..n),
+        );
         for interval in INTERVALS_S {
-            let run = forces(speed, interval);
+            let run = forces(speed, interval, 0.0);
             assert_eq!(run.len(), n);
             let press = relative_rms(&run, &reference, 0..PRESS_END);
             let drag = relative_rms(&run, &reference, DRAG_START..n);

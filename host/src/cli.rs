@@ -113,7 +113,7 @@ pub struct PenArgs {
     #[arg(long, value_name = "HOST:PORT")]
     pub connect: Option<String>,
     /// How long the pen may take to answer (s).
-    #[arg(long, value_name = "S", default_value = "3", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "S", default_value = "3", value_parser = parse_positive)]
     pub timeout: f64,
 }
 
@@ -129,7 +129,7 @@ pub struct DeviceCheckArgs {
     #[arg(long)]
     pub yes: bool,
     /// How long the live sensor readings run (Enter ends them sooner).
-    #[arg(long, value_name = "S", default_value = "10", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "S", default_value = "10", value_parser = parse_positive)]
     pub sensor_seconds: f64,
     /// Nudge strength in thousandths of full current (at most 150).
     #[arg(long, value_name = "N", default_value = "80", value_parser = clap::value_parser!(i16).range(1..=150))]
@@ -179,7 +179,7 @@ pub struct PhantomArgs {
     )]
     pub paper_height: f64,
     /// Paper millimetres per device millimetre.
-    #[arg(long, value_name = "S", default_value = "1", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "S", default_value = "1", value_parser = parse_positive)]
     pub scale: f64,
 }
 
@@ -280,10 +280,10 @@ pub struct GuiArgs {
     pub paper: PaperKind,
     /// Paper size: a square of this many millimetres centred on the origin (default: as last
     /// used, else 200).
-    #[arg(long, value_name = "MM", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "MM", value_parser = parse_positive)]
     pub paper_mm: Option<f64>,
     /// Paper resolution (default: as last used, else 10; the default paper is 2000 x 2000 px).
-    #[arg(long, value_name = "N", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "N", value_parser = parse_positive)]
     pub px_per_mm: Option<f64>,
     /// A pen tablet drives the brush: its evdev node (`/dev/input/eventN`, Linux; the app's
     /// "Find tablets" lists them) or a recording made with `evemu-record`, replayed along the
@@ -315,7 +315,10 @@ pub struct BrushArgs {
         value_name = "NAME",
         default_value = "large",
         value_parser = parse_brush,
-        help = format!("Brush preset: {}", presets::NAMES)
+        help = format!(
+            "Brush preset: {}; `render` and `trace` with --model baxter-lin also flat, filbert, fan",
+            presets::NAMES
+        )
     )]
     pub brush: BrushChoice,
     /// Set a brush parameter on top of the preset, by the name the app's parameter panel
@@ -450,7 +453,7 @@ fn parse_paper(s: &str) -> Result<PaperKind, String> {
     PaperKind::from_name(s)
 }
 
-fn parse_px_per_mm(s: &str) -> Result<f64, String> {
+fn parse_positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         _ => Err(format!("`{s}` is not a positive number")),
@@ -470,6 +473,11 @@ pub struct TraceArgs {
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
     pub stroke: Option<PathBuf>,
+    /// Place the stroke file's depths for a head this long (mm) instead of the file's
+    /// `head_mm`: a keyframe's `depth` is then how far a head this long is pressed below
+    /// touching (give the brush's own length to write a file meant for another size).
+    #[arg(long, value_name = "MM", conflicts_with = "poses", value_parser = parse_positive)]
+    pub head_mm: Option<f64>,
     #[command(flatten)]
     pub brush: BrushArgs,
     /// Number type to run the model in (default: fixed, the pen's; Baxter & Lin's model runs
@@ -507,6 +515,11 @@ pub struct RenderArgs {
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
     pub stroke: Option<PathBuf>,
+    /// Place the stroke file's depths for a head this long (mm) instead of the file's
+    /// `head_mm`: a keyframe's `depth` is then how far a head this long is pressed below
+    /// touching (give the brush's own length to write a file meant for another size).
+    #[arg(long, value_name = "MM", conflicts_with_all = ["poses", "session"], value_parser = parse_positive)]
+    pub head_mm: Option<f64>,
     #[command(flatten)]
     pub brush: BrushArgs,
     /// Image resolution.
@@ -514,7 +527,7 @@ pub struct RenderArgs {
         long,
         value_name = "N",
         default_value = "10",
-        value_parser = parse_px_per_mm,
+        value_parser = parse_positive,
         allow_negative_numbers = true
     )]
     pub px_per_mm: f64,
@@ -963,15 +976,19 @@ fn baxter_lin_scalar(scalar: Option<ScalarKind>) -> anyhow::Result<()> {
 
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let track = load_track(a.poses.as_deref(), a.stroke.as_deref())?;
+    let loaded = load_track(a.poses.as_deref(), a.stroke.as_deref(), a.head_mm)?;
+    let track = &loaded.track;
     let (ticks, scalar) = match a.model {
         ModelKind::Liang => {
             let params = a.brush.liang_params()?;
+            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &a.brush.describe()) {
+                eprintln!("maobi trace: {w}");
+            }
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
             let ticks = match scalar {
-                ScalarKind::Fixed => trace_as::<Fx>(params, &track, &a.output)?,
-                ScalarKind::F32 => trace_as::<f32>(params, &track, &a.output)?,
-                ScalarKind::F64 => trace_as::<f64>(params, &track, &a.output)?,
+                ScalarKind::Fixed => trace_as::<Fx>(params, track, &a.output)?,
+                ScalarKind::F32 => trace_as::<f32>(params, track, &a.output)?,
+                ScalarKind::F64 => trace_as::<f64>(params, track, &a.output)?,
             };
             (ticks, scalar)
         }
@@ -979,7 +996,7 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
             baxter_lin_scalar(a.scalar)?;
             let params = a.brush.baxter_lin_params()?;
             let shape = a.brush.brush.shape.unwrap_or(HeadShape::Round);
-            let ticks = trace_baxter_lin(shape, &params, &track, &a.output)?;
+            let ticks = trace_baxter_lin(shape, &params, &loaded, &a.brush.describe(), &a.output)?;
             (ticks, ScalarKind::F64)
         }
     };
@@ -994,18 +1011,23 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Baxter & Lin's brush of `shape` over `track`: the rest state at the first pose, then one
-/// row a tick. Returns the ticks written.
+/// Baxter & Lin's brush of `shape` over `loaded`'s track: the rest state at the first pose,
+/// then one row a tick. Returns the ticks written.
 fn trace_baxter_lin(
     shape: HeadShape,
     params: &BrushParams,
-    track: &PoseTrack,
+    loaded: &LoadedTrack,
+    brush_name: &str,
     out: &Path,
 ) -> anyhow::Result<usize> {
+    let track = &loaded.track;
     let mut poses = track.resample();
     let first = poses.next().context("the pose track is empty")?;
     let mut brush = BaxterLinBrush::of_shape(shape, params, first)
         .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
+    if let Some(w) = never_touches(loaded, brush.reach_mm(), brush_name) {
+        eprintln!("maobi trace: {w}");
+    }
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
     let write_err = || format!("cannot write {}", out.display());
@@ -1059,18 +1081,22 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             a.brush.baxter_lin_params()?
         }
     };
-    let (track, file_paper) = load_track_and_paper(a.poses.as_deref(), a.stroke.as_deref())?;
-    let paper = PaperSpec::new(a.paper.or(file_paper).unwrap_or_default());
+    let loaded = load_track(a.poses.as_deref(), a.stroke.as_deref(), a.head_mm)?;
+    let track = &loaded.track;
+    let paper = PaperSpec::new(a.paper.or(loaded.paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
     let (canvas, stats, scalar): (_, RenderStats, _) = match (a.model, a.brush.brush.shape) {
         (ModelKind::Liang, _) => {
-            let frame = paper_frame(&track, &params, a.px_per_mm)?;
+            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &a.brush.describe()) {
+                eprintln!("maobi render: {w}");
+            }
+            let frame = paper_frame(track, &params, a.px_per_mm)?;
             log::debug!("paper: {frame:?}, {paper:?}");
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
             let (canvas, stats) = match scalar {
-                ScalarKind::Fixed => render::<Fx>(params, &track, frame, paper)?,
-                ScalarKind::F32 => render::<f32>(params, &track, frame, paper)?,
-                ScalarKind::F64 => render::<f64>(params, &track, frame, paper)?,
+                ScalarKind::Fixed => render::<Fx>(params, track, frame, paper)?,
+                ScalarKind::F32 => render::<f32>(params, track, frame, paper)?,
+                ScalarKind::F64 => render::<f64>(params, track, frame, paper)?,
             };
             (canvas, stats, scalar)
         }
@@ -1082,12 +1108,15 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             let reach = make(first)
                 .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?
                 .reach_mm();
+            if let Some(w) = never_touches(&loaded, reach, &a.brush.describe()) {
+                eprintln!("maobi render: {w}");
+            }
             let margin = BrushParams {
                 length_mm: reach as f32,
                 ..params
             };
-            let frame = paper_frame(&track, &margin, a.px_per_mm)?;
-            let (canvas, stats) = render_baxter_lin(make, &track, frame, paper)?;
+            let frame = paper_frame(track, &margin, a.px_per_mm)?;
+            let (canvas, stats) = render_baxter_lin(make, track, frame, paper)?;
             (canvas, stats, ScalarKind::F64)
         }
     };
@@ -1112,24 +1141,39 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly one).
-fn load_track(poses: Option<&Path>, stroke: Option<&Path>) -> anyhow::Result<PoseTrack> {
-    Ok(load_track_and_paper(poses, stroke)?.0)
+/// A pose track loaded from `--poses FILE` or `--stroke FILE`.
+struct LoadedTrack {
+    track: PoseTrack,
+    /// The paper a stroke file names.
+    paper: Option<PaperKind>,
+    /// The head length a stroke file's depths were placed for (mm).
+    placed_for_head_mm: Option<f64>,
 }
 
-/// [`load_track`], and the paper a stroke file names.
-fn load_track_and_paper(
+/// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly
+/// one), a stroke file's depths placed for `head_mm` if given.
+fn load_track(
     poses: Option<&Path>,
     stroke: Option<&Path>,
-) -> anyhow::Result<(PoseTrack, Option<PaperKind>)> {
-    let (track, paper) = match (poses, stroke) {
-        (Some(p), None) => (PoseTrack::from_path(p)?, None),
+    head_mm: Option<f64>,
+) -> anyhow::Result<LoadedTrack> {
+    let loaded = match (poses, stroke) {
+        (Some(p), None) => LoadedTrack {
+            track: PoseTrack::from_path(p)?,
+            paper: None,
+            placed_for_head_mm: None,
+        },
         (None, Some(s)) => {
-            let c = Character::from_path(s)?;
-            (c.track(&s.display().to_string())?, c.paper)
+            let c = Character::from_path_for_head(s, head_mm)?;
+            LoadedTrack {
+                track: c.track(&s.display().to_string())?,
+                paper: c.paper,
+                placed_for_head_mm: Some(c.head_mm),
+            }
         }
         _ => anyhow::bail!("give exactly one of --poses and --stroke"),
     };
+    let track = &loaded.track;
     log::debug!(
         "{}: {} ticks from t = {} s",
         poses
@@ -1138,7 +1182,34 @@ fn load_track_and_paper(
         track.ticks(),
         track.start()
     );
-    Ok((track, paper))
+    Ok(loaded)
+}
+
+/// A warning, if the brush cannot have touched the paper anywhere on `loaded`'s track: the
+/// ferrule never came closer to it than the hair is long (`reach_mm`). A render of such a
+/// track is blank and its trace all air, most likely because a stroke file was written for
+/// a longer head than the brush chosen.
+fn never_touches(loaded: &LoadedTrack, reach_mm: f64, brush: &str) -> Option<String> {
+    let lowest = loaded
+        .track
+        .resample()
+        .map(|p| p.pos.z)
+        .fold(f64::INFINITY, f64::min);
+    // An empty track (infinite) or a NaN says nothing about the paper.
+    if !lowest.is_finite() || lowest <= reach_mm {
+        return None;
+    }
+    let mut msg = format!(
+        "warning: the brush never reaches the paper: the ferrule comes no lower than {lowest:.1} \
+         mm above it, and the {brush} brush's hair reaches {reach_mm:.1} mm"
+    );
+    if let Some(head) = loaded.placed_for_head_mm {
+        msg += &format!(
+            "; the stroke file's depths are placed for a {head:.1} mm head (its `head_mm`): \
+             `--head-mm {reach_mm:.1}` places them for this brush"
+        );
+    }
+    Some(msg)
 }
 
 #[derive(Debug, Subcommand)]
@@ -1155,7 +1226,7 @@ pub struct StrokeSampleArgs {
     #[arg(value_name = "STROKE.toml")]
     pub file: PathBuf,
     /// Samples per second (default 1000: the model's 1 ms tick).
-    #[arg(long, value_name = "HZ", default_value = "1000", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "HZ", default_value = "1000", value_parser = parse_positive)]
     pub rate: f64,
     /// Output pose CSV.
     #[arg(short = 'o', long = "output", value_name = "POSES.csv")]
@@ -1168,10 +1239,10 @@ pub struct StrokeFitArgs {
     #[arg(value_name = "POSES.csv")]
     pub file: PathBuf,
     /// Largest position error (mm).
-    #[arg(long, value_name = "MM", default_value = "0.2", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "MM", default_value = "0.2", value_parser = parse_positive)]
     pub tol_mm: f64,
     /// Largest orientation error (degrees).
-    #[arg(long, value_name = "DEG", default_value = "2", value_parser = parse_px_per_mm)]
+    #[arg(long, value_name = "DEG", default_value = "2", value_parser = parse_positive)]
     pub tol_deg: f64,
     /// Output stroke file (TOML).
     #[arg(short = 'o', long = "output", value_name = "STROKE.toml")]

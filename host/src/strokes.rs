@@ -7,7 +7,8 @@
 //! format = "maobi-stroke"     # required
 //! version = 1                 # required
 //! name = "永"                 # optional
-//! head_mm = 40.0              # brush head length: depth 0 touches the paper (default 40)
+//! head_mm = 40.0              # brush head length: depth 0 touches the paper (default 40;
+//!                             # `--head-mm` on render and trace overrides it)
 //! lift_mm = 10.0              # travel height above touching between strokes (default 10)
 //! travel_speed_mm_s = 150.0   # speed of the travel between strokes (default 150)
 //! pause_s = 0.15              # hover before each travel (default 0.15)
@@ -158,6 +159,9 @@ pub struct Segment {
 #[derive(Clone, Debug)]
 pub struct Character {
     pub name: Option<String>,
+    /// The head length the keyframes' depths are placed for (mm): the file's `head_mm`, or
+    /// the one [`Character::from_path_for_head`] was given.
+    pub head_mm: f64,
     /// The paper the file asks for, if it names one.
     pub paper: Option<PaperKind>,
     pub segments: Vec<Segment>,
@@ -191,9 +195,30 @@ impl Character {
         Self::from_toml(&name, &text)
     }
 
+    /// Reads a stroke file and places its depths for a head `head_mm` long instead of the
+    /// file's `head_mm` (if given): `depth` is then how far that head is pressed below
+    /// touching.
+    pub fn from_path_for_head(path: &Path, head_mm: Option<f64>) -> anyhow::Result<Character> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {name}"))?;
+        Self::from_toml_for_head(&name, &text, head_mm)
+    }
+
     /// Parses and validates stroke TOML; `file` names it in errors.
     pub fn from_toml(file: &str, text: &str) -> anyhow::Result<Character> {
-        let f: StrokeFile = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
+        Self::from_toml_for_head(file, text, None)
+    }
+
+    /// [`Character::from_toml`], its depths placed for a head `head_mm` long if given.
+    pub fn from_toml_for_head(
+        file: &str,
+        text: &str,
+        head_mm: Option<f64>,
+    ) -> anyhow::Result<Character> {
+        let mut f: StrokeFile = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
+        if head_mm.is_some() {
+            f.head_mm = head_mm;
+        }
         let paper = match &f.paper {
             None => None,
             Some(name) => Some(PaperKind::from_name(name).map_err(|e| {
@@ -294,6 +319,7 @@ impl Character {
         }
         Ok(Character {
             name: f.name.clone(),
+            head_mm: s.head,
             paper: None,
             segments,
             stroke_times,

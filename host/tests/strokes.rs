@@ -388,3 +388,94 @@ fn cli_samples_and_fits_stroke_files() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A stroke file is written for a head length (`head_mm`, 40 mm by default). Rendered with a
+/// shorter brush it never touches the paper: the command says so, naming the lengths and
+/// the option, and `--head-mm` places the depths for the brush in hand.
+#[test]
+fn a_file_for_a_longer_head_warns_and_head_mm_places_it_for_the_brush() {
+    let dir = std::env::temp_dir().join(format!("maobi-head-mm-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("dash.toml");
+    let text = format!(
+        "{HEAD}tilt_deg = 10\n[[stroke]]\nkeys = [{{ at = [0, 0], depth = 4 }}, \
+         {{ at = [10, 0], depth = 4 }}, {{ at = [20, 0], depth = 4 }}]\n"
+    );
+    std::fs::write(&file, &text).unwrap();
+
+    // Placed for 18 mm, the pressed keyframes sit 18 cos 10 - 4 mm above the paper.
+    let lowest = |c: &Character| {
+        c.track("dash")
+            .unwrap()
+            .resample()
+            .map(|p| p.pos.z)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let for_small = Character::from_toml_for_head("dash.toml", &text, Some(18.0)).unwrap();
+    let as_written = Character::from_toml("dash.toml", &text).unwrap();
+    assert_eq!((as_written.head_mm, for_small.head_mm), (40.0, 18.0));
+    let want = 18.0 * 10f64.to_radians().cos() - 4.0;
+    assert!(
+        (lowest(&for_small) - want).abs() < 1e-6,
+        "{}",
+        lowest(&for_small)
+    );
+    assert!((lowest(&as_written) - (want + 22.0 * 10f64.to_radians().cos())).abs() < 1e-6);
+
+    let run = |args: &[&str]| {
+        let png = dir.join("out.png");
+        let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+            .args(args)
+            .arg("--stroke")
+            .arg(&file)
+            .arg("-o")
+            .arg(&png)
+            .output()
+            .unwrap();
+        let msg = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{args:?}: {msg}");
+        let inked = args[0] == "render" && {
+            let mut r =
+                png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()))
+                    .read_info()
+                    .unwrap();
+            let mut buf = vec![0; r.output_buffer_size().unwrap()];
+            let info = r.next_frame(&mut buf).unwrap();
+            buf[..info.buffer_size()].iter().any(|&v| v < 128)
+        };
+        (msg, inked)
+    };
+    let (msg, inked) = run(&["render", "--brush", "small"]);
+    assert!(
+        msg.contains("never reaches the paper")
+            && msg.contains("40.0 mm head")
+            && msg.contains("`--head-mm 18.0`"),
+        "{msg}"
+    );
+    assert!(!inked, "the small brush inked a file it cannot reach");
+    let (msg, inked) = run(&["render", "--brush", "small", "--head-mm", "18"]);
+    assert!(!msg.contains("warning"), "{msg}");
+    assert!(inked, "placed for the small brush, the stroke left no ink");
+    let (msg, inked) = run(&["render"]);
+    assert!(!msg.contains("warning") && inked, "{msg}");
+    // Baxter & Lin's flat head (18 mm of hair) and the trace say it too.
+    let (msg, _) = run(&["trace", "--model", "baxter-lin", "--brush", "flat"]);
+    assert!(msg.contains("never reaches the paper"), "{msg}");
+
+    // A pose file has no depths to place.
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args([
+            "render",
+            "--poses",
+            "a.csv",
+            "--head-mm",
+            "18",
+            "-o",
+            "x.png",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--head-mm"));
+    std::fs::remove_dir_all(&dir).ok();
+}

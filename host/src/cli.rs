@@ -1185,31 +1185,16 @@ fn load_track(
     Ok(loaded)
 }
 
-/// A warning, if the brush cannot have touched the paper anywhere on `loaded`'s track: the
-/// ferrule never came closer to it than the hair is long (`reach_mm`). A render of such a
-/// track is blank and its trace all air, most likely because a stroke file was written for
-/// a longer head than the brush chosen.
+/// [`PoseTrack::never_reaches_paper`] for `loaded`, with the option that places a stroke
+/// file for the brush.
 fn never_touches(loaded: &LoadedTrack, reach_mm: f64, brush: &str) -> Option<String> {
-    let lowest = loaded
+    let mut msg = loaded
         .track
-        .resample()
-        .map(|p| p.pos.z)
-        .fold(f64::INFINITY, f64::min);
-    // An empty track (infinite) or a NaN says nothing about the paper.
-    if !lowest.is_finite() || lowest <= reach_mm {
-        return None;
+        .never_reaches_paper(reach_mm, brush, loaded.placed_for_head_mm)?;
+    if loaded.placed_for_head_mm.is_some() {
+        msg += &format!(": `--head-mm {reach_mm:.1}` places them for this brush");
     }
-    let mut msg = format!(
-        "warning: the brush never reaches the paper: the ferrule comes no lower than {lowest:.1} \
-         mm above it, and the {brush} brush's hair reaches {reach_mm:.1} mm"
-    );
-    if let Some(head) = loaded.placed_for_head_mm {
-        msg += &format!(
-            "; the stroke file's depths are placed for a {head:.1} mm head (its `head_mm`): \
-             `--head-mm {reach_mm:.1}` places them for this brush"
-        );
-    }
-    Some(msg)
+    Some(format!("warning: {msg}"))
 }
 
 #[derive(Debug, Subcommand)]

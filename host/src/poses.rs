@@ -266,6 +266,42 @@ impl PoseTrack {
         }
         (lo, hi)
     }
+
+    /// The ferrule's lowest height over all rows (mm; infinite for no rows). Interpolated
+    /// positions lie between rows, so no tick is lower.
+    pub fn lowest_z(&self) -> f64 {
+        self.rows
+            .iter()
+            .map(|r| r.pos[2])
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// A warning if a brush whose hair reaches `reach_mm` from its ferrule cannot touch the
+    /// paper anywhere on this track (the ferrule never comes lower than that): a render of
+    /// it is blank and a trace all air. `placed_for_head_mm` is the head a stroke file's
+    /// depths were placed for, the likely cause, named in the warning.
+    pub fn never_reaches_paper(
+        &self,
+        reach_mm: f64,
+        brush: &str,
+        placed_for_head_mm: Option<f64>,
+    ) -> Option<String> {
+        let lowest = self.lowest_z();
+        // No rows (infinite) or a NaN says nothing about the paper.
+        if !lowest.is_finite() || lowest <= reach_mm {
+            return None;
+        }
+        let mut msg = format!(
+            "the brush never reaches the paper: the ferrule comes no lower than {lowest:.1} mm \
+             above it, and the {brush} brush's hair reaches {reach_mm:.1} mm"
+        );
+        if let Some(head) = placed_for_head_mm {
+            msg += &format!(
+                "; the stroke file's depths are placed for a {head:.1} mm head (its `head_mm`)"
+            );
+        }
+        Some(msg)
+    }
 }
 
 /// Iterator over the resampled tick poses of a [`PoseTrack`].

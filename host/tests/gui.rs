@@ -216,3 +216,31 @@ fn the_model_choice_runs_baxter_and_lins_brush_with_its_heads() {
     replay(&mut h, "hook.csv");
     assert!(ink(&h) > 0.0, "ink fraction {}", ink(&h));
 }
+
+/// A pose file posed for the large brush, replayed with the small one (18 mm of hair), never
+/// reaches the paper: the app says so instead of leaving the page blank without a word.
+#[test]
+fn a_replay_the_brush_cannot_reach_says_so() {
+    let mut h = harness();
+    h.run_steps(2);
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "brush")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("small").click();
+    h.run_steps(3);
+    assert_eq!(h.state().status().preset, "small");
+    replay(&mut h, "press_lift.csv");
+    assert_eq!(ink(&h), 0.0);
+    h.get_by_label_contains("the brush never reaches the paper");
+    // The large brush reaches it, and nothing is said.
+    h.get_by_role_and_label(egui::accesskit::Role::ComboBox, "brush")
+        .click();
+    h.run_steps(2);
+    h.get_by_label("large").click();
+    h.run_steps(3);
+    replay(&mut h, "press_lift.csv");
+    assert!(ink(&h) > 0.0);
+    assert!(h
+        .query_by_label_contains("the brush never reaches the paper")
+        .is_none());
+}

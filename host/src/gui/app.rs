@@ -178,6 +178,8 @@ pub struct MaobiApp {
     /// A running search for the pen among the serial ports (handshake on each).
     probe: Option<Arc<Mutex<Option<ProbeResults>>>>,
     /// Preset a newly chosen device starts with.
+    /// Why the replay under way leaves no ink, if it cannot ([`Self::start_replay`]).
+    replay_warning: Option<String>,
     brush_name: String,
     /// The model a newly chosen built-in simulator runs (as last chosen).
     model_choice: ModelKind,
@@ -273,6 +275,7 @@ impl MaobiApp {
             device_addr: "127.0.0.1:7878".into(),
             serial_ports: Vec::new(),
             probe: None,
+            replay_warning: None,
             brush_name: "large".into(),
             model_choice: ModelKind::Liang,
             ink_load: 1.0,
@@ -524,6 +527,12 @@ impl MaobiApp {
 
     /// Carries out what the stroke editor asked for.
     pub fn timeline_action(&mut self, a: TimelineAction) {
+        if let TimelineAction::Play(t) | TimelineAction::Guide(t) = &a {
+            let head = self.timeline.character().map(|c| c.head_mm);
+            if let Some(w) = self.never_reaches_paper(t, head) {
+                self.timeline.message = Some((w, true));
+            }
+        }
         let (cmd, what) = match a {
             TimelineAction::Play(t) => (DeviceCommand::Replay(Arc::new(t)), "play"),
             TimelineAction::Pause => (DeviceCommand::StopReplay, "pause"),
@@ -550,11 +559,24 @@ impl MaobiApp {
     /// Starts replaying a pose file through the device.
     pub fn start_replay(&mut self, path: &Path) -> anyhow::Result<()> {
         let track = PoseTrack::from_path(path)?;
+        let warning = self.never_reaches_paper(&track, None);
         self.device
             .send(DeviceCommand::Replay(Arc::new(track)))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        self.message = Some((format!("replaying {}", path.display()), false));
+        self.message = Some(match &warning {
+            Some(w) => (format!("replaying {}: {w}", path.display()), true),
+            None => (format!("replaying {}", path.display()), false),
+        });
+        // Said again when the replay ends, over the "replay finished" that replaces this.
+        self.replay_warning = warning;
         Ok(())
+    }
+
+    /// [`PoseTrack::never_reaches_paper`] for the brush the device runs now.
+    fn never_reaches_paper(&self, track: &PoseTrack, placed_for: Option<f64>) -> Option<String> {
+        let choice = crate::device::BrushChoice::parse(&self.status.preset).ok()?;
+        let reach = choice.reach_mm(self.status.model, &self.status.params);
+        track.never_reaches_paper(reach, &self.status.preset, placed_for)
     }
 
     /// Sets a parameter on the device; the message shows what happened.
@@ -670,7 +692,10 @@ impl MaobiApp {
                 self.hand.x = p[0];
                 self.hand.y = p[1];
             }
-            self.message = Some(("replay finished".into(), false));
+            self.message = Some(match self.replay_warning.take() {
+                Some(w) => (format!("replay finished: {w}"), true),
+                None => ("replay finished".into(), false),
+            });
         }
     }
 

@@ -172,11 +172,11 @@ fn image_fits_the_budget() {
     let Some(elf) = image() else { return };
     let s = firmware::size(&elf, 0x2000_0000).unwrap();
     println!("{}", s.report());
-    const BACKWARD_EULER_FLASH: u64 = 10 * 1024;
-    const BACKWARD_EULER_RAM: u64 = 1024;
+    const KANG_CHO_FLASH: u64 = 10 * 1024;
+    const KANG_CHO_RAM: u64 = 1024;
     assert!(
-        s.flash <= firmware::Size::FLASH_BUDGET + BACKWARD_EULER_FLASH
-            && s.static_ram <= firmware::Size::STATIC_RAM_BUDGET + BACKWARD_EULER_RAM,
+        s.flash <= firmware::Size::FLASH_BUDGET + KANG_CHO_FLASH
+            && s.static_ram <= firmware::Size::STATIC_RAM_BUDGET + KANG_CHO_RAM,
         "{s:?}"
     );
 }

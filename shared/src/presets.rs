@@ -9,25 +9,29 @@
 //!   small brush.
 //! * Bending stiffness: Baxter & Lin 2004 section 5 report that 1-2 N of normal force bends a
 //!   brush nearly 90 degrees. Bending stiffness in this model comes from the ties between the
-//!   spine and the virtual skeleton, so the tie stiffness sets it: with 1.5 N/m dry, 82% of it
+//!   spine and the virtual skeleton, so the tie stiffness sets it: with 2.05 N/m dry (12
+//!   layers), 82% of it
 //!   at the presets' starting load (wetness 0.6, the ink's law in `crate::brush::ink`), a
 //!   load of 1 N across the large brush's tip bends its ferrule-to-tip chord by about 75
 //!   degrees and 2 N by about 82 (test `large_brush_bends_nearly_flat_under_one_to_two_newtons`
 //!   in `tests/model.rs`). Dry, the tie's damping is about half of critical.
 //! * Ink in the ties: a saturated layer's tie has [`TIE_STIFFNESS_WET_PCT`] of the dry
 //!   stiffness and [`TIE_DAMPING_WET_PCT`] of the dry damping, linear in the wetness between.
-//! * Axial springs: hair barely stretches; k_s is set stiff (h^2 k_s / m = 0.05 at 25 kHz, 30
+//! * Axial springs: hair barely stretches; k_s is set stiff (h^2 k_s / m = 0.03 at 25 kHz, 16
 //!   at the presets' one substep per 1 ms tick, which the backward-Euler step takes in its
 //!   stride) while staying well inside the solver's range.
 //! * Neighbour damping: the thesis's damper (eq. 2.27) acts on the whole relative velocity, so
 //!   it also resists bending. Its integrator added a step-dependent damping of `h k_s` between
 //!   neighbours on top (0.08 N s/m at its 25 kHz); the backward-Euler step adds none, so the
-//!   brush's feel is a real damper: k_d = 0.06 N s/m on the large brush brings it back from a
-//!   10 mm press to within 0.1 mm in 200 ms (the spring-back between the thesis's at 25 kHz
+//!   brush's feel is a real damper: k_d = 0.044 N s/m on the large brush brings it back from
+//!   a 10 mm press to within 0.1 mm in 200 ms (the spring-back between the thesis's at 25 kHz
 //!   and the undamped spine's), and with this much damping one substep per tick gives the
-//!   converged brush within 10% (`tests/convergence.rs`).
+//!   converged brush within 5% (`tests/convergence.rs`).
+//! * Layers: 12. The springs are those of the same continuous hair at 16 layers rescaled to
+//!   the count (axial stiffness and damping x 11/15; ties, their damping and the paper's drag
+//!   x 15/11): it bends as it did and springs back faster (docs/firmware-cost.md).
 //! * Compression: 0.1% of the stretch stiffness. Hair buckles under compression; with this
-//!   ratio (0.1%) the large brush pressed 10 mm straight down lays four layers on the paper
+//!   ratio (0.1%) the large brush pressed 10 mm straight down lays three layers on the paper
 //!   instead of standing on its tip like a column (2% left only the tip touching).
 //! * Surface: TF, SDF and RL_max from Liang 2009 3.2; with a wet brush (W = 1) the surface
 //!   does not spread (eq. 3-17), a drier one splays up to RL_max.
@@ -55,25 +59,25 @@
 //!   coarse, strongly tapered weasel hair makes a stiffer head than fine goat hair. No
 //!   measured stiffness per hair type was found; the ties are set to keep the calligrapher's
 //!   order (goat bends most under the same push, wolf least) inside Baxter & Lin's 70 to 90
-//!   degrees under 1-2 N: wolf 1.9 N/m, mixed 1.6, goat 1.1 (large: 1.5). Under 1 N the
-//!   chord bends 71, 74 and 80 degrees (`tests/hair.rs`); goat hair is the one that bends
-//!   more than 50 degrees under a light 0.25 N (55).
+//!   degrees under 1-2 N: wolf 2.59 N/m, mixed 2.18, goat 1.5 (large: 2.05). Under 1 N the
+//!   chord bends 70, 74 and 79 degrees (`tests/hair.rs`); goat hair is the one that bends
+//!   more than 50 degrees under a light 0.25 N (54.5).
 //! * Spring and damping: weasel hair is straight and springs back; goat hair's kink and
 //!   scales rub between the hairs and hold more ink between them, which damps. Tie damping
-//!   0.008, 0.011 and 0.014 N s/m, neighbour damping 0.05, 0.065 and 0.08: dry, a wolf
+//!   0.0109, 0.015 and 0.0191 N s/m, neighbour damping 0.0367, 0.0477 and 0.0587: dry, a wolf
 //!   tie is damped at about a third of critical, mixed at a half (as large), goat at four
 //!   fifths, and a saturated goat tie (150%) beyond critical, so goat hair creeps back where
 //!   wolf hair springs. 200 ms after the model tests' 10 mm press and lift, wolf is within
-//!   0.03 mm of rest, mixed 0.08, goat 0.22 (and 0.07 after 500 ms).
+//!   0.005 mm of rest, mixed 0.032, goat 0.119 (and 0.021 after 500 ms).
 //! * Substeps: the springier wolf hair has faster modes, and at one substep per tick the
-//!   backward-Euler step's own damping slows its spring-back by 16% at 100 ms (beyond the 10%
-//!   of `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (6%). A board that sets
-//!   its own substep rate (the Black Pill: one, with the thesis's step) runs it at that.
+//!   backward-Euler step's own damping slows its spring-back by 14% at 100 ms (beyond the 10%
+//!   of `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (4%). A board that
+//!   sets its own substep rate (a pen: one) runs it at that.
 //! * Ink: hair holds ink by capillarity on its surface, which per volume of hair goes as
 //!   1 / d, and goat hair's scales hold more (Saitzyk): [`GOAT`] holds 0.55 units per mm^3,
 //!   [`MIXED`] 0.42, [`WOLF`] 0.3 (large: 0.4), and a dip leaves the absorbent goat head
 //!   fuller (wetness 0.75, mixed 0.6, wolf 0.5). The same 400 mm stroke without dipping
-//!   stays darker than half its start for 125 mm with wolf hair, 200 mm with mixed, 250 mm
+//!   stays darker than half its start for 225 mm with wolf hair, 325 mm with mixed, 375 mm
 //!   with goat (`host/tests/paper.rs`).
 //! * Mixed is the half-and-half 兼毫 with its stiffer hair at the core, which carries the
 //!   bend: its ties a little stiffer than the midpoint, the rest near the midpoint.

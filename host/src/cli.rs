@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use clap::{Args, Parser, Subcommand};
+use clap::{ArgGroup, Args, Parser, Subcommand};
 use maobi_shared::baxter_lin::brush::BaxterLinBrush;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
@@ -315,10 +315,7 @@ pub struct BrushArgs {
         value_name = "NAME",
         default_value = "large",
         value_parser = parse_brush,
-        help = format!(
-            "Brush preset: {}; `render` and `trace` with --model baxter-lin also flat, filbert, fan",
-            presets::NAMES
-        )
+        help = format!("Brush preset: {}", presets::NAMES)
     )]
     pub brush: BrushChoice,
     /// Set a brush parameter on top of the preset, by the name the app's parameter panel
@@ -461,14 +458,10 @@ fn parse_positive(s: &str) -> Result<f64, String> {
 }
 
 #[derive(Debug, Args)]
+#[command(group(ArgGroup::new("input").required(true).args(["poses", "stroke"])))]
 pub struct TraceArgs {
     /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
-    #[arg(
-        long,
-        value_name = "POSES.csv",
-        required_unless_present = "stroke",
-        conflicts_with = "stroke"
-    )]
+    #[arg(long, value_name = "POSES.csv", conflicts_with = "stroke")]
     pub poses: Option<PathBuf>,
     /// Keyframed stroke file (TOML, see examples/strokes/README.md), sampled every 1 ms.
     #[arg(long, value_name = "STROKE.toml")]
@@ -495,12 +488,12 @@ pub struct TraceArgs {
 }
 
 #[derive(Debug, Args)]
+#[command(group(ArgGroup::new("input").required(true).args(["poses", "stroke", "session"])))]
 pub struct RenderArgs {
     /// Pose CSV with the columns t,x,y,z,qw,qx,qy,qz (s, mm, unit quaternion).
     #[arg(
         long,
         value_name = "POSES.csv",
-        required_unless_present_any = ["stroke", "session"],
         conflicts_with_all = ["stroke", "session"]
     )]
     pub poses: Option<PathBuf>,
@@ -847,7 +840,7 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
                     .with_context(|| format!("cannot write {}", path.display()))?;
                 eprintln!("wrote {}", path.display());
             }
-            None => print!("{text}"),
+            None => write_stdout(text)?,
         }
         Ok(())
     };
@@ -931,6 +924,20 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
     }
 }
 
+/// Writes `text` to standard output. A reader that has closed its end (`| head`) wanted no
+/// more, which is no error; any other failure (a full disk) is one, not a panic as `print!`
+/// would make it.
+fn write_stdout(text: &str) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            Err(anyhow::anyhow!("cannot write to standard output: {e}"))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// `maobi render --session`: the session's own paper, re-rendered through the model.
 fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<()> {
     let session = crate::gui::session::Session::load(path)?;
@@ -977,6 +984,7 @@ fn baxter_lin_scalar(scalar: Option<ScalarKind>) -> anyhow::Result<()> {
 fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let loaded = load_track(a.poses.as_deref(), a.stroke.as_deref(), a.head_mm)?;
+    refuse_overwriting(&a.output, &[a.poses.as_deref(), a.stroke.as_deref()])?;
     let track = &loaded.track;
     let (ticks, scalar) = match a.model {
         ModelKind::Liang => {
@@ -1025,15 +1033,14 @@ fn trace_baxter_lin(
     let first = poses.next().context("the pose track is empty")?;
     let mut brush = BaxterLinBrush::of_shape(shape, params, first)
         .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
-    if let Some(w) = never_touches(loaded, brush.reach_mm(), brush_name) {
+    if let Some(w) = never_touches(loaded, brush.head().length_mm(), brush_name) {
         eprintln!("maobi trace: {w}");
     }
-    let file =
-        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let file = trace_output(out)?;
     let write_err = || format!("cannot write {}", out.display());
     let t0 = track.start();
-    let mut w = BaxterLinTraceWriter::new(std::io::BufWriter::new(file), &brush, time_decimals(t0))
-        .with_context(write_err)?;
+    let mut w =
+        BaxterLinTraceWriter::new(file, &brush, time_decimals(t0)).with_context(write_err)?;
     w.write_tick(t0, &first, &brush).with_context(write_err)?;
     let mut ticks = 1;
     for pose in poses {
@@ -1046,6 +1053,43 @@ fn trace_baxter_lin(
     Ok(ticks)
 }
 
+/// Where a trace goes: the file `out`, or standard output for `-`.
+fn trace_output(out: &Path) -> anyhow::Result<Box<dyn std::io::Write>> {
+    if out.as_os_str() == "-" {
+        return Ok(Box::new(std::io::BufWriter::new(std::io::stdout().lock())));
+    }
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    Ok(Box::new(std::io::BufWriter::new(file)))
+}
+
+/// Refuses an output that is one of the inputs: `-o` naming the recording would replace it.
+fn refuse_overwriting(out: &Path, inputs: &[Option<&Path>]) -> anyhow::Result<()> {
+    let Ok(out_real) = std::fs::canonicalize(out) else {
+        return Ok(()); // not there yet: nothing to overwrite
+    };
+    for input in inputs.iter().flatten() {
+        if std::fs::canonicalize(input).is_ok_and(|i| i == out_real) {
+            anyhow::bail!(
+                "the output {} is the input file: give the output another name",
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a render's output name that says another image format: the render writes PNG.
+fn refuse_non_png(out: &Path) -> anyhow::Result<()> {
+    match out.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("png") => Ok(()),
+        other => anyhow::bail!(
+            "`maobi render` writes PNG: name the output `.png`{}",
+            other.map_or(String::new(), |e| format!(", not `.{e}`"))
+        ),
+    }
+}
+
 fn trace_as<S: BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
@@ -1053,15 +1097,10 @@ fn trace_as<S: BrushScalar>(
 ) -> anyhow::Result<usize> {
     // A brush the number format cannot run is refused before the file is made.
     S::check_params(&params).map_err(anyhow::Error::msg)?;
-    let file =
-        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let file = trace_output(out)?;
     let write_err = || format!("cannot write {}", out.display());
-    let mut w = TraceWriter::new(
-        std::io::BufWriter::new(file),
-        params.layers as usize,
-        time_decimals(track.start()),
-    )
-    .with_context(write_err)?;
+    let mut w = TraceWriter::new(file, params.layers as usize, time_decimals(track.start()))
+        .with_context(write_err)?;
     let ticks = simulate::<S>(params, track, |tick| {
         w.write_tick(tick).with_context(write_err)
     })?;
@@ -1072,6 +1111,8 @@ fn trace_as<S: BrushScalar>(
 fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     if let Some(path) = &a.session {
+        refuse_overwriting(&a.output, &[Some(path.as_path())])?;
+        refuse_non_png(&a.output)?;
         return render_session(path, &a.output, started);
     }
     let params = match a.model {
@@ -1082,6 +1123,8 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
         }
     };
     let loaded = load_track(a.poses.as_deref(), a.stroke.as_deref(), a.head_mm)?;
+    refuse_overwriting(&a.output, &[a.poses.as_deref(), a.stroke.as_deref()])?;
+    refuse_non_png(&a.output)?;
     let track = &loaded.track;
     let paper = PaperSpec::new(a.paper.or(loaded.paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
@@ -1104,15 +1147,13 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             let shape = shape.unwrap_or(HeadShape::Round);
             let make = |pose| BaxterLinBrush::of_shape(shape, &params, pose);
             let first = track.resample().next().context("the pose track is empty")?;
-            // The paper's margin covers the head however its spines splay.
-            let reach = make(first)
-                .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?
-                .reach_mm();
-            if let Some(w) = never_touches(&loaded, reach, &a.brush.describe()) {
+            let brush = make(first).map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
+            if let Some(w) = never_touches(&loaded, brush.head().length_mm(), &a.brush.describe()) {
                 eprintln!("maobi render: {w}");
             }
+            // The paper's margin covers the head however its spines splay.
             let margin = BrushParams {
-                length_mm: reach as f32,
+                length_mm: brush.reach_mm() as f32,
                 ..params
             };
             let frame = paper_frame(track, &margin, a.px_per_mm)?;
@@ -1146,8 +1187,9 @@ struct LoadedTrack {
     track: PoseTrack,
     /// The paper a stroke file names.
     paper: Option<PaperKind>,
-    /// The head length a stroke file's depths were placed for (mm).
-    placed_for_head_mm: Option<f64>,
+    /// A stroke file's note on where its heights come from ([`Character::placement_note`])
+    /// and whether `--head-mm` moves them.
+    placement: Option<(String, bool)>,
 }
 
 /// The pose track of `--poses FILE` or `--stroke FILE` (clap makes sure there is exactly
@@ -1161,14 +1203,14 @@ fn load_track(
         (Some(p), None) => LoadedTrack {
             track: PoseTrack::from_path(p)?,
             paper: None,
-            placed_for_head_mm: None,
+            placement: None,
         },
         (None, Some(s)) => {
             let c = Character::from_path_for_head(s, head_mm)?;
             LoadedTrack {
                 track: c.track(&s.display().to_string())?,
                 paper: c.paper,
-                placed_for_head_mm: Some(c.head_mm),
+                placement: Some((c.placement_note(), c.relative_heights)),
             }
         }
         _ => anyhow::bail!("give exactly one of --poses and --stroke"),
@@ -1185,14 +1227,15 @@ fn load_track(
     Ok(loaded)
 }
 
-/// [`PoseTrack::never_reaches_paper`] for `loaded`, with the option that places a stroke
-/// file for the brush.
-fn never_touches(loaded: &LoadedTrack, reach_mm: f64, brush: &str) -> Option<String> {
-    let mut msg = loaded
-        .track
-        .never_reaches_paper(reach_mm, brush, loaded.placed_for_head_mm)?;
-    if loaded.placed_for_head_mm.is_some() {
-        msg += &format!(": `--head-mm {reach_mm:.1}` places them for this brush");
+/// [`PoseTrack::never_reaches_paper`] for `loaded`, with a stroke file's note and, where its
+/// depths are relative, the option that places them for this brush.
+fn never_touches(loaded: &LoadedTrack, hair_mm: f64, brush: &str) -> Option<String> {
+    let mut msg = loaded.track.never_reaches_paper(hair_mm, brush)?;
+    if let Some((note, relative)) = &loaded.placement {
+        msg += &format!("; {note}");
+        if *relative {
+            msg += &format!(": `--head-mm {hair_mm:.1}` places them for this brush");
+        }
     }
     Some(format!("warning: {msg}"))
 }
@@ -1238,6 +1281,18 @@ fn run_stroke(c: &StrokeCommand) -> anyhow::Result<()> {
     match c {
         StrokeCommand::Sample(a) => {
             let ch = Character::from_path(&a.file)?;
+            // The pose file a 1 kHz sampling of the longest stroke file makes, and no more.
+            let samples = ch.duration() * a.rate;
+            let most = crate::strokes::MAX_SPAN_S * 1000.0;
+            if samples > most {
+                anyhow::bail!(
+                    "{} lasts {:.1} s: at {} Hz that is {samples:.0} poses, more than the {most:.0} \
+                     a pose file may hold; lower --rate",
+                    a.file.display(),
+                    ch.duration(),
+                    a.rate
+                );
+            }
             let csv = ch.to_csv(1.0 / a.rate);
             std::fs::write(&a.output, &csv)
                 .with_context(|| format!("cannot write {}", a.output.display()))?;

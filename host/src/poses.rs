@@ -43,6 +43,11 @@ pub const QUAT_NORM_TOLERANCE: f64 = 1e-3;
 /// The model's tick (seconds).
 pub const TICK_S: f64 = 0.001;
 
+/// The longest span a track may cover (s): four hours, 14.4 million ticks. Beyond it a file is
+/// far more likely to be wrong (times written in milliseconds) than a session, and its
+/// simulation would run for hours and its trace fill a disk.
+pub const MAX_SPAN_S: f64 = 4.0 * 3600.0;
+
 /// One validated input row.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct PoseRow {
@@ -83,6 +88,11 @@ pub enum PoseErrorKind {
     TimeBackwards { t: f64, prev: f64 },
     #[error("quaternion norm {norm} differs from 1 by more than {QUAT_NORM_TOLERANCE}")]
     QuatNorm { norm: f64 },
+    #[error(
+        "time {t} s is {span} s after the first row's: a track may span at most {MAX_SPAN_S} s \
+         (4 hours; times are in seconds, not milliseconds)"
+    )]
+    TooLong { t: f64, span: f64 },
 }
 
 /// A pose-file error with its place: `FILE:LINE: column `NAME`: what`.
@@ -191,6 +201,16 @@ impl PoseTrack {
                 *out = x;
             }
             let t = v[0];
+            if let Some(first) = rows.first() {
+                let span = t - first.t;
+                if span > MAX_SPAN_S {
+                    return Err(err(
+                        Some(line),
+                        Some("t"),
+                        PoseErrorKind::TooLong { t, span },
+                    ));
+                }
+            }
             if let Some(prev) = rows.last() {
                 if t < prev.t {
                     return Err(err(
@@ -276,31 +296,19 @@ impl PoseTrack {
             .fold(f64::INFINITY, f64::min)
     }
 
-    /// A warning if a brush whose hair reaches `reach_mm` from its ferrule cannot touch the
-    /// paper anywhere on this track (the ferrule never comes lower than that): a render of
-    /// it is blank and a trace all air. `placed_for_head_mm` is the head a stroke file's
-    /// depths were placed for, the likely cause, named in the warning.
-    pub fn never_reaches_paper(
-        &self,
-        reach_mm: f64,
-        brush: &str,
-        placed_for_head_mm: Option<f64>,
-    ) -> Option<String> {
+    /// A warning if a brush whose hair is `hair_mm` long cannot touch the paper anywhere on
+    /// this track (the ferrule never comes lower than that): a render of it is blank and a
+    /// trace all air.
+    pub fn never_reaches_paper(&self, hair_mm: f64, brush: &str) -> Option<String> {
         let lowest = self.lowest_z();
         // No rows (infinite) or a NaN says nothing about the paper.
-        if !lowest.is_finite() || lowest <= reach_mm {
+        if !lowest.is_finite() || lowest <= hair_mm {
             return None;
         }
-        let mut msg = format!(
+        Some(format!(
             "the brush never reaches the paper: the ferrule comes no lower than {lowest:.1} mm \
-             above it, and the {brush} brush's hair reaches {reach_mm:.1} mm"
-        );
-        if let Some(head) = placed_for_head_mm {
-            msg += &format!(
-                "; the stroke file's depths are placed for a {head:.1} mm head (its `head_mm`)"
-            );
-        }
-        Some(msg)
+             above it, and the {brush} brush's hair is {hair_mm:.1} mm long"
+        ))
     }
 }
 

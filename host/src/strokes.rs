@@ -66,6 +66,11 @@ use crate::paper::PaperKind;
 use crate::poses::{PoseRow, PoseTrack};
 
 pub const FORMAT: &str = "maobi-stroke";
+/// Keyframes lie within this distance of the origin along each axis (mm): ten metres, far
+/// beyond any paper, and short of the numbers that would make the sampled track absurd.
+pub const MAX_COORDINATE_MM: f64 = 10_000.0;
+/// The longest a stroke file may last (s), the same bound as a pose file's.
+pub const MAX_SPAN_S: f64 = crate::poses::MAX_SPAN_S;
 pub const VERSION: i64 = 1;
 
 /// The file as written.
@@ -162,6 +167,11 @@ pub struct Character {
     /// The head length the keyframes' depths are placed for (mm): the file's `head_mm`, or
     /// the one [`Character::from_path_for_head`] was given.
     pub head_mm: f64,
+    /// Whether that head length came from the caller rather than the file.
+    pub head_given: bool,
+    /// Whether any keyframe is placed by `depth` or `lift` (the head length moves it) rather
+    /// than by its z.
+    pub relative_heights: bool,
     /// The paper the file asks for, if it names one.
     pub paper: Option<PaperKind>,
     pub segments: Vec<Segment>,
@@ -216,7 +226,8 @@ impl Character {
         head_mm: Option<f64>,
     ) -> anyhow::Result<Character> {
         let mut f: StrokeFile = toml::from_str(text).map_err(|e| anyhow!("{file}: {e}"))?;
-        if head_mm.is_some() {
+        let head_given = head_mm.is_some();
+        if head_given {
             f.head_mm = head_mm;
         }
         let paper = match &f.paper {
@@ -237,6 +248,7 @@ impl Character {
         };
         let mut c = Self::from_file(&f).map_err(|e| anyhow!("{file}: {e:#}"))?;
         c.paper = paper;
+        c.head_given = head_given;
         Ok(c)
     }
 
@@ -317,13 +329,47 @@ impl Character {
             });
             clock += t1 - t0;
         }
+        if clock.is_nan() || clock > MAX_SPAN_S {
+            bail!(
+                "the strokes last {clock:.0} s with the travel between them, more than the \
+                 {MAX_SPAN_S} s (4 hours) a stroke file may: check the keyframes' times and \
+                 the speeds"
+            );
+        }
+        let relative_heights = f
+            .stroke
+            .iter()
+            .flat_map(|st| &st.keys)
+            .any(|k| k.depth.is_some() || k.lift.is_some());
         Ok(Character {
             name: f.name.clone(),
             head_mm: s.head,
+            head_given: false,
+            relative_heights,
             paper: None,
             segments,
             stroke_times,
         })
+    }
+
+    /// Why a brush may not reach the paper on this file, for a warning: the head its
+    /// depths are placed for, or that its keyframes give the ferrule's height outright.
+    pub fn placement_note(&self) -> String {
+        if self.relative_heights {
+            let from = if self.head_given {
+                "as asked"
+            } else {
+                "its `head_mm`"
+            };
+            format!(
+                "the stroke file's depths are placed for a {:.1} mm head ({from})",
+                self.head_mm
+            )
+        } else {
+            "the stroke file's keyframes give the ferrule's height (`at = [x, y, z]`), which \
+             no head length moves: it is written for a longer brush"
+                .to_string()
+        }
     }
 
     /// Total duration (s).
@@ -486,6 +532,28 @@ fn keyframe(ks: &KeySpec, s: &Settings) -> anyhow::Result<Keyframe> {
     ] {
         check(v, what)?;
     }
+    if let Some(t) = ks.t {
+        if !(0.0..=MAX_SPAN_S).contains(&t) {
+            bail!(
+                "`t` is {t} s: a keyframe's time must be within 0..={MAX_SPAN_S} s (4 hours) of \
+                 its stroke's start"
+            );
+        }
+    }
+    // The keyframe's own tilt, else the file's `tilt_deg`.
+    let tilt = ks.tilt.map_or(s.tilt, f64::to_radians);
+    if ks.quat.is_none() && tilt.abs() >= core::f64::consts::FRAC_PI_2 {
+        let what = if ks.tilt.is_some() {
+            "tilt"
+        } else {
+            "tilt_deg"
+        };
+        bail!(
+            "`{what}` is {:.1} degrees: the handle's tilt from upright must be within -90..90 \
+             (leaning the other way is `azimuth` + 180)",
+            tilt.to_degrees()
+        );
+    }
     let rot = match ks.quat {
         Some(q) => {
             if ks.tilt.is_some() || ks.azimuth.is_some() {
@@ -507,6 +575,13 @@ fn keyframe(ks: &KeySpec, s: &Settings) -> anyhow::Result<Keyframe> {
         ),
     };
     let (tilt, _) = orient::tilt_azimuth(rot);
+    if tilt >= core::f64::consts::FRAC_PI_2 {
+        bail!(
+            "`quat` tilts the handle {:.1} degrees from upright: a brush writes with its \
+             hair below the ferrule (less than 90)",
+            tilt.to_degrees()
+        );
+    }
     let touch = s.head * tilt.cos();
     let z = match (at.get(2), ks.depth, ks.lift) {
         (Some(&z), None, None) => z,
@@ -515,11 +590,18 @@ fn keyframe(ks: &KeySpec, s: &Settings) -> anyhow::Result<Keyframe> {
         (None, None, None) => bail!("no height: give `at = [x, y, z]`, `depth` or `lift`"),
         _ => bail!("give only one of a z in `at`, `depth` and `lift`"),
     };
-    Ok(Keyframe {
-        pos: [at[0], at[1], z],
-        rot,
-        t: ks.t,
-    })
+    let pos = [at[0], at[1], z];
+    if let Some((c, name)) = pos
+        .iter()
+        .zip(["x", "y", "z"])
+        .find(|(c, _)| c.abs() > MAX_COORDINATE_MM)
+    {
+        bail!(
+            "the ferrule's {name} is {c} mm: keyframes must lie within {MAX_COORDINATE_MM} mm \
+             of the origin"
+        );
+    }
+    Ok(Keyframe { pos, rot, t: ks.t })
 }
 
 /// Hover, rise to the lift height, travel, come down.

@@ -991,3 +991,93 @@ fn sim_device_and_bridge_refuse_bad_params() {
         );
     }
 }
+
+/// What a user review found crashing, hanging or overwriting: each is refused with a message
+/// that says what to do, and nothing is written.
+#[test]
+fn absurd_inputs_and_outputs_are_refused_not_crashed() {
+    // Times in milliseconds written as seconds: a track 1000 times too long (a billion
+    // seconds had run without end and filled the disk through `trace`).
+    let long = Temp::with(
+        "long.csv",
+        format!("{HEADER}0,0,0,30,1,0,0,0\n1e9,0,0,30,1,0,0,0\n").as_bytes(),
+    );
+    let out = Temp::new("long.png");
+    for cmd in ["render", "trace"] {
+        let o = maobi(&[cmd, "--poses", long.path(), "-o", out.path()]);
+        let e = stderr(&o);
+        assert!(
+            !o.status.success() && e.contains(":3: column `t`") && e.contains("milliseconds"),
+            "{e}"
+        );
+        assert!(!out.0.exists(), "{cmd} wrote its output");
+    }
+    // A sampling rate that would make billions of poses.
+    let yong = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/strokes/yong.toml");
+    let csv = Temp::new("yong.csv");
+    let o = maobi(&[
+        "stroke",
+        "sample",
+        yong.to_str().unwrap(),
+        "-o",
+        csv.path(),
+        "--rate",
+        "1e9",
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("lower --rate"),
+        "{}",
+        stderr(&o)
+    );
+    // The output named as the input: the recording is kept.
+    let heng = Temp::with(
+        "heng.csv",
+        std::fs::read(example("heng.csv")).unwrap().as_slice(),
+    );
+    let before = std::fs::read(&heng.0).unwrap();
+    for cmd in ["render", "trace"] {
+        let o = maobi(&[cmd, "--poses", heng.path(), "-o", heng.path()]);
+        assert!(
+            !o.status.success() && stderr(&o).contains("is the input file"),
+            "{}",
+            stderr(&o)
+        );
+    }
+    assert_eq!(std::fs::read(&heng.0).unwrap(), before);
+    // A render named for another image format.
+    let jpg = Temp::new("x.jpg");
+    let o = maobi(&["render", "--poses", heng.path(), "-o", jpg.path()]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("`.png`, not `.jpg`"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!jpg.0.exists());
+    // `-` is standard output for a trace.
+    let o = maobi(&["trace", "--poses", heng.path(), "-o", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).starts_with("t,x,y,z,"));
+    assert!(!Path::new("-").exists());
+    // No input: the error names every kind a render takes.
+    let o = maobi(&["render", "-o", "x.png"]);
+    let e = stderr(&o);
+    assert!(
+        e.contains("--poses") && e.contains("--stroke") && e.contains("--session"),
+        "{e}"
+    );
+    // A full disk on standard output is an error, not a panic.
+    if Path::new("/dev/full").exists() {
+        let full = std::fs::File::create("/dev/full").unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_maobi"))
+            .args(["device", "config", "template"])
+            .stdout(full)
+            .output()
+            .unwrap();
+        let e = stderr(&o);
+        assert!(
+            !o.status.success() && e.contains("cannot write to standard output"),
+            "{e}"
+        );
+        assert!(!e.contains("panicked"), "{e}");
+    }
+}

@@ -312,6 +312,32 @@ fn bad_files_name_the_file_stroke_and_keyframe() {
         e.contains("stroke 2") && e.contains("travel = false"),
         "{e}"
     );
+    // Finite but absurd numbers are refused before anything is sampled (they had made the
+    // sampler ask for petabytes and abort): a depth of a billion kilometres, a keyframe a
+    // thousand million seconds in, a handle upside down, a crawl that would last days.
+    let e = err(&format!(
+        "{HEAD}[[stroke]]\nkeys = [{{ at = [0, 0], depth = 1e12 }}, {{ at = [1, 0], depth = 2 }}]\n"
+    ));
+    assert!(
+        e.contains("keyframe 1") && e.contains("within 10000 mm"),
+        "{e}"
+    );
+    let e = err(&format!(
+        "{HEAD}[[stroke]]\nkeys = [{{ at = [0, 0], lift = 1 }}, {{ at = [1, 0], depth = 2, t = 1e9 }}]\n"
+    ));
+    assert!(e.contains("keyframe 2") && e.contains("`t`"), "{e}");
+    let e = err(&format!(
+        "{HEAD}[[stroke]]\nkeys = [{{ at = [0, 0], lift = 1, tilt = 180 }}, {{ at = [1, 0], depth = 2 }}]\n"
+    ));
+    assert!(e.contains("keyframe 1") && e.contains("-90..90"), "{e}");
+    let e = err(&format!(
+        "{HEAD}tilt_deg = 95\n[[stroke]]\nkeys = [{{ at = [0, 0], lift = 1 }}, {{ at = [1, 0], depth = 2 }}]\n"
+    ));
+    assert!(e.contains("`tilt_deg`"), "{e}");
+    let e = err(&format!(
+        "{HEAD}speed_mm_s = 1e-6\n[[stroke]]\nkeys = [{{ at = [0, 0], lift = 1 }}, {{ at = [100, 0], depth = 2 }}]\n"
+    ));
+    assert!(e.contains("4 hours"), "{e}");
 }
 
 #[test]
@@ -458,9 +484,51 @@ fn a_file_for_a_longer_head_warns_and_head_mm_places_it_for_the_brush() {
     assert!(inked, "placed for the small brush, the stroke left no ink");
     let (msg, inked) = run(&["render"]);
     assert!(!msg.contains("warning") && inked, "{msg}");
+    // Placed for a head longer than the brush, by the option: the warning says so.
+    let (msg, _) = run(&["render", "--brush", "small", "--head-mm", "30"]);
+    assert!(
+        msg.contains("30.0 mm head (as asked)") && msg.contains("`--head-mm 18.0`"),
+        "{msg}"
+    );
     // Baxter & Lin's flat head (18 mm of hair) and the trace say it too.
     let (msg, _) = run(&["trace", "--model", "baxter-lin", "--brush", "flat"]);
-    assert!(msg.contains("never reaches the paper"), "{msg}");
+    assert!(
+        msg.contains("never reaches the paper") && msg.contains("18.0 mm long"),
+        "{msg}"
+    );
+    let (msg, inked) = run(&[
+        "render",
+        "--model",
+        "baxter-lin",
+        "--brush",
+        "flat",
+        "--head-mm",
+        "18",
+    ]);
+    assert!(!msg.contains("warning") && inked, "{msg}");
+
+    // Keyframes that give the ferrule's height: no head length moves them, and the warning
+    // does not suggest one.
+    let absolute = dir.join("absolute.toml");
+    std::fs::write(
+        &absolute,
+        format!("{HEAD}[[stroke]]\nkeys = [{{ at = [0, 0, 30] }}, {{ at = [10, 0, 30] }}]\n"),
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["render", "--brush", "small", "--stroke"])
+        .arg(&absolute)
+        .arg("-o")
+        .arg(dir.join("abs.png"))
+        .output()
+        .unwrap();
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success()
+            && msg.contains("give the ferrule's height")
+            && !msg.contains("--head-mm"),
+        "{msg}"
+    );
 
     // A pose file has no depths to place.
     let out = Command::new(env!("CARGO_BIN_EXE_maobi"))

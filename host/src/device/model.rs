@@ -144,17 +144,17 @@ impl BrushChoice {
         self.shape.unwrap_or(HeadShape::Round)
     }
 
-    /// How far this brush's hair reaches from its ferrule (mm) under `model` with `params`:
-    /// Liang's brush its length; Baxter & Lin's head its longest spine and that spine's
-    /// bundle ([`BaxterLinBrush::reach_mm`]), or the length if it does not build.
-    pub fn reach_mm(&self, model: ModelKind, params: &BrushParams) -> f64 {
+    /// How long this brush's hair is (mm) under `model` with `params`: Liang's brush its
+    /// length; Baxter & Lin's head its longest spine, or the preset's length if it does not
+    /// build.
+    pub fn hair_length_mm(&self, model: ModelKind, params: &BrushParams) -> f64 {
         let length = params.length_mm as f64;
         match model {
             ModelKind::Liang => length,
             ModelKind::BaxterLin => {
                 let above = Pose::new(Vec3::new(0.0, 0.0, 2.0 * length + 10.0), Quat::IDENTITY);
                 BaxterLinBrush::of_shape(self.head_shape(), params, above)
-                    .map_or(length, |b| b.reach_mm())
+                    .map_or(length, |b| b.head().length_mm())
             }
         }
     }

@@ -528,8 +528,10 @@ impl MaobiApp {
     /// Carries out what the stroke editor asked for.
     pub fn timeline_action(&mut self, a: TimelineAction) {
         if let TimelineAction::Play(t) | TimelineAction::Guide(t) = &a {
-            let head = self.timeline.character().map(|c| c.head_mm);
-            if let Some(w) = self.never_reaches_paper(t, head) {
+            if let Some(mut w) = self.never_reaches_paper(t) {
+                if let Some(c) = self.timeline.character() {
+                    w += &format!("; {}", c.placement_note());
+                }
                 self.timeline.message = Some((w, true));
             }
         }
@@ -559,7 +561,7 @@ impl MaobiApp {
     /// Starts replaying a pose file through the device.
     pub fn start_replay(&mut self, path: &Path) -> anyhow::Result<()> {
         let track = PoseTrack::from_path(path)?;
-        let warning = self.never_reaches_paper(&track, None);
+        let warning = self.never_reaches_paper(&track);
         self.device
             .send(DeviceCommand::Replay(Arc::new(track)))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -573,10 +575,10 @@ impl MaobiApp {
     }
 
     /// [`PoseTrack::never_reaches_paper`] for the brush the device runs now.
-    fn never_reaches_paper(&self, track: &PoseTrack, placed_for: Option<f64>) -> Option<String> {
+    fn never_reaches_paper(&self, track: &PoseTrack) -> Option<String> {
         let choice = crate::device::BrushChoice::parse(&self.status.preset).ok()?;
-        let reach = choice.reach_mm(self.status.model, &self.status.params);
-        track.never_reaches_paper(reach, &self.status.preset, placed_for)
+        let hair = choice.hair_length_mm(self.status.model, &self.status.params);
+        track.never_reaches_paper(hair, &self.status.preset)
     }
 
     /// Sets a parameter on the device; the message shows what happened.

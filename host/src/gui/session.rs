@@ -44,6 +44,9 @@ use crate::raster::Frame;
 pub const FORMAT: &str = "maobi-session";
 /// The version this build writes. It reads it and version 1 (the same, without `model`).
 pub const VERSION: u32 = 2;
+/// The most ticks a session may span: a day at 1 kHz.
+pub const MAX_TICKS: u64 = 24 * 3600 * 1000;
+
 /// The version of what turns a session's inputs into ink: the brush model, the force loop
 /// and the built-in device (`maobi-shared`), and the inker and paper. A session records the
 /// version it was written with, and a session opened in a build of another version
@@ -277,6 +280,13 @@ impl Session {
             width: p.width as usize,
             height: p.height as usize,
         };
+        // A session is re-run tick by tick: a day of them is hours of simulation already.
+        if f.ticks > MAX_TICKS {
+            bail!(
+                "`ticks = {}`: more than the {MAX_TICKS} (a day at 1 kHz) a session may hold",
+                f.ticks
+            );
+        }
         // File line of the CSV's header, so errors point into the file.
         let header_line = text
             .lines()

@@ -175,7 +175,8 @@ pub struct PhantomArgs {
         long,
         value_name = "MM",
         default_value_t = crate::phantom::servo::DEFAULT_PAPER_HEIGHT_MM,
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        value_parser = parse_finite
     )]
     pub paper_height: f64,
     /// Paper millimetres per device millimetre.
@@ -190,6 +191,13 @@ impl PhantomArgs {
             paper_height_mm: self.paper_height,
             scale: self.scale,
         }
+    }
+}
+
+fn parse_finite(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("`{s}` is not a finite number")),
     }
 }
 
@@ -989,14 +997,15 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
     let (ticks, scalar) = match a.model {
         ModelKind::Liang => {
             let params = a.brush.liang_params()?;
-            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &a.brush.describe()) {
+            let desc = a.brush.describe();
+            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &desc) {
                 eprintln!("maobi trace: {w}");
             }
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
             let ticks = match scalar {
-                ScalarKind::Fixed => trace_as::<Fx>(params, track, &a.output)?,
-                ScalarKind::F32 => trace_as::<f32>(params, track, &a.output)?,
-                ScalarKind::F64 => trace_as::<f64>(params, track, &a.output)?,
+                ScalarKind::Fixed => trace_as::<Fx>(params, track, &desc, &a.output)?,
+                ScalarKind::F32 => trace_as::<f32>(params, track, &desc, &a.output)?,
+                ScalarKind::F64 => trace_as::<f64>(params, track, &desc, &a.output)?,
             };
             (ticks, scalar)
         }
@@ -1090,13 +1099,36 @@ fn refuse_non_png(out: &Path) -> anyhow::Result<()> {
     }
 }
 
+/// Refuses, before anything runs, a brush the number format `S` cannot step, saying what
+/// would run it: the smallest substep rate that does, or another format.
+fn check_scalar<S: BrushScalar>(params: &BrushParams, brush: &str) -> anyhow::Result<()> {
+    let Err(e) = S::check_params(params) else {
+        return Ok(());
+    };
+    // The parameter's own range bounds the search (`ParamId::range`).
+    let most = ParamId::SubstepsPerTick.range().1 as u8;
+    let runs = (params.substeps_per_tick..=most).find(|&n| {
+        S::check_params(&BrushParams {
+            substeps_per_tick: n,
+            ..*params
+        })
+        .is_ok()
+    });
+    let hint = match runs {
+        Some(n) => format!("`--param substeps_per_tick={n}` runs it, or `--scalar f64`"),
+        None => "no substep rate runs it in fixed point; `--scalar f64` does".to_string(),
+    };
+    anyhow::bail!("the {brush} brush: {e}; {hint}")
+}
+
 fn trace_as<S: BrushScalar>(
     params: BrushParams,
     track: &PoseTrack,
+    brush: &str,
     out: &Path,
 ) -> anyhow::Result<usize> {
     // A brush the number format cannot run is refused before the file is made.
-    S::check_params(&params).map_err(anyhow::Error::msg)?;
+    check_scalar::<S>(&params, brush)?;
     let file = trace_output(out)?;
     let write_err = || format!("cannot write {}", out.display());
     let mut w = TraceWriter::new(file, params.layers as usize, time_decimals(track.start()))
@@ -1137,7 +1169,10 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             log::debug!("paper: {frame:?}, {paper:?}");
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
             let (canvas, stats) = match scalar {
-                ScalarKind::Fixed => render::<Fx>(params, track, frame, paper)?,
+                ScalarKind::Fixed => {
+                    check_scalar::<Fx>(&params, &a.brush.describe())?;
+                    render::<Fx>(params, track, frame, paper)?
+                }
                 ScalarKind::F32 => render::<f32>(params, track, frame, paper)?,
                 ScalarKind::F64 => render::<f64>(params, track, frame, paper)?,
             };

@@ -798,6 +798,21 @@ fn a_brush_too_stiff_for_fixed_point_is_refused_saying_what_to_raise() {
         err.contains("substeps_per_tick") && err.contains("too stiff"),
         "{err}"
     );
+    // It names the brush as set and the smallest rate that runs it: that one runs, the one
+    // below does not.
+    assert!(err.contains("axial_stiffness_n_per_m=50000"), "{err}");
+    let n: u32 = err
+        .split("--param substeps_per_tick=")
+        .nth(1)
+        .and_then(|r| r.split('`').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no rate suggested: {err}"));
+    let rate = |n: u32| format!("substeps_per_tick={n}");
+    trace_with(p, &[&stiff[..], &["--param", &rate(n)]].concat())
+        .unwrap_or_else(|o| panic!("{}", stderr(&o)));
+    assert!(n > 1, "{err}");
+    trace_with(p, &[&stiff[..], &["--param", &rate(n - 1)]].concat())
+        .expect_err("the rate below the suggested one");
     trace_with(p, &[&stiff[..], &["--scalar", "f64"]].concat())
         .unwrap_or_else(|o| panic!("{}", stderr(&o)));
     trace_with(

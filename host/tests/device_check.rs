@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Outcome, Scripted};
 use maobi::device::endpoint::nothing_to_read_yet;
-use maobi::device::Endpoint;
+use maobi::device::{Endpoint, SimDeviceOptions, SimDeviceServer};
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
     BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
@@ -62,10 +62,13 @@ impl Pen {
     }
     fn info(&self) -> DeviceInfo {
         if self.virtual_pen {
+            // As the QEMU board without a configuration image announces itself.
             return DeviceInfo::new(
                 "fake-virtual",
                 Version::default(),
-                Capabilities::VIRTUAL_PEN,
+                Capabilities::VIRTUAL_PEN
+                    | Capabilities::FORCE_OUTPUT
+                    | Capabilities::STORED_CONFIG,
                 3.3,
                 0.88,
             );
@@ -520,4 +523,57 @@ fn a_missing_configuration_is_written_from_the_builders_file() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("missing field"), "{err}");
     let _ = std::fs::remove_file(&file);
+}
+
+/// `maobi sim-device` (in process, the same server) is a virtual pen that keeps no
+/// configuration and answers no bring-up command: the check skips what it does not offer,
+/// says why, and passes.
+#[test]
+fn the_simulator_passes_with_the_steps_it_does_not_offer_skipped() {
+    let server = SimDeviceServer::spawn("127.0.0.1:0", SimDeviceOptions::default()).unwrap();
+    let addr = server.addr().to_string();
+    let mut op = Scripted::default();
+    let r = run_check(&opts(&addr), &mut op);
+    let said = op.transcript.join("\n");
+    println!("{said}\n{}", r.table());
+    assert_eq!(
+        r.outcome("1 handshake"),
+        Some(Outcome::Pass),
+        "{}",
+        r.table()
+    );
+    for step in [
+        "2 sensors",
+        "3 motor 0 (base (yaw))",
+        "3 motor 1 (shoulder)",
+        "3 motor 2 (elbow)",
+        "4 calibration",
+    ] {
+        assert_eq!(
+            r.outcome(step),
+            Some(Outcome::Skip),
+            "{step}\n{}",
+            r.table()
+        );
+    }
+    assert!(r.passed(), "{}", r.table());
+    for line in [
+        "2 sensors: skipped: the device streams no raw sensor readings (capabilities \
+         FORCE_OUTPUT | VIRTUAL_PEN: no STORED_CONFIG",
+        "3 motors: skipped: the device takes no motor nudge (capabilities",
+        "4 calibration: skipped: this device keeps no configuration (a virtual pen needs no \
+         calibration",
+    ] {
+        assert!(said.contains(line), "{line}\n{said}");
+    }
+    // The command line: exit 0, the skips said, no FAIL.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--connect", &addr])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(!text.contains("FAIL"), "{text}");
+    assert!(text.contains("2 sensors: skipped: "), "{text}");
+    assert!(text.contains("No step failed; 5 skipped"), "{text}");
 }

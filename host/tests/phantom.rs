@@ -1880,3 +1880,58 @@ fn the_gui_device_runs_baxter_and_lins_brush() {
     d.disconnect();
     drop(lib);
 }
+
+/// `maobi device check` against `maobi bridge`: a real device's sensors behind the protocol,
+/// which keeps no configuration and answers no bring-up command. The check skips those
+/// steps, says why, and does not call the Phantom a virtual pen.
+#[test]
+fn device_check_against_the_bridge_skips_what_it_does_not_offer() {
+    let (device, _) = hook_device_poses();
+    let poses = scratch("check_device.csv");
+    write_pose_csv(&device, &poses);
+    // No tick limit: the check's length is not known; the bridge is killed after it.
+    let config = format!("poses={}", poses.display());
+    let (mut child, addr, log) = spawn_bridge(&config, usize::MAX >> 33);
+    let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "check", "--yes", "--connect", &addr])
+        .output()
+        .unwrap();
+    // Nor does writing a configuration to it.
+    let file = scratch("check_pen.toml");
+    let o = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "config", "template", "-o"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let set = Command::new(env!("CARGO_BIN_EXE_maobi"))
+        .args(["device", "config", "set"])
+        .arg(&file)
+        .args(["--connect", &addr])
+        .output()
+        .unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    let err = String::from_utf8_lossy(&set.stderr);
+    assert!(!set.status.success(), "{err}");
+    assert!(err.contains("this device keeps no configuration"), "{err}");
+    assert!(!err.contains("virtual pen"), "{err}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        log.lock().unwrap()
+    );
+    assert!(!text.contains("FAIL"), "{text}");
+    assert!(!text.contains("virtual pen"), "{text}");
+    for line in [
+        "capabilities FORCE_OUTPUT | REAL_SENSORS | BUTTONS",
+        "2 sensors: skipped: the device streams no raw sensor readings (capabilities \
+         FORCE_OUTPUT | REAL_SENSORS | BUTTONS: no STORED_CONFIG",
+        "3 motors: skipped: the device takes no motor nudge (capabilities",
+        "4 calibration: skipped: this device keeps no configuration to store a calibration in",
+    ] {
+        assert!(text.contains(line), "{line}\n{text}");
+    }
+}

@@ -16,6 +16,11 @@
 //!    keeps the motors off until it is);
 //! 5. a summary; any FAIL makes the command's exit code non-zero.
 //!
+//! A step the device's hello says it does not offer is skipped, with the reason, and is no
+//! failure: the sensor stream and the nudges need [`Capabilities::STORED_CONFIG`] (the
+//! firmware's boards; not `maobi sim-device` nor `maobi bridge`), the nudges
+//! [`Capabilities::FORCE_OUTPUT`], calibration a stored configuration.
+//!
 //! The terminal is behind [`Operator`], so scripts and tests run it without one ([`Scripted`]:
 //! `--yes`).
 //!
@@ -671,12 +676,20 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
     if !step_handshake(&mut wire, opts, op, &mut report) {
         return report;
     }
-    let streaming = step_sensors(&mut wire, opts, op, &mut report, virtual_pen);
+    let bring_up = info.capabilities.contains(Capabilities::STORED_CONFIG);
+    let streaming = match no_bring_up(&info) {
+        None => step_sensors(&mut wire, opts, op, &mut report, virtual_pen),
+        Some(why) => {
+            let why = format!("the device streams no raw sensor readings {why}");
+            skip(op, &mut report, "2 sensors", why);
+            false
+        }
+    };
     // The firmware keeps the motors off until the pen is calibrated (a configuration just
     // written, never calibrated, or on a pen with incremental encoders not since power-on)
     // and says so with NOT_CALIBRATED: then calibration comes before the nudges. Firmware
     // that does not report it yet is judged by its stored calibration.
-    let uncalibrated = wire.info.config != ConfigState::NotApplicable
+    let uncalibrated = no_calibration(&wire.info).is_none()
         && (matches!(
             wire.faults_since(Instant::now(), opts.reply_timeout, |_| true),
             Ok(Some(f)) if f.contains(Faults::NOT_CALIBRATED)
@@ -692,8 +705,71 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
         step_nudges(&mut wire, opts, op, &mut report, virtual_pen, streaming);
         step_calibrate(&mut wire, opts, op, &mut report);
     }
-    let _ = wire.command(Command::StreamSensors { rate_hz: 0 }, opts.reply_timeout);
+    if bring_up {
+        let _ = wire.command(Command::StreamSensors { rate_hz: 0 }, opts.reply_timeout);
+    }
     report
+}
+
+/// A step the device does not offer: said as it is reached, a SKIP in the summary.
+fn skip(op: &mut dyn Operator, report: &mut CheckReport, step: &str, why: String) {
+    op.say(&format!("{step}: skipped: {why}"));
+    report.push(step, Outcome::Skip, why);
+}
+
+/// Why the device answers no bring-up command (sensor stream, motor nudge), from its hello:
+/// "(capabilities ...: no STORED_CONFIG ...)". They came with the stored configuration
+/// (protocol 3) and the firmware answers them on every board that announces one; a device
+/// that keeps none (`maobi sim-device`, `maobi bridge`) answers them `Unsupported`, which is
+/// no fault of its wiring.
+fn no_bring_up(info: &DeviceInfo) -> Option<String> {
+    (!info.capabilities.contains(Capabilities::STORED_CONFIG)).then(|| {
+        format!(
+            "(capabilities {}: no STORED_CONFIG, which the bring-up commands come with)",
+            caps_text(info.capabilities)
+        )
+    })
+}
+
+/// Why step 3 cannot nudge this device's motors, from its hello.
+fn no_nudges(info: &DeviceInfo) -> Option<String> {
+    if !info.capabilities.contains(Capabilities::FORCE_OUTPUT) {
+        return Some(format!(
+            "the device has no motors (capabilities {}: no FORCE_OUTPUT)",
+            caps_text(info.capabilities)
+        ));
+    }
+    no_bring_up(info).map(|why| format!("the device takes no motor nudge {why}"))
+}
+
+/// Why step 4 does not apply to this device: it keeps no configuration to hold a
+/// calibration (by its capabilities, or the QEMU board without a store, by its hello's
+/// configuration state).
+fn no_calibration(info: &DeviceInfo) -> Option<String> {
+    let keeps_one = info.capabilities.contains(Capabilities::STORED_CONFIG)
+        && info.config != ConfigState::NotApplicable;
+    if keeps_one {
+        return None;
+    }
+    Some(
+        if info.capabilities.contains(Capabilities::VIRTUAL_PEN) {
+            "this device keeps no configuration (a virtual pen needs no calibration: its pose \
+             comes from the host)"
+        } else {
+            "this device keeps no configuration to store a calibration in (a device behind a \
+             bridge, such as `maobi bridge`'s Phantom, is calibrated by its own library)"
+        }
+        .to_string(),
+    )
+}
+
+/// A capability set as its flags' names ("none" when empty).
+fn caps_text(caps: Capabilities) -> String {
+    if caps.is_empty() {
+        "none".to_string()
+    } else {
+        caps.to_string()
+    }
 }
 
 /// Step 1's verdict on the configuration; false: stop here.
@@ -969,6 +1045,17 @@ fn step_nudges(
     virtual_pen: bool,
     streaming: bool,
 ) {
+    if let Some(why) = no_nudges(&wire.info) {
+        op.say(&format!("3 motors: skipped: {why}"));
+        for (ch, joint) in ARM_JOINTS.iter().enumerate() {
+            report.push(
+                format!("3 motor {ch} ({joint})"),
+                Outcome::Skip,
+                why.clone(),
+            );
+        }
+        return;
+    }
     // Nudges are refused while forces are on (and the arm should be still anyway).
     if streaming {
         let _ = wire.command(Command::DisableForces, opts.reply_timeout);
@@ -1098,12 +1185,8 @@ fn step_calibrate(
     report: &mut CheckReport,
 ) {
     let step = "4 calibration";
-    if wire.info.config == ConfigState::NotApplicable {
-        report.push(
-            step,
-            Outcome::Skip,
-            "this device keeps no configuration (a virtual pen needs no calibration)",
-        );
+    if let Some(why) = no_calibration(&wire.info) {
+        skip(op, report, step, why);
         return;
     }
     op.wait_enter("Put the pen in its inkwell (the calibration pose), hold it still, press Enter.");

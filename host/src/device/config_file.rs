@@ -15,7 +15,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use maobi_shared::pen_io::{ConfigState, DeviceConfig, InvalidField, OverCurrent};
-use maobi_shared::protocol::ConfigRejected;
+use maobi_shared::protocol::{Capabilities, ConfigRejected};
 
 use super::bringup::Wire;
 
@@ -167,8 +167,13 @@ pub fn write_to_pen(
     let before = match wire.get_config(timeout).map_err(|e| anyhow::anyhow!(e))? {
         Ok(old) => Some(old),
         Err(ConfigRejected::NotStored(ConfigState::NotApplicable)) => anyhow::bail!(
-            "this device keeps no configuration (a virtual pen: the QEMU board without a \
-             store, the simulator)"
+            "this device keeps no configuration ({})",
+            if wire.info.capabilities.contains(Capabilities::VIRTUAL_PEN) {
+                "a virtual pen: the QEMU board without a store, the simulator"
+            } else {
+                "a device behind a bridge, such as `maobi bridge`'s Phantom, whose own \
+                 library holds its settings"
+            }
         ),
         Err(ConfigRejected::NotStored(_)) => None,
         Err(why) => anyhow::bail!("the pen refused to give its configuration: {why}"),

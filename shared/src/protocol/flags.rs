@@ -51,7 +51,10 @@ bitflags::bitflags! {
         const BUTTONS = 1 << 4;
         /// The board keeps a configuration ([`HostMsg::GetConfig`](super::HostMsg::GetConfig),
         /// [`HostMsg::SetConfig`](super::HostMsg::SetConfig); its state in
-        /// [`DeviceInfo::config`](super::DeviceInfo::config)).
+        /// [`DeviceInfo::config`](super::DeviceInfo::config)) and answers the bring-up
+        /// commands that came with it (protocol 3):
+        /// [`Command::StreamSensors`](super::Command::StreamSensors),
+        /// [`Command::NudgeMotor`](super::Command::NudgeMotor).
         const STORED_CONFIG = 1 << 5;
     }
 }

@@ -200,8 +200,10 @@ fn a_good_image_is_valid_and_configurable() {
     assert_eq!(command(&mut s, Command::NudgeMotor(nudge)), Ok(()));
     let states = motor_states(&mut s, 60);
     let on: Vec<_> = states.iter().filter(|(m, _, _)| m[1] != 0).collect();
-    // 0.1 x ratio 13.2 x 0.025 N m/A x 2 A = 0.066 N m.
-    let expected = Fx::from_f32(0.1 * 13.2 * 0.025 * 2.0).to_bits();
+    // A tenth of full torque: ratio x k_t x max_current, the configuration's own.
+    let p = changed.pen;
+    let expected =
+        Fx::from_f32(0.1 * p.ratio[1] * p.torque_constant[1] * p.max_current[1]).to_bits();
     assert!(!on.is_empty(), "the nudge shows: {states:?}");
     for (m, enabled, _) in &on {
         assert_eq!(m[0], 0);

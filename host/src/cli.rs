@@ -850,7 +850,7 @@ fn run_device_check(a: &DeviceCheckArgs) -> anyhow::Result<()> {
 fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
     use crate::device::bringup::Wire;
     use crate::device::config_file::{
-        changes, load, read_from_pen, stall_currents, to_toml, write_to_pen, Written,
+        changes, load, read_from_pen, stall_currents, to_toml, warnings, write_to_pen, Written,
     };
     use maobi_shared::pen_io::DeviceConfig;
 
@@ -902,6 +902,9 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
                 println!("  {line}");
             }
             println!("{}", stall_currents(&cfg));
+            for w in warnings(&cfg) {
+                println!("warning: {w}");
+            }
             Ok(())
         }
         DeviceConfigCmd::Get { pen, output } => {

@@ -281,3 +281,58 @@ fn clear_calibration_drops_it_and_says_the_pen_gives_no_force() {
     assert_eq!(pen.lock().unwrap().config.unwrap().calibration, None);
     let _ = std::fs::remove_file(&file);
 }
+
+/// The template follows its own rule (`pen.max_current` is the stall current at the duty
+/// clamp, from its own supply, clamp and winding), and `check` warns, without failing, about
+/// a `max_current` above it: the field, both currents, what to set.
+#[test]
+fn the_template_sets_max_current_to_the_stall_current_and_check_warns_above_it() {
+    let file = template("stall.toml");
+    let good = std::fs::read_to_string(&file).unwrap();
+    let cfg = maobi::device::config_file::load(&file).unwrap();
+    for j in 0..3 {
+        let stall = cfg.power.supply_v * cfg.drive[j].max_duty / cfg.drive[j].winding_ohm();
+        assert!(
+            (cfg.pen.max_current[j] - stall).abs() < 1e-6,
+            "max_current[{j}] = {}, stall current {stall}:\n{good}",
+            cfg.pen.max_current[j]
+        );
+    }
+    let o = maobi(&["device", "config", "check", file.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains("warning"), "{}", text(&o));
+
+    // The old template's figure on the first motor: a warning, not an error.
+    let line = good
+        .lines()
+        .find(|l| l.starts_with("max_current = "))
+        .unwrap();
+    let above = line.replacen('[', "[2.0, ", 1);
+    let above = format!("{}]", above.rsplit_once(',').unwrap().0);
+    std::fs::write(&file, good.replace(line, &above)).unwrap();
+    let o = maobi(&["device", "config", "check", file.to_str().unwrap()]);
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("a valid configuration"), "{out}");
+    assert_eq!(out.matches("warning: ").count(), 1, "{out}");
+    for part in [
+        "warning: pen.max_current[0] = 2 A is more than motor 1's stall current at its duty \
+         clamp, 1.09 A (power.supply_v 12 V x drive[0].max_duty 0.2 / 2.2 Ohm)",
+        "Set pen.max_current[0] = 1.09 ",
+    ] {
+        assert!(out.contains(part), "{part}\n{out}");
+    }
+    // A value copied from the printed stall current is not flagged.
+    std::fs::write(
+        &file,
+        good.replace(line, "max_current = [1.09, 1.09, 1.09]"),
+    )
+    .unwrap();
+    let o = maobi(&["device", "config", "check", file.to_str().unwrap()]);
+    assert!(
+        o.status.success() && !text(&o).contains("warning"),
+        "{}",
+        text(&o)
+    );
+    let _ = std::fs::remove_file(&file);
+}

@@ -540,7 +540,16 @@ fn invalid_values_are_named_and_never_written() {
     }
     assert!(calibrated().ready_for_forces());
     assert!(!DeviceConfig::DEFAULT.ready_for_forces()); // not calibrated
-    assert_eq!(DeviceConfig::DEFAULT.pen, PenConfig::OMNI_LIKE);
+                                                        // The reference linkage, with full command at the current its duty clamp allows.
+    let stall = [0, 1, 2].map(|j| DeviceConfig::DEFAULT.stall_current_a(j));
+    assert_eq!(
+        DeviceConfig::DEFAULT.pen,
+        PenConfig {
+            max_current: stall,
+            ..PenConfig::OMNI_LIKE
+        }
+    );
+    assert!((stall[0] - 12.0 * 0.2 / 2.2).abs() < 1e-6, "{stall:?}");
     assert_eq!(DeviceConfig::DEFAULT.limits, PHANTOM_OMNI);
 }
 

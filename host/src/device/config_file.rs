@@ -84,15 +84,8 @@ pub fn from_toml(text: &str) -> Result<DeviceConfig, ConfigFileError> {
 /// Each channel's current with its motor stalled at the duty clamp, and the driver's
 /// rating: what `maobi device config check` reports of a valid file.
 pub fn stall_currents(cfg: &DeviceConfig) -> String {
-    let each: Vec<String> = cfg
-        .drive
-        .iter()
-        .map(|d| {
-            format!(
-                "{:.2} A",
-                cfg.power.stall_current_a(d.max_duty, d.winding_ohm())
-            )
-        })
+    let each: Vec<String> = (0..cfg.drive.len())
+        .map(|j| format!("{:.2} A", cfg.stall_current_a(j)))
         .collect();
     format!(
         "stall currents at the duty clamps {} (motors 1, 2, 3) at {} V, within the driver's {} A",
@@ -100,6 +93,36 @@ pub fn stall_currents(cfg: &DeviceConfig) -> String {
         cfg.power.supply_v,
         cfg.power.driver_current_a
     )
+}
+
+/// What the pen would accept but the builder's guide advises against, one line each: a
+/// `pen.max_current` above its motor's stall current at the duty clamp (the motor cannot draw
+/// it, so full command gives less torque than the force model counts on, and every force
+/// comes out weaker than asked).
+pub fn warnings(cfg: &DeviceConfig) -> Vec<String> {
+    let mut out = Vec::new();
+    for (j, (&max, d)) in cfg.pen.max_current.iter().zip(&cfg.drive).enumerate() {
+        let stall = cfg.stall_current_a(j);
+        // Within what two decimals hide: a value copied from the printed stall current
+        // passes.
+        if max - stall <= 0.005 {
+            continue;
+        }
+        // Rounded down, so that the suggestion passes this check.
+        let suggest = (stall * 100.0).floor() / 100.0;
+        out.push(format!(
+            "pen.max_current[{j}] = {max} A is more than motor {}'s stall current at its duty \
+             clamp, {stall:.2} A (power.supply_v {} V x drive[{j}].max_duty {} / {} Ohm): the \
+             motor cannot draw it, so the pen's forces come out weaker than the model asks. \
+             Set pen.max_current[{j}] = {suggest} (or correct power.supply_v, \
+             drive[{j}].max_duty or drive[{j}].winding_mohm if one of them is wrong)",
+            j + 1,
+            cfg.power.supply_v,
+            d.max_duty,
+            d.winding_ohm(),
+        ));
+    }
+    out
 }
 
 /// Reads and validates a configuration file; errors name the file.

@@ -89,9 +89,17 @@ pub struct DeviceConfig {
 
 impl DeviceConfig {
     /// The reference pen ([`PenConfig::OMNI_LIKE`]), [`DriveConfig::DEFAULT`] on every
-    /// channel, the Phantom Omni's force limits, not calibrated.
+    /// channel, the Phantom Omni's force limits, not calibrated. Its `pen.max_current` is
+    /// each motor's stall current at its duty clamp ([`Self::stall_current_a`]), the rule the
+    /// builder's guide gives: full command is all the current the clamp lets the motor draw.
     pub const DEFAULT: DeviceConfig = DeviceConfig {
-        pen: PenConfig::OMNI_LIKE,
+        pen: PenConfig {
+            max_current: [PowerConfig::DEFAULT.stall_current_a(
+                DriveConfig::DEFAULT.max_duty,
+                DriveConfig::DEFAULT.winding_ohm(),
+            ); 3],
+            ..PenConfig::OMNI_LIKE
+        },
         drive: [DriveConfig::DEFAULT; 3],
         power: PowerConfig::DEFAULT,
         limits: PHANTOM_OMNI,
@@ -159,6 +167,15 @@ impl DeviceConfig {
         })
     }
 
+    /// The current channel `channel`'s motor draws stalled at its duty clamp (A):
+    /// `power.supply_v * drive[channel].max_duty / its winding's resistance`, the most
+    /// `pen.max_current[channel]` can be. 0 for a channel the pen does not have.
+    pub fn stall_current_a(&self, channel: usize) -> f32 {
+        self.drive.get(channel).map_or(0.0, |d| {
+            self.power.stall_current_a(d.max_duty, d.winding_ohm())
+        })
+    }
+
     /// Whether forces may be rendered with this configuration: valid and calibrated.
     pub fn ready_for_forces(&self) -> bool {
         self.validate().is_ok() && self.calibration.is_some()
@@ -213,7 +230,7 @@ impl PowerConfig {
     }
 
     /// The current a stalled motor of `winding_ohm` draws at `duty` (A).
-    pub fn stall_current_a(&self, duty: f32, winding_ohm: f32) -> f32 {
+    pub const fn stall_current_a(&self, duty: f32, winding_ohm: f32) -> f32 {
         self.supply_v * duty / winding_ohm
     }
 }

@@ -137,8 +137,10 @@ impl DriveConfig {
     }
 
     /// The winding resistance in ohms.
-    pub fn winding_ohm(&self) -> f32 {
-        f32::from(self.winding_mohm) / 1000.0
+    pub const fn winding_ohm(&self) -> f32 {
+        // `as`, not `f32::from`: a const fn (the reference configuration's currents are
+        // computed from it); every u16 is exact in an f32.
+        self.winding_mohm as f32 / 1000.0
     }
 
     /// Timer counts per PWM period for a timer counting at `timer_hz`: `timer_hz / pwm_hz`,

@@ -540,7 +540,8 @@ fn invalid_values_are_named_and_never_written() {
     }
     assert!(calibrated().ready_for_forces());
     assert!(!DeviceConfig::DEFAULT.ready_for_forces()); // not calibrated
-                                                        // The reference linkage, with full command at the current its duty clamp allows.
+
+    // The reference linkage, with full command at the current its duty clamp allows.
     let stall = [0, 1, 2].map(|j| DeviceConfig::DEFAULT.stall_current_a(j));
     assert_eq!(
         DeviceConfig::DEFAULT.pen,

@@ -537,3 +537,38 @@ fn fitting_a_recorded_stroke_stays_within_tolerance() {
     let f = fit(&noisy, 0.2, 2.0).unwrap();
     assert!(f.within && f.max_mm <= 0.2, "{} mm", f.max_mm);
 }
+
+/// A recording that ends standing still: the fit keeps the rest as a stop at its last
+/// keyframe, so the fitted stroke lasts as long as the recording. (Dropped, it shortened the
+/// stroke, and `maobi stroke fit` started every later piece of a split recording that much
+/// early: 永 fitted within 1 um was off by millimetres.)
+#[test]
+fn fitting_a_recording_that_ends_at_rest_keeps_its_duration() {
+    // 0.5 s along a line, easing in and out, then 0.3 s still.
+    let rec: Vec<Sample> = (0..=80)
+        .map(|i| {
+            let t = i as f64 * 0.01;
+            let s = (t / 0.5).min(1.0);
+            let x = 20.0 * (1.0 - (std::f64::consts::PI * s).cos()) / 2.0;
+            Sample {
+                t,
+                pos: [x, 0.0, 35.0],
+                rot: [1.0, 0.0, 0.0, 0.0],
+            }
+        })
+        .collect();
+    let f = fit(&rec, 0.01, 1.0).unwrap();
+    assert!(f.within, "max {} mm {} deg", f.max_mm, f.max_deg);
+    let (t0, t1) = f.stroke.domain();
+    assert!(
+        (t1 - t0 - 0.8).abs() < 1e-9,
+        "the fitted stroke lasts {} s, the recording 0.8 s",
+        t1 - t0
+    );
+    let last = &f.stops[..f.n_stops].last().copied();
+    assert!(
+        matches!(last, Some(s) if s.key == f.n - 1 && (s.dur - 0.3).abs() < 1e-9),
+        "the rest is not a stop at the last keyframe: {:?}",
+        &f.stops[..f.n_stops]
+    );
+}

@@ -110,10 +110,8 @@ fn build(
         n += 1;
         last = Some(i);
     }
-    // A trailing stop would leave its keyframe's successor missing: drop stops at the end.
-    while ns > 0 && stops[ns - 1].key + 1 >= n {
-        ns -= 1;
-    }
+    // A stop at the last keyframe (the recording ends at rest) stays: the stroke then lasts
+    // as long as the recording, so whatever follows it starts on time.
     let st = Stroke::new(&keys[..n], &stops[..ns], &[], 100.0)?;
     Ok((st, stops, ns))
 }

@@ -57,9 +57,10 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Context};
-use maobi_shared::stroke::fit::{fit, Sample};
+use maobi_shared::stroke::fit::{fit, Fit, FitError, Sample};
+use maobi_shared::stroke::kinetic::MAX_PIECES;
 use maobi_shared::stroke::orient::{self, Q};
-use maobi_shared::stroke::{KeyMovingPoint, Keyframe, Stop, Stroke};
+use maobi_shared::stroke::{KeyMovingPoint, Keyframe, Stop, Stroke, MAX_KEYS};
 use serde::{Deserialize, Serialize};
 
 use crate::paper::PaperKind;
@@ -656,7 +657,8 @@ fn travel(from: ([f64; 3], Q), to: ([f64; 3], Q), s: &Settings) -> anyhow::Resul
 
 /// Fits a pose track with keyframed strokes within the tolerances; the stroke file's text.
 /// The track is split into pieces at its slowest moments when one stroke's keyframes are not
-/// enough. Returns the TOML and the largest errors (mm, degrees).
+/// enough; a piece where the pen rests becomes a stop of the stroke next to it. Returns the
+/// TOML and the largest errors (mm, degrees).
 pub fn fit_track(
     track: &PoseTrack,
     tol_mm: f64,
@@ -684,6 +686,13 @@ pub fn fit_track(
     }
     let mut pieces = Vec::new();
     fit_pieces(&dedup, tol_mm, tol_deg, 0, &mut pieces)?;
+    if !pieces.iter().any(|p| matches!(p, Piece::Moving(..))) {
+        bail!(
+            "{}: all its poses are the same, and a stroke needs the pen to move between two \
+             of them (record the pen while it writes)",
+            FitError::Static
+        );
+    }
     let mut file = StrokeFile {
         format: Some(FORMAT.into()),
         version: Some(VERSION),
@@ -691,24 +700,54 @@ pub fn fit_track(
     };
     let (mut max_mm, mut max_deg) = (0.0f64, 0.0f64);
     let t_start = dedup[0].t;
-    for (i, (range, f)) in pieces.iter().enumerate() {
+    // Seconds of rest not yet written: they become a stop at the next stroke's first
+    // keyframe, or at the last stroke's last keyframe when the recording ends at rest.
+    let mut rest = 0.0;
+    for (i, piece) in pieces.iter().enumerate() {
+        let (range, f) = match piece {
+            Piece::Rest((a, b)) => {
+                rest += dedup[b - 1].t - dedup[*a].t;
+                // The stop holds the pose of the stroke it joins, which shares its boundary
+                // sample with this piece: the next stroke's first (this piece's last sample)
+                // or, at the end of the recording, the last stroke's last (this one's first).
+                let later = pieces[i + 1..]
+                    .iter()
+                    .any(|p| matches!(p, Piece::Moving(..)));
+                let held = if later { dedup[b - 1] } else { dedup[*a] };
+                for s in &dedup[*a..*b] {
+                    max_mm = max_mm.max(dist(s.pos, held.pos));
+                    max_deg = max_deg.max(orient::angle_between(s.rot, held.rot).to_degrees());
+                }
+                continue;
+            }
+            Piece::Moving(range, f) => (range, f),
+        };
         let part = &dedup[range.0..range.1];
         max_mm = max_mm.max(f.max_mm);
         max_deg = max_deg.max(f.max_deg);
         let mut spec = StrokeSpec {
-            name: Some(format!("piece {}", i + 1)),
+            name: Some(format!("piece {}", file.stroke.len() + 1)),
             travel: Some(false),
             ..Default::default()
         };
-        if i == 0 && t_start.abs() > 1e-9 {
+        if file.stroke.is_empty() && t_start.abs() > 1e-9 {
             spec.name = Some(format!("piece 1 (recorded from {t_start} s)"));
         }
+        // A rest before this piece: stand still at its first keyframe (at time 0), and the
+        // keyframes after it come that much later.
+        let lead = rest;
+        rest = 0.0;
         for &k in &f.keys[..f.n] {
             let smp = part[k];
+            let t = if k == 0 {
+                0.0
+            } else {
+                smp.t - part[0].t + lead
+            };
             spec.keys.push(KeySpec {
                 at: Some(smp.pos.iter().map(|c| round(*c, 6)).collect()),
                 quat: Some(smp.rot.map(|c| round(c, 9))),
-                t: Some(round(smp.t - part[0].t, 6)),
+                t: Some(round(t, 6)),
                 ..Default::default()
             });
         }
@@ -718,7 +757,16 @@ pub fn fit_track(
                 s: round(st.dur, 6),
             });
         }
+        if lead > 0.0 {
+            add_stop(&mut spec, 1, lead);
+        }
         file.stroke.push(spec);
+    }
+    if rest > 0.0 {
+        if let Some(last) = file.stroke.last_mut() {
+            let key = last.keys.len();
+            add_stop(last, key, rest);
+        }
     }
     let text = toml::to_string(&file).context("cannot write the stroke TOML")?;
     let header = format!(
@@ -728,12 +776,42 @@ pub fn fit_track(
     Ok((header + &text, max_mm, max_deg))
 }
 
+/// Adds `dur` seconds of standing still at keyframe `key` (from 1), to its stop if it has one.
+fn add_stop(spec: &mut StrokeSpec, key: usize, dur: f64) {
+    match spec.stops.iter_mut().find(|s| s.key == key) {
+        Some(s) => s.s = round(s.s + dur, 6),
+        None => {
+            spec.stops.push(StopSpec {
+                key,
+                s: round(dur, 6),
+            });
+            spec.stops.sort_by_key(|s| s.key);
+        }
+    }
+}
+
 fn round(x: f64, decimals: i32) -> f64 {
     let s = 10f64.powi(decimals);
     (x * s).round() / s
 }
 
-type Piece = ((usize, usize), maobi_shared::stroke::fit::Fit);
+/// A piece of a split recording: samples `range` (end exclusive; neighbours share their
+/// boundary sample).
+enum Piece {
+    /// Keyframes fitted to the samples (boxed: a fit holds whole stroke arrays).
+    Moving((usize, usize), Box<Fit>),
+    /// The pen stands still: a stroke needs two different poses, so this is written as a stop
+    /// of the stroke next to it.
+    Rest((usize, usize)),
+}
+
+/// Whether a fitted piece can take a stop at each end (for a rest next to it) and still be a
+/// stroke: a stroke's timing holds [`MAX_KEYS`] moving points (one per keyframe and one per
+/// stop's end) and [`MAX_PIECES`] parts (each stop and each motion between stops).
+fn room_for_end_stops(f: &Fit) -> bool {
+    let stops = f.n_stops + 2;
+    f.n + stops <= MAX_KEYS && 2 * stops - 1 <= MAX_PIECES
+}
 
 fn fit_pieces(
     samples: &[Sample],
@@ -742,14 +820,29 @@ fn fit_pieces(
     offset: usize,
     out: &mut Vec<Piece>,
 ) -> anyhow::Result<()> {
-    let f = fit(samples, tol_mm, tol_deg).map_err(|e| anyhow!("{e}"))?;
-    if f.within || samples.len() < 8 {
-        out.push(((offset, offset + samples.len()), f));
-        return Ok(());
+    let range = (offset, offset + samples.len());
+    let m = samples.len();
+    match fit(samples, tol_mm, tol_deg) {
+        Ok(f) if (f.within && room_for_end_stops(&f)) || m < 8 => {
+            out.push(Piece::Moving(range, Box::new(f)));
+            return Ok(());
+        }
+        // Not within the tolerances, or no room for a rest's stop: split below.
+        Ok(_) => {}
+        // The pen rests over this whole piece (the whole recording standing still is refused
+        // by `fit_track`).
+        Err(FitError::Static) => {
+            out.push(Piece::Rest(range));
+            return Ok(());
+        }
+        // The keyframes the fit chose are not a stroke (more stops than one stroke's timing
+        // holds): smaller pieces have fewer. (From 4 samples on, the split below leaves two
+        // smaller pieces of at least 2.)
+        Err(FitError::Stroke(_)) if m >= 4 => {}
+        Err(e) => bail!("{e}"),
     }
     // Split at the slowest sample in the middle half (a rest point, if there is one); the
     // pieces share that sample so they join exactly.
-    let m = samples.len();
     let speed = |i: usize| dist(samples[i + 1].pos, samples[i - 1].pos);
     let split = (m / 4..3 * m / 4)
         .min_by(|&a, &b| speed(a).total_cmp(&speed(b)))

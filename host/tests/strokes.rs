@@ -234,6 +234,132 @@ fn fitting_the_sampled_yong_stays_within_tolerance() {
     }
 }
 
+/// A pen recording at 1 kHz: the pen rests 3 s, writes a wavy 60 mm stroke (12 waves) in
+/// 1 s, rests 1 s, writes it back in 1 s and rests 2 s. Too wavy for one stroke's keyframes,
+/// so the fit splits it, and pieces of it are all rest.
+fn rests_and_waves() -> String {
+    let mut rows = Vec::new();
+    let wave = |s: f64| {
+        let x = 60.0 * (1.0 - (std::f64::consts::PI * s.clamp(0.0, 1.0)).cos()) / 2.0;
+        [
+            x,
+            3.0 * (std::f64::consts::TAU * 12.0 * x / 60.0).sin(),
+            36.0,
+        ]
+    };
+    for k in 0..=8000 {
+        let t = k as f64 / 1000.0;
+        let pos = if t <= 5.0 {
+            wave(t - 3.0)
+        } else {
+            wave(1.0 - (t - 5.0))
+        };
+        rows.push(maobi::poses::PoseRow {
+            t,
+            pos,
+            rot: [1.0, 0.0, 0.0, 0.0],
+        });
+    }
+    maobi::strokes::rows_to_csv(&rows)
+}
+
+/// The largest distance (mm) and turn (degrees) between a fitted file's poses and the
+/// recorded ones.
+fn fitted_errors(fitted: &Character, rows: &[maobi::poses::PoseRow]) -> (f64, f64) {
+    let (mut mm, mut deg) = (0.0f64, 0.0f64);
+    for r in rows {
+        let (p, q) = fitted.pose_at(r.t - rows[0].t);
+        let e = ((p[0] - r.pos[0]).powi(2) + (p[1] - r.pos[1]).powi(2) + (p[2] - r.pos[2]).powi(2))
+            .sqrt();
+        mm = mm.max(e);
+        deg = deg.max(angle_between(q, r.rot).to_degrees());
+    }
+    (mm, deg)
+}
+
+/// A user review: a recording that rests, then writes, was refused with "the pose stream never
+/// moves" (a split-off piece that was all rest failed the whole file). The rests are stops
+/// now: the file lasts as long as the recording, follows it within the tolerance and inks
+/// the same paper.
+#[test]
+fn fitting_a_recording_with_rests_keeps_them_as_stops_and_renders_alike() {
+    let csv = rests_and_waves();
+    let track = maobi::poses::PoseTrack::from_reader("waves.csv", csv.as_bytes()).unwrap();
+    let (text, mm, deg) = fit_track(&track, 0.2, 2.0).unwrap();
+    assert!(mm <= 0.2 && deg <= 2.0, "{mm} mm {deg} deg");
+    assert!(
+        text.contains("stops"),
+        "no rest was written as a stop:\n{text}"
+    );
+    let fitted = Character::from_toml("fitted.toml", &text).unwrap();
+    assert!(
+        fitted.stroke_times.len() > 1,
+        "the recording was not split: {text}"
+    );
+    assert!(
+        (fitted.duration() - 8.0).abs() < 1e-6,
+        "the fitted file lasts {} s, the recording 8 s",
+        fitted.duration()
+    );
+    let (e_mm, e_deg) = fitted_errors(&fitted, track.rows());
+    // The file keeps positions to 1 nm and times to 1 us.
+    assert!(
+        e_mm <= 0.2 + 1e-5 && e_deg <= 2.0 + 1e-5,
+        "{e_mm} mm {e_deg} deg"
+    );
+
+    // The same brush on the same paper inks (nearly) the same pixels.
+    let params = presets::by_name("large").unwrap();
+    let frame = paper_frame(&track, &params, PX_PER_MM).unwrap();
+    let ink = |t: &maobi::poses::PoseTrack| {
+        let (canvas, _) = render::<Fx>(params, t, frame, PaperSpec::default()).unwrap();
+        inked_px(&canvas)
+    };
+    let (a, b) = (ink(&track), ink(&fitted.track("fitted").unwrap()));
+    assert!(
+        a.len() as f64 / (PX_PER_MM * PX_PER_MM) > 100.0,
+        "the wave left no ink"
+    );
+    let a: std::collections::HashSet<_> = a.into_iter().collect();
+    let b: std::collections::HashSet<_> = b.into_iter().collect();
+    let iou = a.intersection(&b).count() as f64 / a.union(&b).count() as f64;
+    assert!(
+        iou > 0.95,
+        "the fitted file's ink overlaps the recording's by {iou:.3}"
+    );
+}
+
+/// The user's second case: 永 sampled and fitted within 1 um. Its hovers between strokes are
+/// rests, and at that tolerance the fit splits it finely enough to cut some off whole.
+#[test]
+fn fitting_the_sampled_yong_within_a_micrometre_succeeds() {
+    let track = yong().track("yong").unwrap();
+    let (text, mm, deg) = fit_track(&track, 0.001, 2.0).unwrap();
+    assert!(mm <= 0.001 && deg <= 2.0, "{mm} mm {deg} deg");
+    let fitted = Character::from_toml("fitted.toml", &text).unwrap();
+    let (e_mm, e_deg) = fitted_errors(&fitted, track.rows());
+    assert!(
+        e_mm <= 0.001 + 1e-5 && e_deg <= 2.0 + 1e-5,
+        "{e_mm} mm {e_deg} deg"
+    );
+}
+
+/// A recording where the pen never moves still says so.
+#[test]
+fn fitting_a_recording_that_never_moves_says_so() {
+    let rows: Vec<_> = (0..500)
+        .map(|k| maobi::poses::PoseRow {
+            t: k as f64 * 0.001,
+            pos: [5.0, 5.0, 36.0],
+            rot: [1.0, 0.0, 0.0, 0.0],
+        })
+        .collect();
+    let csv = maobi::strokes::rows_to_csv(&rows);
+    let track = maobi::poses::PoseTrack::from_reader("still.csv", csv.as_bytes()).unwrap();
+    let e = format!("{:#}", fit_track(&track, 0.2, 2.0).unwrap_err());
+    assert!(e.contains("never moves"), "{e}");
+}
+
 fn err(text: &str) -> String {
     format!("{:#}", Character::from_toml("bad.toml", text).unwrap_err())
 }

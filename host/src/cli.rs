@@ -1364,9 +1364,11 @@ fn run_stroke(c: &StrokeCommand) -> anyhow::Result<()> {
                 .with_context(|| format!("cannot write {}", a.output.display()))?;
             let keys = text.matches("at = ").count();
             eprintln!(
-                "maobi stroke fit: {} poses -> {keys} keyframes, largest error {mm:.4} mm and \
-                 {deg:.4} degrees (tolerance {} mm, {} degrees), wrote {}",
+                "maobi stroke fit: {} poses -> {keys} keyframes, largest error {} mm and {} \
+                 degrees (tolerance {} mm, {} degrees), wrote {}",
                 track.rows().len(),
+                crate::strokes::show_error(mm),
+                crate::strokes::show_error(deg),
                 a.tol_mm,
                 a.tol_deg,
                 a.output.display()

@@ -658,7 +658,8 @@ fn travel(from: ([f64; 3], Q), to: ([f64; 3], Q), s: &Settings) -> anyhow::Resul
 /// Fits a pose track with keyframed strokes within the tolerances; the stroke file's text.
 /// The track is split into pieces at its slowest moments when one stroke's keyframes are not
 /// enough; a piece where the pen rests becomes a stop of the stroke next to it. Returns the
-/// TOML and the largest errors (mm, degrees).
+/// TOML and the largest errors of the written file (mm, degrees). A tolerance tighter than a
+/// stroke file can follow the recording is refused, naming the smallest that works.
 pub fn fit_track(
     track: &PoseTrack,
     tol_mm: f64,
@@ -684,8 +685,65 @@ pub fn fit_track(
         }
         dedup.push(s);
     }
+    let (text, mm, deg) = fit_samples(&dedup, tol_mm, tol_deg)?;
+    if mm <= tol_mm && deg <= tol_deg {
+        return Ok((text, mm, deg));
+    }
+    // Split finely enough, every sample is a keyframe, and still the file can be off: its
+    // keyframes are rounded (to 1 nm, 1e-9 and 1 us), and poses closer than the fit tells
+    // apart become stops. Look for the smallest tolerances that hold, starting from the
+    // errors reached, so the message can name one that was seen to work.
+    let mut want = (tol_mm, tol_deg);
+    let mut got = (mm, deg);
+    let mut works = None;
+    for attempt in 0..8 {
+        let next = |tol: f64, err: f64| {
+            if err <= tol {
+                tol
+            } else if attempt == 0 {
+                round_up_2(err)
+            } else {
+                round_up_2(err.max(2.0 * tol))
+            }
+        };
+        want = (next(want.0, got.0), next(want.1, got.1));
+        let (_, mm, deg) = fit_samples(&dedup, want.0, want.1)?;
+        got = (mm, deg);
+        if mm <= want.0 && deg <= want.1 {
+            works = Some(want);
+            break;
+        }
+    }
+    let mut why = Vec::new();
+    let mut advice = Vec::new();
+    for (opt, unit, tol, err, works) in [
+        ("--tol-mm", "mm", tol_mm, mm, works.map(|w| w.0)),
+        ("--tol-deg", "degrees", tol_deg, deg, works.map(|w| w.1)),
+    ] {
+        if err > tol {
+            why.push(format!(
+                "{opt} {tol} is too tight: the closest the fit gets is {} {unit}",
+                round_up_2(err)
+            ));
+            advice.push(match works {
+                Some(w) => format!("{opt} {w}"),
+                None => format!("{opt} {} or more", round_up_2(err)),
+            });
+        }
+    }
+    bail!(
+        "{} (a stroke file rounds positions to 0.000001 mm, quaternions to 1e-9 and times \
+         to 0.000001 s, and the fit takes poses closer than 0.0001 mm for the same); the \
+         smallest tolerance that works is {}",
+        why.join("; "),
+        advice.join(" ")
+    )
+}
+
+/// [`fit_track`] on deduplicated samples, without refusing a tolerance it does not hold.
+fn fit_samples(dedup: &[Sample], tol_mm: f64, tol_deg: f64) -> anyhow::Result<(String, f64, f64)> {
     let mut pieces = Vec::new();
-    fit_pieces(&dedup, tol_mm, tol_deg, 0, &mut pieces)?;
+    fit_pieces(dedup, tol_mm, tol_deg, 0, &mut pieces)?;
     if !pieces.iter().any(|p| matches!(p, Piece::Moving(..))) {
         bail!(
             "{}: all its poses are the same, and a stroke needs the pen to move between two \
@@ -698,33 +756,24 @@ pub fn fit_track(
         version: Some(VERSION),
         ..Default::default()
     };
-    let (mut max_mm, mut max_deg) = (0.0f64, 0.0f64);
     let t_start = dedup[0].t;
-    // Seconds of rest not yet written: they become a stop at the next stroke's first
+    // Times are rounded on the file's clock (from the first sample), and each stroke's
+    // keyframe times and stops are differences of those: rounding then never adds up over
+    // the pieces, which follow one another.
+    let at = |t: f64| round(t - t_start, 6);
+    let since = |t: f64, from: f64| round(at(t) - at(from), 6);
+    // Where the rest not yet written began: it becomes a stop at the next stroke's first
     // keyframe, or at the last stroke's last keyframe when the recording ends at rest.
-    let mut rest = 0.0;
-    for (i, piece) in pieces.iter().enumerate() {
+    let mut rest_from: Option<f64> = None;
+    for piece in &pieces {
         let (range, f) = match piece {
-            Piece::Rest((a, b)) => {
-                rest += dedup[b - 1].t - dedup[*a].t;
-                // The stop holds the pose of the stroke it joins, which shares its boundary
-                // sample with this piece: the next stroke's first (this piece's last sample)
-                // or, at the end of the recording, the last stroke's last (this one's first).
-                let later = pieces[i + 1..]
-                    .iter()
-                    .any(|p| matches!(p, Piece::Moving(..)));
-                let held = if later { dedup[b - 1] } else { dedup[*a] };
-                for s in &dedup[*a..*b] {
-                    max_mm = max_mm.max(dist(s.pos, held.pos));
-                    max_deg = max_deg.max(orient::angle_between(s.rot, held.rot).to_degrees());
-                }
+            Piece::Rest((a, _)) => {
+                rest_from.get_or_insert(dedup[*a].t);
                 continue;
             }
             Piece::Moving(range, f) => (range, f),
         };
         let part = &dedup[range.0..range.1];
-        max_mm = max_mm.max(f.max_mm);
-        max_deg = max_deg.max(f.max_deg);
         let mut spec = StrokeSpec {
             name: Some(format!("piece {}", file.stroke.len() + 1)),
             travel: Some(false),
@@ -733,47 +782,92 @@ pub fn fit_track(
         if file.stroke.is_empty() && t_start.abs() > 1e-9 {
             spec.name = Some(format!("piece 1 (recorded from {t_start} s)"));
         }
-        // A rest before this piece: stand still at its first keyframe (at time 0), and the
-        // keyframes after it come that much later.
-        let lead = rest;
-        rest = 0.0;
-        for &k in &f.keys[..f.n] {
+        // A rest before this piece: the stroke starts with it, standing still at its first
+        // keyframe (at time 0); the keyframes after it come that much later.
+        let start = rest_from.take().unwrap_or(part[0].t);
+        for (j, &k) in f.keys[..f.n].iter().enumerate() {
             let smp = part[k];
-            let t = if k == 0 {
-                0.0
-            } else {
-                smp.t - part[0].t + lead
-            };
             spec.keys.push(KeySpec {
                 at: Some(smp.pos.iter().map(|c| round(*c, 6)).collect()),
                 quat: Some(smp.rot.map(|c| round(c, 9))),
-                t: Some(round(t, 6)),
+                t: Some(if j == 0 { 0.0 } else { since(smp.t, start) }),
                 ..Default::default()
             });
         }
         for st in &f.stops[..f.n_stops] {
+            let from = part[f.keys[st.key]].t;
             spec.stops.push(StopSpec {
                 key: st.key + 1,
-                s: round(st.dur, 6),
+                s: since(from + st.dur, from),
             });
         }
-        if lead > 0.0 {
-            add_stop(&mut spec, 1, lead);
+        if start < part[0].t {
+            add_stop(&mut spec, 1, since(part[0].t, start));
         }
         file.stroke.push(spec);
     }
-    if rest > 0.0 {
-        if let Some(last) = file.stroke.last_mut() {
-            let key = last.keys.len();
-            add_stop(last, key, rest);
-        }
+    if let (Some(from), Some(last)) = (rest_from, file.stroke.last_mut()) {
+        let key = last.keys.len();
+        add_stop(last, key, since(dedup[dedup.len() - 1].t, from));
     }
     let text = toml::to_string(&file).context("cannot write the stroke TOML")?;
+    // The errors are those of the file as written (rounded), not of the fit before it.
+    let fitted = Character::from_toml("the fitted file", &text).map_err(|e| {
+        anyhow!("the fitted keyframes are not a valid stroke file (a bug in the fit): {e:#}")
+    })?;
+    let (max_mm, max_deg) = file_errors(&fitted, dedup);
     let header = format!(
         "# Fitted by `maobi stroke fit` within {tol_mm} mm and {tol_deg} degrees \
-         (largest errors {max_mm:.4} mm, {max_deg:.4} degrees).\n"
+         (largest errors {} mm, {} degrees).\n",
+        show_error(max_mm),
+        show_error(max_deg)
     );
     Ok((header + &text, max_mm, max_deg))
+}
+
+/// The largest distance (mm) and turn (degrees) between a character's poses and the
+/// samples, its time 0 at the first sample's. Walks the segments along with the samples
+/// (both in time order) rather than searching them for each sample.
+fn file_errors(ch: &Character, samples: &[Sample]) -> (f64, f64) {
+    let begins = |s: &Segment| s.start + s.stroke.domain().0;
+    let (mut mm, mut deg) = (0.0f64, 0.0f64);
+    let mut seg = 0;
+    for s in samples {
+        let t = s.t - samples[0].t;
+        // The segment `Character::pose_at` picks: the last one begun by `t`.
+        while seg + 1 < ch.segments.len() && t >= begins(&ch.segments[seg + 1]) {
+            seg += 1;
+        }
+        let sg = &ch.segments[seg];
+        let (p, q) = sg.stroke.pose_at(t - sg.start);
+        mm = mm.max(dist(p, s.pos));
+        deg = deg.max(orient::angle_between(q, s.rot).to_degrees());
+    }
+    (mm, deg)
+}
+
+/// A fit's error for people: 4 decimals, or as many as show two significant digits of a
+/// smaller one (a fit within 0.00001 mm is not "0.0000 mm" off).
+pub fn show_error(x: f64) -> String {
+    let decimals = if (1e-9..1e-3).contains(&x) {
+        (1 - x.log10().floor() as i32).clamp(4, 10) as usize
+    } else {
+        4
+    };
+    format!("{x:.decimals$}")
+}
+
+/// `x` rounded up to two significant digits (a tolerance to suggest).
+fn round_up_2(x: f64) -> f64 {
+    if !(x.is_finite() && x > 0.0) {
+        return x;
+    }
+    let e = 10f64.powi(x.log10().floor() as i32 - 1);
+    // Printed with the digits it has, then read back: the value suggested is the one tried.
+    let decimals = (-(x.log10().floor() as i32 - 1)).max(0) as usize;
+    format!("{:.*}", decimals, (x / e).ceil() * e)
+        .parse()
+        .unwrap_or(x)
 }
 
 /// Adds `dur` seconds of standing still at keyframe `key` (from 1), to its stop if it has one.
@@ -781,10 +875,7 @@ fn add_stop(spec: &mut StrokeSpec, key: usize, dur: f64) {
     match spec.stops.iter_mut().find(|s| s.key == key) {
         Some(s) => s.s = round(s.s + dur, 6),
         None => {
-            spec.stops.push(StopSpec {
-                key,
-                s: round(dur, 6),
-            });
+            spec.stops.push(StopSpec { key, s: dur });
             spec.stops.sort_by_key(|s| s.key);
         }
     }

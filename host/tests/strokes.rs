@@ -344,6 +344,40 @@ fn fitting_the_sampled_yong_within_a_micrometre_succeeds() {
     );
 }
 
+/// A tolerance finer than a stroke file can hold (it rounds positions to 1 nm) is refused,
+/// saying so and naming the smallest tolerance that works; that one does, and the errors
+/// reported are the written file's.
+#[test]
+fn a_tolerance_too_tight_for_the_file_names_the_smallest_that_works() {
+    let track = yong().track("yong").unwrap();
+    let e = match fit_track(&track, 1e-9, 2.0) {
+        Ok((_, mm, _)) => panic!("fitted within 1e-9 mm, reporting {mm} mm"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(
+        e.contains("--tol-mm 0.000000001 is too tight") && !e.contains("never moves"),
+        "{e}"
+    );
+    let smallest: f64 = e
+        .split("the smallest tolerance that works is --tol-mm ")
+        .nth(1)
+        .and_then(|w| w.split_whitespace().next())
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no tolerance named: {e}"));
+    assert!(smallest > 1e-9 && smallest < 1e-3, "{e}");
+    let (text, mm, _) = fit_track(&track, smallest, 2.0).unwrap();
+    let fitted = Character::from_toml("fitted.toml", &text).unwrap();
+    let (e_mm, _) = fitted_errors(&fitted, track.rows());
+    assert!(
+        e_mm <= smallest,
+        "the file is {e_mm} mm off, more than {smallest}"
+    );
+    assert!(
+        (mm - e_mm).abs() < 1e-12,
+        "reported {mm} mm, the file is {e_mm} mm off"
+    );
+}
+
 /// A recording where the pen never moves still says so.
 #[test]
 fn fitting_a_recording_that_never_moves_says_so() {

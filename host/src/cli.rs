@@ -1014,9 +1014,7 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
         ModelKind::Liang => {
             let params = a.brush.liang_params()?;
             let desc = a.brush.describe();
-            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &desc) {
-                eprintln!("maobi trace: {w}");
-            }
+            warn_if_never_touches("trace", &loaded, &a.brush, a.model, &params);
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
             let ticks = match scalar {
                 ScalarKind::Fixed => trace_as::<Fx>(params, track, &desc, &a.output)?,
@@ -1029,7 +1027,8 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
             baxter_lin_scalar(a.scalar)?;
             let params = a.brush.baxter_lin_params()?;
             let shape = a.brush.brush.shape.unwrap_or(HeadShape::Round);
-            let ticks = trace_baxter_lin(shape, &params, &loaded, &a.brush.describe(), &a.output)?;
+            warn_if_never_touches("trace", &loaded, &a.brush, a.model, &params);
+            let ticks = trace_baxter_lin(shape, &params, track, &a.output)?;
             (ticks, ScalarKind::F64)
         }
     };
@@ -1049,18 +1048,13 @@ fn run_trace(a: &TraceArgs) -> anyhow::Result<()> {
 fn trace_baxter_lin(
     shape: HeadShape,
     params: &BrushParams,
-    loaded: &LoadedTrack,
-    brush_name: &str,
+    track: &PoseTrack,
     out: &Path,
 ) -> anyhow::Result<usize> {
-    let track = &loaded.track;
     let mut poses = track.resample();
     let first = poses.next().context("the pose track is empty")?;
     let mut brush = BaxterLinBrush::of_shape(shape, params, first)
         .map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
-    if let Some(w) = never_touches(loaded, brush.head().length_mm(), brush_name) {
-        eprintln!("maobi trace: {w}");
-    }
     let file = trace_output(out)?;
     let write_err = || format!("cannot write {}", out.display());
     let t0 = track.start();
@@ -1178,9 +1172,7 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     log::debug!("the {} brush: {params:?}", a.brush.describe());
     let (canvas, stats, scalar): (_, RenderStats, _) = match (a.model, a.brush.brush.shape) {
         (ModelKind::Liang, _) => {
-            if let Some(w) = never_touches(&loaded, params.length_mm as f64, &a.brush.describe()) {
-                eprintln!("maobi render: {w}");
-            }
+            warn_if_never_touches("render", &loaded, &a.brush, a.model, &params);
             let frame = paper_frame(track, &params, a.px_per_mm)?;
             log::debug!("paper: {frame:?}, {paper:?}");
             let scalar = a.scalar.unwrap_or(ScalarKind::Fixed);
@@ -1199,9 +1191,7 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             let make = |pose| BaxterLinBrush::of_shape(shape, &params, pose);
             let first = track.resample().next().context("the pose track is empty")?;
             let brush = make(first).map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
-            if let Some(w) = never_touches(&loaded, brush.head().length_mm(), &a.brush.describe()) {
-                eprintln!("maobi render: {w}");
-            }
+            warn_if_never_touches("render", &loaded, &a.brush, a.model, &params);
             // The paper's margin covers the head however its spines splay.
             let margin = BrushParams {
                 length_mm: brush.reach_mm() as f32,
@@ -1276,6 +1266,20 @@ fn load_track(
         track.start()
     );
     Ok(loaded)
+}
+
+/// Warns (on stderr, as `maobi CMD`) when `brush` cannot reach the paper on `loaded`'s track.
+fn warn_if_never_touches(
+    cmd: &str,
+    loaded: &LoadedTrack,
+    brush: &BrushArgs,
+    model: ModelKind,
+    params: &BrushParams,
+) {
+    let hair = brush.brush.hair_length_mm(model, params);
+    if let Some(w) = never_touches(loaded, hair, &brush.describe()) {
+        eprintln!("maobi {cmd}: {w}");
+    }
 }
 
 /// [`PoseTrack::never_reaches_paper`] for `loaded`, with a stroke file's note and, where its

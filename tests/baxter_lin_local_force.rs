@@ -1,8 +1,11 @@
 //! Baxter & Lin's local force model (`maobi_shared::baxter_lin::local_force`) against the
 //! full solve at every 1 kHz tick, on the example strokes (every pose file and the stroke
 //! file's 永, resampled to 1 ms as `maobi trace` does), with the round head at the catalogue
-//! size the examples are written for (40 mm). The brush the model rebuilds from is solved at
-//! 100 Hz; the naive alternative it must beat is that solve's force held for 10 ms.
+//! size the examples are written for (40 mm). The brush the model rebuilds from is ticked at
+//! 100 Hz (each tick solved along the path since the last in substeps, as every caller's
+//! brush is: the same brush as ticked at 1 kHz, to the few percent the 1 kHz brush itself
+//! moves when its stroke moves a nanometre); the naive alternative the model must beat is
+//! that tick's force held for 10 ms.
 //!
 //! Also the passivity of what the hand feels, replaying the same strokes: over every window
 //! the energy the felt force gives the hand is at most what the hand gave the brush before
@@ -17,7 +20,7 @@ use maobi_shared::baxter_lin::brush::{BaxterLinBrush, InkParams};
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::baxter_lin::local_force::{symmetric_eigen, LocalForceBrush, LocalForceParams};
 use maobi_shared::baxter_lin::{Spine, SpineParams};
-use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::force::{PHANTOM_OMNI, TICK_S};
 use maobi_shared::{Pose, Vec3};
 use maobi_tests::{example_pose_files, workspace_root};
 
@@ -53,8 +56,8 @@ struct Run {
     /// RMS): how much of the floor is the brush's sensitivity to where it starts (which
     /// spine catches first), not the rate it runs at.
     chaos_rms: f64,
-    /// The model's and the hold's error against a solve of the slower brush's spines at each
-    /// tick's pose (N, RMS): the first-order expansion's own error.
+    /// The model's and the hold's error against the slower brush carried on from its last
+    /// tick to each tick's pose (N, RMS): the first-order expansion's own error.
     step_local_rms: f64,
     step_hold_rms: f64,
     /// The largest energy the felt force created over a window (mJ): local model, full solve.
@@ -125,11 +128,17 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
     let (mut clamped, mut stiffest, mut max_asymmetry) = (0, 0.0f64, 0.0f64);
     let (mut floor2, mut floor_n, mut m_l2, mut m_h2) = (0.0, 0, 0.0, 0.0);
     let mut last: Option<(Vec3<f64>, Vec3<f64>, Vec3<f64>)> = None;
+    let mut since_rebuild = 0u32;
     for pose in &poses[1..] {
         full.tick(pose);
         nudged.tick(&Pose::new(pose.pos + Vec3::Y.scale(NUDGE_MM), pose.rot));
         chaos2 += (nudged.handle_force() - full.handle_force()).norm2();
         let felt = local.tick(pose);
+        since_rebuild = if local.rebuilt() {
+            0
+        } else {
+            since_rebuild + 1
+        };
         let exact = full.handle_force();
         let held = local.model().base_force();
         if let Some((p, f_local, f_full)) = last {
@@ -162,11 +171,15 @@ fn run(name: String, track: &PoseTrack, spine: SpineParams) -> Run {
             floor2 += eh * eh;
             floor_n += 1;
         }
-        let from_last: Vec3<f64> = local.brush().spines().iter().fold(Vec3::ZERO, |acc, s| {
-            let mut c = s.clone();
-            c.solve(pose, Vec3::ZERO);
-            acc + c.handle_force()
-        });
+        // The slower brush ticked on from its last tick to this pose, in its substeps.
+        let from_last = if local.rebuilt() {
+            local.brush().handle_force()
+        } else {
+            let mut c = local.brush().clone();
+            c.set_solve_interval(since_rebuild as f64 * TICK_S);
+            c.tick(pose);
+            c.handle_force()
+        };
         let (ml, mh) = ((felt - from_last).norm(), (held - from_last).norm());
         m_l2 += ml * ml;
         m_h2 += mh * mh;
@@ -214,7 +227,7 @@ fn print(r: &Run) {
     println!(
         "local-force stroke={} ticks={} touching={} rms_force_n={:.4} | vs full 1 kHz: \
          local rms {:.4} N ({:.1}%) max {:.4} N ({:.1}%), hold rms {:.4} N ({:.1}%) max {:.4} N \
-         ({:.1}%), hold/local {:.2}; floor {:.4} N ({:.1}%), nudged 1 nm {:.4} N ({:.1}%) | vs solve from the rebuild: \
+         ({:.1}%), hold/local {:.2}; floor {:.4} N ({:.1}%), nudged 1 nm {:.4} N ({:.1}%) | vs the brush ticked on from the rebuild: \
          local {:.4} N, hold {:.4} N, hold/local {:.2} | active mJ: local {:.4}, full {:.4} | \
          stiffest probed {:.3} N/mm, clamped {} of {} rebuilds, asymmetry dropped up to {:.3} N/mm",
         r.name,
@@ -298,20 +311,26 @@ fn the_local_model_follows_the_full_solve_and_stays_passive_on_the_example_strok
                 r.local_rms
             );
         } else {
-            // Paper and joint friction: the force is mostly friction, which does not grow
-            // along a slide (so the hold is nearly right within 10 ms) and which the solver's
-            // stick-slip makes depend on the rate it runs at (the floor): the model must be
-            // no worse than the hold, against both references.
+            // Paper and joint friction: the 100 Hz brush is the 1 kHz brush but for what a
+            // nanometre moves (which spine catches first), and the model beats the hold
+            // against both references, though by less than on elastic spines: the force is
+            // mostly friction, which does not grow along a slide, and stick-slip within a
+            // rebuild interval that no first-order model follows.
             assert!(
-                r.local_rms < 1.03 * r.hold_rms,
-                "{what}: the model ({} N) is worse than the hold ({} N)",
+                r.floor_rms < 0.1 * r.rms_force,
+                "{what}: the 100 Hz brush is {} N from the 1 kHz brush",
+                r.floor_rms
+            );
+            assert!(
+                r.local_rms * 1.2 < r.hold_rms,
+                "{what}: the model ({} N) is not clearly better than the hold ({} N)",
                 r.local_rms,
                 r.hold_rms
             );
             assert!(
-                r.step_local_rms < 1.15 * r.step_hold_rms,
-                "{what}: the model ({} N) is worse than the hold ({} N) against the solve \
-                 from the rebuild",
+                r.step_local_rms < r.step_hold_rms,
+                "{what}: the model ({} N) is worse than the hold ({} N) against the brush \
+                 ticked on from the rebuild",
                 r.step_local_rms,
                 r.step_hold_rms
             );

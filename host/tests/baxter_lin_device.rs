@@ -153,8 +153,10 @@ fn a_press_is_felt_through_the_output_stage_and_inks_the_paper() {
                 }
             });
         }
-        // Dragging the tip pulls back on the hand (friction opposes the motion).
-        if f.pose.pos.x > 5.0 && f.pose.pos.x < 14.0 {
+        // Dragging the tip pulls back on the hand (friction opposes the motion), once the
+        // spines the straight press buckled (backward, the solver's one way to break the
+        // tie) have straightened: over the first 10 mm their stuck tips still push back.
+        if f.pose.pos.x > 10.0 {
             assert!(
                 f.force_total[0] < 0.0,
                 "x {}: {:?}",

@@ -537,23 +537,34 @@ fn baxter_lin_traces_keep_the_physical_invariants() {
         // Friction opposes each spine's slide on the paper. A contact that sticks creeps up
         // to the slip distance from where it stuck, and back as its load eases (the friction
         // cone's rounding, `FRICTION_SMOOTHING_MM`), its friction pulling it home: a joint's
-        // move between two ticks is a slide when it is longer than that.
+        // move between two ticks is a slide when it is longer than that. A move of over a
+        // millimetre in a tick (1 m/s) is no slide the hand drives but a pressed spine
+        // snapping through from one bend to another; the friction written is that of the
+        // tick's last solve, whose own move can point anywhere along the snap.
         let slip = maobi_shared::baxter_lin::SpineParams::DEFAULT.slip_mm;
-        let (mut slides, mut resisted, mut creeps) = (0, 0, 0);
+        let (mut slides, mut resisted, mut creeps, mut snaps) = (0, 0, 0, 0);
         for r in 1..tr.rows.len() {
             for k in 0..spines {
                 let mut slide = [0.0; 2];
+                let mut snapped = false;
                 for i in 1..=joints {
                     let (a, b) = (tr.point(r - 1, k, i), tr.point(r, k, i));
                     if a[2] == 0.0 && b[2] == 0.0 {
                         let m = [b[0] - a[0], b[1] - a[1]];
-                        if m[0].hypot(m[1]) > slip {
+                        let len = m[0].hypot(m[1]);
+                        if len > 1.0 {
+                            snapped = true;
+                        } else if len > slip {
                             slide[0] += m[0];
                             slide[1] += m[1];
-                        } else if m[0].hypot(m[1]) > 1e-4 {
+                        } else if len > 1e-4 {
                             creeps += 1;
                         }
                     }
+                }
+                if snapped {
+                    snaps += 1;
+                    continue;
                 }
                 let s = slide[0].hypot(slide[1]);
                 if s > 1e-4 {
@@ -570,13 +581,14 @@ fn baxter_lin_traces_keep_the_physical_invariants() {
         }
         println!(
             "{name}: {slides} slides, {resisted} of them resisted by more than 0.1 mN; \
-             {creeps} moves of a held joint within the slip distance"
+             {creeps} moves of a held joint within the slip distance; {snaps} snaps"
         );
+        // press_lift presses straight down and lifts: its tips hold where they land.
         if name != "press_lift.csv" {
             assert!(slides > 1000, "{name}: only {slides} slides");
         }
         assert!(
-            2 * resisted > slides,
+            slides == 0 || 2 * resisted > slides,
             "{name}: {resisted} of {slides} slides resisted"
         );
 

@@ -1778,8 +1778,9 @@ fn the_servo_loop_feels_baxter_and_lins_brush_from_its_solver() {
     assert!(norm(last) > 0.05, "a fresh model is felt again: {last:?}");
 
     // A solver serving every 25 ticks solves the newest request and counts the rest; its
-    // models come stale or nearly, so next to no force reaches the hand. Every 10 ticks,
-    // as often as it is asked, it keeps up: the force is felt.
+    // models come stale or nearly, so next to no force reaches the hand. Every 5 ticks (each
+    // request served within half the interval it is asked at, as the desktop's solve along
+    // the interval and rebuild serves it: docs/figures.md) it keeps up: the force is felt.
     let (slow, (solves, skipped, _), _, slow_link) = run(25);
     let peak = slow.iter().map(|f| norm(*f)).fold(0.0, f64::max);
     eprintln!(
@@ -1792,9 +1793,9 @@ fn the_servo_loop_feels_baxter_and_lins_brush_from_its_solver() {
     assert!(slow_link.stale().1 > 0);
     assert!(peak <= limits.peak_n as f64 + 1e-9);
     assert!(rms(&slow) < 0.1 * rms_want, "{} N RMS", rms(&slow));
-    let (keeping_up, _, _, link) = run(10);
+    let (keeping_up, _, _, link) = run(5);
     eprintln!(
-        "a solver every 10 ticks: {:.3} N RMS, {} ticks held off",
+        "a solver every 5 ticks: {:.3} N RMS, {} ticks held off",
         rms(&keeping_up),
         link.stale().1
     );

@@ -1,8 +1,9 @@
 //! Baxter & Lin's brush on the Phantom: solved on a thread of its own beside the servo loop.
 //!
-//! A solve of their brush and the rebuild of its local force model take about a
-//! millisecond on the desktop, a whole servo period, so the servo callback cannot run them:
-//! it would overrun every tenth tick. The callback runs only the 1 kHz half of the loop
+//! A solve of their brush along the ten ticks since the last (in substeps,
+//! `BaxterLinBrush::tick`) and the rebuild of its local force model take several
+//! milliseconds on the desktop, several servo periods, so the servo callback cannot run
+//! them: it would overrun every tenth tick. The callback runs only the 1 kHz half of the loop
 //! ([`BaxterLinHand`], the same one the built-in simulator's [`BaxterLinLoop`] ends in)
 //! against the last [`LocalForceModel`] this thread published; every
 //! [`LocalForceParams::rebuild_every`] ticks it leaves the pose to solve at in a slot and

@@ -13,7 +13,7 @@ use crate::brush::ink::{self, InkCoefs};
 use crate::brush::Layer;
 use crate::footprint::Geometry;
 use crate::params::{BrushParams, ParamId};
-use crate::quat::Pose;
+use crate::quat::{Pose, Quat};
 use crate::vec::Vec3;
 
 /// Layer rings of the surface, from the ferrule to the tip.
@@ -21,6 +21,20 @@ pub const LEVELS: usize = 16;
 
 /// Nodes per ring of the surface (as Liang's presets).
 pub const RING_NODES: usize = 16;
+
+/// The longest time between two solves of the spines (s). A tick that covers more (the
+/// local force model's 10 ms, a solver thread's) solves them along the handle's path,
+/// its position and rotation interpolated from the last tick's to the new one, in as many
+/// equal substeps as keep each this short. Stiction makes the brush follow the path it
+/// was solved along: solved this often or more it converges, where coarser solves let
+/// landing spines slip that finer ones hold (`shared/tests/baxter_lin_rate.rs` measures
+/// both).
+pub const MAX_SOLVE_INTERVAL_S: f64 = 0.25e-3;
+
+/// Most substeps one tick solves: a tick longer than this many
+/// [`MAX_SOLVE_INTERVAL_S`] (10 ms) is solved in coarser steps instead, so that a solver
+/// thread that fell behind does not fall further behind solving the gap.
+pub const MAX_SUBSTEPS: u32 = 40;
 
 /// What the brush needs besides its head and its spines' mechanics: the ink it holds and
 /// the footprint's threshold, as Liang's brush takes them from its parameters.
@@ -64,6 +78,11 @@ pub struct BaxterLinBrush {
     /// A constant force on the head's tip (N, world frame), as Liang's brush's
     /// `set_tip_load`: the static-bend experiment of §5.
     tip_load: Vec3<f64>,
+    /// The handle's pose at the last tick: where the next tick's path starts.
+    pose: Pose<f64>,
+    /// The time between ticks (s) and the substeps each is solved in.
+    tick_s: f64,
+    substeps: u32,
 }
 
 impl BaxterLinBrush {
@@ -106,7 +125,11 @@ impl BaxterLinBrush {
             ink_phase: false,
             eps: ink_params.footprint_eps_mm as f64,
             tip_load: Vec3::ZERO,
+            pose,
+            tick_s: 0.0,
+            substeps: 1,
         };
+        brush.set_solve_interval(super::DEFAULT_SOLVE_INTERVAL_S);
         brush.skin(&pose);
         // What each ring holds: its volume at rest (the ring's ellipse over the spacing
         // between rings) times the capacity per mm^3.
@@ -182,12 +205,36 @@ impl BaxterLinBrush {
                 .fold(0.0, f64::max)
     }
 
-    /// One tick: every spine solved at the handle's new pose, the surface over them, the ink.
+    /// One tick: every spine solved along the handle's path from the last tick's pose to
+    /// `pose` ([`MAX_SOLVE_INTERVAL_S`]), the surface over them, the ink. A pose that is not
+    /// finite is refused by every spine (each keeps its last, [`Spine::solve`]) and starts
+    /// no path.
     pub fn tick(&mut self, pose: &Pose<f64>) {
-        // Each spine carries its share of the load, as it carries its share of the
-        // stiffness: every spine then bends as the whole head does.
-        for (spine, root) in self.spines.iter_mut().zip(self.head.spines()) {
-            spine.solve(pose, self.tip_load.scale(root.share));
+        let finite = pose.pos.to_f64().iter().all(|v| v.is_finite())
+            && pose.rot.to_f64().iter().all(|v| v.is_finite());
+        let (from, steps) = if finite {
+            (self.pose, self.substeps)
+        } else {
+            (*pose, 1)
+        };
+        for k in 1..=steps {
+            let t = k as f64 / steps as f64;
+            let at = if k == steps {
+                *pose
+            } else {
+                Pose::new(
+                    from.pos + (pose.pos - from.pos).scale(t),
+                    Quat::nlerp(from.rot, pose.rot, t),
+                )
+            };
+            // Each spine carries its share of the load, as it carries its share of the
+            // stiffness: every spine then bends as the whole head does.
+            for (spine, root) in self.spines.iter_mut().zip(self.head.spines()) {
+                spine.solve(&at, self.tip_load.scale(root.share));
+            }
+        }
+        if finite {
+            self.pose = *pose;
         }
         let last = self.centres;
         self.skin(pose);
@@ -224,12 +271,27 @@ impl BaxterLinBrush {
         skin::skin(&curves, pose, &mut self.centres, &mut self.layers);
     }
 
-    /// The time between this brush's ticks (s; a 1 kHz tick unless set): every spine's
-    /// [`Spine::set_solve_interval`].
+    /// The time between this brush's ticks (s; a 1 kHz tick unless set): each tick is solved
+    /// in the fewest equal substeps no longer than [`MAX_SOLVE_INTERVAL_S`] (at most
+    /// [`MAX_SUBSTEPS`]), every spine's [`Spine::set_solve_interval`] the substep's. An
+    /// interval that is not positive and finite keeps the last.
     pub fn set_solve_interval(&mut self, interval_s: f64) {
-        for s in &mut self.spines {
-            s.set_solve_interval(interval_s);
+        if !(interval_s.is_finite() && interval_s > 0.0) {
+            return;
         }
+        let steps = libm::ceil(interval_s / MAX_SOLVE_INTERVAL_S * (1.0 - 1e-9));
+        self.substeps = steps.clamp(1.0, MAX_SUBSTEPS as f64) as u32;
+        self.tick_s = interval_s;
+        let step_s = interval_s / self.substeps as f64;
+        for s in &mut self.spines {
+            s.set_solve_interval(step_s);
+        }
+    }
+
+    /// The time between ticks (s) and the substeps each is solved in
+    /// ([`Self::set_solve_interval`]).
+    pub fn solve_interval(&self) -> (f64, u32) {
+        (self.tick_s, self.substeps)
     }
 
     /// Applies a constant force (N, world frame) to the head's tip until changed, shared

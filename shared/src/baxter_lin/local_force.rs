@@ -2,9 +2,10 @@
 //! solved at a lower rate.
 //!
 //! The full solve ([`super::Spine::solve`]) is too slow for every haptic tick on a brush of
-//! several spines, so [`LocalForceBrush`] solves the brush every N-th tick (N = 10: 100 Hz)
-//! and between solves evaluates a first-order model of the handle force built at the last
-//! solved pose `p0`:
+//! several spines, so [`LocalForceBrush`] ticks the brush every N-th tick (N = 10: 100 Hz;
+//! the tick solves it along the handle's path since the last in substeps,
+//! [`BaxterLinBrush::tick`], so it is the brush a 1 kHz tick would give) and between its
+//! ticks evaluates a first-order model of the handle force built at the last pose `p0`:
 //!
 //! ```text
 //! F(p0 + dp) = F0 + F~(dp),   F~(dp) = F~compress(dp) + F~bend(dp) = -K dp       (eqs. 21-22)
@@ -41,9 +42,11 @@
 //! warm-started solves of copies of the spines (the real ones untouched) at `p0` moved along
 //! each axis by the handle's move over the last interval, which it is taken to repeat, at
 //! least [`LocalForceParams::min_probe_mm`]; an axis the handle hardly moved along is probed
-//! both ways and the softer side kept (the stiffer one is mostly the friction's reversal).
-//! That includes the compression and the bending terms, the contacts that land or lift
-//! within the step, and the friction's saturation: a contact that slides contributes its
+//! both ways and the softer side kept (the stiffer one is mostly the friction's reversal),
+//! and of that only its own stiffness: made symmetric, its cross terms would act on the
+//! axes the hand does move along, a guess from a move it did not make (on a press, a
+//! sideways force and a stiffer push than the brush gives). That includes the compression
+//! and the bending terms, the contacts that land or lift within the step, and the friction's saturation: a contact that slides contributes its
 //! friction's change through `F_n` only. It costs three to six solves a spine a rebuild, the
 //! cheapest honest route (the KKT route needs the solver's internals and would still miss
 //! the stiction switches).
@@ -51,11 +54,9 @@
 //! What this buys depends on the hair. On elastic spines (no paper or joint friction) the
 //! force is eq. 22's bending and compression and the model follows the full solve at 1 kHz
 //! several times closer than holding `F0` for the interval. With the paper's friction the
-//! force is mostly friction, which holding `F0` already gets right along a slide, and the
-//! solver's stick-slip (a contact slips when one solve moves it past `slip_mm`) makes the
-//! brush solved at 100 Hz feel different from the brush solved at 1 kHz by about half the
-//! RMS force on the example strokes, a difference no model built from the slower brush
-//! removes (the workspace's `tests/baxter_lin_local_force.rs` prints both).
+//! force is mostly friction, which holding `F0` already gets right along a slide, and
+//! stick-slip within an interval no first-order model follows: the model is closer than the
+//! hold, by less (the workspace's `tests/baxter_lin_local_force.rs` prints both).
 //!
 //! # Passivity
 //!
@@ -116,13 +117,16 @@ impl LocalForceParams {
 }
 
 impl LocalForceParams {
-    /// How long a model may be felt, in ticks after the pose it was solved at: twice the
-    /// rebuild interval. A model is a force field valid about that pose; felt later, by a
-    /// device whose solver runs elsewhere and fell behind, it is extrapolated from a hand
+    /// How long a model may be felt, in ticks after the pose it was solved at: one and a
+    /// half rebuild intervals. A model is a force field valid about that pose; felt later, by
+    /// a device whose solver runs elsewhere and fell behind, it is extrapolated from a hand
     /// that has moved on, and the passivity audit (`shared/tests/passivity.rs`, models felt
-    /// late) finds the energy it creates rising tenfold once it is felt longer than this.
+    /// late) finds the energy it creates past its tolerance once it is felt longer than
+    /// this: a head that lands catches on the paper within a fraction of a millimetre, and a
+    /// model that arrives half an interval after it did steps to the whole landing force.
     pub fn stale_after_ticks(&self) -> u32 {
-        2 * self.rebuild_every.max(1)
+        let every = self.rebuild_every.max(1);
+        every + every / 2
     }
 }
 
@@ -187,11 +191,14 @@ impl LocalForceModel {
                 // friction the stiffer side's secant is mostly the friction's jump, which a
                 // hand that stays put never feels.
                 let (up, down) = (slope(min_probe), slope(-min_probe));
-                if up.norm2() <= down.norm2() {
-                    up
-                } else {
-                    down
-                }
+                let softer = if up.norm2() <= down.norm2() { up } else { down };
+                // Only its own stiffness: made symmetric, its cross terms would act on the
+                // axes the hand does move along, a guess from a move the hand did not make
+                // (on a press, how a sideways probe changes the push: felt as a sideways
+                // force and a stiffer press than the brush gives).
+                let mut own = [0.0; 3];
+                own[a] = softer.to_f64()[a];
+                Vec3::from_f64(own)
             };
             for (row, v) in d.iter_mut().zip(column.to_f64()) {
                 row[a] = v;

@@ -43,13 +43,15 @@
 //!
 //! * `K_k` falls geometrically from [`SpineParams::stiffness_root`] at the root to
 //!   [`SpineParams::stiffness_tip`] at the last joint (§3.3: stiffer near the ferrule).
-//! * Friction acts on the joints that pressed on the paper in the last solve, with that
-//!   solve's normal force held fixed through a minimisation (§3.4); if the new normal force
-//!   differs by over 5% the minimisation is repeated with it. `dx_c,i` is the contact's
-//!   move in the paper's plane from its anchor: where it stuck (sticking, `mu_s`) or where
-//!   it was (sliding, `mu_k`). The cone `|dx|` is rounded over
-//!   [`FRICTION_SMOOTHING_MM`] so the Newton steps have a Hessian; the paper uses a zero
-//!   gradient at the apex and BFGS instead.
+//! * Friction acts on the joints that press on the paper, with a normal force held fixed
+//!   through a minimisation (§3.4): first the last solve's, then the solution's own, the
+//!   minimisation repeated until they agree within 0.1% (a joint that lands is frictionless
+//!   only in the first). `dx_c,i` is the contact's move in the paper's plane from its
+//!   anchor: where it stuck (sticking, `mu_s`) or where it was at the last solve (sliding,
+//!   `mu_k`). The cone `|dx|` is rounded so the Newton steps have a Hessian (the paper uses
+//!   a zero gradient at the apex and BFGS instead): over [`FRICTION_SMOOTHING_MM`] from a
+//!   sticking anchor, over [`SLIDING_SMOOTHING_MM_S`] times the time between solves for a
+//!   sliding contact, so that a slide's friction is the same however often it is solved.
 //! * The preferred direction `d_p,i` is the pull direction: along the hair from the contact
 //!   back toward the ferrule (the segment ending at joint i, carried with the handle, in
 //!   the paper's plane). A contact dragged behind the handle slides at `(1 - C_eta)` of the
@@ -101,8 +103,8 @@
 //! converged, when an undamped step is below 1e-8 rad or finds no decrease while below
 //! 1e-6 rad; and short of the minimum when a damped step is that short, when the most
 //! damped step finds no decrease, or after [`SpineParams::max_iterations`] iterations
-//! ([`SolveReport::converged`]); a solve runs at most three minimisations
-//! (the first, after a slip, after the normal forces moved).
+//! ([`SolveReport::converged`]); a solve runs at most thirty minimisations
+//! (the first, after a slip, and while the normal forces move).
 //!
 //! Afterwards any joint still below the paper is moved onto it by Gauss-Newton steps on
 //! the violated constraints; if the result is not finite or cannot be made feasible the
@@ -137,5 +139,6 @@ pub use chain::MAX_JOINTS;
 pub use params::{SpineParamError, SpineParams};
 pub use spine::{
     bend_angle, ContactState, SolveReport, Spine, DEFAULT_SOLVE_INTERVAL_S, FRICTION_SMOOTHING_MM,
-    PENETRATION_TOLERANCE_MM, PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, THETA_LIMIT,
+    PENETRATION_TOLERANCE_MM, PHI_LIMIT, PLASTICITY_SMOOTHING_RAD, SLIDING_SMOOTHING_MM_S,
+    THETA_LIMIT,
 };

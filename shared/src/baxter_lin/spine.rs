@@ -11,12 +11,21 @@ use super::params::{SpineParamError, SpineParams};
 use crate::quat::{Pose, Quat};
 use crate::vec::Vec3;
 
-/// The friction cone's apex is rounded over this distance (mm): `|dx|` becomes
-/// `sqrt(|dx|^2 + eps^2) - eps`, so the energy has a Hessian for the Newton steps. A
-/// contact under a tangential force T below the limit `mu F_n` creeps by about
-/// `eps T / sqrt((mu F_n)^2 - T^2)`: far below [`SpineParams::slip_mm`] until T is within a
-/// hair of the limit.
+/// A sticking contact's friction cone has its apex rounded over this distance (mm): `|dx|`
+/// from the anchor becomes `sqrt(|dx|^2 + eps^2) - eps`, so the energy has a Hessian for
+/// the Newton steps. A contact under a tangential force T below the limit `mu F_n` creeps
+/// by about `eps T / sqrt((mu F_n)^2 - T^2)` from its anchor: far below
+/// [`SpineParams::slip_mm`] until T is within a hair of the limit, and the same however
+/// often the spine is solved (the anchor stays put).
 pub const FRICTION_SMOOTHING_MM: f64 = 1e-4;
+
+/// A sliding contact's cone is rounded the same way, but its `dx` is its move over one
+/// solve, so the rounding is a speed (mm/s) times the time between solves: friction
+/// below this speed is viscous rather than Coulomb's. As a fixed distance it made the
+/// slow slides' friction depend on the solve rate (a contact that moves about the rounding
+/// in a solve feels a fraction of its friction, and a slow creep does when solved often
+/// enough), and the brush did not converge as the solves grew finer.
+pub const SLIDING_SMOOTHING_MM_S: f64 = 0.1;
 
 /// A spine is solved once a 1 kHz tick unless told otherwise ([`Spine::set_solve_interval`]).
 pub const DEFAULT_SOLVE_INTERVAL_S: f64 = crate::force::TICK_S;
@@ -49,8 +58,17 @@ const MAX_STEP_RAD: f64 = 0.5;
 /// An SQP step this small in every angle (rad) ends the iterations.
 const STEP_TOLERANCE_RAD: f64 = 1e-8;
 /// Most minimisations of one solve: the first, a re-solve after a contact slips (§3.4.1),
-/// and a re-solve when the normal forces the friction used moved.
-const MAX_PASSES: usize = 3;
+/// and re-solves until the normal forces the friction uses are the solution's own
+/// (within [`NORMAL_FORCE_TOLERANCE`]); a few suffice but where a head lands.
+const MAX_PASSES: usize = 30;
+/// The friction of a minimisation uses a normal force held fixed (§3.4); the solve repeats
+/// it until the solution's normal forces are within this share of those used (plus
+/// [`MIN_NORMAL_FORCE_CHANGE_N`]). Held at the last solve's instead, the friction lags the
+/// press by a solve, and a landing head, whose normal forces grow several-fold a solve,
+/// slid through its press or caught depending on how often it was solved.
+const NORMAL_FORCE_TOLERANCE: f64 = 1e-3;
+/// The absolute part of the normal force's tolerance (N).
+const MIN_NORMAL_FORCE_CHANGE_N: f64 = 1e-6;
 /// The largest Levenberg-Marquardt ridge (a share of the Hessian's scale) a minimisation
 /// tries before it stops where it is.
 const MAX_DAMPING: f64 = 1e2;
@@ -92,6 +110,9 @@ pub struct SolveReport {
 #[derive(Copy, Clone, Debug, Default)]
 struct Friction {
     mu_fn: f64,
+    /// The cone's rounding (mm): [`FRICTION_SMOOTHING_MM`] sticking, the
+    /// [`SLIDING_SMOOTHING_MM_S`] over a solve sliding.
+    eps: f64,
     anchor: [f64; 2],
     dir: [f64; 2],
 }
@@ -225,7 +246,7 @@ impl Problem {
     fn friction(&self, f: &Friction, x: V3) -> (f64, [f64; 2], [[f64; 2]; 2]) {
         let (e, g) = self.friction_gradient(f, [x.x, x.y]);
         let dx = [x.x - f.anchor[0], x.y - f.anchor[1]];
-        let eps = FRICTION_SMOOTHING_MM;
+        let eps = f.eps;
         let step = 1e-3 * libm::sqrt(dx[0] * dx[0] + dx[1] * dx[1] + eps * eps);
         let mut h = [[0.0; 2]; 2];
         for a in 0..2 {
@@ -247,7 +268,7 @@ impl Problem {
 
     /// The friction energy and its gradient at the paper point `x`.
     fn friction_gradient(&self, f: &Friction, x: [f64; 2]) -> (f64, [f64; 2]) {
-        let eps = FRICTION_SMOOTHING_MM;
+        let eps = f.eps;
         let dx = [x[0] - f.anchor[0], x[1] - f.anchor[1]];
         let rho = libm::sqrt(dx[0] * dx[0] + dx[1] * dx[1] + eps * eps);
         let s = rho - eps;
@@ -958,6 +979,7 @@ impl Spine {
         // the handle: the preferred (pulling) direction points from the contact back
         // toward the ferrule along the segment that ends there, in the paper's plane.
         let carried = p.chain(&self.q);
+        let sliding_eps = SLIDING_SMOOTHING_MM_S * self.interval_s;
         let mut sticking = [false; MAX_JOINTS + 1];
         let mut fn_used = [0.0; MAX_JOINTS + 1];
         for i in 1..=j {
@@ -968,12 +990,14 @@ impl Spine {
                 None => [0.0; 2],
             };
             p.friction[i].anchor = [self.x[i].x, self.x[i].y];
+            p.friction[i].eps = sliding_eps;
             if self.normal[i] > CONTACT_FORCE_N {
                 fn_used[i] = self.normal[i];
                 let mu = match self.state[i] {
                     ContactState::Sticking { anchor } => {
                         sticking[i] = true;
                         p.friction[i].anchor = anchor;
+                        p.friction[i].eps = FRICTION_SMOOTHING_MM;
                         self.params.friction_static
                     }
                     _ => self.params.friction_kinetic,
@@ -1021,6 +1045,7 @@ impl Spine {
                         sticking[i] = false;
                         p.friction[i].anchor = [self.x[i].x, self.x[i].y];
                         p.friction[i].mu_fn = self.params.friction_kinetic * fn_used[i];
+                        p.friction[i].eps = sliding_eps;
                         again = true;
                     }
                 }
@@ -1031,7 +1056,9 @@ impl Spine {
                 } else {
                     0.0
                 };
-                if (fresh - fn_used[i]).abs() > 0.05 * fn_used[i] + 1e-4 {
+                if (fresh - fn_used[i]).abs()
+                    > NORMAL_FORCE_TOLERANCE * fn_used[i] + MIN_NORMAL_FORCE_CHANGE_N
+                {
                     fn_used[i] = fresh;
                     let mu = if sticking[i] {
                         self.params.friction_static
@@ -1144,11 +1171,13 @@ mod tests {
         };
         p.friction[2] = Friction {
             mu_fn: 0.4,
+            eps: FRICTION_SMOOTHING_MM,
             anchor: [1.0, 2.0],
             dir: [0.6, 0.8],
         };
         p.friction[3] = Friction {
             mu_fn: 0.7,
+            eps: FRICTION_SMOOTHING_MM,
             anchor: [9.0, -1.0],
             dir: [-1.0, 0.0],
         };

@@ -80,8 +80,7 @@ pub struct BaxterLinBrush {
     tip_load: Vec3<f64>,
     /// The handle's pose at the last tick: where the next tick's path starts.
     pose: Pose<f64>,
-    /// The time between ticks (s) and the substeps each is solved in.
-    tick_s: f64,
+    /// The substeps each tick is solved in ([`Self::set_solve_interval`]).
     substeps: u32,
 }
 
@@ -126,7 +125,6 @@ impl BaxterLinBrush {
             eps: ink_params.footprint_eps_mm as f64,
             tip_load: Vec3::ZERO,
             pose,
-            tick_s: 0.0,
             substeps: 1,
         };
         brush.set_solve_interval(super::DEFAULT_SOLVE_INTERVAL_S);
@@ -281,17 +279,10 @@ impl BaxterLinBrush {
         }
         let steps = libm::ceil(interval_s / MAX_SOLVE_INTERVAL_S * (1.0 - 1e-9));
         self.substeps = steps.clamp(1.0, MAX_SUBSTEPS as f64) as u32;
-        self.tick_s = interval_s;
         let step_s = interval_s / self.substeps as f64;
         for s in &mut self.spines {
             s.set_solve_interval(step_s);
         }
-    }
-
-    /// The time between ticks (s) and the substeps each is solved in
-    /// ([`Self::set_solve_interval`]).
-    pub fn solve_interval(&self) -> (f64, u32) {
-        (self.tick_s, self.substeps)
     }
 
     /// Applies a constant force (N, world frame) to the head's tip until changed, shared

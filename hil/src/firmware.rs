@@ -114,20 +114,36 @@ pub fn build() -> Result<PathBuf> {
 }
 
 /// The QEMU image for the hil tests, built once per test binary; `None` (the test skips, and
-/// says so) when `qemu-system-arm` is not installed, unless `MAOBI_REQUIRE_QEMU` is set (CI),
-/// where a missing QEMU fails the test instead of skipping it.
+/// says so) when `qemu-system-arm` is not installed, unless every test must run (`CI=true`,
+/// or `MAOBI_REQUIRE_QEMU` set: [`maobi_testenv::required`]), where a missing QEMU fails the
+/// test instead.
 pub fn qemu_test_image() -> Option<PathBuf> {
     static ELF: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
+    let elf = ELF
+        .get_or_init(|| crate::qemu::available().then(|| build().expect("firmware builds")))
+        .clone();
+    // Said by every test that cannot run, not only the first of its binary.
+    if elf.is_none() {
+        maobi_testenv::skip_unless_required(
+            &["MAOBI_REQUIRE_QEMU"],
+            &format!(
+                "{} is not installed (apt-get install qemu-system-arm)",
+                crate::qemu::qemu_binary().display()
+            ),
+        );
+    }
+    elf
+}
+
+/// The Black Pill's image (the pen's), built once per test binary for the tests that read
+/// it (its interrupt handlers' reachable panics); `None` where [`qemu_test_image`] is (the
+/// same tests need QEMU too). Built when missing, so such a test never passes on an image
+/// nobody built.
+pub fn blackpill_test_image() -> Option<PathBuf> {
+    static ELF: std::sync::OnceLock<Option<PathBuf>> = std::sync::OnceLock::new();
     ELF.get_or_init(|| {
-        if !crate::qemu::available() {
-            assert!(
-                std::env::var_os("MAOBI_REQUIRE_QEMU").is_none(),
-                "qemu-system-arm is missing (apt-get install qemu-system-arm)"
-            );
-            eprintln!("SKIPPED: qemu-system-arm is not installed");
-            return None;
-        }
-        Some(build().expect("firmware builds"))
+        qemu_test_image()?;
+        Some(build_board(Board::Blackpill).expect("the Black Pill's image builds"))
     })
     .clone()
 }

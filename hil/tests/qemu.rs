@@ -138,17 +138,15 @@ fn panic_hardfault_and_stall_turn_motors_off_and_exit_nonzero() {
 /// The force loop holds no panicking index: no index or range check the compiler could not
 /// prove is reachable from the interrupt handler that runs the tick, in the QEMU image
 /// (`DefaultHandler`, which dispatches TIMER0 to the tick and the UART's and the timer
-/// driver's interrupts) and in the Black Pill's when it has been built (`TIM1_BRK_TIM9`;
-/// CI builds it before these tests). A failure names the functions.
+/// driver's interrupts) and in the Black Pill's (`TIM1_BRK_TIM9`; built here if it is not
+/// yet). A failure names the functions.
 #[test]
 fn the_force_path_holds_no_index_panic() {
     let Some(elf) = image() else { return };
-    let mut images = vec![(elf, "DefaultHandler")];
-    let pen = firmware::board_elf(firmware::Board::Blackpill);
-    if pen.exists() {
-        images.push((pen, "TIM1_BRK_TIM9"));
-    }
-    for (elf, root) in images {
+    let Some(pen) = firmware::blackpill_test_image() else {
+        return;
+    };
+    for (elf, root) in [(elf, "DefaultHandler"), (pen, "TIM1_BRK_TIM9")] {
         let (calls, visited) = hil::panics::reachable_index_panics(&elf, root).unwrap();
         println!(
             "{}: {visited} functions reachable from {root}",

@@ -13,11 +13,13 @@ use maobi_shared::protocol::{
 use maobi_shared::{presets, Brush, Fx};
 use serialport::{SerialPort, TTYPort};
 
+/// A pseudo-terminal pair; `None` (the test skips, or fails where every test must run) on a
+/// machine without pseudo-terminals.
 pub fn pair() -> Option<(TTYPort, TTYPort)> {
     match TTYPort::pair() {
         Ok(p) => Some(p),
         Err(e) => {
-            eprintln!("SKIPPED: no pseudo-terminals here ({e})");
+            maobi_testenv::skip(&format!("no pseudo-terminals here ({e})"));
             None
         }
     }

@@ -63,6 +63,10 @@ pub const LATCHED_FAULTS: usize = Faults::WATCHDOG.bits().trailing_zeros() as us
 pub static FAULT_TICKS: [AtomicU32; LATCHED_FAULTS] = [const { AtomicU32::new(0) }; LATCHED_FAULTS];
 /// Force-loop ticks since boot (the supervisor watches it advance).
 pub static TICKS: AtomicU32 = AtomicU32::new(0);
+/// Force ticks the board held on purpose ([`ForceLoop::hold`]: a lock-step board waiting for
+/// the host's next pose). The loop is alive through them, so the supervisor counts them
+/// with [`TICKS`]. Always 0 on a board that never holds a tick.
+pub static HELD_TICKS: AtomicU32 = AtomicU32::new(0);
 /// The tick at which the link task last received a valid frame.
 pub static LAST_RX_TICK: AtomicU32 = AtomicU32::new(0);
 /// The link is supervised (after the host's handshake).
@@ -432,6 +436,12 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         };
     }
 
+    /// The pen the loop reads (a board's lock-step check looks whether a pose is waiting).
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's lock-step mode
+    pub fn pen(&self) -> &P {
+        &self.pen
+    }
+
     /// The next pose places the brush at rest there (a board whose sensors start the pen
     /// somewhere unknown asks for this at boot).
     #[cfg_attr(feature = "board-qemu", allow(dead_code))] // physical boards
@@ -448,10 +458,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
         TICKS.store(now, Ordering::Relaxed);
 
-        while let Some(cmd) = self.cmds.dequeue() {
-            self.apply(cmd);
-            CMDS_APPLIED.fetch_add(1, Ordering::Release);
-        }
+        self.apply_commands();
         let pose = self.pen.next_pose();
         if pose.is_none() {
             self.pose_gaps = self.pose_gaps.wrapping_add(1);
@@ -506,6 +513,31 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             SNAPSHOT_WAKER.wake();
         } else if due {
             STATES_MISSED.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// A tick the board does not take (a lock-step board whose host has not sent the next
+    /// pose yet, `crate::qemu`): the loop stays alive (the watchdog fed, the hold counted in
+    /// [`HELD_TICKS`] for the supervisor) and serves the link task (its commands applied,
+    /// a requested sensor reading given), but the tick counter, the brush, the forces and the
+    /// motors stay as the last tick left them, and no state falls due. So a command never
+    /// waits for a pose, and the brush advances exactly once per pose.
+    #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's lock-step mode
+    pub fn hold(&mut self) {
+        self.watchdog.feed();
+        HELD_TICKS.fetch_add(1, Ordering::Relaxed);
+        self.apply_commands();
+        let now = TICKS.load(Ordering::Relaxed);
+        if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
+            SNAPSHOT_WAKER.wake();
+        }
+    }
+
+    /// Applies every command the link task has queued, in order.
+    fn apply_commands(&mut self) {
+        while let Some(cmd) = self.cmds.dequeue() {
+            self.apply(cmd);
+            CMDS_APPLIED.fetch_add(1, Ordering::Release);
         }
     }
 
@@ -664,7 +696,8 @@ pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
 /// Force-loop ticks that overran (each also latched [`Faults::LOOP_OVERRUN`]).
 pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 
-/// Watches the force loop from below: if its tick count stops advancing (its timer stopped,
+/// Watches the force loop from below: if its tick count (ticks taken, and ticks held on
+/// purpose: [`HELD_TICKS`]) stops advancing (its timer stopped,
 /// or it never returns while the watchdog is somehow not firing), `motors_off` runs and the
 /// fault latches. Spawned by every board with its own `motors_off`.
 ///
@@ -675,7 +708,9 @@ pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
 #[embassy_executor::task]
 pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize)) {
     let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
-    let mut last = TICKS.load(Ordering::Relaxed);
+    let mut last = TICKS
+        .load(Ordering::Relaxed)
+        .wrapping_add(HELD_TICKS.load(Ordering::Relaxed));
     let mut ticker = embassy_time::Ticker::every(period);
     let mut last_look = embassy_time::Instant::now();
     let mut looks: u32 = 0;
@@ -688,7 +723,10 @@ pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize))
             continue;
         }
         last_look = t;
-        let now = TICKS.load(Ordering::Relaxed);
+        // A tick the board held on purpose (lock-step) is a live loop too.
+        let now = TICKS
+            .load(Ordering::Relaxed)
+            .wrapping_add(HELD_TICKS.load(Ordering::Relaxed));
         if now == last && !MAINTENANCE.load(Ordering::SeqCst) {
             motors_off();
             latch(Faults::WATCHDOG);

@@ -11,6 +11,12 @@
 //! * `state_hz=N` (1..=1000): state frames per 1000 force-loop ticks (default 120; 1000 sends
 //!   every tick's state, for the bit-exact HIL checks).
 //! * `telemetry_ticks=N`: telemetry every N force-loop ticks (default 1000).
+//! * `lockstep` anywhere on the line: the force loop ticks exactly once per pose the host
+//!   sends, and holds (no tick, no state, not an overrun, not a stall) until the next pose
+//!   is queued and the last state is on its way, so that every tick's state reaches the host
+//!   (see [`crate::qemu`]'s "Lock-step"). For comparisons with the host's simulator that
+//!   must not depend on how fast QEMU or the host runs. A link timeout is counted in ticks,
+//!   so it cannot fall due while the host is silent: not for the link-cut tests.
 //! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
 //!   lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
 //! * `arith`: checks the fixed-point operators' inline assembly against their portable
@@ -67,6 +73,13 @@ fn tick_us() -> u32 {
         .find_map(|w| w.strip_prefix("tick_us=")?.parse().ok())
         .filter(|&us| (100..=100_000).contains(&us))
         .unwrap_or(1000)
+}
+
+/// Whether the word `flag` stands on its own on the command line.
+fn arg_flag(flag: &str) -> bool {
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    line.split_ascii_whitespace().skip(1).any(|w| w == flag)
 }
 
 /// `KEY=N` from the command line, if present and within `range`.
@@ -160,7 +173,12 @@ fn start() -> (qemu::Parts, u32, host_link::LinkConfig) {
         tick_us,
         telemetry_ticks: arg_num("telemetry_ticks", 10..=100_000).unwrap_or(1000),
     };
-    let parts = qemu::start(presets::LARGE, bench::stroke_pose(0), tick_us);
+    let parts = qemu::start(
+        presets::LARGE,
+        bench::stroke_pose(0),
+        tick_us,
+        arg_flag("lockstep"),
+    );
     defmt::info!("maobi-fw up");
     (parts, tick_us, link_cfg)
 }

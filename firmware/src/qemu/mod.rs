@@ -17,6 +17,29 @@
 //! can preload with QEMU's generic loader at [`config_store::CONFIG_REGION`]
 //! (`-device loader,file=cfg.bin,addr=0x21000000`; see [`config_store`]).
 //!
+//! # Lock-step
+//!
+//! Booted with `lockstep` (see [`boot`]), the force loop ticks exactly once per pose the
+//! host sends, and every tick's state reaches the host whole, whatever the pace of QEMU and
+//! of the host. TIMER0 still interrupts every `tick_us`, but a tick is taken only when the
+//! host's next pose is queued, the state of the previous tick has left the snapshot slot,
+//! and the UART's transmit ring is empty (so the link task has room to send that state:
+//! two state frames fit the ring); otherwise the tick is held ([`app::ForceLoop::hold`]: the
+//! link's commands are applied and the watchdog fed, but the brush, the tick count and the
+//! forces wait). Why here: the emulated pen otherwise ticks on QEMU's own clock and, like a
+//! real pen, holds its last pose on a tick no pose reached, and drops a state the link task
+//! has not taken in time, while the host's in-process simulator ticks once per pose; a
+//! comparison of the two then depends on how fast each side ran. The host-side alternative
+//! (waiting for every state by sequence number) cannot take back a tick the pen already ran
+//! on a held pose, so the pen must wait for the pose. The force loop is the same
+//! [`app::ForceLoop`]; only the board decides when to call it, and the Black Pill never
+//! holds a tick.
+//!
+//! What lock-step gives up: the link's silence is counted in force ticks
+//! ([`app::LINK_TIMEOUT_TICKS`]), and no tick is taken while the host sends nothing, so a
+//! host that goes away leaves the virtual pen as it was (its motors are reported, not
+//! driven). Tests of the link timeout run without `lockstep`.
+//!
 //! Output and exit go through semihosting (enable it
 //! with `-semihosting-config enable=on,target=native`): text on the host's stdout, defmt
 //! frames on stderr (see [`logger`]), and the exit code becomes QEMU's.
@@ -56,6 +79,9 @@ const WATCHDOG_TICKS: u32 = 5;
 /// The watchdog timeout in force, in timer counts: [`WATCHDOG_COUNTS`] or
 /// [`WATCHDOG_TICKS`] tick periods, whichever is longer (set by [`start`]).
 static WATCHDOG_RELOAD: AtomicU32 = AtomicU32::new(WATCHDOG_COUNTS);
+
+/// Lock-step mode (see the module docs), set by [`start`].
+static LOCKSTEP: AtomicBool = AtomicBool::new(false);
 
 /// Cortex-M4 with 3 priority bits on this machine model? The NVIC keeps the top bits; these
 /// are spaced so any implemented width orders them the same way.
@@ -112,6 +138,13 @@ fn synth_pen(cfg: &PenConfig, zero: Option<RawReadings>) -> Option<Pen<Fx>> {
     let mut pen = Pen::new(*cfg).ok()?;
     pen.calibrate(zero.unwrap_or(UNCALIBRATED_ZERO));
     Some(pen)
+}
+
+impl VirtualPen {
+    /// The host's next pose is queued.
+    fn pose_waiting(&self) -> bool {
+        self.rx.ready()
+    }
 }
 
 impl PoseSource for VirtualPen {
@@ -238,13 +271,16 @@ pub struct Parts {
 }
 
 /// Brings the board up: time driver, UART, the force loop around a brush of `params` at rest
-/// at `pose`, ticking every `tick_us`, the watchdog, and the interrupt priorities. Interrupts
-/// are enabled on return.
+/// at `pose`, ticking every `tick_us` (in `lockstep`, taking a tick only on a pose from the
+/// host: see the module docs), the watchdog, and the interrupt priorities. Interrupts are
+/// enabled on return.
 pub fn start(
     params: maobi_shared::BrushParams,
     pose: maobi_shared::Pose<Fx>,
     tick_us: u32,
+    lockstep: bool,
 ) -> Parts {
+    LOCKSTEP.store(lockstep, Ordering::Relaxed);
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
     let watchdog_counts = WATCHDOG_COUNTS.max(tick_counts.saturating_mul(WATCHDOG_TICKS));
     WATCHDOG_RELOAD.store(watchdog_counts, Ordering::Relaxed);
@@ -328,16 +364,28 @@ pub fn start(
 }
 
 /// TIMER0: one force-loop tick (the application's [`app::run_tick`]); the tick overran if
-/// TIMER0's interrupt is pending again when it ends.
+/// TIMER0's interrupt is pending again when it ends. In lock-step, a tick that may not be
+/// taken yet is held instead.
 fn on_force_tick() {
     wr(t::TIMER0 + t::INTCLEAR, 1);
     // SAFETY: only this handler uses the slot after `start`; it does not re-enter.
     let Some(fl) = (unsafe { LOOP.get() }) else {
         return;
     };
+    if LOCKSTEP.load(Ordering::Relaxed) && !lockstep_tick_ready(fl) {
+        fl.hold();
+        return;
+    }
     app::run_tick(fl, &IcountCounter, PCLK_HZ / 1_000_000, || {
         rd(t::TIMER0 + t::INTCLEAR) & 1 != 0
     });
+}
+
+/// Lock-step: the host's next pose is queued, and the last tick's state has gone (out of
+/// the snapshot slot, and every byte the link task queued before it out of the transmit
+/// ring), so this tick's state will be sent whole, not dropped for want of room.
+fn lockstep_tick_ready(fl: &Loop) -> bool {
+    fl.pen().pose_waiting() && !app::SNAPSHOT.is_full() && uart::tx_queued() == 0
 }
 
 fn on_watchdog() -> ! {

@@ -56,6 +56,11 @@ fn kick(tx: &mut Deque<u8, TX_CAP>) {
     }
 }
 
+/// Bytes queued for sending and not yet handed to the transmitter (any context).
+pub fn tx_queued() -> usize {
+    critical_section::with(|cs| TX.borrow(cs).borrow().len())
+}
+
 /// RX interrupt (IRQ 0).
 pub fn on_rx_interrupt() {
     critical_section::with(|cs| {

@@ -206,8 +206,9 @@ pub mod timing {
 #[allow(clippy::large_enum_variant)] // a few of them in a queue; no allocator to box
 #[derive(Copy, Clone, Debug)]
 pub enum Command {
-    /// Put the brush at rest at its current pose; the next pose sample re-anchors it (a new
-    /// stroke stream starts at rest at its first pose).
+    /// Put the brush at rest at its current pose (the protocol's `ResetBrush`); the next pose
+    /// sample ticks it from there, as the host's simulators tick the first pose after their
+    /// reset. (A new stream after a hello is [`Command::Reanchor`]'s.)
     ResetBrush,
     /// The next pose sample places the brush at rest there instead of dragging it (sent by
     /// the link task after a handshake).
@@ -575,7 +576,6 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                     None => self.core.brush().handle(),
                 };
                 self.core.reset_brush(pose);
-                self.core.reanchor();
             }
             Command::Reanchor => self.core.reanchor(),
             Command::EnableForces => {

@@ -1,7 +1,21 @@
 //! Starting `qemu-system-arm` for the firmware, always under a deadline.
+//!
+//! UART0 on a loopback socket ([`Run::listen_uart`]): this process binds and listens on
+//! port 0 and hands QEMU the listening socket itself (`-chardev socket,fd=N,server=on`, the
+//! descriptor inherited by QEMU alone), so the port is taken from the moment it is chosen
+//! and tests running in parallel can never be given the same one.
+//!
+//! The firmware's boot arguments ([`Run::args`]) are its semihosting command line,
+//! documented in `firmware/src/qemu/boot.rs`: `run` (the device), `tick_us=N`,
+//! `state_hz=N`, `telemetry_ticks=N`, and `lockstep`, in which the emulated pen ticks
+//! exactly once per pose the host sends and every tick's state reaches the host (for
+//! comparisons with the host's simulator that must not depend on machine load; see
+//! `firmware/src/qemu/mod.rs`).
 
 use std::io::Read;
 use std::net::TcpListener;
+use std::os::fd::{AsRawFd, RawFd};
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStderr, Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
@@ -45,8 +59,9 @@ pub struct Run {
     /// Semihosting arguments after the program name (the boot mode).
     pub args: Vec<String>,
     pub clock: Clock,
-    /// UART0 as a TCP server on this loopback port (the host connects); `None`: UART0 unused.
-    pub uart_port: Option<u16>,
+    /// UART0 as a TCP server on this listening loopback socket (the host connects to its
+    /// port; see [`Run::listen_uart`]); `None`: UART0 unused.
+    pub uart: Option<UartSocket>,
     /// Hard limit on the emulator's wall-clock time.
     pub timeout: Duration,
     /// Further QEMU arguments (e.g. [`config_loader_args`] to preload a configuration).
@@ -72,10 +87,19 @@ impl Run {
             elf: elf.to_path_buf(),
             args: args.iter().map(|s| s.to_string()).collect(),
             clock,
-            uart_port: None,
+            uart: None,
             timeout,
             qemu_args: Vec::new(),
         }
+    }
+
+    /// Puts UART0 on a new listening loopback socket and returns its port, where the host
+    /// connects once QEMU runs (connections made before then wait in the socket's backlog).
+    pub fn listen_uart(&mut self) -> Result<u16> {
+        let socket = UartSocket::bind()?;
+        let port = socket.port;
+        self.uart = Some(socket);
+        Ok(port)
     }
 
     pub fn command(&self) -> Command {
@@ -93,16 +117,24 @@ impl Run {
             Clock::Paced { shift } => format!("shift={shift},sleep=on"),
         };
         c.args(["-icount", &icount]);
-        match self.uart_port {
-            Some(port) => {
+        match &self.uart {
+            Some(socket) => {
+                let fd = socket.listener.as_raw_fd();
                 c.args([
                     "-chardev",
-                    &format!(
-                        "socket,id=u0,host=127.0.0.1,port={port},server=on,wait=on,nodelay=on"
-                    ),
+                    &format!("socket,id=u0,fd={fd},server=on,wait=on,nodelay=on"),
                     "-serial",
                     "chardev:u0",
                 ]);
+                // The listening socket is kept from every other child (std opens it
+                // close-on-exec) and passed to this one: cleared in the child only, between
+                // fork and exec.
+                // SAFETY: the closure only calls fcntl(2), which is async-signal-safe, on a
+                // descriptor `socket` keeps open while `c` exists (it holds a clone).
+                let keep = socket.clone();
+                unsafe {
+                    c.pre_exec(move || inherit_fd(keep.listener.as_raw_fd()));
+                }
             }
             None => {
                 c.args(["-serial", "null"]);
@@ -284,8 +316,37 @@ impl Drop for Guest {
     }
 }
 
-/// A free loopback TCP port (bound and released; QEMU binds it next).
-pub fn free_port() -> Result<u16> {
-    let l = TcpListener::bind("127.0.0.1:0").context("no free loopback port")?;
-    Ok(l.local_addr()?.port())
+/// A loopback TCP socket listening on a port of the system's choosing, for QEMU's UART0
+/// ([`Run::listen_uart`]). QEMU takes the socket itself, so nothing can bind the port
+/// between this process choosing it and QEMU serving it.
+#[derive(Clone, Debug)]
+pub struct UartSocket {
+    listener: Arc<TcpListener>,
+    /// Where the host connects.
+    pub port: u16,
+}
+
+impl UartSocket {
+    pub fn bind() -> Result<Self> {
+        let listener = TcpListener::bind("127.0.0.1:0").context("cannot listen on loopback")?;
+        let port = listener.local_addr()?.port();
+        Ok(UartSocket {
+            listener: Arc::new(listener),
+            port,
+        })
+    }
+}
+
+/// Clears close-on-exec on `fd`, so the program about to be executed inherits it.
+fn inherit_fd(fd: RawFd) -> std::io::Result<()> {
+    // SAFETY: fcntl on a descriptor number, no pointers.
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFD) };
+    if flags < 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: as above.
+    if unsafe { libc::fcntl(fd, libc::F_SETFD, flags & !libc::FD_CLOEXEC) } < 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
 }

@@ -10,7 +10,7 @@ use maobi::poses::PoseTrack;
 use maobi_shared::presets;
 use maobi_shared::protocol::Capabilities;
 
-use crate::qemu::{free_port, Clock, Guest, Run};
+use crate::qemu::{Clock, Guest, Run};
 use crate::selftest::EMULATED_TICK_US;
 use crate::session::{self, Session, StreamLog, StreamOptions, Transport};
 
@@ -48,12 +48,11 @@ impl QemuDevice {
         qemu_args: &[String],
         timeout: Duration,
     ) -> Result<(Self, TcpStream)> {
-        let port = free_port()?;
         let tick = format!("tick_us={}", EMULATED_TICK_US << shift);
         let mut args = vec!["run", tick.as_str()];
         args.extend_from_slice(extra);
         let mut run = Run::new(elf, &args, Clock::Deterministic { shift }, timeout);
-        run.uart_port = Some(port);
+        let port = run.listen_uart()?;
         run.qemu_args = qemu_args.to_vec();
         let guest = run.spawn()?;
         let mut dev = QemuDevice { guest, port };

@@ -4,8 +4,13 @@
 //! This is the real `MaobiApp` (egui_kittest, no window) with the TCP device backend
 //! (`maobi --device tcp:127.0.0.1:PORT`) connected to QEMU's UART0 socket; the firmware sends
 //! every tick's state (`state_hz=1000`, as the built-in simulator hands the paper every
-//! tick). The firmware runs slower than real time under emulation; the link's writer paces
-//! the replay by the `pose_seq` the device reports, so no pose is lost.
+//! tick).
+//!
+//! The firmware runs in lock-step (`lockstep`, `firmware/src/qemu/mod.rs`): its pen ticks
+//! exactly once per pose the app's link writer sends, as the in-process simulator does, and
+//! holds until the state of its last tick is on its way, so every state reaches the app
+//! however slowly QEMU or the app runs. Nothing here is paced by the wall clock: the only
+//! deadlines are generous guards against a hang.
 //!
 //! Needs `qemu-system-arm` (skipped with a message without it, unless `MAOBI_REQUIRE_QEMU`
 //! is set, as in CI).
@@ -15,20 +20,22 @@ use std::time::{Duration, Instant};
 
 use egui_kittest::Harness;
 use hil::firmware;
-use hil::qemu::{free_port, Clock, Run};
+use hil::qemu::{Clock, Guest, Run};
 use hil::selftest::EMULATED_TICK_US;
 use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::device::Device;
 use maobi::device::{Endpoint, LinkDevice, LinkOptions};
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::{start_hand, GuiOptions};
-use maobi_shared::{presets, ParamId};
+use maobi_shared::force::OutputState;
+use maobi_shared::presets;
 
-/// Substeps per tick that make the emulated pen's tick cost about 900,000 instructions,
-/// slower under QEMU than the app's stream (see the test). The count follows the brush's
-/// cost: 25 did it at 16 layers; at 12, whose substep is cheaper, a CI run at 25 received
-/// 653 of the replay's 1,251 states and the canvases differed.
-const PACED_SUBSTEPS: u8 = 35;
+/// Only a guard against a hang: far longer than any of these steps takes on a loaded machine.
+const HANG_GUARD: Duration = Duration::from_secs(600);
+
+/// Telemetry (the pen's counters of dropped frames and of ticks without a pose) every this
+/// many ticks: the counters that cover a replay arrive soon after it.
+const TELEMETRY_TICKS: u32 = 10;
 
 fn image() -> Option<PathBuf> {
     firmware::qemu_test_image()
@@ -51,26 +58,52 @@ fn app(device: Box<dyn Device>) -> Harness<'static, MaobiApp> {
         .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
 }
 
+/// Steps the UI until `done` says so; fails (naming `what`) only if that takes longer than
+/// the hang guard.
+fn step_until(
+    h: &mut Harness<'static, MaobiApp>,
+    what: &str,
+    mut done: impl FnMut(&MaobiApp) -> bool,
+) {
+    let end = Instant::now() + HANG_GUARD;
+    while !done(h.state()) {
+        assert!(
+            Instant::now() < end,
+            "{what}: not within {HANG_GUARD:?} (hung?): {:?}",
+            h.state().status()
+        );
+        h.run_steps(1);
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 /// Replays `poses` in the app and steps the UI until the replay is done and inked.
-fn replay(h: &mut Harness<'static, MaobiApp>, poses: &Path, within: Duration) {
+fn replay(h: &mut Harness<'static, MaobiApp>, poses: &Path) {
     h.state_mut()
         .start_replay(poses)
         .expect("the replay starts");
-    let end = Instant::now() + within;
-    loop {
-        h.run_steps(1);
-        let s = h.state().status();
-        if s.replays_done == 1 && !s.replaying {
-            break;
-        }
-        assert!(
-            Instant::now() < end,
-            "the replay did not finish within {within:?}: {s:?}"
-        );
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    step_until(h, "the replay finishes", |app| {
+        let s = app.status();
+        s.replays_done == 1 && !s.replaying
+    });
     // The frames of the replay's last ticks are inked on the next UI frames.
     h.run_steps(3);
+}
+
+/// The firmware in QEMU in lock-step, every tick's state on its UART0 socket; returns the
+/// emulator and the socket's address.
+fn lockstep_firmware(elf: &Path) -> (Guest, String) {
+    let tick = format!("tick_us={EMULATED_TICK_US}");
+    let telemetry = format!("telemetry_ticks={TELEMETRY_TICKS}");
+    let mut run = Run::new(
+        elf,
+        &["run", &tick, "state_hz=1000", &telemetry, "lockstep"],
+        Clock::Deterministic { shift: 0 },
+        HANG_GUARD * 2,
+    );
+    let port = run.listen_uart().expect("a loopback socket for UART0");
+    let guest = run.spawn().expect("QEMU starts");
+    (guest, format!("127.0.0.1:{port}"))
 }
 
 #[test]
@@ -83,49 +116,17 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
     let sim = SimDevice::new(SimClock::Stepped(20), "large", start_hand(length)).unwrap();
     let mut local = app(Box::new(sim));
     local.run_steps(2);
-    // The emulated pen ticks as fast as QEMU runs it (deterministic time, idle skipped) and,
-    // like a pen, holds its last pose on a tick that none reached; the in-process simulator
-    // ticks once per pose. So that both see every pose on its own tick, the pen must not
-    // outrun the app's stream: `PACED_SUBSTEPS` per tick (on both) slow its ticks below the
-    // stream's pace under QEMU.
-    let paced = |h: &mut Harness<'static, MaobiApp>| {
-        h.state_mut()
-            .set_param(ParamId::SubstepsPerTick, f32::from(PACED_SUBSTEPS));
-        let end = Instant::now() + Duration::from_secs(30);
-        while h.state().status().params.substeps_per_tick != PACED_SUBSTEPS {
-            assert!(Instant::now() < end, "the device took the rate");
-            h.run_steps(1);
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    };
-    paced(&mut local);
-    replay(&mut local, &hook, Duration::from_secs(120));
+    replay(&mut local, &hook);
 
-    // The firmware under QEMU, every tick's state on its UART0 socket.
-    let port = free_port().unwrap();
-    let tick = format!("tick_us={EMULATED_TICK_US}");
-    let mut run = Run::new(
-        &elf,
-        &["run", &tick, "state_hz=1000"],
-        Clock::Deterministic { shift: 0 },
-        Duration::from_secs(600),
-    );
-    run.uart_port = Some(port);
-    let mut guest = run.spawn().expect("QEMU starts");
-    let device = LinkDevice::new(LinkOptions::new(
-        Endpoint::Tcp(format!("127.0.0.1:{port}")),
-        start_hand(length),
-    ))
-    .unwrap();
+    let (mut guest, addr) = lockstep_firmware(&elf);
+    let device =
+        LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr), start_hand(length))).unwrap();
     let mut remote = app(Box::new(device));
-    let end = Instant::now() + Duration::from_secs(30);
-    while !remote.state().status().connected {
-        assert!(Instant::now() < end, "connects to QEMU's UART0 socket");
-        if let Ok(Some(st)) = guest.child.try_wait() {
-            panic!("QEMU exited ({st}) before the link opened");
-        }
-        remote.run_steps(1);
-        std::thread::sleep(Duration::from_millis(20));
+    step_until(&mut remote, "connects to QEMU's UART0 socket", |app| {
+        app.status().connected
+    });
+    if let Ok(Some(st)) = guest.child.try_wait() {
+        panic!("QEMU exited ({st})");
     }
     let status = remote.state().status().clone();
     assert!(
@@ -135,8 +136,21 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
             .is_some_and(|v| v.contains("qemu")),
         "the handshake names the QEMU board: {status:?}"
     );
-    paced(&mut remote);
-    replay(&mut remote, &hook, Duration::from_secs(300));
+    replay(&mut remote, &hook);
+    // The pen's counters that cover the whole replay: telemetry comes every
+    // `TELEMETRY_TICKS` ticks, so it has come once this many more states have.
+    let states = |app: &MaobiApp| app.status().link.as_ref().map_or(0, |l| l.states);
+    let replayed = states(remote.state());
+    step_until(&mut remote, "telemetry after the replay", |app| {
+        states(app) > replayed + 4 * u64::from(TELEMETRY_TICKS)
+    });
+    let status = remote.state().status().clone();
+    let link = status.link.clone().expect("a link report");
+    assert_eq!(
+        (status.frames_dropped, link.pose_gaps, link.lost),
+        (0, 0, 0),
+        "every state reached the app, every tick had its pose, the link held: {link:?}"
+    );
 
     let (a, b) = (
         remote.state().paper().canvas().ink(),
@@ -165,21 +179,12 @@ fn guided_writing_over_tcp_to_the_qemu_firmware() {
     use std::sync::Arc;
     let Some(elf) = image() else { return };
     let length = f64::from(presets::LARGE.length_mm);
-    let port = free_port().unwrap();
-    let tick = format!("tick_us={EMULATED_TICK_US}");
-    let mut run = Run::new(
-        &elf,
-        &["run", &tick, "state_hz=1000"],
-        Clock::Deterministic { shift: 0 },
-        Duration::from_secs(600),
-    );
-    run.uart_port = Some(port);
-    let _guest = run.spawn().expect("QEMU starts");
+    let (_guest, addr) = lockstep_firmware(&elf);
     // The pen hangs 10 mm above the paper (the pointer does not move); the moving point runs
     // a 30 mm line in 0.5 s from 5 mm beside it.
     let z = length + 10.0;
     let mut dev = LinkDevice::new(LinkOptions::new(
-        Endpoint::Tcp(format!("127.0.0.1:{port}")),
+        Endpoint::Tcp(addr),
         HandInput {
             x: 0.0,
             y: 0.0,
@@ -192,15 +197,25 @@ fn guided_writing_over_tcp_to_the_qemu_firmware() {
     // QEMU opens its socket when it is ready: the device keeps trying in the background.
     let _ = dev.connect();
     let mut frames = Vec::new();
-    let end = Instant::now() + Duration::from_secs(30);
+    let end = Instant::now() + HANG_GUARD;
     while !dev.status().connected {
         assert!(Instant::now() < end, "connects to QEMU's UART0 socket");
         dev.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(20));
     }
     dev.send(DeviceCommand::EnableForces(true)).unwrap();
-    let end = Instant::now() + Duration::from_secs(20);
-    while frames.len() < 300 && Instant::now() < end {
+    // The pen hangs at rest with its forces on (the state says so) before the guide starts.
+    let end = Instant::now() + HANG_GUARD;
+    while frames.len() < 300
+        || !frames
+            .last()
+            .is_some_and(|f| f.output == OutputState::Active)
+    {
+        assert!(
+            Instant::now() < end,
+            "300 states, forces on: {} states",
+            frames.len()
+        );
         dev.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -208,19 +223,30 @@ fn guided_writing_over_tcp_to_the_qemu_firmware() {
     let track = maobi::poses::PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
     dev.send(DeviceCommand::Guide(Some(Arc::new(track))))
         .unwrap();
-    let mut all = Vec::new();
-    let end = Instant::now() + Duration::from_secs(60);
-    while Instant::now() < end {
-        frames.clear();
-        dev.poll(&mut frames);
-        all.extend(frames.iter().cloned());
+    // Until 200 states after the guide's last: the stroke, its fade-out, and quiet.
+    let mut all = std::mem::take(&mut frames);
+    let end = Instant::now() + HANG_GUARD;
+    loop {
         let last = all.iter().rposition(|f| f.guide.is_some());
         if last.is_some_and(|i| all.len() > i + 200) {
             break;
         }
+        assert!(
+            Instant::now() < end,
+            "the guide did not end: {} states",
+            all.len()
+        );
+        dev.poll(&mut all);
         std::thread::sleep(Duration::from_millis(5));
     }
     dev.disconnect();
+    // Lock-step: a state for every tick, none lost on the way.
+    let gaps: Vec<_> = all
+        .windows(2)
+        .filter(|w| w[1].tick != w[0].tick + 1)
+        .map(|w| (w[0].tick, w[1].tick))
+        .collect();
+    assert!(gaps.is_empty(), "states missing between ticks {gaps:?}");
     let guided: Vec<_> = all.iter().filter_map(|f| f.guide.map(|g| (f, g))).collect();
     let peak_gain = guided.iter().map(|(_, g)| g.gain).fold(0.0, f64::max);
     let pull = guided

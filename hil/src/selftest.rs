@@ -8,11 +8,11 @@ use anyhow::{bail, Result};
 
 use crate::qemu::{Clock, Run};
 
-/// Force-loop period for emulated runs (us). The QEMU board runs the presets' 25 substeps per
-/// tick, whose dearest tick costs about half a million instructions (`hil bench`); with the link's
-/// work beside it that leaves too little of the million a virtual millisecond holds at
-/// `-icount` shift 0, so emulated runs pace the loop slower; the model still advances 1 ms
-/// per tick.
+/// Force-loop period for emulated runs (us). A tick with the link's work beside it (a state
+/// every tick, damaged frames, commands) can cost more than the million instructions a
+/// virtual millisecond holds at `-icount` shift 0 with a brush set dearer than the presets
+/// (`hil bench`), so emulated runs pace the loop slower; the model still advances 1 ms per
+/// tick.
 pub const EMULATED_TICK_US: u32 = 4000;
 
 /// Runs `selftest TICKS` and returns its summary line.

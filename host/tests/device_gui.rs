@@ -170,9 +170,7 @@ fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
         Automation::default(),
         Default::default(),
     );
-    let mut h = Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app);
+    let mut h = common::harness(app);
     h.run_steps(2);
     let hook = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");
     h.state_mut().start_replay(&hook).unwrap();

@@ -342,9 +342,7 @@ fn the_gui_opens_a_session_given_at_start() {
         Default::default(),
     );
     app.set_session_clock(clock);
-    let mut h2 = Harness::builder()
-        .with_size(egui::vec2(1400.0, 900.0))
-        .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app);
+    let mut h2 = common::harness(app);
     h2.run_steps(1);
     run_until(&mut h2, Duration::from_secs(60), |a| !a.opening_session());
     h2.run_steps(1);

@@ -188,8 +188,10 @@ pub struct MaobiApp {
     /// The stroke editor (keyframed strokes on a timeline) and whether it is shown.
     timeline: Timeline,
     show_timeline: bool,
-    /// Fonts set up (on the first frame, when there is a context): the outcome.
-    fonts: Option<Result<String, String>>,
+    /// Where the fonts come from, and the outcome of setting them up (on the first frame,
+    /// when there is a context).
+    font_source: super::fonts::FontSource,
+    fonts: Option<Result<(), String>>,
     /// The paper's history for the session file (inked ticks, undo, clear).
     ink_log: InkLog,
     session_path: String,
@@ -281,12 +283,21 @@ impl MaobiApp {
             ink_load: 1.0,
             timeline: Timeline::default(),
             show_timeline: false,
+            font_source: Default::default(),
             fonts: None,
             ink_log: InkLog::default(),
             session_path: "out/maobi-session.maobi.toml".into(),
             opening: None,
             session_clock: SimClock::RealTime,
         }
+    }
+
+    /// The app drawing its text with the fonts of `source` (tests fix them, so that the
+    /// glyphs do not depend on the machine).
+    pub fn with_fonts(mut self, source: super::fonts::FontSource) -> MaobiApp {
+        self.font_source = source;
+        self.fonts = None;
+        self
     }
 
     /// The clock of the simulator an opened session continues on (tests use a stepped one).
@@ -1825,7 +1836,7 @@ impl MaobiApp {
         let begin = Instant::now();
         let ctx = ui.ctx().clone();
         if self.fonts.is_none() {
-            self.fonts = Some(super::fonts::setup(&ctx));
+            self.fonts = Some(super::fonts::setup(&ctx, &self.font_source));
         }
         let interval = self.times.last.map(|l| (begin - l).as_secs_f64() * 1e3);
         self.times.prev_begin = self.times.last;

@@ -607,7 +607,7 @@ impl Timeline {
             .and_then(|s| s.name.clone())
             .unwrap_or_else(|| format!("stroke {}", i + 1));
         ui.label(format!(
-            "{name}: kinetic curve (time → position along the path); drag a keyframe sideways to retime it, the path is kept"
+            "{name}: kinetic curve (position along the path against time); drag a keyframe sideways to retime it, the path is kept"
         ));
         let (rect, resp) = ui.allocate_exact_size(
             Vec2::new(

@@ -1,5 +1,6 @@
-//! What the host's tests share: the app in a kittest harness (no window), the example files,
-//! the guide stroke and a guided run along it, and the stderr of a `maobi` server process.
+//! What the host's tests share: the app in a kittest harness (no window) with fonts of its
+//! own, the example files, the guide stroke and a guided run along it, and the stderr of a
+//! `maobi` server process.
 
 // Each test binary includes this module and uses a part of it.
 #![allow(dead_code)]
@@ -14,9 +15,12 @@ use egui_kittest::Harness;
 use maobi::device::builtin::{SimClock, SimCore, SimDevice};
 use maobi::device::{BrushFrame, Device, DeviceCommand, GuideFrame};
 use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::fonts::{CjkFont, FontSource, CJK_TEXT};
 use maobi::gui::{start_hand, GuiOptions};
 use maobi::poses::PoseTrack;
 use maobi_shared::guide::DEFAULT_GUIDE;
+
+pub mod test_font;
 
 /// The app on the `large` brush's simulator running on `clock`, with a square paper of
 /// `paper_mm` at `px_per_mm`, driven by `automation`.
@@ -46,11 +50,25 @@ pub fn harness(app: MaobiApp) -> Harness<'static, MaobiApp> {
     harness_sized(app, 1400.0, 900.0)
 }
 
-/// `app` in a kittest harness of `width` x `height`.
+/// `app` in a kittest harness of `width` x `height`, drawing with [`test_fonts`]. kittest
+/// panics on a character no font draws.
 pub fn harness_sized(app: MaobiApp, width: f32, height: f32) -> Harness<'static, MaobiApp> {
+    let app = app.with_fonts(test_fonts());
     Harness::builder()
         .with_size(egui::vec2(width, height))
         .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)
+}
+
+/// The fonts every test draws with, whatever the machine has: egui's, then a CJK font made
+/// here that draws the app's CJK text ([`CJK_TEXT`]) and nothing else (no arrows, no Latin).
+pub fn test_fonts() -> FontSource {
+    FontSource::Fixed(Some(test_cjk_font()))
+}
+
+/// The CJK font of [`test_fonts`].
+pub fn test_cjk_font() -> CjkFont {
+    CjkFont::from_bytes("test font", test_font::font_for(CJK_TEXT))
+        .expect("the test font draws the app's CJK text")
 }
 
 /// `examples/poses/NAME`.

@@ -52,7 +52,10 @@ fn app(device: Box<dyn Device>) -> Harness<'static, MaobiApp> {
         opts.frame(),
         Automation::default(),
         Default::default(),
-    );
+    )
+    // egui's own fonts, no system lookup: the same glyphs on every machine (the replay shows
+    // no CJK text).
+    .with_fonts(maobi::gui::fonts::FontSource::Fixed(None));
     Harness::builder()
         .with_size(egui::vec2(1400.0, 900.0))
         .build_ui_state(|ui, app: &mut MaobiApp| app.frame_ui(ui), app)

@@ -96,8 +96,13 @@ struct Paper {
     touching: usize,
     kept: Vec<BrushFrame>,
     kept_last_tick: Option<u64>,
-    /// The device tick of every state received, in order.
-    ticks: Vec<u64>,
+    /// The device tick of every state received, in order, with the link session it came in
+    /// when that is known for certain ([`pump_until`]).
+    ticks: Vec<(Option<u64>, u64)>,
+    /// The session the states inked next came in, if known.
+    session: Option<u64>,
+    /// The link's session count as read just before the last poll.
+    link_before_poll: Option<u64>,
     /// Where the last state received had the brush's handle (mm).
     handle: Option<[f64; 3]>,
 }
@@ -113,13 +118,15 @@ impl Paper {
             kept: Vec::new(),
             kept_last_tick: None,
             ticks: Vec::new(),
+            session: None,
+            link_before_poll: None,
             handle: None,
         }
     }
     fn ink(&mut self, frames: &[BrushFrame]) {
         for f in frames {
             self.frames += 1;
-            self.ticks.push(f.tick);
+            self.ticks.push((self.session, f.tick));
             self.handle = Some(f.pose.pos.to_f64());
             // A device may repeat its last state when no pose came in time (its state timer
             // fired); stamping it again changes nothing (ink combines by max), but it is
@@ -138,13 +145,23 @@ impl Paper {
     }
 }
 
-/// The most device ticks between two consecutive states of `ticks`.
-fn largest_tick_gap(ticks: &[u64]) -> u64 {
+/// The most device ticks between two consecutive states of `ticks` that came in the same
+/// link session: a session lost on a busy machine (the link's timeout) discards the states
+/// in flight, which is not the device's rate.
+fn largest_tick_gap(ticks: &[(Option<u64>, u64)]) -> u64 {
     ticks
         .windows(2)
-        .map(|w| w[1].saturating_sub(w[0]))
+        .filter(|w| w[0].0.is_some() && w[0].0 == w[1].0)
+        .map(|w| w[1].1.saturating_sub(w[0].1))
         .max()
         .unwrap_or(0)
+}
+
+/// A number that changes whenever a link session starts or ends.
+fn link_session(s: &DeviceStatus) -> Option<u64> {
+    s.link
+        .as_ref()
+        .map(|l| u64::from(l.sessions) + u64::from(l.lost))
 }
 
 /// Polls `dev`, inking what arrives, until `done` holds for the paper and the status;
@@ -158,10 +175,16 @@ fn pump_until(
     let end = Instant::now() + HANG_GUARD;
     let mut frames = Vec::new();
     loop {
+        let before_poll = link_session(&dev.status());
         frames.clear();
         dev.poll(&mut frames);
-        paper.ink(&frames);
         let s = dev.status();
+        // This poll's states came after the last poll took the queue: all in one session if
+        // none started or ended from before that poll until after this one.
+        let now = link_session(&s);
+        paper.session = now.filter(|_| paper.link_before_poll == now);
+        paper.link_before_poll = before_poll;
+        paper.ink(&frames);
         if done(paper, &s) {
             return;
         }
@@ -333,7 +356,7 @@ fn handshake_then_poses_in_states_out_and_ink() {
     let s = dev.status();
     let l = s.link.clone().unwrap();
     let ticks = &paper.ticks[first..];
-    let span = ticks.last().unwrap() - ticks[0];
+    let span = ticks.last().unwrap().1 - ticks[0].1;
     // States at 120 Hz of the device's 1 kHz loop: one at least every 8 of its ticks, over
     // a stroke whose moves alone take more than 80 ticks (0.4 mm per tick).
     assert!(span > 80, "the stroke spans {span} device ticks");
@@ -490,6 +513,7 @@ fn peer_dies_mid_stroke_then_the_link_reconnects() {
     // What arrived before the loss is inked.
     let mut frames = Vec::new();
     dev.poll(&mut frames);
+    (paper.session, paper.link_before_poll) = (None, None);
     paper.ink(&frames);
     let ink_at_loss = paper.canvas.ink_area_px();
     assert!(ink_at_loss >= ink_before);

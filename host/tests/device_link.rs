@@ -814,11 +814,21 @@ fn serial_backend_over_a_pty() {
     let device = {
         let stop = stop.clone();
         std::thread::spawn(move || {
-            let _ = serve_stream(
-                Box::new(SerialConn(Box::new(master))),
-                &SimDeviceOptions::default(),
-                &stop,
-            );
+            // The device's connection ends when the pty fails it (seen on a busy machine,
+            // after the link had counted a session lost); like a pen that resets, it serves
+            // again on the same pty, which this thread's handle keeps alive.
+            while !stop.load(Ordering::SeqCst) {
+                let conn = master
+                    .try_clone_native()
+                    .expect("a second handle on the pty");
+                let _ = serve_stream(
+                    Box::new(SerialConn(Box::new(conn))),
+                    &SimDeviceOptions::default(),
+                    &stop,
+                );
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            drop(master);
         })
     };
     let mut dev = link(Endpoint::Serial(path.clone()));

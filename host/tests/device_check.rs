@@ -9,7 +9,7 @@ use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Outcome, Scripted};
+use maobi::device::bringup::{run_check, CheckOptions, CheckReport, Operator, Outcome, Scripted};
 use maobi::device::endpoint::nothing_to_read_yet;
 use maobi::device::{Endpoint, SimDeviceOptions, SimDeviceServer};
 use maobi_shared::kinematics::RawReadings;
@@ -18,6 +18,10 @@ use maobi_shared::protocol::{
     DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, Faults, HostMsg, Message, SensorReport, Version,
 };
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Vec3};
+
+/// The sensor reports the fake pen's scripted hand shapes: it moves six channels, three
+/// reports out and three back each, and a move shows in the report after it.
+const HAND_REPORTS: usize = 6 * 6 + 1;
 
 /// What the fake pen is and what happened to it.
 #[derive(Clone, Debug)]
@@ -90,8 +94,9 @@ impl Pen {
         )
         .with_config(state)
     }
-    /// The scripted hand, after report `k` of the stream: channel `k / 6` goes out (three
-    /// reports) and back (three); channel 1 goes the negative way.
+    /// The scripted hand, after report `k` of the stream (`k` below [`HAND_REPORTS`]):
+    /// channel `k / 6` goes out (three reports) and back (three); channel 1 goes the
+    /// negative way.
     fn hand(&mut self, k: usize) {
         let ch = k / 6;
         if ch >= 6 || !self.hand_moves[ch] {
@@ -260,6 +265,9 @@ fn serve_turning_away(pen: Pen, turn_away: usize) -> (String, Arc<Mutex<Pen>>) {
                     gimbal: p.gimbal,
                     buttons: if reports == 3 {
                         Buttons::PRIMARY
+                    } else if reports > HAND_REPORTS {
+                        // The scripted hand is done: button 2 held down says so.
+                        Buttons::SECONDARY
                     } else {
                         Buttons::empty()
                     },
@@ -284,26 +292,61 @@ fn detail<'a>(r: &'a CheckReport, step: &str) -> &'a str {
         .detail
 }
 
+/// The longest the wizard may take over a step that ends on an event (here: the scripted
+/// hand done), or over a refused connection: only a hang gets near it.
+const HANG_GUARD: Duration = Duration::from_secs(60);
+
 fn opts(addr: &str) -> CheckOptions {
     let mut o = CheckOptions::new(Endpoint::Tcp(addr.to_string()));
-    // The scripted hand is done after 36 reports (0.72 s at 50 Hz); room for a slow machine.
-    o.sensor_time = Duration::from_secs(3);
+    // The sensor step of a physical pen ends when the operator presses Enter
+    // ([`UntilHandDone`]); its own time limit only guards a hang.
+    o.sensor_time = HANG_GUARD;
     o
+}
+
+/// `--yes`, and Enter in the sensor step once the wizard has shown a reading of the fake
+/// pen's with button 2 down: its scripted hand is done and every reading of it was read (the
+/// readings come in order), however fast the machine is.
+#[derive(Default)]
+struct UntilHandDone {
+    script: Scripted,
+    hand_done: bool,
+}
+
+impl Operator for UntilHandDone {
+    fn say(&mut self, text: &str) {
+        self.script.say(text);
+    }
+    fn live(&mut self, text: &str) {
+        // The live line ends with the buttons down ("1", "2", "1+2" or "-").
+        let buttons = text.rsplit("buttons ").next().unwrap_or("");
+        self.hand_done |= buttons.split('+').any(|b| b == "2");
+        self.script.live(text);
+    }
+    fn confirm(&mut self, question: &str) -> bool {
+        self.script.confirm(question)
+    }
+    fn wait_enter(&mut self, prompt: &str) {
+        self.script.wait_enter(prompt);
+    }
+    fn enter_pressed(&mut self) -> bool {
+        self.hand_done
+    }
 }
 
 fn run(pen: Pen) -> (CheckReport, Pen, Vec<String>) {
     let (addr, state) = serve(pen);
-    let mut op = Scripted::default();
+    let mut op = UntilHandDone::default();
     let r = run_check(&opts(&addr), &mut op);
-    println!("{}\n{}", op.transcript.join("\n"), r.table());
+    println!("{}\n{}", op.script.transcript.join("\n"), r.table());
     let p = state.lock().unwrap().clone();
-    (r, p, op.transcript)
+    (r, p, op.script.transcript)
 }
 
 #[test]
 fn a_connection_turned_away_before_the_handshake_is_tried_again() {
     let (addr, _) = serve_turning_away(Pen::physical(Some(DeviceConfig::DEFAULT), [1; 3]), 2);
-    let mut op = Scripted::default();
+    let mut op = UntilHandDone::default();
     let r = run_check(&opts(&addr), &mut op);
     assert_eq!(
         r.outcome("1 handshake"),
@@ -321,8 +364,12 @@ fn a_refused_handshake_is_not_retried() {
         let l = TcpListener::bind("127.0.0.1:0").unwrap();
         l.local_addr().unwrap().to_string()
     };
+    // Given the hang guard as its reply timeout: retried, it would take all of it.
+    let mut o = opts(&addr);
+    o.reply_timeout = HANG_GUARD;
     let started = Instant::now();
-    let r = run_check(&opts(&addr), &mut Scripted::default());
+    let r = run_check(&o, &mut Scripted::default());
+    let took = started.elapsed();
     assert_eq!(
         r.outcome("1 handshake"),
         Some(Outcome::Fail),
@@ -330,7 +377,7 @@ fn a_refused_handshake_is_not_retried() {
         r.table()
     );
     assert!(detail(&r, "1 handshake").contains(&addr), "{}", r.table());
-    assert!(started.elapsed() < Duration::from_secs(2));
+    assert!(took < HANG_GUARD / 2, "{took:?}: retried until the timeout");
 }
 
 #[test]

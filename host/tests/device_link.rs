@@ -1,11 +1,18 @@
 //! The GUI's protocol backend ([`LinkDevice`]) against the simulated protocol device over TCP
 //! (and a pty): handshake, poses in and states out, ink from the received geometry, garbage
 //! on the link, the peer dying mid-stroke and coming back, a peer of another protocol version.
+//!
+//! No check here depends on how fast the machine is: each one waits for the event it needs
+//! (the pen at a place, a number of states, a link state, a counter) under [`HANG_GUARD`],
+//! which only turns a hang into a failure; a link state the link passes through on its way
+//! (lost, then reconnecting) is read with the link thread held there ([`LinkSteps`]). Rates
+//! are checked in the device's ticks, not in seconds.
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use maobi::device::{BrushFrame, Device, DeviceCommand, DeviceStatus, HandInput};
@@ -22,6 +29,20 @@ use maobi_shared::protocol::{
 };
 
 mod common;
+
+/// The longest any wait below may take: only a hang gets near it (each wait ends at its
+/// event), so it fails a test instead of hanging it, and a loaded machine never does.
+const HANG_GUARD: Duration = Duration::from_secs(60);
+
+/// The sim-device's state rate in these tests (its default), and the most device ticks
+/// between two of its states: one every `1000 / 120` poses, and more when its state timer
+/// fires while no pose comes.
+const STATE_HZ: u32 = 120;
+const MAX_TICKS_BETWEEN_STATES: u64 = 1000 / STATE_HZ as u64;
+
+/// States a stroke waits for with the brush pressed at its end (the GUI's brush resting on
+/// the paper for a moment).
+const HOLD_STATES: usize = 30;
 
 fn length() -> f64 {
     presets::by_name("large").unwrap().length_mm as f64
@@ -42,6 +63,31 @@ fn link(endpoint: Endpoint) -> LinkDevice {
     LinkDevice::new(LinkOptions::new(endpoint, start_hand(length()))).unwrap()
 }
 
+/// Connects `dev` to a device that is there. `connect` itself waits about two seconds for
+/// the first handshake (what the GUI waits before it says "retrying in the background"); on
+/// a loaded machine the handshake may come later, so wait on for it, under the hang guard.
+fn connect(dev: &mut LinkDevice) {
+    if let Err(e) = dev.connect() {
+        assert!(
+            dev.wait_connected(HANG_GUARD),
+            "no connection: {e}; {:?}",
+            dev.status().link
+        );
+    }
+}
+
+/// What `connect` says to a device that is not there or is refused: once the first attempt
+/// has ended (however long that takes here), `connect` reports its reason.
+fn connect_error(dev: &mut LinkDevice) -> String {
+    let first = dev.connect().expect_err("no connection");
+    wait_for(dev, "the first connection attempt ends", |s| {
+        s.link.as_ref().is_some_and(|l| l.attempts >= 1)
+    });
+    let err = dev.connect().expect_err("still no connection").to_string();
+    eprintln!("connect: {first}; after the first attempt: {err}");
+    err
+}
+
 /// The GUI's paper, reduced to what these tests check.
 struct Paper {
     inker: Inker,
@@ -50,6 +96,15 @@ struct Paper {
     touching: usize,
     kept: Vec<BrushFrame>,
     kept_last_tick: Option<u64>,
+    /// The device tick of every state received, in order, with the link session it came in
+    /// when that is known for certain ([`pump_until`]).
+    ticks: Vec<(Option<u64>, u64)>,
+    /// The session the states inked next came in, if known.
+    session: Option<u64>,
+    /// The link's session count as read just before the last poll.
+    link_before_poll: Option<u64>,
+    /// Where the last state received had the brush's handle (mm).
+    handle: Option<[f64; 3]>,
 }
 
 impl Paper {
@@ -62,11 +117,17 @@ impl Paper {
             touching: 0,
             kept: Vec::new(),
             kept_last_tick: None,
+            ticks: Vec::new(),
+            session: None,
+            link_before_poll: None,
+            handle: None,
         }
     }
     fn ink(&mut self, frames: &[BrushFrame]) {
         for f in frames {
             self.frames += 1;
+            self.ticks.push((self.session, f.tick));
+            self.handle = Some(f.pose.pos.to_f64());
             // A device may repeat its last state when no pose came in time (its state timer
             // fired); stamping it again changes nothing (ink combines by max), but it is
             // the same tick touching, not another.
@@ -77,29 +138,177 @@ impl Paper {
             }
         }
     }
+    /// The last state received had the handle at `at` (within the wire's fixed point).
+    fn handle_at(&self, at: [f64; 3]) -> bool {
+        self.handle
+            .is_some_and(|h| (0..3).all(|i| (h[i] - at[i]).abs() < 1e-3))
+    }
 }
 
-/// Polls `dev` for `dur`, inking what arrives.
-fn pump(dev: &mut dyn Device, paper: &mut Paper, dur: Duration) {
-    let end = Instant::now() + dur;
+/// The most device ticks between two consecutive states of `ticks` that came in the same
+/// link session: a session lost on a busy machine (the link's timeout) discards the states
+/// in flight, which is not the device's rate.
+fn largest_tick_gap(ticks: &[(Option<u64>, u64)]) -> u64 {
+    ticks
+        .windows(2)
+        .filter(|w| w[0].0.is_some() && w[0].0 == w[1].0)
+        .map(|w| w[1].1.saturating_sub(w[0].1))
+        .max()
+        .unwrap_or(0)
+}
+
+/// A number that changes whenever a link session starts or ends.
+fn link_session(s: &DeviceStatus) -> Option<u64> {
+    s.link
+        .as_ref()
+        .map(|l| u64::from(l.sessions) + u64::from(l.lost))
+}
+
+/// Polls `dev`, inking what arrives, until `done` holds for the paper and the status;
+/// fails, naming `what`, if that takes [`HANG_GUARD`].
+fn pump_until(
+    dev: &mut dyn Device,
+    paper: &mut Paper,
+    what: &str,
+    mut done: impl FnMut(&Paper, &DeviceStatus) -> bool,
+) {
+    let end = Instant::now() + HANG_GUARD;
     let mut frames = Vec::new();
-    while Instant::now() < end {
+    loop {
+        let before_poll = link_session(&dev.status());
         frames.clear();
         dev.poll(&mut frames);
+        let s = dev.status();
+        // This poll's states came after the last poll took the queue: all in one session if
+        // none started or ended from before that poll until after this one.
+        let now = link_session(&s);
+        paper.session = now.filter(|_| paper.link_before_poll == now);
+        paper.link_before_poll = before_poll;
         paper.ink(&frames);
-        std::thread::sleep(Duration::from_millis(10));
+        if done(paper, &s) {
+            return;
+        }
+        assert!(
+            Instant::now() < end,
+            "{what}: not within {HANG_GUARD:?} ({} states so far; {:?})",
+            paper.frames,
+            s.link
+        );
+        std::thread::sleep(Duration::from_millis(2));
     }
 }
 
-fn wait_for(dev: &dyn Device, dur: Duration, what: impl Fn(&DeviceStatus) -> bool) -> bool {
-    let end = Instant::now() + dur;
-    while Instant::now() < end {
-        if what(&dev.status()) {
-            return true;
+/// Pumps until `n` more states have come.
+fn pump_states(dev: &mut dyn Device, paper: &mut Paper, n: usize) {
+    let until = paper.frames + n;
+    pump_until(dev, paper, &format!("{n} more states"), |p, _| {
+        p.frames >= until
+    });
+}
+
+/// Sends the hand to `h` and pumps until a state shows the brush's handle there.
+fn move_hand(dev: &mut dyn Device, paper: &mut Paper, h: HandInput) {
+    dev.send(DeviceCommand::Hand(h)).unwrap();
+    let at = [h.x, h.y, h.z];
+    pump_until(dev, paper, &format!("the pen reaches {at:?}"), |p, _| {
+        p.handle_at(at)
+    });
+}
+
+/// Waits until the status satisfies `what` (a state that lasts once reached).
+fn wait_for(dev: &dyn Device, what: &str, done: impl Fn(&DeviceStatus) -> bool) -> DeviceStatus {
+    let end = Instant::now() + HANG_GUARD;
+    loop {
+        let s = dev.status();
+        if done(&s) {
+            return s;
         }
-        std::thread::sleep(Duration::from_millis(10));
+        assert!(
+            Instant::now() < end,
+            "{what}: not within {HANG_GUARD:?}: {:?}",
+            s.link
+        );
+        std::thread::sleep(Duration::from_millis(2));
     }
-    what(&dev.status())
+}
+
+/// Holds the link thread at its wake-ups (a session up, a session ended, states in) while a
+/// test reads the status there: a state the link only passes through (lost, before it
+/// reconnects) is then read for certain, however the machine schedules the threads.
+struct LinkSteps {
+    armed: Arc<AtomicBool>,
+    paused: Receiver<()>,
+    resume: Sender<()>,
+}
+
+/// The link thread, held at one wake-up with the status it had there; it goes on when this
+/// is dropped.
+struct Held<'a> {
+    steps: &'a LinkSteps,
+    status: DeviceStatus,
+}
+
+impl Drop for Held<'_> {
+    fn drop(&mut self) {
+        let _ = self.steps.resume.send(());
+    }
+}
+
+impl LinkSteps {
+    /// Installs the hold as `dev`'s wake callback (the link thread calls it with no lock
+    /// held); it holds nothing until [`LinkSteps::arm`] or [`LinkSteps::until`].
+    fn install(dev: &mut LinkDevice) -> LinkSteps {
+        let armed = Arc::new(AtomicBool::new(false));
+        let (paused_tx, paused) = mpsc::channel();
+        let (resume, resume_rx) = mpsc::channel::<()>();
+        let resume_rx = Mutex::new(resume_rx);
+        let hold = armed.clone();
+        dev.on_frames(Arc::new(move || {
+            if hold.load(Ordering::SeqCst) && paused_tx.send(()).is_ok() {
+                // Until the test has looked (or has gone: the sender dropped).
+                let _ = resume_rx.lock().unwrap().recv();
+            }
+        }));
+        LinkSteps {
+            armed,
+            paused,
+            resume,
+        }
+    }
+
+    /// From now on the link thread stops at each wake-up until [`LinkSteps::until`] has
+    /// looked at it.
+    fn arm(&self) {
+        self.armed.store(true, Ordering::SeqCst);
+    }
+
+    /// Lets the link thread run from wake-up to wake-up until the status there satisfies
+    /// `what`, and returns with it held at that one (no longer armed).
+    fn until(
+        &self,
+        dev: &LinkDevice,
+        what: &str,
+        done: impl Fn(&DeviceStatus) -> bool,
+    ) -> Held<'_> {
+        self.arm();
+        let end = Instant::now() + HANG_GUARD;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            if self.paused.recv_timeout(left).is_err() {
+                self.armed.store(false, Ordering::SeqCst);
+                panic!("{what}: not within {HANG_GUARD:?}: {:?}", dev.status().link);
+            }
+            let status = dev.status();
+            if done(&status) {
+                self.armed.store(false, Ordering::SeqCst);
+                return Held {
+                    steps: self,
+                    status,
+                };
+            }
+            let _ = self.resume.send(());
+        }
+    }
 }
 
 fn hand(x: f64, press_mm: f64) -> HandInput {
@@ -112,21 +321,26 @@ fn hand(x: f64, press_mm: f64) -> HandInput {
     }
 }
 
-/// Presses the brush 8 mm into the paper at x = `from` and drags it to `to`.
-fn stroke(dev: &mut dyn Device, paper: &mut Paper, from: f64, to: f64) {
-    dev.send(DeviceCommand::Hand(hand(from, -6.0))).unwrap();
-    pump(dev, paper, Duration::from_millis(150));
-    dev.send(DeviceCommand::Hand(hand(from, 8.0))).unwrap();
-    pump(dev, paper, Duration::from_millis(150));
-    dev.send(DeviceCommand::Hand(hand(to, 8.0))).unwrap();
-    pump(dev, paper, Duration::from_millis(300));
+/// Brings the brush 6 mm above the paper at x = `from`, presses it 8 mm into the paper,
+/// drags it to `to` and holds it there for [`HOLD_STATES`] states; each move waits until a
+/// state shows the pen arrived. Returns the index in `paper.ticks` of the stroke's first
+/// state.
+fn stroke(dev: &mut dyn Device, paper: &mut Paper, from: f64, to: f64) -> usize {
+    let first = paper.ticks.len();
+    move_hand(dev, paper, hand(from, -6.0));
+    move_hand(dev, paper, hand(from, 8.0));
+    // The brush settles into the paper before it moves.
+    pump_states(dev, paper, 10);
+    move_hand(dev, paper, hand(to, 8.0));
+    pump_states(dev, paper, HOLD_STATES);
+    first
 }
 
 #[test]
 fn handshake_then_poses_in_states_out_and_ink() {
-    let srv = server("127.0.0.1:0", 120);
+    let srv = server("127.0.0.1:0", STATE_HZ);
     let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
-    dev.connect().expect("connects");
+    connect(&mut dev);
     let s = dev.status();
     assert!(s.connected);
     assert_eq!(s.protocol_version, Some(u32::from(PROTOCOL_VERSION)));
@@ -138,13 +352,19 @@ fn handshake_then_poses_in_states_out_and_ink() {
         "{s:?}"
     );
     let mut paper = Paper::new();
-    stroke(&mut dev, &mut paper, -10.0, 10.0);
+    let first = stroke(&mut dev, &mut paper, -10.0, 10.0);
     let s = dev.status();
     let l = s.link.clone().unwrap();
+    let ticks = &paper.ticks[first..];
+    let span = ticks.last().unwrap().1 - ticks[0].1;
+    // States at 120 Hz of the device's 1 kHz loop: one at least every 8 of its ticks, over
+    // a stroke whose moves alone take more than 80 ticks (0.4 mm per tick).
+    assert!(span > 80, "the stroke spans {span} device ticks");
     assert!(
-        paper.frames > 40,
-        "states at ~120 Hz: {} in 0.6 s",
-        paper.frames
+        largest_tick_gap(ticks) <= MAX_TICKS_BETWEEN_STATES,
+        "{} device ticks between two states ({} states over {span} ticks)",
+        largest_tick_gap(ticks),
+        ticks.len()
     );
     assert!(
         paper.touching > 10,
@@ -214,7 +434,7 @@ fn garbage_proxy(upstream: String, garbage: Vec<Vec<u8>>) -> (String, Arc<Atomic
 
 #[test]
 fn garbage_oversized_and_corrupt_bytes_are_counted_and_dropped() {
-    let srv = server("127.0.0.1:0", 120);
+    let srv = server("127.0.0.1:0", STATE_HZ);
     // A good Pong frame with one byte damaged: a CRC error.
     let mut pong = vec![0u8; DeviceMsg::MAX_FRAME];
     let n = DeviceMsg::Pong { seq: 0x0102_0304 }
@@ -233,10 +453,23 @@ fn garbage_oversized_and_corrupt_bytes_are_counted_and_dropped() {
     let framing = vec![0u8, 0x09, 0xAA, 0x55, 0x00];
     let (addr, _stop) = garbage_proxy(srv.addr().to_string(), vec![corrupt, oversized, framing]);
     let mut dev = link(Endpoint::Tcp(addr));
-    dev.connect().expect("connects through the proxy");
+    connect(&mut dev);
     let mut paper = Paper::new();
     stroke(&mut dev, &mut paper, -10.0, 10.0);
-    pump(&mut dev, &mut paper, Duration::from_millis(500));
+    // The proxy damages the stream every fifth chunk from the 25th on, each kind in turn:
+    // wait until each kind has been met and good frames keep coming.
+    pump_until(
+        &mut dev,
+        &mut paper,
+        "every kind of damage counted, and good frames",
+        |_, s| {
+            let rx = &s.link.as_ref().unwrap().rx;
+            rx.crc_errors > 0
+                && rx.oversized_frames > 0
+                && rx.framing_errors > 0
+                && rx.frames_ok > 80
+        },
+    );
     let s = dev.status();
     let rx = s.link.clone().unwrap().rx;
     assert!(s.connected, "garbage does not end the session: {s:?}");
@@ -250,54 +483,76 @@ fn garbage_oversized_and_corrupt_bytes_are_counted_and_dropped() {
 
 #[test]
 fn peer_dies_mid_stroke_then_the_link_reconnects() {
-    let mut srv = server("127.0.0.1:0", 120);
+    let mut srv = server("127.0.0.1:0", STATE_HZ);
     let addr = srv.addr().to_string();
     let mut dev = link(Endpoint::Tcp(addr.clone()));
-    dev.connect().expect("connects");
+    let steps = LinkSteps::install(&mut dev);
+    connect(&mut dev);
     let mut paper = Paper::new();
-    dev.send(DeviceCommand::Hand(hand(-20.0, 8.0))).unwrap();
-    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    move_hand(&mut dev, &mut paper, hand(-20.0, 8.0));
+    pump_states(&mut dev, &mut paper, 10);
+    // Mid-stroke: the pen on its way from x = -20 to 20, pressed.
     dev.send(DeviceCommand::Hand(hand(20.0, 8.0))).unwrap();
-    pump(&mut dev, &mut paper, Duration::from_millis(40));
+    pump_until(&mut dev, &mut paper, "the pen moving", |p, _| {
+        p.handle.is_some_and(|h| h[0] > -15.0)
+    });
     let ink_before = paper.canvas.ink_area_px();
     assert!(ink_before > 0.0, "inking when the peer dies");
     let lost_at = Instant::now();
+    // Held from here on at each wake-up, so the status at the loss is read before the link
+    // goes on to reconnect.
+    steps.arm();
     srv.stop();
-    assert!(
-        wait_for(&dev, LINK_TIMEOUT * 3, |s| !s.connected),
-        "the loss is noticed"
-    );
-    let s = dev.status();
-    let l = s.link.clone().unwrap();
+    let held = steps.until(&dev, "the loss is noticed", |s| !s.connected);
+    let l = held.status.link.clone().unwrap();
     assert!(l.state.contains("lost"), "{}", l.state);
     assert_eq!(l.lost, 1);
     eprintln!("loss noticed after {:?}: {}", lost_at.elapsed(), l.state);
     // Commands other than the hand are refused while the link is down.
     assert!(dev.send(DeviceCommand::Dip(1.0)).is_err());
-    // What arrived before the loss is inked; then nothing changes: the canvas is kept.
-    pump(&mut dev, &mut paper, Duration::from_millis(50));
+    // What arrived before the loss is inked.
+    let mut frames = Vec::new();
+    dev.poll(&mut frames);
+    (paper.session, paper.link_before_poll) = (None, None);
+    paper.ink(&frames);
     let ink_at_loss = paper.canvas.ink_area_px();
     assert!(ink_at_loss >= ink_before);
-    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    let attempts_at_loss = l.attempts;
+    drop(held);
+    // Then nothing comes while the link is down, over two failed reconnection attempts: the
+    // canvas is kept as it was.
+    wait_for(&dev, "two attempts to reconnect", |s| {
+        s.link
+            .as_ref()
+            .is_some_and(|l| l.attempts >= attempts_at_loss + 2)
+    });
+    frames.clear();
+    dev.poll(&mut frames);
+    assert!(
+        frames.is_empty(),
+        "{} states from a dead link",
+        frames.len()
+    );
     assert_eq!(
         paper.canvas.ink_area_px(),
         ink_at_loss,
         "the canvas is kept"
     );
     // The peer comes back on the same port.
-    let _srv2 = server(&addr, 120);
-    assert!(
-        wait_for(&dev, Duration::from_secs(5), |s| s.connected),
-        "reconnects: {:?}",
-        dev.status().link
-    );
-    let frames_before = paper.frames;
-    stroke(&mut dev, &mut paper, 20.0, 35.0);
+    let _srv2 = server(&addr, STATE_HZ);
+    wait_for(&dev, "reconnects", |s| s.connected);
+    let first = stroke(&mut dev, &mut paper, 20.0, 35.0);
     // The virtual pen restarted where the new device's brush was: no jump, no fault.
     assert!(dev.status().faults.is_empty(), "{:?}", dev.status().faults);
     let l = dev.status().link.unwrap();
     assert_eq!(l.sessions, 2, "{l:?}");
-    assert!(paper.frames > frames_before + 40, "states flow again");
+    // States flow again, at the device's rate.
+    let ticks = &paper.ticks[first..];
+    assert!(
+        largest_tick_gap(ticks) <= MAX_TICKS_BETWEEN_STATES,
+        "{} device ticks between two states",
+        largest_tick_gap(ticks)
+    );
     assert!(paper.canvas.ink_area_px() > ink_at_loss, "and ink again");
 }
 
@@ -319,10 +574,7 @@ fn version_mismatch_is_a_clear_error() {
         }
     });
     let mut dev = link(Endpoint::Tcp(addr));
-    let err = dev
-        .connect()
-        .expect_err("a device of another version is refused");
-    let msg = err.to_string();
+    let msg = connect_error(&mut dev);
     assert!(msg.contains("protocol version mismatch"), "{msg}");
     let theirs = format!("peer speaks {}", PROTOCOL_VERSION + 1);
     assert!(msg.contains(&theirs), "{msg}");
@@ -342,13 +594,10 @@ fn nobody_listening_says_so_and_keeps_trying() {
     };
     let addr = format!("127.0.0.1:{port}");
     let mut dev = link(Endpoint::Tcp(addr.clone()));
-    let err = dev.connect().expect_err("nothing listens").to_string();
+    let err = connect_error(&mut dev);
     assert!(err.contains("cannot open"), "{err}");
-    let _srv = server(&addr, 120);
-    assert!(
-        wait_for(&dev, Duration::from_secs(5), |s| s.connected),
-        "connects once the device is there"
-    );
+    let _srv = server(&addr, STATE_HZ);
+    wait_for(&dev, "connects once the device is there", |s| s.connected);
 }
 
 #[test]
@@ -371,7 +620,7 @@ fn replay_through(dev: &mut dyn Device, track: maobi::poses::PoseTrack) -> Paper
     let mut paper = Paper::new();
     let done0 = dev.status().replays_done;
     dev.send(DeviceCommand::Replay(Arc::new(track))).unwrap();
-    let end = Instant::now() + Duration::from_secs(30);
+    let end = Instant::now() + HANG_GUARD;
     let mut frames = Vec::new();
     loop {
         frames.clear();
@@ -410,7 +659,7 @@ fn replay_over_tcp_inks_like_the_built_in_simulator() {
 
     let srv = server("127.0.0.1:0", 1000);
     let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
-    dev.connect().unwrap();
+    connect(&mut dev);
     let remote = replay_through(&mut dev, track());
 
     assert!(local.touching > 100, "the hook touches the paper");
@@ -475,10 +724,15 @@ fn a_silent_peer_counts_as_lost() {
         }
     });
     let mut dev = link(Endpoint::Tcp(addr));
-    dev.connect().expect("the handshake succeeds");
-    assert!(dev
-        .status()
+    let steps = LinkSteps::install(&mut dev);
+    // Held at the session's start, before the link starts counting the silence.
+    steps.arm();
+    connect(&mut dev);
+    let held = steps.until(&dev, "the session is up", |s| s.connected);
+    assert!(held
+        .status
         .firmware_version
+        .as_deref()
         .unwrap()
         .contains("mute-board"));
     let track = maobi::poses::PoseTrack::from_path(
@@ -488,19 +742,17 @@ fn a_silent_peer_counts_as_lost() {
     // A virtual pen takes replays.
     assert!(dev.send(DeviceCommand::Replay(Arc::new(track))).is_ok());
     let t = Instant::now();
-    assert!(
-        wait_for(&dev, Duration::from_secs(3), |s| !s.connected),
-        "silence ends the session"
-    );
+    drop(held);
+    let held = steps.until(&dev, "silence ends the session", |s| !s.connected);
+    // The silence was counted from after `t`: the timeout cannot have fired early.
     let waited = t.elapsed();
-    assert!(
-        waited >= LINK_TIMEOUT - Duration::from_millis(50),
-        "{waited:?}"
-    );
-    let s = dev.status();
-    let l = s.link.unwrap();
+    assert!(waited >= LINK_TIMEOUT, "{waited:?}");
+    let l = held.status.link.clone().unwrap();
     assert!(l.state.contains("no data"), "{}", l.state);
-    assert!(!s.replaying, "a replay the loss cut short has ended");
+    assert!(
+        !held.status.replaying,
+        "a replay the loss cut short has ended"
+    );
 }
 
 /// A device with its own sensors takes no replays (there is no virtual pen to drive).
@@ -525,10 +777,16 @@ fn replays_need_a_virtual_pen() {
         let mut out = vec![0u8; DeviceMsg::MAX_FRAME];
         let n = DeviceMsg::Hello(info).encode(&mut out).unwrap();
         let _ = s.write_all(&out[..n]);
-        std::thread::sleep(Duration::from_secs(2));
+        // Says nothing more, and holds the connection until the host closes it.
+        while matches!(s.read(&mut buf), Ok(n) if n > 0) {}
     });
     let mut dev = link(Endpoint::Tcp(addr));
-    dev.connect().expect("the handshake succeeds");
+    let steps = LinkSteps::install(&mut dev);
+    // Held at the session's start: the peer's silence cannot end it before the replay is
+    // asked for.
+    steps.arm();
+    connect(&mut dev);
+    let _held = steps.until(&dev, "the session is up", |s| s.connected);
     let track = maobi::poses::PoseTrack::from_path(
         &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv"),
     )
@@ -556,21 +814,37 @@ fn serial_backend_over_a_pty() {
     let device = {
         let stop = stop.clone();
         std::thread::spawn(move || {
-            let _ = serve_stream(
-                Box::new(SerialConn(Box::new(master))),
-                &SimDeviceOptions::default(),
-                &stop,
-            );
+            // The device's connection ends when the pty fails it (seen on a busy machine,
+            // after the link had counted a session lost); like a pen that resets, it serves
+            // again on the same pty, which this thread's handle keeps alive.
+            while !stop.load(Ordering::SeqCst) {
+                let conn = master
+                    .try_clone_native()
+                    .expect("a second handle on the pty");
+                let _ = serve_stream(
+                    Box::new(SerialConn(Box::new(conn))),
+                    &SimDeviceOptions::default(),
+                    &stop,
+                );
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            drop(master);
         })
     };
     let mut dev = link(Endpoint::Serial(path.clone()));
-    dev.connect().expect("the device answers on the pty");
+    connect(&mut dev);
     let s = dev.status();
     assert!(s.connected);
     assert!(s.name.contains(&path), "{}", s.name);
     let mut paper = Paper::new();
-    stroke(&mut dev, &mut paper, -10.0, 10.0);
-    assert!(paper.frames > 40, "{} states", paper.frames);
+    let first = stroke(&mut dev, &mut paper, -10.0, 10.0);
+    let ticks = &paper.ticks[first..];
+    assert!(
+        largest_tick_gap(ticks) <= MAX_TICKS_BETWEEN_STATES,
+        "{} device ticks between two states ({} states)",
+        largest_tick_gap(ticks),
+        ticks.len()
+    );
     assert!(paper.canvas.ink_fraction() > 0.001);
     dev.disconnect();
     stop.store(true, Ordering::SeqCst);
@@ -582,12 +856,10 @@ fn serial_backend_over_a_pty() {
 /// peer that only echoes (a loop-back, a terminal) is not a Maobi device.
 #[test]
 fn identify_recognises_the_device_by_its_handshake() {
-    let srv = server("127.0.0.1:0", 120);
-    let info = maobi::device::identify(
-        &Endpoint::Tcp(srv.addr().to_string()),
-        Duration::from_millis(500),
-    )
-    .expect("the sim-device answers");
+    let srv = server("127.0.0.1:0", STATE_HZ);
+    // It returns as soon as the device has answered: the timeout only guards a hang.
+    let info = maobi::device::identify(&Endpoint::Tcp(srv.addr().to_string()), HANG_GUARD)
+        .expect("the sim-device answers");
     assert_eq!(info.board.as_str(), "maobi-sim-device");
 
     let echo = TcpListener::bind("127.0.0.1:0").unwrap();
@@ -616,28 +888,43 @@ fn identify_recognises_the_device_by_its_handshake() {
 fn guided_writing_streams_the_moving_point_and_frames_show_the_stray() {
     let srv = server("127.0.0.1:0", 1000);
     let mut dev = link(Endpoint::Tcp(srv.addr().to_string()));
-    dev.connect().expect("connects");
+    connect(&mut dev);
     dev.send(DeviceCommand::EnableForces(true)).unwrap();
     // The pen hangs where it is (the GUI's pointer does not move); the moving point runs a
     // 30 mm line in 0.5 s from 5 mm beside it, in the air (no brush forces but gravity).
     let z = length() + 10.0;
     let track = common::guide_line(5.0, z);
-    dev.send(DeviceCommand::Hand(HandInput {
-        z,
-        ..hand(0.0, 0.0)
-    }))
-    .unwrap();
     let mut paper = Paper::new();
-    pump(&mut dev, &mut paper, Duration::from_millis(300));
+    move_hand(
+        &mut dev,
+        &mut paper,
+        HandInput {
+            z,
+            ..hand(0.0, 0.0)
+        },
+    );
     dev.send(DeviceCommand::Guide(Some(Arc::new(track))))
         .unwrap();
-    let end = Instant::now() + Duration::from_millis(2000);
+    // Until the guide has stayed off for `AFTER` states (at 1000 states per second, one per
+    // device tick) after its last guided one: if it never stops, the hang guard fails this.
+    const AFTER: usize = 300;
+    let end = Instant::now() + HANG_GUARD;
     let mut frames = Vec::new();
-    let mut all = Vec::new();
-    while Instant::now() < end {
+    let mut all: Vec<BrushFrame> = Vec::new();
+    loop {
         frames.clear();
         dev.poll(&mut frames);
         all.extend(frames.iter().cloned());
+        let last = all.iter().rposition(|f| f.guide.is_some());
+        if last.is_some_and(|i| all.len() > i + AFTER) {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "the guide plays and stops: not within {HANG_GUARD:?} ({} states, the last \
+             guided one {last:?})",
+            all.len()
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     dev.disconnect();
@@ -663,11 +950,13 @@ fn guided_writing_streams_the_moving_point_and_frames_show_the_stray() {
         guided.iter().map(|(_, g)| g.gain).fold(0.0, f64::max),
     );
     // 500 ticks of stroke and about 300 of fade-out, at 1000 states per second (some
-    // skipped by the GUI's frame queue or the sim-device's pacing).
+    // skipped by the GUI's frame queue).
     assert!(guided.len() > 300, "{}", guided.len());
+    // Every state from the first guided one to the last is guided (each pose of the stroke
+    // and of the fade-out carries its point); after it, the wait above saw none.
     assert!(
-        all[last + 1..].iter().all(|f| f.guide.is_none()),
-        "the guide stops after fading out"
+        all[first..=last].iter().all(|f| f.guide.is_some()),
+        "the guide plays without a gap until it stops"
     );
     let mut last_gain: f64 = 0.0;
     let mut peak_gain: f64 = 0.0;

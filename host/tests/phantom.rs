@@ -42,6 +42,10 @@ static STANDIN: Mutex<()> = Mutex::new(());
 /// Extra ticks after the stroke's last pose (the brush held still).
 const HOLD_TICKS: usize = 300;
 
+/// The longest any wait below may take: each ends at its event (a state, a count, the loop
+/// stopping), so only a hang gets near it; it fails a test instead of hanging it.
+const HANG_GUARD: Duration = Duration::from_secs(60);
+
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
@@ -190,22 +194,20 @@ fn spawn_bridge(
         let rest = line.split("listening on ").nth(1)?;
         Some(rest.split(';').next().unwrap_or("").trim().to_string())
     });
-    let addr = rx
-        .recv_timeout(Duration::from_secs(20))
-        .unwrap_or_else(|_| {
-            let _ = child.kill();
-            panic!(
-                "the bridge did not start listening:\n{}",
-                log.lock().unwrap()
-            )
-        });
+    let addr = rx.recv_timeout(HANG_GUARD).unwrap_or_else(|_| {
+        let _ = child.kill();
+        panic!(
+            "the bridge did not start listening:\n{}",
+            log.lock().unwrap()
+        )
+    });
     (child, addr, log)
 }
 
 /// Waits for the bridge to exit, and for its stderr to be read to the end (the reader thread
 /// may still be behind when the process has gone, on a loaded machine).
 fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::ExitStatus {
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let deadline = Instant::now() + HANG_GUARD;
     loop {
         if let Some(s) = child.try_wait().unwrap() {
             while !log.lock().unwrap().ends_with(common::STDERR_CLOSED) && Instant::now() < deadline
@@ -222,41 +224,76 @@ fn wait(child: &mut std::process::Child, log: &Mutex<String>) -> std::process::E
     }
 }
 
-/// Every state the bridge sends over TCP until it closes the connection.
-fn tcp_states(addr: &str) -> Vec<BrushState> {
-    let mut s = TcpStream::connect(addr).expect("connect to the bridge");
-    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    let hello = HostMsg::Hello(HostHello::new(
-        "phantom-test",
-        maobi::device::client::host_version(),
-    ));
-    let mut frame = vec![0u8; 512];
-    let n = hello.encode(&mut frame).unwrap();
-    s.write_all(&frame[..n]).unwrap();
-    let mut dec = Box::new(HostRx::new());
-    let mut buf = vec![0u8; 65536];
-    let mut states = Vec::new();
-    let mut greeted = false;
-    loop {
-        let n = match s.read(&mut buf) {
-            Ok(0) | Err(_) => break,
-            Ok(n) => n,
-        };
-        for msg in dec.feed(&buf[..n]).flatten() {
-            match msg {
-                DeviceMsg::Hello(info) => {
-                    greeted = true;
-                    assert_eq!(
-                        info.force_peak_n, 3.3,
-                        "the stand-in's limit in the handshake"
-                    );
+/// A host connected to the bridge at `addr`, reading its states.
+struct BridgeHost {
+    stream: TcpStream,
+    dec: Box<HostRx>,
+    buf: Vec<u8>,
+    greeted: bool,
+}
+
+impl BridgeHost {
+    /// Connects and says hello.
+    fn connect(addr: &str) -> BridgeHost {
+        let mut stream = TcpStream::connect(addr).expect("connect to the bridge");
+        stream.set_read_timeout(Some(HANG_GUARD)).unwrap();
+        let hello = HostMsg::Hello(HostHello::new(
+            "phantom-test",
+            maobi::device::client::host_version(),
+        ));
+        let mut frame = vec![0u8; 512];
+        let n = hello.encode(&mut frame).unwrap();
+        stream.write_all(&frame[..n]).unwrap();
+        BridgeHost {
+            stream,
+            dec: Box::new(HostRx::new()),
+            buf: vec![0u8; 65536],
+            greeted: false,
+        }
+    }
+
+    /// Reads states into `states` until `enough` says so after one, or the bridge closes
+    /// the connection; true if it closed.
+    fn read_until(
+        &mut self,
+        states: &mut Vec<BrushState>,
+        mut enough: impl FnMut(&BrushState) -> bool,
+    ) -> bool {
+        loop {
+            let n = match self.stream.read(&mut self.buf) {
+                Ok(0) | Err(_) => return true,
+                Ok(n) => n,
+            };
+            let mut done = false;
+            for msg in self.dec.feed(&self.buf[..n]).flatten() {
+                match msg {
+                    DeviceMsg::Hello(info) => {
+                        self.greeted = true;
+                        assert_eq!(
+                            info.force_peak_n, 3.3,
+                            "the stand-in's limit in the handshake"
+                        );
+                    }
+                    DeviceMsg::State(st) => {
+                        done |= enough(&st);
+                        states.push(st);
+                    }
+                    _ => {}
                 }
-                DeviceMsg::State(st) => states.push(st),
-                _ => {}
+            }
+            if done {
+                return false;
             }
         }
     }
-    assert!(greeted, "the bridge answered the handshake");
+}
+
+/// Every state the bridge sends over TCP until it closes the connection.
+fn tcp_states(addr: &str) -> Vec<BrushState> {
+    let mut host = BridgeHost::connect(addr);
+    let mut states = Vec::new();
+    host.read_until(&mut states, |_| false);
+    assert!(host.greeted, "the bridge answered the handshake");
     states
 }
 
@@ -348,7 +385,7 @@ fn bridge_plays_the_hook_with_the_models_forces_and_streams_its_states() {
     .expect("the bridge starts on the stand-in");
     let shared = bridge.shared();
     let mut local = std::collections::BTreeMap::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let deadline = Instant::now() + HANG_GUARD;
     while !shared.done() && Instant::now() < deadline {
         while let Some(s) = shared.take_state() {
             local.insert(s.tick, s);
@@ -477,8 +514,13 @@ fn injected_hd_error_zeroes_the_force_and_stops_cleanly() {
 #[test]
 fn without_a_library_the_bridge_says_where_it_looked() {
     let defaults = default_candidates();
-    if defaults.iter().any(|(p, _)| p.exists()) {
-        eprintln!("skipped: OpenHaptics is installed on this machine");
+    // What the bridge says when none of the install paths holds libHD cannot be seen where
+    // one does (OpenHaptics is proprietary: no CI machine has it).
+    if let Some((p, _)) = defaults.iter().find(|(p, _)| p.exists()) {
+        maobi_testenv::skip(&format!(
+            "OpenHaptics is installed on this machine ({}): the bridge would load it",
+            p.display()
+        ));
         return;
     }
     let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
@@ -529,24 +571,33 @@ fn without_a_library_the_bridge_says_where_it_looked() {
 #[cfg(target_os = "linux")]
 #[test]
 fn a_library_without_the_symbols_names_the_missing_one() {
+    // A shared library this process has loaded, the C library if it is one: a file that
+    // exists and has no HD symbols.
     let maps = std::fs::read_to_string("/proc/self/maps").unwrap_or_default();
-    let Some(libc) = maps
+    let libs: Vec<&str> = maps
         .split_whitespace()
+        .filter(|w| w.starts_with('/') && w.contains(".so"))
+        .filter(|w| !w.contains("maobi_hd_standin") && !w.contains("/ld-"))
+        .collect();
+    let Some(lib) = libs
+        .iter()
         .find(|w| w.contains("/libc.so") || w.contains("/libc-"))
+        .or(libs.first())
+        .copied()
     else {
-        eprintln!("skipped: no libc path in /proc/self/maps");
+        maobi_testenv::skip(
+            "this test binary has no shared library loaded (a static build): no library \
+             without the HD symbols to hand the bridge",
+        );
         return;
     };
     let out = Command::new(env!("CARGO_BIN_EXE_maobi"))
-        .args(["bridge", "--listen", "127.0.0.1:0", "--hd-lib", libc])
+        .args(["bridge", "--listen", "127.0.0.1:0", "--hd-lib", lib])
         .output()
         .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains(libc) && err.contains("`hdInitDevice`"),
-        "{err}"
-    );
+    assert!(err.contains(lib) && err.contains("`hdInitDevice`"), "{err}");
 }
 
 /// `maobi --device phantom` without a library: the built-in simulator, saying why.
@@ -574,7 +625,7 @@ fn the_gui_falls_back_to_the_simulator_with_the_reason() {
     );
     // And it is a working simulator.
     d.connect().unwrap();
-    let deadline = Instant::now() + Duration::from_secs(5);
+    let deadline = Instant::now() + HANG_GUARD;
     let mut frames = Vec::new();
     while frames.is_empty() && Instant::now() < deadline {
         d.poll(&mut frames);
@@ -688,80 +739,46 @@ fn the_standin_is_as_strict_as_libhd() {
     );
 }
 
-/// The servo step's cost, `Fx` (what the bridge runs) and `f32`, on the hook stroke.
+/// Baxter & Lin's brush with its solver on a thread of its own, as the bridge runs it: the
+/// servo step leaves requests that the thread serves beside it, and the thread publishes
+/// the brush the GUI draws. (How the solved models feel is checked in lock-step in
+/// `the_servo_loop_feels_baxter_and_lins_brush_from_its_solver`; the step's cost is measured
+/// by `cargo bench -p maobi --bench servo`.)
 #[test]
-fn servo_step_cost() {
-    let (device, paper) = hook_device_poses();
-    let params = presets::by_name("large").unwrap();
-    let transforms: Vec<[f64; 16]> = device
-        .iter()
-        .map(|(p, q)| transform_of_pose(*p, *q))
-        .collect();
-    let mut core = ServoCore::new(params, PHANTOM_OMNI, Mapping::default(), true).unwrap();
-    let reps = 3;
-    let t = Instant::now();
-    for _ in 0..reps {
-        for m in &transforms {
-            std::hint::black_box(core.step(m, 0));
-        }
-    }
-    let fx_us = t.elapsed().as_secs_f64() * 1e6 / (reps * transforms.len()) as f64;
-
-    let poses: Vec<Pose<f32>> = paper.iter().map(|p| p.cast()).collect();
-    let mut fl = ForceLoop::<f32>::new(
-        params,
-        poses[0],
-        DEFAULT_FORCES,
-        PHANTOM_OMNI,
-        DEFAULT_GUIDE,
-    )
-    .unwrap();
-    let gate = Gate {
-        allowed: true,
-        faulted: false,
-    };
-    let t = Instant::now();
-    for _ in 0..reps {
-        for p in &poses {
-            std::hint::black_box(fl.tick(TickIn {
-                pose: Some(*p),
-                guide: None,
-                gate,
-            }));
-        }
-    }
-    let f32_us = t.elapsed().as_secs_f64() * 1e6 / (reps * poses.len()) as f64;
-    // Baxter & Lin's brush: the step with its solver on a thread of its own, as the bridge
-    // runs it (the step only evaluates the solver's last model).
+fn the_solver_thread_serves_the_servo_step() {
+    use maobi::phantom::servo::ServoState;
     use maobi::phantom::solver::{SolverLink, SolverThread};
     use maobi_shared::baxter_lin::head::HeadShape;
     use maobi_shared::baxter_lin::local_force::LocalForceParams;
+    let (transforms, _) = hook_transforms();
+    let params = presets::by_name("large").unwrap();
     let link = SolverLink::new();
     let local = LocalForceParams::for_device(&PHANTOM_OMNI);
     let mut solver = SolverThread::spawn(link.clone(), HeadShape::Round, local).unwrap();
     let mut core =
         ServoCore::baxter_lin(params, PHANTOM_OMNI, Mapping::default(), true, link.clone())
             .unwrap();
-    let (mut total, mut worst) = (0.0f64, 0.0f64);
     for m in &transforms {
-        let t = Instant::now();
-        std::hint::black_box(core.step(m, 0));
-        let us = t.elapsed().as_secs_f64() * 1e6;
-        total += us;
-        worst = worst.max(us);
-        // In real time, so the solver keeps up as it would beside the servo loop.
-        std::thread::sleep(Duration::from_micros(900));
+        core.step(m, 0);
+    }
+    // The thread serves at its own pace: wait for its solves, not for a time.
+    let end = Instant::now() + HANG_GUARD;
+    while link.counts().0 == 0 || link.brush().is_none() {
+        assert!(
+            Instant::now() < end,
+            "the solver thread served nothing: {:?}",
+            link.counts()
+        );
+        std::thread::sleep(Duration::from_millis(1));
     }
     solver.stop();
-    let bl_us = total / transforms.len() as f64;
+    let (solves, skipped, deferred) = link.counts();
     eprintln!(
-        "servo step: Fx {fx_us:.1} us, f32 {f32_us:.1} us (mean per 1 ms tick); Baxter & Lin's \
-         local model {bl_us:.2} us mean, {worst:.1} us worst, its solver {} solves beside it",
-        link.counts().0
+        "{solves} solves beside {} steps ({skipped} requests replaced before the thread took \
+         them, {deferred} left a tick late)",
+        transforms.len()
     );
-    // The callback shares its millisecond with libHD's own work: keep it well inside.
-    assert!(fx_us < 250.0, "Fx step {fx_us} us");
-    assert!(link.counts().0 > 0);
+    assert!(matches!(core.servo_state(), Some(ServoState::Hand(_))));
 }
 
 /// The stylus buttons, through the stand-in's script: button 2 toggles forces, both together
@@ -809,7 +826,7 @@ fn stylus_buttons_toggle_forces_calibrate_and_dip() {
     let shared = bridge.shared();
     let mut states = std::collections::BTreeMap::new();
     let mut dipped = false;
-    let deadline = Instant::now() + Duration::from_secs(20);
+    let deadline = Instant::now() + HANG_GUARD;
     while !shared.done() && Instant::now() < deadline {
         // Dry the brush (a host's command) after the calibration (which starts the brush
         // afresh) and before button 1 re-dips it.
@@ -869,8 +886,17 @@ fn sigint_stops_the_bridge_cleanly() {
     let record = scratch("sigint_record.csv");
     let config = format!("poses={};record={}", poses.display(), record.display());
     // No tick limit: only the signal stops it.
-    let (mut child, _addr, log) = spawn_bridge(&config, usize::MAX >> 33);
-    std::thread::sleep(Duration::from_millis(900));
+    let (mut child, addr, log) = spawn_bridge(&config, usize::MAX >> 33);
+    // Signalled once its servo loop has run past the hook's press (its states say how far).
+    const RUN_TICKS: u32 = 900;
+    let mut host = BridgeHost::connect(&addr);
+    let mut states = Vec::new();
+    let closed = host.read_until(&mut states, |s| s.tick >= RUN_TICKS);
+    assert!(
+        !closed,
+        "the bridge stopped before tick {RUN_TICKS}:\n{}",
+        log.lock().unwrap()
+    );
     // SAFETY: signalling our own child process.
     assert_eq!(
         unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
@@ -880,8 +906,13 @@ fn sigint_stops_the_bridge_cleanly() {
     let log = log.lock().unwrap().clone();
     assert!(status.success(), "{log}");
     assert!(log.contains("interrupted"), "{log}");
+    drop(host);
     let got = read_record(&record);
-    assert!(got.len() > 500, "{} ticks recorded", got.len());
+    assert!(
+        got.len() >= RUN_TICKS as usize,
+        "{} ticks recorded",
+        got.len()
+    );
     assert!(got.iter().any(|f| norm(*f) > 0.1), "forces were on");
     assert_eq!(*got.last().unwrap(), [0.0; 3], "the last force is zero");
     assert_eq!(read_summary(&record)["violations"], "0");
@@ -906,7 +937,7 @@ fn the_gui_device_runs_the_servo_loop() {
     assert!(s.name.starts_with("Phantom (") && s.connected, "{s:?}");
     assert!(s.faults.is_empty(), "{:?}", s.faults);
     let mut frames = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(10);
+    let deadline = Instant::now() + HANG_GUARD;
     while frames.len() < 60 && Instant::now() < deadline {
         d.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(5));
@@ -916,7 +947,7 @@ fn the_gui_device_runs_the_servo_loop() {
     assert!((frames[0].pose.pos.z - 50.0).abs() < 1e-6);
     assert!(d.send(DeviceCommand::EnableForces(false)).is_ok());
     assert!(d.send(DeviceCommand::Preset("nope".into())).is_err());
-    let deadline = Instant::now() + Duration::from_secs(5);
+    let deadline = Instant::now() + HANG_GUARD;
     while d.status().forces_enabled && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -947,7 +978,7 @@ fn the_gui_device_keeps_its_parameters_across_a_reconnect() {
     d.disconnect();
     d.connect().unwrap();
     let mut frames = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(10);
+    let deadline = Instant::now() + HANG_GUARD;
     while frames.is_empty() && Instant::now() < deadline {
         d.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(5));
@@ -1080,7 +1111,7 @@ fn the_gui_device_guides_the_stylus() {
     let (lib, mut d) = gui_device_playing(&poses, &record, maobi::device::ModelKind::Liang);
     assert!(d.status().connected);
     let mut frames = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(10);
+    let deadline = Instant::now() + HANG_GUARD;
     while frames.len() < 30 && Instant::now() < deadline {
         d.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(5));
@@ -1093,7 +1124,7 @@ fn the_gui_device_guides_the_stylus() {
     }
     d.send(DeviceCommand::Guide(Some(Arc::new(track)))).unwrap();
     let mut all = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(10);
+    let deadline = Instant::now() + HANG_GUARD;
     // The stroke (500 ticks), the fade-out (300), and some frames after.
     while Instant::now() < deadline {
         frames.clear();
@@ -1163,7 +1194,7 @@ fn run_in_process(
     let mut bridge = Bridge::start(lib, &opts).expect("the bridge starts on the stand-in");
     let shared = bridge.shared();
     let mut states = std::collections::BTreeMap::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let deadline = Instant::now() + HANG_GUARD;
     while !shared.done() && Instant::now() < deadline {
         each(&shared);
         while let Some(s) = shared.take_state() {
@@ -1508,7 +1539,7 @@ fn a_failed_setup_call_is_reported_by_name() {
         },
     )
     .expect("the device was released after the failed starts");
-    let deadline = Instant::now() + Duration::from_secs(5);
+    let deadline = Instant::now() + HANG_GUARD;
     while !b.shared().done() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(2));
     }
@@ -1826,7 +1857,7 @@ fn the_gui_device_runs_baxter_and_lins_brush() {
         .unwrap_err();
     assert!(e.to_string().contains("does not have"), "{e}");
     let mut frames = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
+    let deadline = Instant::now() + HANG_GUARD;
     while frames.len() < n * 120 / 1000 && Instant::now() < deadline {
         d.poll(&mut frames);
         std::thread::sleep(Duration::from_millis(5));
@@ -1850,7 +1881,7 @@ fn the_gui_device_runs_baxter_and_lins_brush() {
     .unwrap();
     assert!(d.status().forces_enabled, "the safe start turned forces on");
     d.send(DeviceCommand::EnableForces(false)).unwrap();
-    let deadline = Instant::now() + Duration::from_secs(5);
+    let deadline = Instant::now() + HANG_GUARD;
     while d.status().forces_enabled && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -1866,7 +1897,7 @@ fn the_gui_device_runs_baxter_and_lins_brush() {
     assert!(peak > 0.05 && peak <= 3.3, "{peak}");
     assert_eq!(*got.last().unwrap(), [0.0; 3]);
     let mut liang = Vec::new();
-    let deadline = Instant::now() + Duration::from_secs(10);
+    let deadline = Instant::now() + HANG_GUARD;
     while liang.is_empty() && Instant::now() < deadline {
         d.poll(&mut liang);
         std::thread::sleep(Duration::from_millis(5));

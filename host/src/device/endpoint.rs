@@ -98,8 +98,19 @@ impl Read for SerialConn {
 }
 
 impl Write for SerialConn {
+    /// A serial port has one timeout for reads and writes, set to [`READ_POLL`] for the
+    /// reads; a write may block as long as a TCP write does ([`WRITE_TIMEOUT`]) before it
+    /// fails, so a peer that is slow to read for a moment (a busy machine) does not end the
+    /// session.
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        self.0.write(buf)
+        let end = std::time::Instant::now() + WRITE_TIMEOUT;
+        loop {
+            match self.0.write(buf) {
+                Err(e)
+                    if e.kind() == io::ErrorKind::TimedOut && std::time::Instant::now() < end => {}
+                r => return r,
+            }
+        }
     }
     fn flush(&mut self) -> io::Result<()> {
         self.0.flush()

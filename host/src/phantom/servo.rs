@@ -32,9 +32,9 @@
 //! unless the user enables them.
 //!
 //! # Why `Fx` and not `f32`
-//! Measured by `servo_step_cost` in `host/tests/phantom.rs` (the test profile, opt-level 2,
-//! on the 2-core CI machine): see docs/phantom.md for the numbers. Both are far inside the
-//! 1 ms budget, so the cost does not decide it; what does is that the wire protocol's
+//! Measured by `cargo bench -p maobi --bench servo` (`host/benches/servo.rs`): see
+//! docs/phantom.md for the numbers. Both are far inside the 1 ms budget, so the cost does
+//! not decide it; what does is that the wire protocol's
 //! [`BrushState`] carries `Fx` bits, so with `Fx` the bridge's brush is bit for bit the
 //! brush the pen's firmware and `maobi sim-device` would compute for the same poses, and the
 //! GUI draws it with the same code.

@@ -39,7 +39,11 @@
 //! `record` (CSV file; a summary goes to `FILE.summary`), `error` (`FRAME:CODE`, code in
 //! decimal or 0x hex), `fail` (`CALL:CODE`), `max_force`, `max_continuous` (N),
 //! `max_velocity` (mm/s, 0 = no limit), `calibration` (`ok`, `update`, `manual`),
-//! `cal_offset` (`X,Y,Z` mm), `inkwell_at` (tick), `cal_style` (HD_CALIBRATION_STYLE mask).
+//! `cal_offset` (`X,Y,Z` mm), `inkwell_at` (tick), `cal_style` (HD_CALIBRATION_STYLE mask),
+//! `slow` (a whole number N >= 1: the scheduler's ticks come N times further apart in wall
+//! time than the rate says, which every reading of the rate still reports; a test whose
+//! client does work on other threads beside the servo loop gives them N times the room, so
+//! it checks the same ticks on a loaded machine).
 //!
 //! Types follow `HD/hdDefines.h` (see `maobi::phantom::hd` for the values and where they
 //! were checked); the functions use the HD API's calling convention (`HDAPIENTRY`,
@@ -134,6 +138,7 @@ struct Config {
     cal_offset: [f64; 3],
     inkwell_at: Option<u64>,
     cal_style: c_int,
+    slow: u32,
 }
 
 impl Default for Config {
@@ -150,6 +155,7 @@ impl Default for Config {
             cal_offset: [0.0; 3],
             inkwell_at: None,
             cal_style: HD_CALIBRATION_INKWELL,
+            slow: 1,
         }
     }
 }
@@ -234,6 +240,14 @@ fn parse_config(s: &str) -> Result<Config, String> {
                     .ok()
                     .filter(|s| (1..=7).contains(s))
                     .ok_or_else(|| format!("cal_style: `{v}` is not a style mask 1..=7"))?
+            }
+            "slow" => {
+                c.slow = v
+                    .trim()
+                    .parse::<u32>()
+                    .ok()
+                    .filter(|n| (1..=1000).contains(n))
+                    .ok_or_else(|| format!("slow: `{v}` is not a whole number 1..=1000"))?
             }
             other => return Err(format!("unknown key `{other}`")),
         }
@@ -764,14 +778,15 @@ fn scheduler(stop: &AtomicBool) {
                 with(|d| d.scheduled.retain(|s| s.handle != handle));
             }
         }
-        let rate = with(|d| {
+        let (rate, slow) = with(|d| {
             d.end_tick();
-            d.rate_hz.max(1)
+            (d.rate_hz.max(1), d.config.slow)
         });
         tick += 1;
         // `c_ulong` is 64 bits on Linux, 32 on Windows.
         #[allow(clippy::useless_conversion)]
-        let due = start + Duration::from_nanos(tick * 1_000_000_000 / u64::from(rate));
+        let due = start
+            + Duration::from_nanos(tick * u64::from(slow) * 1_000_000_000 / u64::from(rate));
         let now = Instant::now();
         if due > now {
             std::thread::sleep(due - now);

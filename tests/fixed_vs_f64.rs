@@ -1,71 +1,176 @@
-//! The device's fixed-point model against the f64 reference on every example stroke and on
-//! the stroke file's 永, at the presets' rate (one substep per tick, what the pen runs): every
-//! spine mass stays within 5 um of the f64 run at every 1 ms tick of the whole stroke.
+//! The device's fixed-point model against the f64 reference: every preset of
+//! `presets::PRESETS`, on every example stroke (the pose files of `examples/poses` and the
+//! stroke files of `examples/strokes`), at every substep rate from one per tick (the Black
+//! Pill's, whatever the preset asks) up to the preset's own (the QEMU board's and the
+//! desktop's): every spine mass stays within [`TOLERANCE_MM`] of the f64 run at every 1 ms
+//! tick of the whole stroke, and every stroke puts the brush on the paper. The exceptions,
+//! where fixed point departs from `f64` by millimetres, are listed in [`KNOWN_DEPARTURES`].
+//!
+//! The examples are written for the large brush's head. A preset with another head length
+//! writes them with its tip where the large brush's tip would be: the pose files' handle is
+//! moved along its own axis by the difference, and the stroke files place their depths for
+//! the preset's head (their `head_mm`).
+//!
+//! `cargo test --release -p maobi-tests --test fixed_vs_f64 -- --nocapture` prints the largest
+//! deviation of each preset, rate and stroke.
+
+use std::path::Path;
 
 use maobi::poses::PoseTrack;
 use maobi::strokes::Character;
-use maobi_shared::{presets, Brush, Fx};
-use maobi_tests::{example_pose_files, workspace_root};
+use maobi_shared::params::ParamId;
+use maobi_shared::{presets, Brush, BrushParams, Fx, Pose};
+use maobi_tests::{example_pose_files, example_stroke_files};
 
+/// The largest distance of any fixed-point spine mass from its f64 twin, for every preset:
+/// the fixed-point format's error budget for the spine (docs/figures.md has the measured).
 const TOLERANCE_MM: f64 = 5e-3;
 
-#[test]
-fn fixed_matches_f64_on_every_example() {
-    let files = example_pose_files();
+/// Preset and stroke where fixed point departs from `f64` by millimetres today: the small
+/// brush on the fast strokes (on two of them its fixed-point solve saturates and restarts,
+/// on `speeds` it departs without a restart). Not understood yet and reported; each is held
+/// to still depart, so that this list shrinks when it is mended.
+const KNOWN_DEPARTURES: [(&str, &str); 3] =
+    [("small", "hook"), ("small", "speeds"), ("small", "yong")];
+
+/// An example stroke's 1 ms poses, placed for a head `head_mm` long.
+struct Stroke {
+    name: String,
+    poses: Vec<Pose<f64>>,
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .expect("a file name")
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// Every example stroke, placed for a head `head_mm` long.
+fn example_strokes(head_mm: f64) -> Vec<Stroke> {
+    let written_for = presets::LARGE.length_mm as f64;
+    let poses = example_pose_files();
+    let strokes = example_stroke_files();
     assert!(
-        files.len() >= 4,
-        "expected the example strokes, found {files:?}"
+        poses.len() >= 4 && !strokes.is_empty(),
+        "expected the example strokes, found {poses:?} and {strokes:?}"
     );
-    let mut overall = 0.0f64;
-    // The example strokes are written for the large brush's 40 mm head (the small one would
-    // not reach the paper on them).
-    for (name, params) in [("large", &presets::LARGE)] {
-        let yong = workspace_root().join("examples/strokes/yong.toml");
-        let tracks = files
-            .iter()
-            .map(|f| PoseTrack::from_path(f).unwrap_or_else(|e| panic!("{e}")))
-            .chain([Character::from_path(&yong)
-                .and_then(|c| c.track("yong"))
-                .unwrap_or_else(|e| panic!("{}: {e}", yong.display()))]);
-        for (k_file, track) in tracks.enumerate() {
-            let file = files.get(k_file).cloned().unwrap_or_else(|| yong.clone());
-            let mut poses = track.resample();
-            let first = poses.next().expect("a track has a first pose");
-            let mut fixed = Brush::<Fx>::new(*params, first.cast()).unwrap();
-            let mut reference = Brush::<f64>::new(*params, first.cast()).unwrap();
-            let (mut worst, mut worst_tick, mut worst_mass, mut contact_ticks) = (0.0f64, 0, 0, 0);
-            for (k, pose) in poses.enumerate() {
-                fixed.tick(pose.cast());
-                reference.tick(pose);
-                if reference.contacts() > 0 {
-                    contact_ticks += 1;
-                }
-                for (i, (a, b)) in fixed.spine().iter().zip(reference.spine()).enumerate() {
-                    let d = (a.cast::<f64>() - *b).norm();
-                    if d > worst {
-                        (worst, worst_tick, worst_mass) = (d, k + 1, i);
-                    }
-                }
+    let from_pose_files = poses.iter().map(|path| {
+        let track = PoseTrack::from_path(path).unwrap_or_else(|e| panic!("{e}"));
+        let poses = track
+            .resample()
+            .map(|p| Pose::new(p.pos + p.down().scale(written_for - head_mm), p.rot))
+            .collect();
+        Stroke {
+            name: stem(path),
+            poses,
+        }
+    });
+    let from_stroke_files = strokes.iter().map(|path| {
+        let name = stem(path);
+        let track = Character::from_path_for_head(path, Some(head_mm))
+            .and_then(|c| c.track(&name))
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        Stroke {
+            name,
+            poses: track.resample().collect(),
+        }
+    });
+    from_pose_files.chain(from_stroke_files).collect()
+}
+
+/// What one run of a stroke measures.
+struct Deviation {
+    /// The largest |fixed - f64| of any mass at any tick (mm), its tick and mass.
+    worst_mm: f64,
+    tick: usize,
+    mass: usize,
+    /// Ticks on which the f64 brush touched the paper.
+    contact_ticks: usize,
+    /// Substeps the fixed-point solve could not hold (each a restart at rest).
+    restarts: u32,
+}
+
+fn run(params: BrushParams, poses: &[Pose<f64>]) -> Deviation {
+    let (first, rest) = poses.split_first().expect("a stroke has a first pose");
+    let mut fixed = Brush::<Fx>::new(params, first.cast()).unwrap();
+    let mut reference = Brush::<f64>::new(params, *first).unwrap();
+    let mut d = Deviation {
+        worst_mm: 0.0,
+        tick: 0,
+        mass: 0,
+        contact_ticks: 0,
+        restarts: 0,
+    };
+    for (k, pose) in rest.iter().enumerate() {
+        fixed.tick(pose.cast());
+        reference.tick(*pose);
+        if reference.contacts() > 0 {
+            d.contact_ticks += 1;
+        }
+        for (i, (a, b)) in fixed.spine().iter().zip(reference.spine()).enumerate() {
+            let off = (a.cast::<f64>() - *b).norm();
+            if off > d.worst_mm {
+                (d.worst_mm, d.tick, d.mass) = (off, k + 1, i);
             }
-            let stem = file.file_stem().unwrap().to_string_lossy().into_owned();
-            println!(
-                "{name:5} {stem:12} {} ticks ({contact_ticks} touching the paper): largest |fixed - f64| = {:.3} um (mass {worst_mass}, tick {worst_tick})",
-                track.ticks(),
-                worst * 1e3
-            );
-            assert!(
-                contact_ticks > 0,
-                "{stem} never touches the paper with {name}"
-            );
-            assert!(
-                worst < TOLERANCE_MM,
-                "{name} on {stem}: fixed point is {worst} mm from f64 at tick {worst_tick}, mass {worst_mass}"
-            );
-            overall = overall.max(worst);
         }
     }
-    println!(
-        "largest deviation over all strokes and presets: {:.3} um (budget 5 um)",
-        overall * 1e3
-    );
+    d.restarts = fixed.restarts();
+    d
+}
+
+#[test]
+fn fixed_matches_f64_for_every_preset_on_every_example() {
+    let mut failures = Vec::new();
+    for (preset, params) in presets::PRESETS {
+        let strokes = example_strokes(params.length_mm as f64);
+        let mut worst_of_preset = 0.0f64;
+        for substeps in 1..=params.substeps_per_tick {
+            let mut p = *params;
+            p.set(ParamId::SubstepsPerTick, substeps as f32).unwrap();
+            for stroke in &strokes {
+                let d = run(p, &stroke.poses);
+                println!(
+                    "{preset:5} {substeps} substep(s) {:12} {} ticks ({} touching): largest |fixed - f64| = {:.4} um (mass {}, tick {}), {} restart(s)",
+                    stroke.name,
+                    stroke.poses.len(),
+                    d.contact_ticks,
+                    d.worst_mm * 1e3,
+                    d.mass,
+                    d.tick,
+                    d.restarts
+                );
+                if d.contact_ticks == 0 {
+                    failures.push(format!(
+                        "{preset} at {substeps} substep(s): {} never touches the paper",
+                        stroke.name
+                    ));
+                }
+                let known = KNOWN_DEPARTURES.contains(&(preset, stroke.name.as_str()));
+                if known && d.worst_mm < TOLERANCE_MM {
+                    failures.push(format!(
+                        "{preset} on {} is within {TOLERANCE_MM} mm now: take it off \
+                         KNOWN_DEPARTURES",
+                        stroke.name
+                    ));
+                }
+                if !known && d.worst_mm >= TOLERANCE_MM {
+                    failures.push(format!(
+                        "{preset} at {substeps} substep(s) on {}: fixed point is {} mm from f64 \
+                         at tick {}, mass {}",
+                        stroke.name, d.worst_mm, d.tick, d.mass
+                    ));
+                }
+                if !known {
+                    worst_of_preset = worst_of_preset.max(d.worst_mm);
+                }
+            }
+        }
+        println!(
+            "{preset}: largest deviation over its strokes and rates (known departures aside) {:.4} um (budget {} um)",
+            worst_of_preset * 1e3,
+            TOLERANCE_MM * 1e3
+        );
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

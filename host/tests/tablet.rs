@@ -1,9 +1,11 @@
 //! Pen tablets: a recorded event stream (evemu-record's format) decoded and replayed through
 //! the app's input path moves the brush: pressure presses it through the pressure curve,
-//! tilt tilts it, lifting the pen lifts the brush. Bad recordings and devices are refused
-//! with a message that says which and why.
+//! tilt tilts it, lifting the pen lifts the brush; events lost to an overflow (`SYN_DROPPED`)
+//! are made good from the device's state. Bad recordings and devices are refused with a
+//! message that says which and why.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 mod common;
 
@@ -11,9 +13,11 @@ use egui_kittest::Harness;
 use maobi::device::builtin::SimClock;
 use maobi::gui::app::{Automation, MaobiApp};
 use maobi::gui::start_hand;
+use maobi::tablet::recording::Replay;
 use maobi::tablet::{
-    Axes, AxisRange, Decoder, PressureCurve, Reading, Recording, Tablet, ABS_PRESSURE, ABS_TILT_X,
-    BTN_TOOL_PEN, BTN_TOUCH, EV_ABS, EV_KEY, EV_SYN, SYN_DROPPED, SYN_REPORT,
+    Axes, AxisRange, Decoder, PenState, PenStateSource, PressureCurve, Reading, Recording, Tablet,
+    ABS_PRESSURE, ABS_TILT_X, BTN_TOOL_PEN, BTN_TOUCH, EV_ABS, EV_KEY, EV_SYN, SYN_DROPPED,
+    SYN_REPORT,
 };
 
 /// Model ticks (ms) per UI frame: the recording advances by as much each frame.
@@ -51,39 +55,166 @@ fn the_recording_parses_with_its_axes() {
     assert!(r.events.len() > 1000);
 }
 
+/// The device a decoder's events come from, as a recording of everything it did: every event
+/// changes its state, also those its reader loses to an overflow, and it counts how often the
+/// decoder asks for that state.
+#[derive(Default)]
+struct RecordedDevice {
+    state: PenState,
+    asked: usize,
+}
+
+impl PenStateSource for RecordedDevice {
+    type Error = std::convert::Infallible;
+    fn current_state(&mut self) -> Result<PenState, Self::Error> {
+        self.asked += 1;
+        Ok(self.state)
+    }
+}
+
+impl RecordedDevice {
+    /// An event the device sends and the decoder reads; true when it changed the reading.
+    fn deliver(&mut self, d: &mut Decoder, kind: u16, code: u16, value: i32) -> bool {
+        self.state.apply(kind, code, value);
+        let Ok(changed) = d.feed(self, kind, code, value);
+        changed
+    }
+
+    /// An event the device sends and the reader never sees (its buffer overflowed).
+    fn lose(&mut self, kind: u16, code: u16, value: i32) {
+        self.state.apply(kind, code, value);
+    }
+}
+
 #[test]
-fn the_decoder_takes_whole_frames_and_drops_the_one_after_syn_dropped() {
+fn the_decoder_takes_whole_frames() {
     let mut d = Decoder::new(axes());
-    d.feed(EV_KEY, BTN_TOOL_PEN, 1);
-    d.feed(EV_KEY, BTN_TOUCH, 1);
-    d.feed(EV_ABS, ABS_PRESSURE, 500);
+    let mut dev = RecordedDevice::default();
+    dev.deliver(&mut d, EV_KEY, BTN_TOOL_PEN, 1);
+    dev.deliver(&mut d, EV_KEY, BTN_TOUCH, 1);
+    dev.deliver(&mut d, EV_ABS, ABS_PRESSURE, 500);
     // Nothing counts until the frame closes.
     assert_eq!(d.reading(), Reading::default());
-    assert!(d.feed(EV_SYN, SYN_REPORT, 0));
+    assert!(dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0));
     let r = d.reading();
     assert!(r.in_range && r.touching);
     assert!((r.pressure - 0.5).abs() < 1e-6);
 
     // Tilt in units per radian: 57 units is one radian.
-    d.feed(EV_ABS, ABS_TILT_X, 57);
-    d.feed(EV_SYN, SYN_REPORT, 0);
+    dev.deliver(&mut d, EV_ABS, ABS_TILT_X, 57);
+    dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0);
     assert!((d.reading().tilt_x_deg - 57.29578).abs() < 1e-3);
 
-    // An overflow: the events up to and including the next report are thrown away.
-    d.feed(EV_SYN, SYN_DROPPED, 0);
-    d.feed(EV_ABS, ABS_PRESSURE, 1000);
-    assert!(!d.feed(EV_SYN, SYN_REPORT, 0));
-    assert!((d.reading().pressure - 0.5).abs() < 1e-6);
-    assert_eq!(d.dropped_frames, 1);
-    d.feed(EV_ABS, ABS_PRESSURE, 1000);
-    d.feed(EV_SYN, SYN_REPORT, 0);
-    assert_eq!(d.reading().pressure, 1.0);
-
     // Out of range clears everything the pen said.
-    d.feed(EV_KEY, BTN_TOOL_PEN, 0);
-    d.feed(EV_SYN, SYN_REPORT, 0);
+    dev.deliver(&mut d, EV_KEY, BTN_TOOL_PEN, 0);
+    dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0);
     assert_eq!(d.reading(), Reading::default());
-    assert_eq!(d.frames, 4);
+    assert_eq!((d.frames, d.dropped_frames), (3, 0));
+    assert_eq!(dev.asked, 0, "without a drop the events say it all");
+}
+
+/// A pen pressing at half pressure and leaning a radian, read whole by the decoder.
+fn pressing() -> (Decoder, RecordedDevice) {
+    let mut d = Decoder::new(axes());
+    let mut dev = RecordedDevice::default();
+    for (kind, code, value) in [
+        (EV_KEY, BTN_TOOL_PEN, 1),
+        (EV_KEY, BTN_TOUCH, 1),
+        (EV_ABS, ABS_PRESSURE, 500),
+        (EV_ABS, ABS_TILT_X, 57),
+        (EV_SYN, SYN_REPORT, 0),
+    ] {
+        dev.deliver(&mut d, kind, code, value);
+    }
+    assert!(d.reading().touching);
+    (d, dev)
+}
+
+#[test]
+fn after_syn_dropped_a_lost_touch_release_resyncs_to_not_touching() {
+    let (mut d, mut dev) = pressing();
+    // The reader falls behind: the frame that lifts the tip is lost, the kernel says so
+    // with SYN_DROPPED, and the frame after it (the hovering pen leaning back) is
+    // incomplete and not to be read.
+    dev.lose(EV_ABS, ABS_PRESSURE, 0);
+    dev.lose(EV_KEY, BTN_TOUCH, 0);
+    dev.lose(EV_SYN, SYN_REPORT, 0);
+    dev.deliver(&mut d, EV_SYN, SYN_DROPPED, 0);
+    dev.deliver(&mut d, EV_ABS, ABS_TILT_X, 0);
+    assert_eq!(dev.asked, 0, "the state is asked for once the drop ends");
+    assert!(dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0));
+    assert_eq!(dev.asked, 1);
+    assert_eq!(
+        d.reading(),
+        Reading {
+            in_range: true,
+            touching: false,
+            pressure: 0.0,
+            tilt_x_deg: 0.0,
+            tilt_y_deg: 0.0,
+        },
+        "the device's state, not the last frame read"
+    );
+    assert_eq!((d.frames, d.dropped_frames), (1, 1));
+
+    // Reading goes on from there, frame by frame.
+    dev.deliver(&mut d, EV_KEY, BTN_TOOL_PEN, 0);
+    dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0);
+    assert_eq!(d.reading(), Reading::default());
+    assert_eq!(dev.asked, 1);
+}
+
+#[test]
+fn after_syn_dropped_a_lost_pressure_change_resyncs_to_the_present_pressure() {
+    let (mut d, mut dev) = pressing();
+    // Pressed harder in the lost frames; the frame the drop cuts short would have taken it
+    // a little further.
+    for pressure in [600, 700, 800] {
+        dev.lose(EV_ABS, ABS_PRESSURE, pressure);
+        dev.lose(EV_SYN, SYN_REPORT, 0);
+    }
+    dev.deliver(&mut d, EV_SYN, SYN_DROPPED, 0);
+    dev.deliver(&mut d, EV_ABS, ABS_PRESSURE, 900);
+    assert!(dev.deliver(&mut d, EV_SYN, SYN_REPORT, 0));
+    let r = d.reading();
+    assert!(r.in_range && r.touching, "{r:?}");
+    assert!((r.pressure - 0.9).abs() < 1e-6, "{r:?}");
+    assert!((r.tilt_x_deg - 57.29578).abs() < 1e-3, "{r:?}");
+    assert_eq!((d.frames, d.dropped_frames, dev.asked), (1, 1, 1));
+}
+
+/// A recording (evemu-record's format) in which the reader's buffer overflowed as the pen
+/// lifted: the release is in the frame after `SYN_DROPPED`, which a reader discards.
+const DROPPED_RELEASE: &str = "\
+N: Test Pen
+A: 18 0 1000 0 0 0
+E: 0.000000 0001 0140 1
+E: 0.000000 0001 014a 1
+E: 0.000000 0003 0018 500
+E: 0.000000 0000 0000 0
+E: 0.010000 0000 0003 0
+E: 0.010000 0003 0018 0
+E: 0.010000 0001 014a 0
+E: 0.010000 0000 0000 0
+E: 0.020000 0003 0000 100
+E: 0.020000 0000 0000 0
+";
+
+#[test]
+fn a_replayed_recording_that_drops_the_touch_release_lifts_the_pen() {
+    let rec = Recording::parse(DROPPED_RELEASE, Path::new("dropped-release.evemu")).unwrap();
+    let mut replay = Replay::new(rec);
+    replay.advance(Duration::from_millis(5));
+    let s = replay.status();
+    assert!(s.reading.touching && s.reading.pressure == 0.5, "{s:?}");
+    replay.advance(Duration::from_millis(20));
+    let s = replay.status();
+    assert!(replay.finished());
+    assert!(
+        s.reading.in_range && !s.reading.touching && s.reading.pressure == 0.0,
+        "no stuck touch, no stale pressure: {s:?}"
+    );
+    assert_eq!((s.frames, s.dropped_frames), (2, 1));
 }
 
 #[test]

@@ -108,19 +108,78 @@ impl Reading {
     }
 }
 
+/// What a [`Decoder`] reads of a device's state, in evdev's raw terms: which of the pen's keys
+/// are down and the value of each of its absolute axes, as the kernel holds them for the
+/// device (`EVIOCGKEY`, `EVIOCGABS`) and as its events change them.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct PenState {
+    /// `BTN_TOOL_PEN`: the pen's tip end is in range.
+    pub tool_pen: bool,
+    /// `BTN_TOOL_RUBBER`: its eraser end is in range.
+    pub tool_rubber: bool,
+    /// `BTN_TOUCH`: the tip is on the surface.
+    pub touch: bool,
+    /// `ABS_PRESSURE`, `ABS_TILT_X`, `ABS_TILT_Y` in the device's units.
+    pub pressure: i32,
+    pub tilt_x: i32,
+    pub tilt_y: i32,
+}
+
+impl PenState {
+    /// The `EV_KEY` codes this state holds.
+    pub const KEYS: [u16; 3] = [BTN_TOOL_PEN, BTN_TOOL_RUBBER, BTN_TOUCH];
+    /// The `EV_ABS` codes this state holds.
+    pub const AXES: [u16; 3] = [ABS_PRESSURE, ABS_TILT_X, ABS_TILT_Y];
+
+    /// Takes one event: a key of [`Self::KEYS`] goes down (any value but 0: pressed or
+    /// repeating) or up, an axis of [`Self::AXES`] takes its value; other events change
+    /// nothing.
+    pub fn apply(&mut self, kind: u16, code: u16, value: i32) {
+        match (kind, code) {
+            (EV_KEY, BTN_TOOL_PEN) => self.tool_pen = value != 0,
+            (EV_KEY, BTN_TOOL_RUBBER) => self.tool_rubber = value != 0,
+            (EV_KEY, BTN_TOUCH) => self.touch = value != 0,
+            (EV_ABS, ABS_PRESSURE) => self.pressure = value,
+            (EV_ABS, ABS_TILT_X) => self.tilt_x = value,
+            (EV_ABS, ABS_TILT_Y) => self.tilt_y = value,
+            _ => {}
+        }
+    }
+}
+
+/// Where a [`Decoder`]'s events come from, asked for the device's present state when events
+/// were lost (`SYN_DROPPED`): the live device answers with evdev's `EVIOCGKEY` and
+/// `EVIOCGABS`, a replayed recording with the state its events have built so far.
+pub trait PenStateSource {
+    type Error;
+    fn current_state(&mut self) -> Result<PenState, Self::Error>;
+}
+
+/// A state is its own source: what a replay that keeps the device's state answers.
+impl PenStateSource for PenState {
+    type Error = core::convert::Infallible;
+    fn current_state(&mut self) -> Result<PenState, Self::Error> {
+        Ok(*self)
+    }
+}
+
 /// evdev's event stream to [`Reading`]s.
 ///
 /// The kernel sends a device's state changes as a frame of events closed by `SYN_REPORT`; a
-/// reader takes the frame as a whole. When the kernel's buffer overflowed it sends
-/// `SYN_DROPPED`, and everything up to and including the next `SYN_REPORT` is to be ignored
-/// (the state is then stale until the axes move again, which a moving pen does at once).
+/// reader takes the frame as a whole. When the reader's buffer overflowed the kernel sends
+/// `SYN_DROPPED`: events were lost, so the state the frames built is wrong (a lost
+/// `BTN_TOUCH` release would leave the tip on the paper, a lost pressure change a stale
+/// press). Everything up to and including the next `SYN_REPORT` is ignored and the decoder
+/// then takes the device's present state from its source instead (the kernel's
+/// `Documentation/input/event-codes.rst` asks readers to do exactly this).
 #[derive(Clone, Debug)]
 pub struct Decoder {
     axes: Axes,
-    committed: Reading,
-    pending: Reading,
+    committed: PenState,
+    pending: PenState,
     dropping: bool,
-    /// Frames taken, and frames thrown away after `SYN_DROPPED`.
+    /// Frames taken, and frames thrown away after `SYN_DROPPED` (each followed by a resync
+    /// from the device's state).
     pub frames: u64,
     pub dropped_frames: u64,
 }
@@ -129,8 +188,8 @@ impl Decoder {
     pub fn new(axes: Axes) -> Decoder {
         Decoder {
             axes,
-            committed: Reading::default(),
-            pending: Reading::default(),
+            committed: PenState::default(),
+            pending: PenState::default(),
             dropping: false,
             frames: 0,
             dropped_frames: 0,
@@ -146,61 +205,65 @@ impl Decoder {
         self.axes.tilt_x.is_some() || self.axes.tilt_y.is_some()
     }
 
-    /// The stylus as of the last complete frame.
+    /// The stylus as of the last complete frame (or resync).
     pub fn reading(&self) -> Reading {
-        self.committed
+        self.reading_of(&self.committed)
     }
 
-    /// Takes one event; returns true when it closed a frame that changed the reading.
-    pub fn feed(&mut self, kind: u16, code: u16, value: i32) -> bool {
+    /// What `state` says of the stylus, with the axes' ranges applied. Out of range, nothing
+    /// the pen last reported holds.
+    fn reading_of(&self, state: &PenState) -> Reading {
+        if !(state.tool_pen || state.tool_rubber) {
+            return Reading::default();
+        }
+        let degrees = |range: Option<AxisRange>, value| range.map_or(0.0, |r| r.degrees(value));
+        Reading {
+            in_range: true,
+            touching: state.touch,
+            pressure: self.axes.pressure.fraction(state.pressure),
+            tilt_x_deg: degrees(self.axes.tilt_x, state.tilt_x),
+            tilt_y_deg: degrees(self.axes.tilt_y, state.tilt_y),
+        }
+    }
+
+    /// Makes the pending state the reading; true when that changed the reading.
+    fn commit(&mut self) -> bool {
+        let before = self.reading();
+        self.committed = self.pending;
+        self.reading() != before
+    }
+
+    /// Takes one event from `source`; returns true when it closed a frame (or ended a drop)
+    /// that changed the reading. Fails only when the source cannot say its state after a
+    /// drop; the reading is then the last complete frame's.
+    pub fn feed<S: PenStateSource>(
+        &mut self,
+        source: &mut S,
+        kind: u16,
+        code: u16,
+        value: i32,
+    ) -> Result<bool, S::Error> {
         match (kind, code) {
             (EV_SYN, SYN_DROPPED) => {
                 self.dropping = true;
+                Ok(false)
+            }
+            (EV_SYN, SYN_REPORT) if self.dropping => {
+                self.dropping = false;
+                self.dropped_frames += 1;
                 self.pending = self.committed;
-                false
+                self.pending = source.current_state()?;
+                Ok(self.commit())
             }
             (EV_SYN, SYN_REPORT) => {
-                if self.dropping {
-                    self.dropping = false;
-                    self.dropped_frames += 1;
-                    self.pending = self.committed;
-                    return false;
-                }
                 self.frames += 1;
-                let changed = self.pending != self.committed;
-                self.committed = self.pending;
-                changed
+                Ok(self.commit())
             }
-            _ if self.dropping => false,
-            (EV_ABS, ABS_PRESSURE) => {
-                self.pending.pressure = self.axes.pressure.fraction(value);
-                false
+            _ if self.dropping => Ok(false),
+            _ => {
+                self.pending.apply(kind, code, value);
+                Ok(false)
             }
-            (EV_ABS, ABS_TILT_X) => {
-                if let Some(r) = self.axes.tilt_x {
-                    self.pending.tilt_x_deg = r.degrees(value);
-                }
-                false
-            }
-            (EV_ABS, ABS_TILT_Y) => {
-                if let Some(r) = self.axes.tilt_y {
-                    self.pending.tilt_y_deg = r.degrees(value);
-                }
-                false
-            }
-            (EV_KEY, BTN_TOOL_PEN | BTN_TOOL_RUBBER) => {
-                self.pending.in_range = value != 0;
-                if value == 0 {
-                    // Out of range: nothing the pen reported still holds.
-                    self.pending = Reading::default();
-                }
-                false
-            }
-            (EV_KEY, BTN_TOUCH) => {
-                self.pending.touching = value != 0;
-                false
-            }
-            _ => false,
         }
     }
 }

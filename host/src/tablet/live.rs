@@ -2,8 +2,10 @@
 //!
 //! The thread waits on the device with `poll(2)` and a short timeout, so that dropping the
 //! [`LiveTablet`] stops it promptly, and hands each complete event frame to the [`Decoder`]
-//! behind a mutex the app reads once per UI frame. An unplugged tablet makes the read fail
-//! (`ENODEV`): the thread records why and ends, and the app falls back to the mouse.
+//! behind a mutex the app reads once per UI frame. After `SYN_DROPPED` the decoder asks the
+//! device for its present keys and axes (`EVIOCGKEY`, `EVIOCGABS`: [`PenStateSource`] for
+//! the raw device). An unplugged tablet makes the read fail (`ENODEV`): the thread records
+//! why and ends, and the app falls back to the mouse.
 
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
@@ -14,7 +16,9 @@ use std::thread::JoinHandle;
 use evdev::raw_stream::RawDevice;
 use evdev::{AbsoluteAxisCode, KeyCode};
 
-use super::decode::{Axes, AxisRange, Decoder, TabletInfo, TabletStatus};
+use super::decode::{
+    Axes, AxisRange, Decoder, PenState, PenStateSource, TabletInfo, TabletStatus, EV_ABS, EV_KEY,
+};
 use super::error::TabletError;
 
 /// How long the reader sleeps in `poll` before it looks at the stop flag again.
@@ -77,6 +81,23 @@ fn axes_of(dev: &RawDevice, path: &Path) -> Result<Axes, TabletError> {
             path: path.to_path_buf(),
             name: dev.name().unwrap_or("unnamed").to_string(),
         }),
+    }
+}
+
+impl PenStateSource for RawDevice {
+    type Error = std::io::Error;
+
+    fn current_state(&mut self) -> std::io::Result<PenState> {
+        let keys = self.get_key_state()?;
+        let axes = self.get_abs_state()?;
+        let mut state = PenState::default();
+        for code in PenState::KEYS {
+            state.apply(EV_KEY, code, keys.contains(KeyCode::new(code)) as i32);
+        }
+        for code in PenState::AXES {
+            state.apply(EV_ABS, code, axes[code as usize].value);
+        }
+        Ok(state)
     }
 }
 
@@ -186,15 +207,21 @@ fn read_loop(dev: &mut RawDevice, path: &Path, shared: &Mutex<Shared>, stop: &At
             );
             return;
         }
-        match dev.fetch_events() {
-            Ok(events) => {
-                let Ok(mut s) = shared.lock() else { return };
-                for e in events {
-                    s.decoder.feed(e.event_type().0, e.code(), e.value());
-                }
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+        // Taken out of the device's buffer first: a resync asks the device itself.
+        let events: Vec<(u16, u16, i32)> = match dev.fetch_events() {
+            Ok(events) => events
+                .map(|e| (e.event_type().0, e.code(), e.value()))
+                .collect(),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => continue,
             Err(e) => {
+                fail(shared, path, e);
+                return;
+            }
+        };
+        let Ok(mut s) = shared.lock() else { return };
+        for (kind, code, value) in events {
+            if let Err(e) = s.decoder.feed(dev, kind, code, value) {
+                drop(s);
                 fail(shared, path, e);
                 return;
             }

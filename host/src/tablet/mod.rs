@@ -8,8 +8,9 @@
 //!   kernel's own events are the one source that carries both.
 //! * [`recording`]: the same events from a file in the format `evemu-record` writes, replayed
 //!   along the model's clock (tests, bug reports, and users without a tablet at hand).
-//! * [`Decoder`]: evdev's event protocol (frames closed by `SYN_REPORT`, `SYN_DROPPED`
-//!   discarding to the next frame) turned into [`Reading`]s with the axes' ranges applied.
+//! * [`Decoder`]: evdev's event protocol (frames closed by `SYN_REPORT`; after `SYN_DROPPED`
+//!   the next frame discarded and the device's state taken from its [`PenStateSource`])
+//!   turned into [`Reading`]s with the axes' ranges applied.
 //! * [`PressureCurve`] and [`Reading::hand`]: what a reading does to the hand.
 //!
 //! Event codes are the kernel's (`linux/input-event-codes.h`), kept as plain numbers here so

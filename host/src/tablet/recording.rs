@@ -19,7 +19,9 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::decode::{Axes, AxisRange, Decoder, TabletStatus, ABS_PRESSURE, ABS_TILT_X, ABS_TILT_Y};
+use super::decode::{
+    Axes, AxisRange, Decoder, PenState, TabletStatus, ABS_PRESSURE, ABS_TILT_X, ABS_TILT_Y,
+};
 
 /// One event of a recording.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -211,9 +213,14 @@ impl Recording {
 }
 
 /// A recording played through a [`Decoder`] along a clock the caller advances.
+///
+/// The recording stands for the device: every event in it changes the device's state, also
+/// those a `SYN_DROPPED` in it marks as lost to the reader, so the decoder resynchronises
+/// after a drop to the state all events so far have built, as a live device's would.
 pub struct Replay {
     recording: Recording,
     decoder: Decoder,
+    device: PenState,
     next: usize,
     at: Duration,
 }
@@ -222,6 +229,7 @@ impl Replay {
     pub fn new(recording: Recording) -> Replay {
         Replay {
             decoder: Decoder::new(recording.axes),
+            device: PenState::default(),
             recording,
             next: 0,
             at: Duration::ZERO,
@@ -236,7 +244,8 @@ impl Replay {
             if e.time_s > now {
                 break;
             }
-            self.decoder.feed(e.kind, e.code, e.value);
+            self.device.apply(e.kind, e.code, e.value);
+            let Ok(_) = self.decoder.feed(&mut self.device, e.kind, e.code, e.value);
             self.next += 1;
         }
     }

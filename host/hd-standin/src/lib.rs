@@ -785,8 +785,8 @@ fn scheduler(stop: &AtomicBool) {
         tick += 1;
         // `c_ulong` is 64 bits on Linux, 32 on Windows.
         #[allow(clippy::useless_conversion)]
-        let due = start
-            + Duration::from_nanos(tick * u64::from(slow) * 1_000_000_000 / u64::from(rate));
+        let due =
+            start + Duration::from_nanos(tick * u64::from(slow) * 1_000_000_000 / u64::from(rate));
         let now = Instant::now();
         if due > now {
             std::thread::sleep(due - now);

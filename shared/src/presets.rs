@@ -70,9 +70,10 @@
 //!   wolf hair springs. 200 ms after the model tests' 10 mm press and lift, wolf is within
 //!   0.005 mm of rest, mixed 0.032, goat 0.119 (and 0.021 after 500 ms).
 //! * Substeps: the springier wolf hair has faster modes, and at one substep per tick the
-//!   backward-Euler step's own damping slows its spring-back by 14% at 100 ms (beyond the 10%
-//!   of `tests/convergence.rs`); [`WOLF`] takes two substeps per tick (4%). A board that
-//!   sets its own substep rate (a pen: one) runs it at that.
+//!   backward-Euler step's own damping slows its spring-back beyond the 10% that
+//!   `tests/convergence.rs` holds the presets to; [`WOLF`] takes two substeps per tick. A
+//!   board that sets its own substep rate (a pen: one) runs it at that, and the test holds
+//!   wolf at one substep to its own, wider bound (docs/figures.md has the figures).
 //! * Ink: hair holds ink by capillarity on its surface, which per volume of hair goes as
 //!   1 / d, and goat hair's scales hold more (Saitzyk): [`GOAT`] holds 0.55 units per mm^3,
 //!   [`MIXED`] 0.42, [`WOLF`] 0.3 (large: 0.4), and a dip leaves the absorbent goat head

@@ -111,8 +111,9 @@ static BOARD: BoardInfo = BoardInfo {
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
     // One substep per 1 ms tick, the default brush's own rate: what fits this core's
     // 50,000-instruction tick (`hil bench`; docs/figures.md has the counts). A preset that
-    // asks for more (the springy wolf hair's two) runs at one here, springing back a little
-    // slower than at its own rate (`shared/tests/convergence.rs` prints the tables). The image is
+    // asks for more (the springy wolf hair's two) runs at one here, springing back slower than
+    // at its own rate, beyond the presets' 10% (`shared/tests/convergence.rs` holds it to its
+    // own bound and prints the tables). The image is
     // built with the presets' backward-Euler step only (`maobi-shared`'s `kang-cho` feature
     // left out). Not measured on a board yet.
     substeps_per_tick: Some(1),

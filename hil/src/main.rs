@@ -187,7 +187,7 @@ fn main() -> Result<()> {
 fn size(elf: &std::path::Path, board: firmware::Board, check: bool) -> anyhow::Result<()> {
     let s = firmware::size(elf, board.ram_start())?;
     println!("image: {}", elf.display());
-    println!("{}", s.report());
+    println!("{}", s.report(board.budget()));
     let boot = firmware::check_boot_line(elf, board);
     match &boot {
         Ok(level) => println!("boot_line=\"{}\" level={level}", board.boot_line()),
@@ -200,7 +200,7 @@ fn size(elf: &std::path::Path, board: firmware::Board, check: bool) -> anyhow::R
         }
         Err(e) => println!("stack=above_statics: {e:#}"),
     }
-    s.check(check)?;
+    s.check(board.budget(), check)?;
     if check {
         boot?;
         layout?;

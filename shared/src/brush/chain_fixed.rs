@@ -13,7 +13,9 @@
 //!   `chain_solve`), so `E_i <= I` and its entries lie in (-1, 1). They are computed
 //!   from exact integer cofactors and determinant ([`QSym::inverse_spd`]);
 //! * **vectors** (right-hand sides, eliminated `y_i`, solutions `z_i`: millimetres per
-//!   substep): `Q4.27` ([`VEC_FRAC`]): a chain of segments in different directions
+//!   substep): `Q4.27` ([`VEC_FRAC`]), the right-hand sides and `y_i` at that resolution
+//!   in 64 bits (they are `D_i` times the solution, beyond 16 mm on a brush with light
+//!   masses; [`Y_BITS`]): a chain of segments in different directions
 //!   multiplies a vector's rounding by the stiffness, row after row, so they keep more
 //!   fractional bits than the blocks; a substep whose vectors leave the range (a pose that
 //!   jumped) is reported ([`SpineChain::saturated`]), and the brush restarts at rest.
@@ -80,6 +82,31 @@ fn round_clamp(v: i64, shift: u32, limit: i32) -> i32 {
 #[inline(always)]
 fn round_shift(v: i64, shift: u32) -> i32 {
     (v.wrapping_add(1 << (shift - 1)) >> shift) as i32
+}
+
+/// `v >> shift` rounded to nearest (ties up), in 64 bits: the vectors' resolution with
+/// more range (the right-hand sides and the eliminated `y_i`).
+#[inline(always)]
+fn round_shift64(v: i64, shift: u32) -> i64 {
+    v.wrapping_add(1 << (shift - 1)) >> shift
+}
+
+/// The bound on the eliminated `y_i` in the vectors' resolution: `2^46` units, `2^19` mm per
+/// substep.
+const Y_BITS: u32 = 46;
+
+/// `sum a_k y_k >> INV_FRAC`, rounded to nearest (ties up), for a row of an inverse (`Q0.31`,
+/// entries below `2^31`) and a 64-bit `y` (below `2^Y_BITS`): `y` split at bit 30, two sums
+/// of three 32 x 32-bit products, each below `2^63`, and the quotient put together exactly.
+/// For `y` within 32 bits the same bits as rounding `dot(a, y)`.
+#[inline(always)]
+fn dot_wide(a: [i32; 3], y: [i64; 3]) -> i64 {
+    let hi = y.map(|e| (e >> 30) as i32);
+    let lo = y.map(|e| (e & 0x3fff_ffff) as i32);
+    // sum = high 2^30 + low; (sum + 2^30) >> 31 = (high + (low + 2^30) >> 30) >> 1, exactly.
+    let high = dot(a, hi);
+    let low = dot(a, lo).wrapping_add(1 << 30);
+    high.wrapping_add(low >> 30) >> 1
 }
 
 /// A sum of three exact products (wrapping only outside the formats' bounds).
@@ -324,13 +351,17 @@ impl SpineChain<Fx> for FixedChain {
         let i = i.clamp(1, MAX_LAYERS - 1);
         let f = BLOCK_FRAC;
         let sat = &mut self.saturated;
-        // T_{i+1} - T_i + own, exact, then rounded once into the vectors' format.
+        // T_{i+1} - T_i + own, exact, then rounded once to the vectors' resolution, kept in
+        // 64 bits: the right-hand side and the eliminated y_i = D_i z_i are the explicit
+        // velocity change, up to the diagonal (1 + 2 c_k) times the solution, and leave the
+        // solution's 16 mm per substep on a brush whose light masses make c_k large (the
+        // small brush's tip segment stretching at a fraction of a millimetre per substep).
         let own = to_vec(own, sat);
         let rhs = [0, 1, 2].map(|r| {
             let sum = self.t_above[r]
                 .wrapping_sub(self.t_below[r])
                 .wrapping_add((own[r] as i64) << BLOCK_FRAC);
-            to_vec_from(sum, BLOCK_FRAC, sat)
+            round_shift64(sum, BLOCK_FRAC)
         });
         let (g, g_next) = (self.g_below, self.g_above);
         // a I + c (x x^T + y y^T) + G_i + G_{i+1}, in the blocks' format (each below the
@@ -369,15 +400,29 @@ impl SpineChain<Fx> for FixedChain {
                 sub(yz, gp(1, 2)),
             ]);
             let z = self.z[i - 1];
-            let y = [0, 1, 2].map(|r| {
-                let gz = to_vec_from(dot(g.row(r), z), f, sat);
-                add_vec(rhs[r], gz, sat)
-            });
+            let y = [0, 1, 2].map(|r| rhs[r].wrapping_add(round_shift64(dot(g.row(r), z), f)));
             (d, y)
         };
         self.inv = d.inverse_spd();
         let inv = self.inv;
-        self.z[i] = [0, 1, 2].map(|r| to_vec_from(dot(inv.row(r), y), INV_FRAC, sat));
+        self.z[i] = [0, 1, 2].map(|r| {
+            let y = y.map(|e| {
+                // Beyond any brush's (D z below 2^19 mm per substep for a diagonal below
+                // MAX_DIAGONAL and z in range): saturated, and the split below stays exact.
+                if e.unsigned_abs() >> Y_BITS != 0 {
+                    *sat = true;
+                }
+                e.clamp(-(1 << Y_BITS), 1 << Y_BITS)
+            });
+            let q = dot_wide(inv.row(r), y);
+            let word = q as i32;
+            if word as i64 == q {
+                word
+            } else {
+                *sat = true;
+                saturated_word(q)
+            }
+        });
     }
 
     #[inline(always)]

@@ -15,9 +15,25 @@
 //! protocol. What the board provides: its boot, its interrupts, and these traits.
 
 use maobi_shared::guide::GuideInput;
+use maobi_shared::params::TickLimits;
 use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::SensorReport;
 use maobi_shared::{Fx, Pose};
+
+/// What the pen's core (the Black Pill's Cortex-M4F at 96 MHz) runs within its 1 ms tick:
+/// the default brush's rate and resolution, which every preset shares (one substep; 12
+/// layers of 16 ring nodes; 4 Jacobi sweeps). Each cap is the preset's value, not more: the
+/// tick of the default brush is already most of the budget (`hil bench`, docs/figures.md),
+/// a second substep or four more layers alone overrun it. The hil test
+/// `limits::the_most_expensive_valid_brush_ticks_every_tick` holds the caps together to the
+/// tick under QEMU paced like the pen. The QEMU board announces them too when it stands in
+/// for the pen (boot argument `limits=pen`).
+pub const PEN_TICK_LIMITS: TickLimits = TickLimits {
+    substeps_per_tick: 1,
+    layers: 12,
+    ring_nodes: 16,
+    jacobi_iterations: 4,
+};
 
 /// The three motor channels of the pen.
 ///
@@ -63,6 +79,13 @@ pub trait PoseSource {
     /// The pose for this tick, or `None` when the source has no new reading (the virtual
     /// pen's queue is empty). The force loop then holds the brush and counts the gap.
     fn next_pose(&mut self) -> Option<Pose<Fx>>;
+    /// A tick whose pose the brush does not take (it stands by after an overrun): the
+    /// reading is taken and dropped, so that a virtual pen's queue keeps moving and the
+    /// brush, when it starts again, starts from the latest pose.
+    fn skip_pose(&mut self) {
+        let _ = self.next_pose();
+        let _ = self.take_guide();
+    }
     /// The host's sequence number of the last pose `next_pose` returned (virtual pen; 0
     /// for a pen with its own sensors).
     fn pose_seq(&self) -> u32 {

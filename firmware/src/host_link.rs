@@ -49,6 +49,7 @@ use core::task::Poll;
 use embassy_time::{Duration, Timer};
 use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::RawReadings;
+use maobi_shared::params::{ParamError, TickLimits};
 use maobi_shared::pen_io::{self, DeviceConfig, Readiness, ZeroHold, CONFIG_IMAGE_MAX};
 use maobi_shared::protocol::{
     param_id, Capabilities, Command as Wire, CommandError, ConfigRejected, ConfigState, DeviceInfo,
@@ -69,21 +70,17 @@ pub struct BoardInfo {
     /// the configuration's (`DeviceConfig::limits`, what the force loop applies).
     pub force_peak_n: f32,
     pub force_continuous_n: f32,
-    /// The substep rate this board's core can run within the 1 kHz tick, in place of the
-    /// preset's (`None`: the preset's). Applied to the brush at boot and to every preset
-    /// the host chooses; the host may still set `SubstepsPerTick` itself (a rate the core
-    /// cannot hold latches `LOOP_OVERRUN`, motors off).
-    pub substeps_per_tick: Option<u8>,
+    /// What this board's core runs within its 1 kHz tick, announced in the handshake. A
+    /// preset's substep rate is lowered to it ([`TickLimits::brush`]); a parameter or a
+    /// preset beyond any cap is refused with the reason, so no command the link accepts can
+    /// make the tick overrun.
+    pub limits: TickLimits,
 }
 
 impl BoardInfo {
     /// `preset` as this board runs it.
     pub const fn brush(&self, preset: BrushParams) -> BrushParams {
-        let mut p = preset;
-        if let Some(n) = self.substeps_per_tick {
-            p.substeps_per_tick = n;
-        }
-        p
+        self.limits.brush(preset)
     }
 }
 
@@ -247,6 +244,10 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             if let Some(m) = msg {
                 self.heard().await;
                 self.handle(m).await;
+                // Every other task's turn between two messages: a host that never stops
+                // sending (a flood of pings) must not keep the supervisor from checking
+                // in, or the watchdog resets the pen.
+                embassy_futures::yield_now().await;
             }
         }
     }
@@ -285,7 +286,8 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                     peak,
                     continuous,
                 )
-                .with_config(self.config_state.clone());
+                .with_config(self.config_state.clone())
+                .with_limits(self.board.limits);
                 let n = self.stage(&DeviceMsg::Hello(info));
                 self.send_staged(n).await;
                 self.command(Command::Reanchor).await;
@@ -339,7 +341,10 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                     },
                     Some(p) => {
                         let mut candidate = self.params;
-                        let outcome = candidate.set(p, value).and_then(|()| candidate.validate());
+                        let outcome = candidate
+                            .set(p, value)
+                            .and_then(|()| candidate.validate())
+                            .and_then(|()| self.board.limits.check(&candidate));
                         if outcome.is_ok() {
                             self.params = candidate;
                             self.command(Command::SetParam(p, value)).await;
@@ -390,6 +395,15 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
                 let params = self
                     .board
                     .brush(p.resolve().ok_or(CommandError::UnknownPreset)?);
+                if let Err(ParamError::OverTickLimit { param, value, max }) =
+                    self.board.limits.check(&params)
+                {
+                    return Err(CommandError::OverTickLimit {
+                        param: param as u8,
+                        value: value as u32,
+                        max: max as u32,
+                    });
+                }
                 self.params = params;
                 Command::SetParams(params)
             }
@@ -680,7 +694,7 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
             return;
         }
         self.next_telemetry = now.wrapping_add(self.cfg.telemetry_ticks);
-        let (min, mean, max, load) = app::timing::take();
+        let period = app::timing::take();
         let overflows = self.parts.transport.rx_overflows();
         if overflows != 0 {
             // Bytes lost to a full receive ring show up as framing / CRC errors too.
@@ -688,15 +702,19 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         }
         let t = Telemetry {
             tick: now,
-            tick_period_min_us: min,
-            tick_period_mean_us: mean,
-            tick_period_max_us: max,
-            load_percent: load,
+            tick_period_min_us: period.min_us,
+            tick_period_mean_us: period.mean_us,
+            tick_period_max_us: period.max_us,
+            load_percent: period.load_percent,
             frames_dropped: self
                 .frames_dropped
                 .saturating_add(app::STATES_MISSED.load(Ordering::Relaxed)),
             pose_gaps: self.pose_gaps,
             rx: self.rx.stats(),
+            tick_busy_max_us: period.busy_max_us,
+            tick_busy_max_cycles: period.busy_max_counts,
+            overruns: app::OVERRUNS.load(Ordering::Relaxed),
+            brush_ticks: app::BRUSH_TICKS.load(Ordering::Relaxed),
         };
         let n = self.stage(&DeviceMsg::Telemetry(t));
         self.send_staged(n).await;

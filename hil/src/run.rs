@@ -222,8 +222,8 @@ pub const SENSOR_PEN_LISTEN: Duration = Duration::from_secs(3);
 
 /// The checks of a pen that reads its own sensors (it takes no poses from the host): pings,
 /// then `listen` of its stream: brush states keep coming, a telemetry report says the force
-/// loop holds its 1 ms tick (mean within 1%, no tick longer than 1.5 ms), and both ends'
-/// decoders are clean.
+/// loop holds its 1 ms tick (mean within 1%, no tick longer than 1.5 ms, no overrun since
+/// start, no tick's work above 90% of it), and both ends' decoders are clean.
 pub fn sensor_pen_checks<T: Transport>(
     s: &mut Session<T>,
     mut checks: Vec<Check>,
@@ -270,6 +270,23 @@ pub fn sensor_pen_checks<T: Transport>(
                 t.tick_period_max_us,
                 t.load_percent,
                 t.frames_dropped
+            ),
+        },
+    });
+    let worst = maobi::device::bringup::WORST_TICK_PERCENT;
+    checks.push(Check {
+        name: "no overrun, worst tick within 90%".into(),
+        pass: t
+            .as_ref()
+            .is_some_and(|t| t.overruns == 0 && t.worst_busy_percent() <= worst),
+        detail: match &t {
+            None => "no telemetry report".into(),
+            Some(t) => format!(
+                "worst tick busy {} us ({:.1}%, {} cycles; at most {worst}%), {} overruns since start",
+                t.tick_busy_max_us,
+                t.worst_busy_percent(),
+                t.tick_busy_max_cycles,
+                t.overruns
             ),
         },
     });

@@ -870,8 +870,8 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
         let timeout = std::time::Duration::from_secs_f64(pen.timeout);
         let wire = Wire::connect(&endpoint, timeout).map_err(|e| anyhow::anyhow!(e))?;
         eprintln!(
-            "{endpoint}: board {}, firmware {}, stored configuration {}",
-            wire.info.board, wire.info.firmware, wire.info.config
+            "{endpoint}: board {}, firmware {}, stored configuration {}, tick limits {}",
+            wire.info.board, wire.info.firmware, wire.info.config, wire.info.limits
         );
         Ok((wire, timeout))
     };

@@ -178,6 +178,13 @@ pub enum ParamError {
     RingNodesNotPowerOfTwo {
         value: f32,
     },
+    /// Valid for the model, but more than the board's core runs in its 1 ms tick
+    /// ([`TickLimits`]).
+    OverTickLimit {
+        param: ParamId,
+        value: f32,
+        max: f32,
+    },
 }
 
 impl fmt::Display for ParamError {
@@ -200,7 +207,102 @@ impl fmt::Display for ParamError {
             ParamError::RingNodesNotPowerOfTwo { value } => {
                 write!(f, "ring_nodes: {value} is not one of 4, 8, 16, 32")
             }
+            ParamError::OverTickLimit { param, value, max } => write!(
+                f,
+                "{param}: {value} would not fit this pen's 1 ms tick; it allows at most {max}"
+            ),
         }
+    }
+}
+
+/// The most a board's core runs within its 1 ms force tick: a cap on each parameter whose
+/// cost grows with its value. A brush within every cap fits the tick (the board states caps
+/// whose most expensive combination it has measured to fit); one beyond any cap is refused
+/// by [`TickLimits::check`], on the device and, since the handshake carries the caps, on the
+/// host before it asks. Parameters without a cap here cost the same at any valid value.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct TickLimits {
+    pub substeps_per_tick: u8,
+    pub layers: u8,
+    pub ring_nodes: u8,
+    pub jacobi_iterations: u8,
+}
+
+impl fmt::Display for TickLimits {
+    /// "substeps_per_tick <= 1, layers <= 12, ...", or "none" without a cap below the
+    /// parameters' ranges.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if *self == TickLimits::NONE {
+            return f.write_str("none");
+        }
+        for (i, (param, max)) in self.caps().into_iter().enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            write!(f, "{param} <= {max}")?;
+        }
+        Ok(())
+    }
+}
+
+impl Default for TickLimits {
+    fn default() -> Self {
+        TickLimits::NONE
+    }
+}
+
+impl TickLimits {
+    /// No cap below the parameters' own ranges ([`ParamId::range`]): a board without a
+    /// deadline (a simulator that may run slower than real time).
+    pub const NONE: TickLimits = TickLimits {
+        substeps_per_tick: ParamId::SubstepsPerTick.range().1 as u8,
+        layers: MAX_LAYERS as u8,
+        ring_nodes: MAX_RING_NODES as u8,
+        jacobi_iterations: ParamId::JacobiIterations.range().1 as u8,
+    };
+
+    /// Each capped parameter with its cap.
+    pub const fn caps(&self) -> [(ParamId, u8); 4] {
+        [
+            (ParamId::SubstepsPerTick, self.substeps_per_tick),
+            (ParamId::Layers, self.layers),
+            (ParamId::RingNodes, self.ring_nodes),
+            (ParamId::JacobiIterations, self.jacobi_iterations),
+        ]
+    }
+
+    /// The cap on `id`, if it has one.
+    pub fn cap(&self, id: ParamId) -> Option<u8> {
+        self.caps()
+            .into_iter()
+            .find_map(|(p, max)| (p == id).then_some(max))
+    }
+
+    /// `Ok` if `params` fits the tick; else the first parameter over its cap.
+    pub fn check(&self, params: &BrushParams) -> Result<(), ParamError> {
+        for (param, max) in self.caps() {
+            let value = params.get(param);
+            if value > f32::from(max) {
+                return Err(ParamError::OverTickLimit {
+                    param,
+                    value,
+                    max: f32::from(max),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// `preset` as a board with these caps runs it: the substep rate lowered to the cap (a
+    /// preset whose hair asks for more substeps is written at the board's rate, its own
+    /// convergence bound then applies), the other parameters as they are, for
+    /// [`Self::check`] to judge.
+    pub const fn brush(&self, preset: BrushParams) -> BrushParams {
+        let mut p = preset;
+        if p.substeps_per_tick > self.substeps_per_tick {
+            p.substeps_per_tick = self.substeps_per_tick;
+        }
+        p
     }
 }
 

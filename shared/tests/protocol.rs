@@ -4,7 +4,7 @@
 //! stuck loop).
 
 use maobi_shared::footprint::Geometry;
-use maobi_shared::params::{BrushParams, ParamId, MAX_LAYERS};
+use maobi_shared::params::{BrushParams, ParamId, TickLimits, MAX_LAYERS};
 use maobi_shared::protocol::*;
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Scalar, Vec2, Vec3};
 use proptest::prelude::*;
@@ -171,6 +171,14 @@ fn device_samples() -> Vec<DeviceMsg> {
     let range = params.set(ParamId::Belly, 9.0);
     let whole = params.set(ParamId::Layers, 7.5);
     let nan = params.set(ParamId::MassG, f32::NAN);
+    let over = TickLimits {
+        layers: 12,
+        ..TickLimits::NONE
+    }
+    .check(&BrushParams {
+        layers: 16,
+        ..presets::LARGE
+    });
     let wetness = ParamId::Wetness as u8;
     let mut v = vec![
         DeviceMsg::Hello(DeviceInfo::new(
@@ -195,7 +203,13 @@ fn device_samples() -> Vec<DeviceMsg> {
             .with_config(ConfigState::Corrupt(ConfigError::CrcMismatch {
                 stored: 1,
                 computed: 2,
-            })),
+            }))
+            .with_limits(TickLimits {
+                substeps_per_tick: 1,
+                layers: 12,
+                ring_nodes: 16,
+                jacobi_iterations: 4,
+            }),
         ),
         DeviceMsg::Pong { seq: 7 },
         DeviceMsg::State(state),
@@ -203,7 +217,7 @@ fn device_samples() -> Vec<DeviceMsg> {
         DeviceMsg::Param(ParamReply::read(&params, 200)),
         DeviceMsg::Param(ParamReply::written(wetness, Ok(()), &params)),
     ];
-    for outcome in [ring, tip, range, whole, nan] {
+    for outcome in [ring, tip, range, whole, nan, over] {
         v.push(DeviceMsg::Param(ParamReply::written(1, outcome, &params)));
     }
     let results = [
@@ -217,6 +231,11 @@ fn device_samples() -> Vec<DeviceMsg> {
         Err(CommandError::ForcesEnabled),
         Err(CommandError::OutOfRange),
         Err(CommandError::StoreFailed),
+        Err(CommandError::OverTickLimit {
+            param: ParamId::SubstepsPerTick as u8,
+            value: 2,
+            max: 1,
+        }),
     ];
     for (command, result) in commands().into_iter().zip(results.into_iter().cycle()) {
         v.push(DeviceMsg::CommandDone { command, result });
@@ -276,6 +295,10 @@ fn device_samples() -> Vec<DeviceMsg> {
             decode_errors: 4,
             version_errors: 6,
         },
+        tick_busy_max_us: 812,
+        tick_busy_max_cycles: 77_952,
+        overruns: 2,
+        brush_ticks: 999_000,
     }));
     v
 }
@@ -322,6 +345,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
                 RejectReason::NotWholeNumber { .. } => "whole",
                 RejectReason::Inconsistent { .. } => "inconsistent",
                 RejectReason::RingNodesNotPowerOfTwo { .. } => "ring",
+                RejectReason::OverTickLimit { .. } => "over tick limit",
             },
         },
         DeviceMsg::CommandDone { result, .. } => match result {
@@ -333,6 +357,7 @@ fn device_kind(m: &DeviceMsg) -> &'static str {
             Err(CommandError::ForcesEnabled) => "forces enabled",
             Err(CommandError::OutOfRange) => "out of range",
             Err(CommandError::StoreFailed) => "store failed",
+            Err(CommandError::OverTickLimit { .. }) => "preset over tick limit",
         },
         DeviceMsg::Event(e) => match e.kind {
             EventKind::FaultRaised(_) => "raised",

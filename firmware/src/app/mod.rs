@@ -172,33 +172,58 @@ pub mod timing {
     static MAX: AtomicU32 = AtomicU32::new(0);
     static SUM: AtomicU32 = AtomicU32::new(0);
     static BUSY: AtomicU32 = AtomicU32::new(0);
+    static BUSY_MAX_US: AtomicU32 = AtomicU32::new(0);
+    static BUSY_MAX_COUNTS: AtomicU32 = AtomicU32::new(0);
     static COUNT: AtomicU32 = AtomicU32::new(0);
 
-    /// One tick: `period_us` since the previous tick's start, `busy_us` spent in it.
-    pub fn record(period_us: u32, busy_us: u32) {
+    /// One tick: `period_us` since the previous tick's start, `busy_us` spent in it
+    /// (`busy_counts` in the board's counter).
+    pub fn record(period_us: u32, busy_us: u32, busy_counts: u32) {
         MIN.fetch_min(period_us, Ordering::Relaxed);
         MAX.fetch_max(period_us, Ordering::Relaxed);
         SUM.fetch_add(period_us, Ordering::Relaxed);
         BUSY.fetch_add(busy_us, Ordering::Relaxed);
+        BUSY_MAX_US.fetch_max(busy_us, Ordering::Relaxed);
+        BUSY_MAX_COUNTS.fetch_max(busy_counts, Ordering::Relaxed);
         COUNT.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// (min, mean, max period in us, load in %) since the last call, and restarts.
-    pub fn take() -> (u32, u32, u32, u8) {
-        let (min, max, sum, busy, n) = critical_section::with(|_| {
+    /// The ticks since the last [`take`].
+    #[derive(Copy, Clone, Debug, Default)]
+    pub struct Period {
+        pub min_us: u32,
+        pub mean_us: u32,
+        pub max_us: u32,
+        /// Work over time (%).
+        pub load_percent: u8,
+        pub busy_max_us: u32,
+        pub busy_max_counts: u32,
+    }
+
+    /// What was recorded since the last call, and restarts.
+    pub fn take() -> Period {
+        let (min, max, sum, busy, busy_max_us, busy_max_counts, n) = critical_section::with(|_| {
             (
                 MIN.swap(u32::MAX, Ordering::Relaxed),
                 MAX.swap(0, Ordering::Relaxed),
                 SUM.swap(0, Ordering::Relaxed),
                 BUSY.swap(0, Ordering::Relaxed),
+                BUSY_MAX_US.swap(0, Ordering::Relaxed),
+                BUSY_MAX_COUNTS.swap(0, Ordering::Relaxed),
                 COUNT.swap(0, Ordering::Relaxed),
             )
         });
         if n == 0 || sum == 0 {
-            return (0, 0, 0, 0);
+            return Period::default();
         }
-        let load = (u64::from(busy) * 100 / u64::from(sum)).min(100) as u8;
-        (min, sum / n, max, load)
+        Period {
+            min_us: min,
+            mean_us: sum / n,
+            max_us: max,
+            load_percent: (u64::from(busy) * 100 / u64::from(sum)).min(100) as u8,
+            busy_max_us,
+            busy_max_counts,
+        }
     }
 }
 
@@ -343,6 +368,8 @@ pub struct ForceLoop<P, M, W> {
     enabled: bool,
     /// A bring-up nudge in progress: the torques and the ticks left.
     nudge: Option<([Fx; 3], u32)>,
+    /// The last tick stood by ([`Self::stand_by`]): the brush did not follow the pen.
+    stood_by: bool,
 }
 
 impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
@@ -416,6 +443,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
             addr_of_mut!((*p).force).write([Fx::ZERO; 3]);
             addr_of_mut!((*p).enabled).write(false);
             addr_of_mut!((*p).nudge).write(None);
+            addr_of_mut!((*p).stood_by).write(false);
         }
         // The list above is complete: this pattern names every field (no `..`), so a field
         // added to `ForceLoop` does not compile until it is written here too.
@@ -433,6 +461,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
                 force: _,
                 enabled: _,
                 nudge: _,
+                stood_by: _,
             } = f;
         };
     }
@@ -459,16 +488,30 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
         TICKS.store(now, Ordering::Relaxed);
 
-        self.apply_commands();
-        let pose = self.pen.next_pose();
-        if pose.is_none() {
-            self.pose_gaps = self.pose_gaps.wrapping_add(1);
-        }
-
+        let rebuilt = self.apply_commands();
         if LINK_ARMED.load(Ordering::Relaxed)
             && now.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed)) > LINK_TIMEOUT_TICKS
         {
             latch(Faults::LINK_SILENT);
+        }
+        if FAULTS.load(Ordering::SeqCst) & u32::from(Faults::LOOP_OVERRUN.bits()) != 0 {
+            self.stand_by(now);
+            return;
+        }
+        if core::mem::take(&mut self.stood_by) {
+            // The pen moved on while the brush stood: it starts again at rest where the pen
+            // is now, not dragged across the gap (which would read as a sensor jump).
+            self.core.reanchor();
+        }
+
+        // A tick that rebuilt the brush from new parameters takes no pose: rebuilding costs
+        // about a brush step, and both in one tick would overrun it. The pen's pose waits
+        // for the next tick (a virtual pen's stays queued), where the brush steps to it.
+        let pose = if rebuilt { None } else { self.pen.next_pose() };
+        if pose.is_some() {
+            BRUSH_TICKS.fetch_add(1, Ordering::Relaxed);
+        } else if !rebuilt {
+            self.pose_gaps = self.pose_gaps.wrapping_add(1);
         }
 
         // The gate: the host's switch, no latched fault, a configuration that allows forces,
@@ -505,6 +548,27 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
         self.apply_outputs(allowed, [c.x, c.y, c.z]);
         self.enabled = allowed;
 
+        self.offer_readings(now);
+    }
+
+    /// A tick while an overrun is latched: the brush does not tick (the work that overran),
+    /// the motors are off and stay off, and everything else goes on: the watchdog, the link
+    /// task's commands (a `ClearFaults` ends the stand-by at the next tick), the sensor
+    /// readings and the state frames that report the fault. So an overrun costs the brush,
+    /// never the link: the pen is never left unreachable by the work it was asked to do.
+    fn stand_by(&mut self, now: u32) {
+        self.pen.skip_pose();
+        self.stood_by = true;
+        FORCES_ENABLED.store(false, Ordering::SeqCst);
+        self.nudge = None;
+        self.motors.disable();
+        self.enabled = false;
+        self.force = [Fx::ZERO; 3];
+        self.offer_readings(now);
+    }
+
+    /// The tick's sensor reading and, when one falls due, its state, for the link task.
+    fn offer_readings(&mut self, now: u32) {
         if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
             SNAPSHOT_WAKER.wake();
         }
@@ -535,11 +599,16 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     }
 
     /// Applies every command the link task has queued, in order.
-    fn apply_commands(&mut self) {
+    /// Returns whether one of them rebuilt the brush (new parameters): that work takes the
+    /// place of the brush's step in this tick (see [`Self::tick`]).
+    fn apply_commands(&mut self) -> bool {
+        let mut rebuilt = false;
         while let Some(cmd) = self.cmds.dequeue() {
+            rebuilt |= matches!(cmd, Command::SetParam(..) | Command::SetParams(_));
             self.apply(cmd);
             CMDS_APPLIED.fetch_add(1, Ordering::Release);
         }
+        rebuilt
     }
 
     /// Motors on only while the host has enabled them and no fault is latched, or for a
@@ -680,9 +749,11 @@ pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
     let end = clock.now();
     let last = LAST_TICK_START.swap(start, Ordering::Relaxed);
     if last != 0 {
+        let busy = end.wrapping_sub(start);
         timing::record(
             start.wrapping_sub(last) / counts_per_us,
-            end.wrapping_sub(start) / counts_per_us,
+            busy / counts_per_us,
+            busy,
         );
     }
     // A pause the board made on purpose (motors off) is not an overrun.
@@ -695,6 +766,9 @@ pub fn run_tick<P: PoseSource, M: Motors, W: Watchdog, C: CycleCounter>(
 
 /// Force-loop ticks that overran (each also latched [`Faults::LOOP_OVERRUN`]).
 pub static OVERRUNS: AtomicU32 = AtomicU32::new(0);
+
+/// Force-loop ticks in which the brush took a pose (telemetry's `brush_ticks`).
+pub static BRUSH_TICKS: AtomicU32 = AtomicU32::new(0);
 
 /// Watches the force loop from below: if its tick count (ticks taken, and ticks held on
 /// purpose: [`HELD_TICKS`]) stops advancing (its timer stopped,

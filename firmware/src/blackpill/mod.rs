@@ -22,7 +22,7 @@ pub mod sensors;
 pub mod usb;
 pub mod watchdog;
 
-use core::sync::atomic::Ordering;
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m::peripheral::DWT;
 use defmt_rtt as _;
@@ -109,15 +109,16 @@ static BOARD: BoardInfo = BoardInfo {
         .union(Capabilities::STORED_CONFIG),
     force_peak_n: maobi_shared::force::PHANTOM_OMNI.peak_n,
     force_continuous_n: maobi_shared::force::PHANTOM_OMNI.continuous_n,
-    // One substep per 1 ms tick, the default brush's own rate: what fits this core's
-    // 50,000-instruction tick (`hil bench`; docs/figures.md has the counts). A preset that
-    // asks for more (the springy wolf hair's two) runs at one here, springing back slower than
-    // at its own rate, beyond the presets' 10% (`shared/tests/convergence.rs` holds it to its
-    // own bound and prints the tables). The image is
-    // built with the presets' backward-Euler step only (`maobi-shared`'s `kang-cho` feature
-    // left out). Not measured on a board yet.
-    substeps_per_tick: Some(1),
+    // A preset that asks for more substeps than the pen's one (the springy wolf hair's two)
+    // runs at one here, springing back slower than at its own rate
+    // (`shared/tests/convergence.rs` holds it to its own bound). The image is built with the
+    // presets' backward-Euler step only (`maobi-shared`'s `kang-cho` feature left out).
+    limits: crate::board::PEN_TICK_LIMITS,
 };
+
+/// The force tick's interrupt is enabled: from here a panic ends in the watchdog's reset
+/// (the loop stops; the next boot reports it), before it in [`fatal`]'s halt.
+static LOOP_STARTED: AtomicBool = AtomicBool::new(false);
 
 type Loop = app::ForceLoop<SensorPen<sensors::PenSensors>, motors::PenMotors, watchdog::Iwdg>;
 
@@ -363,6 +364,7 @@ fn start() -> (
     irq::TIM1_BRK_TIM9.unpend();
     // SAFETY: the handler's state (LOOP) is initialised.
     unsafe { irq::TIM1_BRK_TIM9.enable() };
+    LOOP_STARTED.store(true, Ordering::Relaxed);
     // The boot record the HIL runner waits for (`hil::probe_rs::BOOT_LINE`).
     defmt::info!("maobi-pen up");
 
@@ -444,13 +446,20 @@ const FATAL_STEP_MS: u32 = 10;
 /// interrupts off nothing else runs, so there is no force loop whose stall the feeding could
 /// hide, and the motors are switched off again on every round.
 fn fatal(what: &str) -> ! {
-    cortex_m::interrupt::disable();
-    loop {
-        motors::motors_off();
+    halt_for_good(|| {
         defmt::error!(
             "FATAL {=str}; motors off, halted (power-cycle to retry)",
             what
-        );
+        )
+    })
+}
+
+/// [`fatal`]'s loop, with `say` logging the reason on every round.
+fn halt_for_good(say: impl Fn()) -> ! {
+    cortex_m::interrupt::disable();
+    loop {
+        motors::motors_off();
+        say();
         for (on, steps) in FATAL_BLINK {
             if on {
                 led_on();
@@ -483,16 +492,22 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     motors::motors_off();
     led_on();
     keep_reset_reason(REASON_PANIC);
-    // The location and, when it has no arguments, the message, as defmt strings: formatting
-    // the message with `core::fmt` would bring its machinery into an image that has to fit
-    // 128 KiB, for a path that runs at most once. A message with arguments shows its location only.
     let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
-    let message = info
-        .message()
-        .as_str()
-        .unwrap_or("(a message with arguments)");
+    let message = defmt::Display2Format(&info.message());
+    // Before the force loop runs, a reset would only panic again: the same end as a fatal
+    // boot error (motors off, the LED's pattern, the reason repeated), no reset loop.
+    if !LOOP_STARTED.load(Ordering::Relaxed) {
+        halt_for_good(|| {
+            defmt::error!(
+                "FATAL panic at boot, at {=str}:{=u32}: {}; motors off, halted (power-cycle to retry)",
+                file,
+                line,
+                message
+            )
+        });
+    }
     defmt::error!(
-        "FATAL panic at {=str}:{=u32}: {=str}; motors off",
+        "FATAL panic at {=str}:{=u32}: {}; motors off",
         file,
         line,
         message

@@ -33,6 +33,7 @@ use embassy_time::Timer;
 use maobi_shared::{presets, Fx};
 
 use maobi_shared::force::PHANTOM_OMNI;
+use maobi_shared::params::TickLimits;
 use maobi_shared::protocol::Capabilities;
 
 use crate::app::{self, bench, Command, SNAPSHOT};
@@ -51,7 +52,14 @@ static BOARD: BoardInfo = BoardInfo {
     force_continuous_n: PHANTOM_OMNI.continuous_n,
     // The presets' rate: CI checks it bit for bit against the host simulation, and QEMU has
     // no real-time deadline.
-    substeps_per_tick: None,
+    limits: TickLimits::NONE,
+};
+
+/// The same board standing in for the pen (boot argument `limits=pen`): the pen's tick
+/// limits, so that a host or a test meets the refusals the pen gives.
+static BOARD_AS_PEN: BoardInfo = BoardInfo {
+    limits: crate::board::PEN_TICK_LIMITS,
+    ..BOARD
 };
 
 enum Mode {
@@ -80,6 +88,17 @@ fn arg_flag(flag: &str) -> bool {
     let mut buf = [0u8; 128];
     let line = semihosting::cmdline(&mut buf);
     line.split_ascii_whitespace().skip(1).any(|w| w == flag)
+}
+
+/// `KEY=WORD` from the command line: `Some(WORD)` if it is one of `words`.
+fn arg_word(key: &str) -> Option<&'static str> {
+    const WORDS: [&str; 2] = ["script", "pen"];
+    let mut buf = [0u8; 128];
+    let line = semihosting::cmdline(&mut buf);
+    let value = line
+        .split_ascii_whitespace()
+        .find_map(|w| w.strip_prefix(key)?.strip_prefix('='))?;
+    WORDS.into_iter().find(|&w| w == value)
 }
 
 /// `KEY=N` from the command line, if present and within `range`.
@@ -178,6 +197,7 @@ fn start() -> (qemu::Parts, u32, host_link::LinkConfig) {
         bench::stroke_pose(0),
         tick_us,
         arg_flag("lockstep"),
+        arg_word("poses") == Some("script"),
     );
     defmt::info!("maobi-fw up");
     (parts, tick_us, link_cfg)
@@ -191,7 +211,12 @@ async fn link_task(parts: qemu::Parts, cfg: host_link::LinkConfig) {
         cmds: parts.cmds,
         store: parts.config,
     };
-    host_link::run(parts, &BOARD, presets::LARGE, cfg).await
+    let board = if arg_word("limits") == Some("pen") {
+        &BOARD_AS_PEN
+    } else {
+        &BOARD
+    };
+    host_link::run(parts, board, board.brush(presets::LARGE), cfg).await
 }
 
 /// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop

@@ -64,7 +64,7 @@ use maobi_shared::guide::GuideInput;
 use maobi_shared::kinematics::{Pen, PenConfig, RawReadings};
 use maobi_shared::pen_io::DeviceConfig;
 use maobi_shared::protocol::{Buttons, SensorReport};
-use maobi_shared::{Fx, Pose};
+use maobi_shared::{Fx, Pose, Scalar};
 
 use crate::app::{self, PoseConsumer, PoseProducer, PoseQueue};
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
@@ -126,6 +126,47 @@ pub struct VirtualPen {
     /// The pen whose sensors are synthesised (None only if its config would not validate,
     /// which `configure` never passes).
     synth: Option<Pen<Fx>>,
+    /// Boot argument `poses=script`: the pen writes the bench stroke itself, a pose every
+    /// tick, instead of taking the host's (see [`ScriptedStroke`]).
+    script: Option<ScriptedStroke>,
+}
+
+/// The bench stroke ([`app::bench::stroke_pose`]) as a pose source of its own, there and back
+/// for ever: a pen with sensors has a new pose on every tick, which a pose streamed over the
+/// emulated UART (one byte per interrupt) cannot give at the pen's pace. With it a test can
+/// hold the brush to ticking every tick while it works the link: the state frames'
+/// `pose_seq` counts the poses the brush took. Built for the tick: the
+/// stroke's straight pieces in single precision (the M4F's FPU), its tilt computed once.
+struct ScriptedStroke {
+    k: u32,
+    tilt: maobi_shared::Quat<Fx>,
+}
+
+impl ScriptedStroke {
+    fn new() -> Self {
+        ScriptedStroke {
+            k: 0,
+            tilt: app::bench::stroke_pose(0).rot,
+        }
+    }
+    fn next(&mut self) -> Pose<Fx> {
+        let n = app::bench::STROKE_TICKS;
+        self.k = (self.k + 1) % (2 * n);
+        // Back along the same path after the lift: the pose never jumps.
+        let k = if self.k <= n { self.k } else { 2 * n - self.k };
+        let (hang, press) = (44.0f32, 32.0f32);
+        let frac = |from: u32, len: u32| (k - from) as f32 / len as f32;
+        let (x, z) = match k {
+            0..=49 => (0.0, hang),
+            50..=199 => (0.0, hang + (press - hang) * frac(50, 150)),
+            200..=499 => (60.0 * frac(200, 300), press),
+            _ => (60.0, press + (hang - press) * frac(500, 100)),
+        };
+        Pose::new(
+            maobi_shared::Vec3::new(Fx::from_f32(x), Fx::ZERO, Fx::from_f32(z)),
+            self.tilt,
+        )
+    }
 }
 
 /// The virtual pen's readings at the inkwell while no calibration is stored.
@@ -149,11 +190,25 @@ impl VirtualPen {
 
 impl PoseSource for VirtualPen {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
+        if let Some(script) = self.script.as_mut() {
+            let pose = script.next();
+            self.seq = self.seq.wrapping_add(1);
+            self.last = Some(pose);
+            return Some(pose);
+        }
         let p = self.rx.dequeue()?;
         self.seq = p.seq;
         self.guide = p.guide;
         self.last = Some(p.pose);
         Some(p.pose)
+    }
+    /// A host's pose is dropped; the scripted stroke waits instead, so that its sequence
+    /// numbers count the brush's ticks.
+    fn skip_pose(&mut self) {
+        if self.script.is_none() {
+            let _ = self.next_pose();
+            let _ = self.take_guide();
+        }
     }
     fn pose_seq(&self) -> u32 {
         self.seq
@@ -279,6 +334,7 @@ pub fn start(
     pose: maobi_shared::Pose<Fx>,
     tick_us: u32,
     lockstep: bool,
+    scripted: bool,
 ) -> Parts {
     LOCKSTEP.store(lockstep, Ordering::Relaxed);
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
@@ -307,6 +363,7 @@ pub fn start(
                     guide: None,
                     last: None,
                     synth: synth_pen(&PenConfig::OMNI_LIKE, None),
+                    script: scripted.then(ScriptedStroke::new),
                 },
                 ReportedMotors { _private: () },
                 TimerWatchdog { _private: () },

@@ -86,6 +86,9 @@ pub fn on_tx_interrupt() {
     WAKER.wake();
 }
 
+/// Bytes queued per critical section by [`Uart0::write`].
+const WRITE_CHUNK: usize = 32;
+
 impl LinkTransport for Uart0 {
     fn read(&mut self, buf: &mut [u8]) -> usize {
         critical_section::with(|cs| {
@@ -105,18 +108,29 @@ impl LinkTransport for Uart0 {
     }
 
     fn write(&mut self, buf: &[u8]) -> usize {
-        critical_section::with(|cs| {
-            let mut tx = TX.borrow(cs).borrow_mut();
-            let mut n = 0;
-            for &b in buf {
-                if tx.push_back(b).is_err() {
-                    break;
+        // A few bytes per critical section: a whole state frame copied with the interrupts
+        // masked would hold off the force tick by that copy, enough to make a tick of the
+        // pen's pace overrun.
+        let mut n = 0;
+        for chunk in buf.chunks(WRITE_CHUNK) {
+            let fitted = critical_section::with(|cs| {
+                let mut tx = TX.borrow(cs).borrow_mut();
+                let mut k = 0;
+                for &b in chunk {
+                    if tx.push_back(b).is_err() {
+                        break;
+                    }
+                    k += 1;
                 }
-                n += 1;
+                kick(&mut tx);
+                k
+            });
+            n += fitted;
+            if fitted < chunk.len() {
+                break;
             }
-            kick(&mut tx);
-            n
-        })
+        }
+        n
     }
 
     fn tx_space(&self) -> usize {

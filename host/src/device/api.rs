@@ -19,6 +19,7 @@ use std::sync::Arc;
 use maobi_shared::footprint::Geometry;
 use maobi_shared::force::OutputState;
 use maobi_shared::guide::{GuideForce, GuideStream};
+use maobi_shared::params::TickLimits;
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, Layer, ParamId, Pose, Scalar, Vec3};
 
 use super::journal::Journal;
@@ -162,6 +163,34 @@ impl DeviceCommand {
         }
     }
 
+    /// Checks the command against a device's tick limits (from its handshake) with the
+    /// device's own check ([`TickLimits::check`]): a parameter or a preset that the device
+    /// would refuse because its tick cannot run it is refused here, in the same words,
+    /// before it is sent. A preset's substep rate is lowered to the device's, as the device
+    /// does.
+    pub fn check_tick_limits(
+        &self,
+        params: &BrushParams,
+        limits: &TickLimits,
+    ) -> Result<(), DeviceError> {
+        let brush = match self {
+            DeviceCommand::SetParam(id, v) => {
+                let mut p = *params;
+                p.set(*id, *v)
+                    .map_err(|e| DeviceError::Rejected(e.to_string()))?;
+                p
+            }
+            DeviceCommand::Preset(name) => match BrushChoice::liang_params(name) {
+                Ok(p) => limits.brush(p),
+                Err(why) => return Err(DeviceError::Rejected(why)),
+            },
+            _ => return Ok(()),
+        };
+        limits
+            .check(&brush)
+            .map_err(|e| DeviceError::Rejected(e.to_string()))
+    }
+
     /// Checks the command as a device running `model` with the brush `brush` (parameters
     /// `params`) would take it, before it is queued: the shared checks ([`Self::validate`])
     /// for Liang's brush; for Baxter & Lin's, a brush name may also be one of their heads,
@@ -291,6 +320,8 @@ pub struct DeviceStatus {
     pub replays_done: u64,
     /// For a device over the wire protocol: the link's state and counters.
     pub link: Option<LinkReport>,
+    /// What the device's tick runs (its handshake's; none for the desktop's own devices).
+    pub tick_limits: TickLimits,
 }
 
 /// The state of a wire-protocol link ([`super::client::LinkDevice`]).

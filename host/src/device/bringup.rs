@@ -656,14 +656,15 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
     let virtual_pen = info.capabilities.contains(Capabilities::VIRTUAL_PEN);
     op.say(&format!(
         "device: board {} firmware {} protocol {}, capabilities {}, forces {} N peak / {} N \
-         continuous, configuration {}",
+         continuous, configuration {}, tick limits {}",
         info.board,
         info.firmware,
         info.protocol_version,
         info.capabilities,
         info.force_peak_n,
         info.force_continuous_n,
-        info.config
+        info.config,
+        info.limits
     ));
     if virtual_pen {
         op.say(
@@ -708,7 +709,65 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
     if bring_up {
         let _ = wire.command(Command::StreamSensors { rate_hz: 0 }, opts.reply_timeout);
     }
+    step_tick(&mut wire, opts, op, &mut report);
     report
+}
+
+/// The worst share of the 1 ms tick a pen's core may spend on the tick's work: beyond it,
+/// the next interrupt, a longer stroke or a warmer chip overruns.
+pub const WORST_TICK_PERCENT: f32 = 90.0;
+
+/// Step 5: the force tick's timing from the device's telemetry (sent once a second): its
+/// worst busy time and its overruns since start. A pen with sensors of its own fails on
+/// any overrun or a worst tick above [`WORST_TICK_PERCENT`]; a virtual pen's clock is
+/// emulated or the desktop's, so its figures are shown, not judged.
+fn step_tick(
+    wire: &mut Wire,
+    opts: &CheckOptions,
+    op: &mut dyn Operator,
+    report: &mut CheckReport,
+) {
+    const STEP: &str = "5 tick";
+    let wait = opts.reply_timeout.max(Duration::from_millis(2500));
+    let t = match wire.wait(wait, |m| match m {
+        DeviceMsg::Telemetry(t) => Some(t.clone()),
+        _ => None,
+    }) {
+        Ok(Some(t)) => t,
+        Ok(None) => {
+            report.push(
+                STEP,
+                Outcome::Fail,
+                format!("no telemetry in {wait:?}: the device's link task is not reporting"),
+            );
+            return;
+        }
+        Err(e) => {
+            report.push(STEP, Outcome::Fail, e);
+            return;
+        }
+    };
+    let what = format!(
+        "worst tick busy {} us ({:.1}% of the tick, {} cycles), mean load {}%, overruns {} since start",
+        t.tick_busy_max_us,
+        t.worst_busy_percent(),
+        t.tick_busy_max_cycles,
+        t.load_percent,
+        t.overruns
+    );
+    op.say(&format!("{STEP}: {what}"));
+    let judged = wire.info.capabilities.contains(Capabilities::REAL_SENSORS);
+    let outcome = if !judged || (t.overruns == 0 && t.worst_busy_percent() <= WORST_TICK_PERCENT) {
+        Outcome::Pass
+    } else {
+        Outcome::Fail
+    };
+    let note = if judged {
+        format!("{what} (fails on any overrun or a worst tick above {WORST_TICK_PERCENT}%)")
+    } else {
+        format!("{what} (a virtual pen: its clock is not the pen's, not judged)")
+    };
+    report.push(STEP, outcome, note);
 }
 
 /// A step the device does not offer: said as it is reached, a SKIP in the summary.

@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 use maobi_shared::force::PHANTOM_OMNI;
 use maobi_shared::force_loop::Gate;
 use maobi_shared::guide::DEFAULT_GUIDE;
+use maobi_shared::params::TickLimits;
 use maobi_shared::protocol::Faults;
 use maobi_shared::{BrushParams, Pose, Quat};
 
@@ -323,6 +324,8 @@ impl SimCore {
             replaying: self.replay.is_some(),
             replays_done: self.replays_done,
             link: None,
+            // The desktop keeps up with any brush or falls behind and says so (`ticks_late`).
+            tick_limits: TickLimits::NONE,
         }
     }
 }

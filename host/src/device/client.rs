@@ -33,6 +33,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use maobi_shared::force::OutputState;
+use maobi_shared::params::TickLimits;
 
 use super::model::{BrushChoice, ModelKind};
 use maobi_shared::force_loop::HandGuide;
@@ -203,6 +204,8 @@ pub struct LinkDevice {
     running: Option<Running>,
     /// Parameters as last reported, for validating commands before they are sent.
     params: BrushParams,
+    /// The device's tick limits (its handshake's), for the same.
+    limits: TickLimits,
 }
 
 impl LinkDevice {
@@ -224,6 +227,7 @@ impl LinkDevice {
             replaying: false,
             replays_done: 0,
             link: None,
+            tick_limits: TickLimits::NONE,
         };
         let report = LinkReport {
             state: "not connected".into(),
@@ -253,6 +257,7 @@ impl LinkDevice {
             opts,
             running: None,
             params,
+            limits: TickLimits::NONE,
         })
     }
 
@@ -370,10 +375,12 @@ impl Device for LinkDevice {
         let mut s = self.inner.shared();
         out.extend(s.frames.drain(..));
         self.params = s.status.params;
+        self.limits = s.status.tick_limits;
     }
 
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
         cmd.validate(&self.params)?;
+        cmd.check_tick_limits(&self.params, &self.limits)?;
         if let DeviceCommand::Model(m) = cmd {
             // The pen runs Liang's model: nothing to send.
             return m
@@ -693,6 +700,7 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
         s.report.capabilities = info.capabilities.to_string();
         s.report.config = info.config.to_string();
         s.report.config_allows_forces = info.config.allows_forces();
+        s.status.tick_limits = info.limits;
         s.report.sessions += 1;
         s.last_tick = None;
         s.device_handle = None;
@@ -828,7 +836,7 @@ fn handle(s: &mut Shared, msg: DeviceMsg) -> bool {
                     }
                 }
                 Err(e) => {
-                    s.report.last_error = Some(format!("the device refused {command:?}: {e:?}"));
+                    s.report.last_error = Some(format!("the device refused {command:?}: {e}"));
                 }
             }
             false

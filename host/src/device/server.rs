@@ -380,6 +380,7 @@ fn connection(
     let mut last_loop = Instant::now();
     let mut period_us = (u32::MAX, 0u64, 0u32, 0u32);
     let mut pose_gaps = 0u32;
+    let mut brush_ticks = 0u32;
     let mut last_pose = Instant::now();
     let mut greeted = false;
     let started = Instant::now();
@@ -436,6 +437,7 @@ fn connection(
                     last_pose = now;
                     if model.pose(&sample) {
                         since_state += 1;
+                        brush_ticks = brush_ticks.wrapping_add(1);
                     }
                     if since_state >= ticks_per_state {
                         since_state = 0;
@@ -499,6 +501,12 @@ fn connection(
                 frames_dropped: tx.dropped,
                 pose_gaps,
                 rx: dec.stats(),
+                // A simulator on the desktop has no deadline of its own to overrun: it
+                // measures no busy time and counts no overrun.
+                tick_busy_max_us: 0,
+                tick_busy_max_cycles: 0,
+                overruns: 0,
+                brush_ticks,
             }));
             period_us = (u32::MAX, 0, 0, 0);
         }

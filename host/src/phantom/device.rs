@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
+use maobi_shared::params::TickLimits;
 use maobi_shared::protocol::{BrushState, Capabilities, Command, CommandError, Faults, PoseSample};
 use maobi_shared::{BrushParams, Fx, ParamError, ParamId, Scalar};
 
@@ -318,6 +319,9 @@ impl Device for PhantomDevice {
             replaying: false,
             replays_done: 0,
             link: None,
+            // The servo loop runs on the desktop, far inside its tick at any brush (its
+            // benchmark: `cargo bench --bench servo`).
+            tick_limits: TickLimits::NONE,
         }
     }
 

@@ -24,7 +24,10 @@ use serde::{Deserialize, Serialize};
 ///   (configuration image format 2).
 /// * 5: `LayerState::deposited`, the ink each layer has given to the paper (the brush holds a
 ///   finite load of ink).
-pub const PROTOCOL_VERSION: u8 = 5;
+/// * 6: the board's tick limits in the handshake (`DeviceInfo::limits`) and the refusals
+///   that name them (`RejectReason::OverTickLimit`, `CommandError::OverTickLimit`); the
+///   worst tick's busy time and the overruns in `Telemetry`.
+pub const PROTOCOL_VERSION: u8 = 6;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

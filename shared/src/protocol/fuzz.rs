@@ -34,7 +34,7 @@ use super::{
     Telemetry, Version, DELIMITER, PROTOCOL_VERSION,
 };
 use crate::kinematics::RawReadings;
-use crate::params::{ParamId, MAX_LAYERS};
+use crate::params::{ParamId, TickLimits, MAX_LAYERS};
 use crate::pen_io::ZeroPolicy;
 use crate::{Fx, Scalar};
 
@@ -388,6 +388,8 @@ fn command_error() -> impl Strategy<Value = CommandError> {
         Just(CommandError::ForcesEnabled),
         Just(CommandError::OutOfRange),
         Just(CommandError::StoreFailed),
+        (any::<u8>(), any::<u32>(), any::<u32>())
+            .prop_map(|(param, value, max)| CommandError::OverTickLimit { param, value, max }),
     ]
 }
 
@@ -405,6 +407,7 @@ fn reject_reason() -> impl Strategy<Value = RejectReason> {
             why: bounded_str(&w)
         }),
         any_f32().prop_map(|value| RejectReason::RingNodesNotPowerOfTwo { value }),
+        (any_f32(), any_f32()).prop_map(|(value, max)| RejectReason::OverTickLimit { value, max }),
     ]
 }
 
@@ -495,8 +498,9 @@ fn telemetry() -> impl Strategy<Value = Telemetry> {
         any::<u8>(),
         any::<[u32; 2]>(),
         any::<[u32; 6]>(),
+        any::<[u32; 4]>(),
     )
-        .prop_map(|(t, load_percent, f, rx)| Telemetry {
+        .prop_map(|(t, load_percent, f, rx, busy)| Telemetry {
             tick: t[0],
             tick_period_min_us: t[1],
             tick_period_mean_us: t[2],
@@ -512,6 +516,10 @@ fn telemetry() -> impl Strategy<Value = Telemetry> {
                 decode_errors: rx[4],
                 version_errors: rx[5],
             },
+            tick_busy_max_us: busy[0],
+            tick_busy_max_cycles: busy[1],
+            overruns: busy[2],
+            brush_ticks: busy[3],
         })
 }
 
@@ -526,8 +534,9 @@ pub fn device_msg() -> impl Strategy<Value = DeviceMsg> {
             any_f32(),
             any_f32(),
             config_state(),
+            any::<[u8; 4]>(),
         )
-            .prop_map(|(protocol_version, firmware, board, caps, peak, cont, config)| {
+            .prop_map(|(protocol_version, firmware, board, caps, peak, cont, config, caps4)| {
                 DeviceMsg::Hello(DeviceInfo {
                     protocol_version,
                     firmware,
@@ -536,6 +545,12 @@ pub fn device_msg() -> impl Strategy<Value = DeviceMsg> {
                     force_peak_n: peak,
                     force_continuous_n: cont,
                     config,
+                    limits: TickLimits {
+                        substeps_per_tick: caps4[0],
+                        layers: caps4[1],
+                        ring_nodes: caps4[2],
+                        jacobi_iterations: caps4[3],
+                    },
                 })
             }),
         2 => any::<u32>().prop_map(|seq| DeviceMsg::Pong { seq }),

@@ -13,7 +13,7 @@ use super::frame::{
     PROTOCOL_VERSION,
 };
 use super::state::{BrushState, GuideSample, PoseSample};
-use crate::params::{BrushParams, ParamError, ParamId};
+use crate::params::{BrushParams, ParamError, ParamId, TickLimits};
 use crate::pen_io::{ConfigState, DeviceConfig, InvalidField};
 use crate::presets;
 
@@ -203,6 +203,9 @@ pub struct DeviceInfo {
     /// a physical pen needs a valid one; a virtual pen says
     /// [`ConfigState::NotApplicable`].
     pub config: ConfigState,
+    /// What the board's core runs within its 1 ms tick (protocol 6): the device refuses a
+    /// parameter or preset beyond these caps, and the host can tell before it asks.
+    pub limits: TickLimits,
 }
 
 impl DeviceInfo {
@@ -224,7 +227,13 @@ impl DeviceInfo {
             force_peak_n,
             force_continuous_n,
             config: ConfigState::NotApplicable,
+            limits: TickLimits::NONE,
         }
+    }
+    /// The same, with the board's tick limits.
+    pub fn with_limits(mut self, limits: TickLimits) -> Self {
+        self.limits = limits;
+        self
     }
     /// The same, with the stored configuration's state.
     pub fn with_config(mut self, config: ConfigState) -> Self {
@@ -308,10 +317,26 @@ impl ParamRejected {
 pub enum RejectReason {
     UnknownParam,
     NotFinite,
-    OutOfRange { value: f32, min: f32, max: f32 },
-    NotWholeNumber { value: f32 },
-    Inconsistent { why: String<REASON_LEN> },
-    RingNodesNotPowerOfTwo { value: f32 },
+    OutOfRange {
+        value: f32,
+        min: f32,
+        max: f32,
+    },
+    NotWholeNumber {
+        value: f32,
+    },
+    Inconsistent {
+        why: String<REASON_LEN>,
+    },
+    RingNodesNotPowerOfTwo {
+        value: f32,
+    },
+    // Protocol 6 (appended).
+    /// Valid, but beyond the board's [`TickLimits`](crate::params::TickLimits).
+    OverTickLimit {
+        value: f32,
+        max: f32,
+    },
 }
 
 impl From<ParamError> for ParamRejected {
@@ -337,6 +362,9 @@ impl From<ParamError> for ParamRejected {
                 ParamId::RingNodes,
                 RejectReason::RingNodesNotPowerOfTwo { value },
             ),
+            ParamError::OverTickLimit { param, value, max } => {
+                (param, RejectReason::OverTickLimit { value, max })
+            }
         };
         ParamRejected {
             param: param as u8,
@@ -362,6 +390,10 @@ impl fmt::Display for ParamRejected {
             RejectReason::RingNodesNotPowerOfTwo { value } => {
                 write!(f, "{value} is not one of 4, 8, 16, 32")
             }
+            RejectReason::OverTickLimit { value, max } => write!(
+                f,
+                "{value} would not fit this pen's 1 ms tick; it allows at most {max}"
+            ),
         }
     }
 }
@@ -514,6 +546,38 @@ pub enum CommandError {
     OutOfRange,
     /// The configuration store failed to write (calibration).
     StoreFailed,
+    // Protocol 6 (appended).
+    /// The preset is more than the board's core runs in its tick
+    /// ([`DeviceInfo::limits`]): `param` (a [`ParamId`] number) is `value`, the cap `max`.
+    OverTickLimit { param: u8, value: u32, max: u32 },
+}
+
+impl fmt::Display for CommandError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CommandError::Unsupported => f.write_str("this board cannot do that"),
+            CommandError::UnknownPreset => f.write_str("no such preset"),
+            CommandError::FaultsLatched(faults) => {
+                write!(f, "faults are latched ({faults}): clear them first")
+            }
+            CommandError::ConfigNotValid => {
+                f.write_str("the pen's stored configuration is missing, invalid or not calibrated")
+            }
+            CommandError::ForcesEnabled => f.write_str("forces are on: switch them off first"),
+            CommandError::OutOfRange => f.write_str("an argument is outside its range"),
+            CommandError::StoreFailed => f.write_str("the configuration store failed to write"),
+            CommandError::OverTickLimit { param, value, max } => {
+                match param_id(*param) {
+                    Some(p) => write!(f, "{p}")?,
+                    None => write!(f, "parameter #{param}")?,
+                }
+                write!(
+                    f,
+                    " {value} would not fit this pen's 1 ms tick; it allows at most {max}"
+                )
+            }
+        }
+    }
 }
 
 /// Something that happened on the device, at a tick, with the faults latched after it.
@@ -562,4 +626,22 @@ pub struct Telemetry {
     /// The device receiver's counters (frames decoded; CRC, framing, oversized, decode and
     /// version errors), since start.
     pub rx: super::frame::LinkStats,
+    // Protocol 6 (appended).
+    /// The longest time one tick's work took over the period (us).
+    pub tick_busy_max_us: u32,
+    /// The same in the board's core-clock cycles, as its counter read them: the pen's DWT
+    /// cycle counter (`CYCCNT`, 96 MHz), the QEMU board's 25 MHz system timer.
+    pub tick_busy_max_cycles: u32,
+    /// Ticks that overran (each latched [`Faults::LOOP_OVERRUN`]), since start.
+    pub overruns: u32,
+    /// Ticks in which the brush took a pose and advanced, since start: every tick but a
+    /// pose gap and a tick the brush stood by (after an overrun).
+    pub brush_ticks: u32,
+}
+
+impl Telemetry {
+    /// The worst tick's work as a share of the nominal tick (%).
+    pub fn worst_busy_percent(&self) -> f32 {
+        self.tick_busy_max_us as f32 * crate::params::TICK_HZ as f32 / 1.0e4
+    }
 }

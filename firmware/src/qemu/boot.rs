@@ -57,7 +57,7 @@ static BOARD: BoardInfo = BoardInfo {
 enum Mode {
     Run,
     Selftest(u32),
-    /// `bench SHIFT [profile]`.
+    /// `bench SHIFT [profile|cycles]`.
     Bench(u32, bench::BenchScope),
     Arith,
     /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
@@ -101,6 +101,7 @@ fn boot_mode() -> Mode {
             let shift = num(words.next(), 0);
             let scope = match words.next() {
                 Some("profile") => bench::BenchScope::Profile,
+                Some("cycles") => bench::BenchScope::Cycles,
                 _ => bench::BenchScope::Full,
             };
             Mode::Bench(shift, scope)
@@ -150,7 +151,7 @@ pub fn main() -> ! {
     })
 }
 
-/// `bench SHIFT [profile]`: the per-tick counts, interrupts masked, then exit.
+/// `bench SHIFT [profile|cycles]`: the per-tick counts, interrupts masked, then exit.
 #[inline(never)]
 fn run_bench(shift: u32, scope: bench::BenchScope) -> ! {
     let clk = qemu::IcountCounter;

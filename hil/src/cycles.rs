@@ -1090,6 +1090,32 @@ mod tests {
         assert_eq!(adc_cycles(), 3 * (289 * 3 + 96 * 4));
     }
 
+    /// The ADC's and the clock's constants here are the Black Pill's configuration's: a
+    /// change there must change them too.
+    #[test]
+    fn adc_constants_match_the_black_pills_configuration() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/src/blackpill");
+        let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap();
+        let sensors = read("sensors.rs");
+        let board = read("mod.rs");
+        assert!(sensors.contains(&format!(
+            "SampleTime = SampleTime::CYCLES{ADC_SAMPLE_CYCLES};"
+        )));
+        assert_eq!(
+            sensors.matches("self.adc.blocking_read(").count() as u64,
+            ADC_CHANNELS
+        );
+        assert!(board.contains(&format!(
+            "pub const SYSCLK_HZ: u32 = {}_000_000;",
+            SYSCLK_HZ / 1_000_000
+        )));
+        // PCLK2 = SYSCLK, which embassy divides by 4 for the ADC's 36 MHz limit.
+        assert!(board.contains("config.rcc.apb2_pre = APBPrescaler::DIV1;"));
+        // embassy-stm32 0.6 `adc/v2.rs` `from_pclk2`: the even divider 2, 4, 6 or 8 for
+        // `(pclk2 - 1) / 36 MHz` of 0-1, 2-3, 4-5 or 6-7.
+        assert_eq!(ADC_PRESCALER, 2 * ((SYSCLK_HZ - 1) / 36_000_000 / 2 + 1));
+    }
+
     /// The log's blocks, their executions and the markers: only the bracketed blocks count.
     #[test]
     fn weighs_the_bracketed_blocks() {

@@ -17,8 +17,10 @@
 //!   (see [`crate::qemu`]'s "Lock-step"). For comparisons with the host's simulator that
 //!   must not depend on how fast QEMU or the host runs. A link timeout is counted in ticks,
 //!   so it cannot fall due while the host is silent: not for the link-cut tests.
-//! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
-//!   lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//! * `bench SHIFT [profile|cycles]`: measures the force loop with interrupts masked and
+//!   prints `BENCH` lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//!   `profile` and `cycles` run the presets' brush alone, short enough to log every
+//!   executed instruction (`cycles` brackets each tick and a state fill with trace markers).
 //! * `arith`: checks the fixed-point operators' inline assembly against their portable
 //!   references on this core, prints `ARITH` lines (see [`crate::app::arith`]) and exits 0
 //!   when every case agrees, 1 otherwise.

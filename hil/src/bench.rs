@@ -64,6 +64,19 @@ impl Report {
             t.integrator == u64::from(p.integrator) && t.substeps == u64::from(p.substeps_per_tick)
         })
     }
+    /// The stroke's tick (1-based) where [`Report::per_tick`]'s worst fell, as the firmware
+    /// reports it (`max_at_tick=`).
+    pub fn worst_at(&self) -> Option<u64> {
+        let p = presets::LARGE;
+        self.raw.lines().find_map(|l| {
+            let m = fields(l.strip_prefix("BENCH tick ")?);
+            let is =
+                |k: &str, v: u8| m.get(k).and_then(|x| x.parse::<u64>().ok()) == Some(v.into());
+            (is("integrator", p.integrator) && is("substeps", p.substeps_per_tick))
+                .then(|| m.get("max_at_tick")?.parse().ok())
+                .flatten()
+        })
+    }
     /// The largest measured substep rate whose worst tick fits [`BUDGET`], with `integrator`.
     pub fn largest_fitting(&self, integrator: u8) -> Option<u64> {
         self.ticks
@@ -302,7 +315,7 @@ pub fn render(r: &Report) -> String {
         }
     }
     if let Some(c) = &r.cycles {
-        render_cycles(&mut s, c);
+        render_cycles(&mut s, c, r.worst_at());
     }
     let worst = r.per_tick().map(|t| t.max).unwrap_or(0);
     let _ = write!(s, "instructions_per_tick={worst}");
@@ -313,7 +326,7 @@ pub fn render(r: &Report) -> String {
 }
 
 /// The estimate's lines (before the two final ones).
-fn render_cycles(s: &mut String, c: &cycles::Estimate) {
+fn render_cycles(s: &mut String, c: &cycles::Estimate, bench_worst_at: Option<u64>) {
     use std::fmt::Write;
     let w = &c.worst;
     let _ = writeln!(
@@ -343,6 +356,13 @@ fn render_cycles(s: &mut String, c: &cycles::Estimate) {
         w.dcache_misses,
         w.cycles() as f64 / w.instructions.max(1) as f64,
     );
+    if let Some(k) = bench_worst_at {
+        let _ = writeln!(
+            s,
+            "  the bench's dearest tick of the whole stroke (-icount): tick {k}, {} the traced ones",
+            if k as usize <= c.ticks { "among" } else { "NOT among" }
+        );
+    }
     if w.unknown > 0 {
         let _ = writeln!(
             s,

@@ -64,6 +64,13 @@ fn bench_reports_instructions_per_tick() {
         c.worst.instructions
     );
     assert_eq!(c.worst.unknown, 0, "instructions the model does not know");
+    // The traced ticks hold the whole stroke's dearest (else the traced run must grow).
+    let at = r.worst_at().expect("max_at_tick for the default brush");
+    assert!(
+        at as usize <= c.ticks,
+        "dearest tick {at}, traced {}",
+        c.ticks
+    );
     assert!(c.fill.instructions > 100 && c.adc > 0, "{c:?}");
     // Fewer substeps never cost more, with either integrator.
     for w in r.ticks.windows(2) {

@@ -60,10 +60,10 @@ pub enum Kind {
     /// 1+N, VLDR 2 or 3, VDIV/VSQRT 14, ...).
     Fixed(u32),
     /// A single load (LDR, LDRB, LDRH, LDRSB, LDRSH): 2, or 1 right after another single
-    /// load (the address and data phases pipeline).
+    /// load whose result its address does not use (the address and data phases pipeline).
     Load,
     /// A single store: 1 with an immediate offset (its data phase overlaps the next
-    /// instruction); 2 with a register offset, 1 right after a single load.
+    /// instruction); 2 with a register offset, 1 right after a single load (as a load).
     Store { imm: bool },
     /// Not in the model's table: counted as 1 cycle and reported.
     Unknown,
@@ -80,37 +80,76 @@ pub struct Insn {
     pub branch: Option<Branch>,
     /// A PC-relative load from flash (a literal pool): its address and bytes.
     pub literal: Option<(u32, u32)>,
+    /// Registers (bit n: Rn) a data-processing instruction writes, or a single load loads.
+    pub writes: u16,
+    /// Registers a load or store forms its address from.
+    pub addr_regs: u16,
 }
 
+impl Insn {
+    /// An instruction of `kind` that neither branches nor touches memory or registers the
+    /// model tracks.
+    pub fn plain(addr: u32, size: u8, kind: Kind) -> Self {
+        Insn {
+            addr,
+            size,
+            kind,
+            branch: None,
+            literal: None,
+            writes: 0,
+            addr_regs: 0,
+        }
+    }
+}
+
+/// Where a branch's target comes from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Branch {
-    /// The target comes from a register or memory (BX, BLX Rm, POP/LDM/LDR into the PC,
-    /// TBB/TBH, MOV/ADD PC): the core cannot fetch it early.
-    pub indirect: bool,
+pub enum Branch {
+    /// An immediate (B, BL, CBZ): the core fetches the target early.
+    Direct,
+    /// A register (BX, BLX Rm, MOV PC): known at execute.
+    Register,
+    /// Memory (POP/LDM/LDR into the PC, TBB/TBH): "a blocking operation", the TRM's full
+    /// pipeline reload.
+    Memory,
 }
 
-/// The pipeline refill of a taken branch, P in the TRM's table (1 to 3): 1, plus 1 when the
-/// target is a 32-bit instruction that is not word-aligned (two fetches), plus 1 when the
-/// target address is known only at execute (an indirect branch).
-pub fn refill(indirect: bool, target_wide_unaligned: bool) -> u32 {
-    1 + u32::from(indirect) + u32::from(target_wide_unaligned)
+/// The pipeline refill of a taken branch, P in the TRM's table (1 to 3): 1 for a direct
+/// branch, 2 for a register's target, 3 for a target loaded from memory; 1 more (at most 3)
+/// when the target is a 32-bit instruction that is not word-aligned (two fetches).
+pub fn refill(from: Branch, target_wide_unaligned: bool) -> u32 {
+    let base = match from {
+        Branch::Direct => 1,
+        Branch::Register => 2,
+        Branch::Memory => 3,
+    };
+    (base + u32::from(target_wide_unaligned)).min(3)
 }
 
-/// The core's cycles for `insn` (no flash stalls): its [`Kind`], plus the refill `p` when it
-/// branched; `after_load`: the instruction before it was a single load.
-pub fn core_cycles(insn: &Insn, taken: bool, p: u32, after_load: bool) -> u32 {
+/// What the instruction before the one being timed left in the pipeline.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Prev {
+    /// Registers it wrote as a data-processing result.
+    pub alu_writes: u16,
+    /// It was a single load, into these registers.
+    pub load_dest: Option<u16>,
+}
+
+/// The core's cycles for `insn` (no flash stalls): its [`Kind`]; 1 less for a single load
+/// or register-offset store pipelined after a single load (not when its address uses what
+/// that load loaded); 1 more for a load or store whose address uses the result of the
+/// data-processing instruction before it (no forwarding path, says the TRM); plus the
+/// refill `p` when it branched.
+pub fn core_cycles(insn: &Insn, taken: bool, p: u32, prev: Prev) -> u32 {
+    let pipelined = prev.load_dest.is_some_and(|d| d & insn.addr_regs == 0);
     let base = match insn.kind {
         Kind::Fixed(n) => n,
         Kind::Unknown => 1,
-        Kind::Load => 2 - u32::from(after_load),
+        Kind::Load | Kind::Store { imm: false } => 2 - u32::from(pipelined),
         Kind::Store { imm: true } => 1,
-        Kind::Store { imm: false } => 2 - u32::from(after_load),
     };
-    if taken {
-        base + p
-    } else {
-        base
-    }
+    let address_stall = u32::from(insn.addr_regs & prev.alu_writes != 0);
+    base + address_stall + if taken { p } else { 0 }
 }
 
 /// Cycles and what they came from, for a stretch of the trace.
@@ -236,7 +275,7 @@ impl Art {
 #[derive(Clone, Debug)]
 pub struct Machine {
     art: Art,
-    after_load: bool,
+    prev: Prev,
 }
 
 impl Default for Machine {
@@ -250,7 +289,7 @@ impl Machine {
     pub fn new() -> Self {
         Machine {
             art: Art::new(),
-            after_load: false,
+            prev: Prev::default(),
         }
     }
 
@@ -260,11 +299,15 @@ impl Machine {
         let fallthrough = insn.addr + u32::from(insn.size);
         let taken = insn.branch.is_some() && next.is_some_and(|(a, _)| a != fallthrough);
         let p = match (insn.branch, next) {
-            (Some(b), Some((a, size))) => refill(b.indirect, size == 4 && a % 4 == 2),
+            (Some(b), Some((a, size))) => refill(b, size == 4 && a % 4 == 2),
             _ => 0,
         };
-        let core = core_cycles(insn, taken, p, self.after_load);
-        self.after_load = insn.kind == Kind::Load && insn.branch.is_none();
+        let core = core_cycles(insn, taken, p, self.prev);
+        let single_load = insn.kind == Kind::Load && insn.branch.is_none();
+        self.prev = Prev {
+            alu_writes: if single_load { 0 } else { insn.writes },
+            load_dest: single_load.then_some(insn.writes),
+        };
         let icache_misses = self.art.fetch(insn.addr, insn.size);
         let dcache_misses = insn
             .literal
@@ -298,22 +341,15 @@ impl Machine {
 /// at the ADC clock. The register accesses around them are not counted.
 pub fn adc_cycles() -> u64 {
     let turns = SYSCLK_HZ * ADC_POWER_UP_US / 1_000_000 + 1;
-    let subs = Insn {
-        addr: 0,
-        size: 2,
-        kind: Kind::Fixed(1),
-        branch: None,
-        literal: None,
-    };
+    let subs = Insn::plain(0, 2, Kind::Fixed(1));
     let bne = Insn {
-        addr: 2,
-        size: 2,
-        kind: Kind::Fixed(1),
-        branch: Some(Branch { indirect: false }),
-        literal: None,
+        branch: Some(Branch::Direct),
+        ..Insn::plain(2, 2, Kind::Fixed(1))
     };
+    let none = Prev::default();
     let turn = u64::from(
-        core_cycles(&subs, false, 0, false) + core_cycles(&bne, true, refill(false, false), false),
+        core_cycles(&subs, false, 0, none)
+            + core_cycles(&bne, true, refill(Branch::Direct, false), none),
     );
     let convert = (ADC_SAMPLE_CYCLES + ADC_CONVERSION_CYCLES) * ADC_PRESCALER;
     ADC_CHANNELS * (turns * turn + convert)
@@ -345,9 +381,9 @@ enum Base {
     FpMov,
     /// B, BL: a direct branch (1, +P taken).
     Branch,
-    /// BX, BLX: 1+P, indirect when the operand is a register.
+    /// BX, BLX: 1+P, from a register unless the operand is an immediate.
     BranchReg,
-    /// TBB, TBH: 2+P.
+    /// TBB, TBH: 3+P.
     Table,
 }
 
@@ -452,6 +488,26 @@ fn imm(s: &str) -> Option<i64> {
     Some(if neg { -v } else { v })
 }
 
+/// A core register's bit (`r0`-`r12`, `sb`, `sl`, `fp`, `ip`, `sp`, `lr`, `pc`; a trailing
+/// `!` of write-back ignored), or 0 for anything else.
+fn reg_bit(op: &str) -> u16 {
+    let op = op.trim().trim_end_matches('!');
+    let n = match op {
+        "sb" => 9,
+        "sl" => 10,
+        "fp" => 11,
+        "ip" => 12,
+        "sp" => 13,
+        "lr" => 14,
+        "pc" => 15,
+        _ => match op.strip_prefix('r').and_then(|n| n.parse::<u16>().ok()) {
+            Some(n) if n < 16 => n,
+            _ => return 0,
+        },
+    };
+    1 << n
+}
+
 /// One line of QEMU's `in_asm` log (`0x00000404:  4812       ldr      r0, [pc, #0x48]`);
 /// `None` for any other line.
 pub fn decode(line: &str) -> Option<Insn> {
@@ -474,13 +530,26 @@ pub fn decode(line: &str) -> Option<Insn> {
     let size = if wide { 4 } else { 2 };
     let mut branch = None;
     let mut literal = None;
-    let first_op = ops.split(',').next().unwrap_or("").trim();
+    let mut writes = 0;
+    let mut addr_regs = 0;
+    let mut operands = ops.split(',').map(str::trim);
+    let first_op = operands.next().unwrap_or("");
+    let second_op = operands.next().unwrap_or("");
     let kind = match split_mnemonic(head) {
         None => Kind::Unknown,
         Some((base, name, _cond)) => match base {
             Base::Alu | Base::Fixed(_) => {
                 if matches!(name, "mov" | "add") && first_op == "pc" {
-                    branch = Some(Branch { indirect: true });
+                    branch = Some(Branch::Register);
+                }
+                if base == Base::Alu {
+                    writes = match name {
+                        "cmp" | "cmn" | "tst" | "teq" => 0,
+                        "umull" | "smull" | "umlal" | "smlal" | "umaal" => {
+                            reg_bit(first_op) | reg_bit(second_op)
+                        }
+                        _ => reg_bit(first_op),
+                    };
                 }
                 match base {
                     Base::Fixed(n) => Kind::Fixed(n),
@@ -500,13 +569,17 @@ pub fn decode(line: &str) -> Option<Insn> {
                 let mut parts = inside.split(',').map(str::trim);
                 let reg = parts.next().unwrap_or("");
                 let offset = parts.next();
+                addr_regs = reg_bit(reg) | offset.map_or(0, reg_bit);
+                if base == Base::Load {
+                    writes = reg_bit(first_op);
+                }
                 if reg == "pc" {
                     let off = offset.and_then(imm).unwrap_or(0);
                     let at = ((i64::from(addr) + 4) & !3) + off;
                     literal = u32::try_from(at).ok().map(|a| (a, bytes));
                 }
                 if base == Base::Load && first_op == "pc" {
-                    branch = Some(Branch { indirect: true });
+                    branch = Some(Branch::Memory);
                 }
                 match base {
                     Base::Load => Kind::Load,
@@ -519,14 +592,26 @@ pub fn decode(line: &str) -> Option<Insn> {
             }
             Base::Multiple => match list_words(&ops) {
                 Some((n, pc)) => {
+                    addr_regs = if matches!(name, "push" | "pop") {
+                        reg_bit("sp")
+                    } else {
+                        reg_bit(first_op)
+                    };
                     if pc {
-                        branch = Some(Branch { indirect: true });
+                        branch = Some(Branch::Memory);
                     }
                     Kind::Fixed(1 + n)
                 }
                 None => Kind::Unknown,
             },
-            Base::FpMultiple => list_words(&ops).map_or(Kind::Unknown, |(n, _)| Kind::Fixed(1 + n)),
+            Base::FpMultiple => {
+                addr_regs = if matches!(name, "vpush" | "vpop") {
+                    reg_bit("sp")
+                } else {
+                    reg_bit(first_op)
+                };
+                list_words(&ops).map_or(Kind::Unknown, |(n, _)| Kind::Fixed(1 + n))
+            }
             Base::FpMov => {
                 let fp_reg = |o: &str| {
                     o.len() > 1
@@ -541,25 +626,34 @@ pub fn decode(line: &str) -> Option<Insn> {
                 Kind::Fixed(if core_regs >= 2 { 2 } else { 1 })
             }
             Base::Branch => {
-                branch = Some(Branch { indirect: false });
+                branch = Some(Branch::Direct);
                 Kind::Fixed(1)
             }
             Base::BranchReg => {
-                branch = Some(Branch {
-                    indirect: !first_op.starts_with('#'),
+                branch = Some(if first_op.starts_with('#') {
+                    Branch::Direct
+                } else {
+                    Branch::Register
                 });
                 Kind::Fixed(1)
             }
             Base::Table => {
-                branch = Some(Branch { indirect: true });
-                Kind::Fixed(2)
+                // The TRM's load/store notes: two cycles for the load, one for the add, and
+                // the full pipeline reload (its table's 2 + P leaves the add out).
+                addr_regs = ops
+                    .split(',')
+                    .take(2)
+                    .map(|o| reg_bit(o.trim().trim_matches(['[', ']'])))
+                    .fold(0, |a, b| a | b);
+                branch = Some(Branch::Memory);
+                Kind::Fixed(3)
             }
         },
     };
     // CBZ/CBNZ: not in the table's bases (their name ends like a condition).
     let kind = match (kind, head) {
         (Kind::Unknown, "cbz" | "cbnz") => {
-            branch = Some(Branch { indirect: false });
+            branch = Some(Branch::Direct);
             Kind::Fixed(1)
         }
         (k, _) => k,
@@ -570,6 +664,8 @@ pub fn decode(line: &str) -> Option<Insn> {
         kind,
         branch,
         literal,
+        writes,
+        addr_regs,
     })
 }
 
@@ -946,14 +1042,24 @@ mod tests {
         assert_eq!((i.size, i.kind, i.branch), (4, Kind::Fixed(3), None));
         let i = decode("0x00000d4c:  bdf0       pop      {r4, r5, r6, r7, pc}").unwrap();
         assert_eq!(i.kind, Kind::Fixed(6));
-        assert_eq!(i.branch, Some(Branch { indirect: true }));
+        assert_eq!(i.branch, Some(Branch::Memory));
         let i = decode("0x00000e10:  d9f8       bls      #0xe04").unwrap();
-        assert_eq!(
-            (i.kind, i.branch),
-            (Kind::Fixed(1), Some(Branch { indirect: false }))
-        );
+        assert_eq!((i.kind, i.branch), (Kind::Fixed(1), Some(Branch::Direct)));
         let i = decode("0x00000906:  4718       bx       r3").unwrap();
-        assert_eq!(i.branch, Some(Branch { indirect: true }));
+        assert_eq!(i.branch, Some(Branch::Register));
+        let i = decode("0x00000000:  5888       ldr      r0, [r1, r2]").unwrap();
+        assert_eq!((i.writes, i.addr_regs), (0b1, 0b110));
+        let i = decode("0x00000000:  f85d 8b04  ldr      r8, [sp], #4").unwrap();
+        assert_eq!((i.writes, i.addr_regs), (1 << 8, 1 << 13));
+        let i = decode("0x00000000:  fba2 0103  umull    r0, r1, r2, r3").unwrap();
+        assert_eq!((i.writes, i.addr_regs), (0b11, 0));
+        let i = decode("0x00000000:  4288       cmp      r0, r1").unwrap();
+        assert_eq!(i.writes, 0);
+        let i = decode("0x00000000:  e8d0 f001  tbb      [r0, r1]").unwrap();
+        assert_eq!(
+            (i.kind, i.branch, i.addr_regs),
+            (Kind::Fixed(3), Some(Branch::Memory), 0b11)
+        );
         let i = decode("0x00000e1c:  4372       muls     r2, r6, r2").unwrap();
         assert_eq!((i.kind, i.branch), (Kind::Fixed(1), None));
         let i = decode("0x00000ac8:  e89c 1030  ldm.w    ip, {r4, r5, ip}").unwrap();
@@ -975,7 +1081,7 @@ mod tests {
         let i = decode("0x00001000:  fb90 f0f1  sdiv     r0, r0, r1").unwrap();
         assert_eq!(i.kind, Kind::Fixed(DIVIDE_CYCLES));
         let i = decode("0x0001331c:  b110       cbz      r0, #0x13324").unwrap();
-        assert_eq!(i.branch, Some(Branch { indirect: false }));
+        assert_eq!(i.branch, Some(Branch::Direct));
         let i = decode("0x00000000:  bf1c       itt      ne").unwrap();
         assert_eq!(i.kind, Kind::Fixed(1));
         assert_eq!(decode("IN: Reset"), None);
@@ -1000,8 +1106,46 @@ mod tests {
         assert_eq!(c.instructions, 6);
     }
 
-    /// A taken branch costs 1 + P; not taken, 1. P grows for an unaligned 32-bit target and
-    /// for an indirect branch.
+    /// A load's or store's address from the result of the instruction before it: one stall
+    /// after a data-processing result; no pipelining after the load that loaded it.
+    #[test]
+    fn address_dependencies() {
+        let run = |lines: &[&str]| Machine::new().run(&insns(lines), None).core;
+        // 1 + (2 + 1).
+        assert_eq!(
+            run(&[
+                "0x00000000:  3104       adds     r1, #4",
+                "0x00000002:  6808       ldr      r0, [r1]",
+            ]),
+            4
+        );
+        // The add writes r2, the load's address is r1: 1 + 2.
+        assert_eq!(
+            run(&[
+                "0x00000000:  3204       adds     r2, #4",
+                "0x00000002:  6808       ldr      r0, [r1]",
+            ]),
+            3
+        );
+        // A pointer chase: 2 + 2; two independent loads: 2 + 1.
+        assert_eq!(
+            run(&[
+                "0x00000000:  6801       ldr      r1, [r0]",
+                "0x00000002:  680a       ldr      r2, [r1]",
+            ]),
+            4
+        );
+        assert_eq!(
+            run(&[
+                "0x00000000:  6801       ldr      r1, [r0]",
+                "0x00000002:  6842       ldr      r2, [r0, #4]",
+            ]),
+            3
+        );
+    }
+
+    /// A taken branch costs 1 + P; not taken, 1. P is 1 for a direct branch, 2 from a
+    /// register, 3 from memory, 1 more (up to 3) for an unaligned 32-bit target.
     #[test]
     fn branches() {
         let b = decode("0x00000000:  d1fe       bne      #0x0").unwrap();
@@ -1012,10 +1156,14 @@ mod tests {
         assert_eq!(m.step(&b, Some((0x2, 2))).core, 1);
         // Taken to a 32-bit instruction at 2 mod 4: 1 + 2.
         assert_eq!(m.step(&b, Some((0x6, 4))).core, 3);
+        let bx = decode("0x00000000:  4770       bx       lr").unwrap();
+        // 1 + 2; to an unaligned 32-bit target 1 + 3.
+        assert_eq!(m.step(&bx, Some((0x100, 2))).core, 3);
+        assert_eq!(m.step(&bx, Some((0x102, 4))).core, 4);
         let pop = decode("0x00000000:  bd80       pop      {r7, pc}").unwrap();
-        // 1 + N (2) + P (1 + 1 indirect).
+        // 1 + N (2) + P (3: the target comes from memory).
         let c = m.step(&pop, Some((0x100, 2)));
-        assert_eq!((c.core, c.taken_branches, c.refill), (5, 1, 2));
+        assert_eq!((c.core, c.taken_branches, c.refill), (6, 1, 3));
         // With P at 1 the pop costs 4, at 3 it costs 6 (plus its line's flash miss).
         assert_eq!(c.refill_range(), (4 + c.flash_stalls, 6 + c.flash_stalls));
         let push = decode("0x00000000:  b580       push     {r7, lr}").unwrap();
@@ -1027,11 +1175,8 @@ mod tests {
     #[test]
     fn instruction_cache() {
         let jump = |line: u32| Insn {
-            addr: line * LINE_BYTES,
-            size: 2,
-            kind: Kind::Fixed(1),
-            branch: Some(Branch { indirect: false }),
-            literal: None,
+            branch: Some(Branch::Direct),
+            ..Insn::plain(line * LINE_BYTES, 2, Kind::Fixed(1))
         };
         for (lines, misses) in [(64u32, 64u64), (65, 65 * 3)] {
             let mut m = Machine::new();
@@ -1049,13 +1194,7 @@ mod tests {
         }
         // Straight-line code over three lines: one miss, the rest prefetched.
         let code: Vec<Insn> = (0..24)
-            .map(|i| Insn {
-                addr: 0x100 + i * 2,
-                size: 2,
-                kind: Kind::Fixed(1),
-                branch: None,
-                literal: None,
-            })
+            .map(|i| Insn::plain(0x100 + i * 2, 2, Kind::Fixed(1)))
             .collect();
         let c = Machine::new().run(&code, None);
         assert_eq!((c.core, c.icache_misses), (24, 1));
@@ -1070,11 +1209,8 @@ mod tests {
             for _ in 0..3 {
                 for l in 0..lines {
                     let ld = Insn {
-                        addr: 0,
-                        size: 2,
-                        kind: Kind::Load,
-                        branch: None,
                         literal: Some((0x1000 + l * LINE_BYTES, 4)),
+                        ..Insn::plain(0, 2, Kind::Load)
                     };
                     d += m.step(&ld, None).dcache_misses;
                 }

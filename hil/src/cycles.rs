@@ -9,7 +9,7 @@
 //! translated block's disassembly once, then every executed block's address; Debian's QEMU
 //! has no TCG plugins), read from a pipe as QEMU writes it, so that no log file is kept.
 //! The firmware's `bench SHIFT cycles` mode brackets each tick and each state fill with
-//! marker calls (`maobi_trace_*`, found by name in the image).
+//! marker calls (`maobi_firmware::app::bench::trace_*`, found by name in the image).
 
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read};
@@ -858,6 +858,9 @@ fn parse_exec(rest: &str) -> Option<(u64, u32)> {
     Some((host, u32::from_str_radix(pc, 16).ok()?))
 }
 
+/// The firmware module that holds the trace markers.
+const MARKERS: &str = "maobi_firmware::app::bench";
+
 /// The image's function symbols and the trace markers.
 pub fn read_image(elf: &Path) -> Result<(Symbols, Markers)> {
     use object::{Object, ObjectSymbol, SymbolKind};
@@ -873,11 +876,12 @@ pub fn read_image(elf: &Path) -> Result<(Symbols, Markers)> {
         let Ok(name) = s.name() else { continue };
         // Thumb code: bit 0 of a function's address is the state bit, not the address.
         let start = (s.address() & !1) as u32;
-        named.insert(name.to_string(), start);
+        // Without the hash: `maobi_firmware::app::bench::trace_tick_begin`.
+        let name = format!("{:#}", rustc_demangle::demangle(name));
         if s.size() > 0 {
-            let end = start + s.size() as u32;
-            funcs.push((start, end, format!("{:#}", rustc_demangle::demangle(name))));
+            funcs.push((start, start + s.size() as u32, name.clone()));
         }
+        named.insert(name, start);
     }
     let find = |n: &str| {
         named.get(n).copied().with_context(|| {
@@ -888,10 +892,10 @@ pub fn read_image(elf: &Path) -> Result<(Symbols, Markers)> {
         })
     };
     let markers = Markers {
-        tick_begin: find("maobi_trace_tick_begin")?,
-        tick_end: find("maobi_trace_tick_end")?,
-        fill_begin: find("maobi_trace_fill_begin")?,
-        fill_end: find("maobi_trace_fill_end")?,
+        tick_begin: find(&format!("{MARKERS}::trace_tick_begin"))?,
+        tick_end: find(&format!("{MARKERS}::trace_tick_end"))?,
+        fill_begin: find(&format!("{MARKERS}::trace_fill_begin"))?,
+        fill_end: find(&format!("{MARKERS}::trace_fill_end"))?,
     };
     Ok((Symbols::new(funcs), markers))
 }
@@ -1002,7 +1006,7 @@ pub fn trace(elf: &Path, timeout: Duration) -> Result<Estimate> {
         .and_then(|v| v.parse::<u64>().ok())
         .map(|c| (c * 40) >> shift);
     let Some((i, worst)) = traced.worst_tick() else {
-        bail!("QEMU's log held no bracketed tick (no `maobi_trace_tick_begin` executed):\n{out}");
+        bail!("QEMU's log held no bracketed tick (no `{MARKERS}::trace_tick_begin` ran):\n{out}");
     };
     if worst.instructions == 0 {
         bail!("QEMU's log held no disassembly of the tick (a QEMU built without a disassembler?)");

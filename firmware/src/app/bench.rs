@@ -212,35 +212,32 @@ pub enum BenchScope {
     /// instruction for a profile (`scripts/profile-tick`).
     Profile,
     /// The presets' brush over the same [`PROFILE_TICKS`] ticks, each tick and after it a
-    /// state fill bracketed by the trace markers ([`maobi_trace_tick_begin`] and the others), for
+    /// state fill bracketed by the trace markers ([`trace_tick_begin`] and the others), for
     /// `hil bench`'s cycle estimate, which weighs the instructions QEMU logs between them.
     Cycles,
 }
 
-/// Trace markers: empty calls whose entry addresses `hil` looks up by name in the image and
-/// finds in QEMU's log of executed blocks. Each writes its own value, so that no two can be
-/// merged into one body.
+/// Trace markers: calls whose entry addresses `hil` looks up by name in the image and finds
+/// in QEMU's log of executed blocks. Each writes its own value, so that no two can be merged
+/// into one body. Ordinary (mangled) functions: an image that never calls them, the Black
+/// Pill's, does not keep them.
 #[inline(never)]
-#[no_mangle]
-pub extern "C" fn maobi_trace_tick_begin() {
+pub fn trace_tick_begin() {
     mark(1);
 }
-/// See [`maobi_trace_tick_begin`].
+/// See [`trace_tick_begin`].
 #[inline(never)]
-#[no_mangle]
-pub extern "C" fn maobi_trace_tick_end() {
+pub fn trace_tick_end() {
     mark(2);
 }
-/// See [`maobi_trace_tick_begin`].
+/// See [`trace_tick_begin`].
 #[inline(never)]
-#[no_mangle]
-pub extern "C" fn maobi_trace_fill_begin() {
+pub fn trace_fill_begin() {
     mark(3);
 }
-/// See [`maobi_trace_tick_begin`].
+/// See [`trace_tick_begin`].
 #[inline(never)]
-#[no_mangle]
-pub extern "C" fn maobi_trace_fill_end() {
+pub fn trace_fill_end() {
     mark(4);
 }
 /// A store the compiler must keep (a volatile one), so that the markers' calls are kept.
@@ -326,20 +323,20 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write, scope: BenchScope) {
             // Inside the counter's reads: a device read under `-icount` makes QEMU translate
             // its block again, which its log would show as instructions run twice.
             if cycles {
-                maobi_trace_tick_begin();
+                trace_tick_begin();
             }
             fl.tick();
             if cycles {
-                maobi_trace_tick_end();
+                trace_tick_end();
             }
             let b = clk.now();
             if cycles {
                 // The state fill of a tick a frame falls due on (1 in about 8 at 120 Hz),
                 // here after every tick so that its dearest brush state is among them.
                 super::SNAPSHOT.take(|_| ());
-                maobi_trace_fill_begin();
+                trace_fill_begin();
                 super::SNAPSHOT.offer(true, |s| fl.snapshot(k, s));
-                maobi_trace_fill_end();
+                trace_fill_end();
             }
             st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
             contact_max = contact_max.max(fl.core.brush().contacts());

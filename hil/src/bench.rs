@@ -4,6 +4,9 @@
 //! force-loop tick with interrupts masked and prints `BENCH` lines of raw counts. Under
 //! `-icount shift=N` a count is exactly 40 / 2^N instructions (the firmware's calibration
 //! line checks it with a block of NOPs), so the default shift 3 resolves 5 instructions.
+//!
+//! Instructions are not cycles: [`with_cycles`] adds the tick's cycle estimate on the
+//! Black Pill ([`crate::cycles`]), which `hil bench` prints last.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -13,6 +16,7 @@ use anyhow::{bail, Context, Result};
 use maobi_shared::params::{INTEGRATOR_BACKWARD_EULER, INTEGRATOR_KANG_CHO};
 use maobi_shared::presets;
 
+use crate::cycles;
 use crate::qemu::{Clock, Run};
 
 /// The instruction budget of one 1 kHz tick (the issue's goal).
@@ -47,6 +51,8 @@ pub struct Report {
     /// Per call of each scalar operation.
     pub ops: BTreeMap<String, f64>,
     pub raw: String,
+    /// The default brush's tick in Black Pill cycles ([`with_cycles`]).
+    pub cycles: Option<cycles::Estimate>,
 }
 
 impl Report {
@@ -56,6 +62,19 @@ impl Report {
         let p = presets::LARGE;
         self.ticks.iter().find(|t| {
             t.integrator == u64::from(p.integrator) && t.substeps == u64::from(p.substeps_per_tick)
+        })
+    }
+    /// The stroke's tick (1-based) where [`Report::per_tick`]'s worst fell, as the firmware
+    /// reports it (`max_at_tick=`).
+    pub fn worst_at(&self) -> Option<u64> {
+        let p = presets::LARGE;
+        self.raw.lines().find_map(|l| {
+            let m = fields(l.strip_prefix("BENCH tick ")?);
+            let is =
+                |k: &str, v: u8| m.get(k).and_then(|x| x.parse::<u64>().ok()) == Some(v.into());
+            (is("integrator", p.integrator) && is("substeps", p.substeps_per_tick))
+                .then(|| m.get("max_at_tick")?.parse().ok())
+                .flatten()
         })
     }
     /// The largest measured substep rate whose worst tick fits [`BUDGET`], with `integrator`.
@@ -94,6 +113,7 @@ pub fn parse(out: &str, shift: u32) -> Result<Report> {
         unguided: (0, 0),
         ops: BTreeMap::new(),
         raw: out.to_string(),
+        cycles: None,
     };
     let mut calibrated = false;
     let mut overhead = 0;
@@ -204,7 +224,16 @@ pub fn run(elf: &Path, shift: u32, timeout: Duration) -> Result<Report> {
     parse(&out, shift)
 }
 
-/// The human-readable report; its last line is `instructions_per_tick=<N>`.
+/// [`run`], then the cycle estimate from a traced run of the default brush's ticks
+/// ([`cycles::trace`]): what `hil bench` prints.
+pub fn with_cycles(elf: &Path, shift: u32, timeout: Duration) -> Result<Report> {
+    let mut r = run(elf, shift, timeout)?;
+    r.cycles = Some(cycles::trace(elf, timeout).context("the cycle estimate")?);
+    Ok(r)
+}
+
+/// The human-readable report; its last line is `instructions_per_tick=<N>`, or with a cycle
+/// estimate `cycles_per_tick_estimate=<N>` after it.
 pub fn render(r: &Report) -> String {
     use std::fmt::Write;
     let mut s = String::new();
@@ -285,7 +314,108 @@ pub fn render(r: &Report) -> String {
             }
         }
     }
+    if let Some(c) = &r.cycles {
+        render_cycles(&mut s, c, r.worst_at());
+    }
     let worst = r.per_tick().map(|t| t.max).unwrap_or(0);
     let _ = write!(s, "instructions_per_tick={worst}");
+    if let Some(c) = &r.cycles {
+        let _ = write!(s, "\ncycles_per_tick_estimate={}", c.total());
+    }
     s
+}
+
+/// The estimate's lines (before the two final ones).
+fn render_cycles(s: &mut String, c: &cycles::Estimate, bench_worst_at: Option<u64>) {
+    use std::fmt::Write;
+    let w = &c.worst;
+    let _ = writeln!(
+        s,
+        "cycles on the Black Pill (estimate: QEMU's log of the default brush's ticks 1-{} weighed \
+         with Cortex-M4 timings, {} MHz, {} flash wait states, ART prefetch, {}-line I-cache, \
+         {}-line D-cache; docs/firmware-cost.md, \"Cycles\"):",
+        c.ticks,
+        cycles::SYSCLK_HZ / 1_000_000,
+        cycles::WAIT_STATES,
+        cycles::ICACHE_LINES,
+        cycles::DCACHE_LINES,
+    );
+    let icount = c.icount_max.map_or(String::new(), |n| {
+        format!(" (-icount: dearest of these ticks {n})")
+    });
+    let _ = writeln!(
+        s,
+        "  dearest tick {}: {} instructions{icount}, {} core cycles ({} taken branches) + {} flash \
+         stall cycles ({} instruction lines, {} literal lines from flash); {:.2} cycles per instruction",
+        c.worst_at,
+        w.instructions,
+        w.core,
+        w.taken_branches,
+        w.flash_stalls,
+        w.icache_misses,
+        w.dcache_misses,
+        w.cycles() as f64 / w.instructions.max(1) as f64,
+    );
+    if let Some(k) = bench_worst_at {
+        let _ = writeln!(
+            s,
+            "  the bench's dearest tick of the whole stroke (-icount): tick {k}, {} the traced ones",
+            if k as usize <= c.ticks { "among" } else { "NOT among" }
+        );
+    }
+    if w.unknown > 0 {
+        let _ = writeln!(
+            s,
+            "  {} instructions of that tick are not in the model's table (counted as 1 cycle)",
+            w.unknown
+        );
+    }
+    let _ = writeln!(
+        s,
+        "  state fill (a frame due, 1 tick in 8 at 120 Hz), dearest: {} instructions, {} cycles; \
+         ADC, three blocking gimbal reads: {} cycles",
+        c.fill.instructions,
+        c.fill.cycles(),
+        c.adc
+    );
+    let _ = writeln!(s, "  top functions of the dearest tick (own cycles):");
+    for (name, cyc) in c.top.iter().take(10) {
+        let _ = writeln!(
+            s,
+            "  {:>8} {:>5.1}%  {name}",
+            cyc,
+            100.0 * *cyc as f64 / w.cycles().max(1) as f64
+        );
+    }
+    let _ = writeln!(
+        s,
+        "cycles breakdown: core={} flash_stalls={} adc={} state_fill={}",
+        w.core,
+        w.flash_stalls,
+        c.adc,
+        c.fill.cycles()
+    );
+    let total = c.total();
+    let (lo, hi) = w.refill_range();
+    let _ = writeln!(
+        s,
+        "  every taken branch's refill at the TRM's least (1) / most (3): total {} / {}",
+        total - w.cycles() + lo,
+        total - w.cycles() + hi
+    );
+    let _ = writeln!(
+        s,
+        "cycles goal: <= {} (80% of {} cycles per 1 ms tick): {}",
+        cycles::GOAL_CYCLES,
+        cycles::SYSCLK_HZ / cycles::TICK_HZ,
+        if c.fits() {
+            format!("fits, {} to spare", cycles::GOAL_CYCLES - total)
+        } else {
+            format!(
+                "OVER by {} ({:.1}% of the tick)",
+                total - cycles::GOAL_CYCLES,
+                100.0 * total as f64 / (cycles::SYSCLK_HZ / cycles::TICK_HZ) as f64
+            )
+        }
+    );
 }

@@ -4,6 +4,8 @@
 //!   loopback socket when the host needs the link.
 //! * [`firmware`]: building the image (the firmware is its own cargo workspace) and its size.
 //! * [`bench`](mod@bench): the firmware's own instruction count of one force-loop tick.
+//! * [`cycles`]: the tick's cycle estimate on the Black Pill, from QEMU's execution log and
+//!   a Cortex-M4 and flash model.
 //! * [`session`]: the host end of the wire protocol: handshake, pose streaming paced by the
 //!   device's states, bit-exact comparison with the host simulation.
 //! * [`panics`]: the index panics the force loop can reach, read from the image's machine code.
@@ -14,6 +16,7 @@
 //! * [`selftest`]: the boot self-test and the fault-path hooks (panic, HardFault, watchdog).
 
 pub mod bench;
+pub mod cycles;
 pub mod firmware;
 pub mod panics;
 pub mod probe_rs;

@@ -35,8 +35,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Instructions per force-loop tick, measured by the firmware under `-icount`; the last
-    /// line is `instructions_per_tick=<N>`.
+    /// Instructions per force-loop tick, measured by the firmware under `-icount`, then the
+    /// tick's cycle estimate on the Black Pill from a traced run; the last two lines are
+    /// `instructions_per_tick=<N>` and `cycles_per_tick_estimate=<N>`.
     Bench {
         /// QEMU `-icount shift`: one timer count is 40 / 2^shift instructions.
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=3))]
@@ -171,7 +172,7 @@ fn main() -> Result<()> {
             }
         }
         Cmd::Bench { shift } => {
-            let r = bench::run(&elf, shift, timeout)?;
+            let r = bench::with_cycles(&elf, shift, timeout)?;
             println!("{}", bench::render(&r));
         }
         Cmd::Size { check, .. } => size(&elf, firmware::Board::Qemu, check)?,

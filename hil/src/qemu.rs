@@ -338,7 +338,7 @@ impl UartSocket {
 }
 
 /// Clears close-on-exec on `fd`, so the program about to be executed inherits it.
-fn inherit_fd(fd: RawFd) -> std::io::Result<()> {
+pub(crate) fn inherit_fd(fd: RawFd) -> std::io::Result<()> {
     // SAFETY: fcntl on a descriptor number, no pointers.
     let flags = unsafe { libc::fcntl(fd, libc::F_GETFD) };
     if flags < 0 {

@@ -19,16 +19,59 @@ fn image() -> Option<PathBuf> {
 #[test]
 fn bench_reports_instructions_per_tick() {
     let Some(elf) = image() else { return };
-    let r = bench::run(&elf, 3, TIMEOUT).expect("bench runs");
+    // What `hil bench` runs: the instruction counts, then the traced run's cycle estimate.
+    let r = bench::with_cycles(&elf, 3, TIMEOUT).expect("bench runs");
     let text = bench::render(&r);
     println!("{text}");
-    let last = text.lines().last().unwrap();
-    let n: u64 = last
+    let lines: Vec<&str> = text.lines().collect();
+    let [.., instr_line, cycles_line] = lines[..] else {
+        panic!("too few lines:\n{text}")
+    };
+    let n: u64 = instr_line
         .strip_prefix("instructions_per_tick=")
-        .expect("last line names the figure")
+        .expect("the line before the last names the instructions")
         .parse()
         .unwrap();
     assert!(n > 1000, "{n}");
+    // The estimate is last, a whole number (so finite), and above the instruction count: no
+    // instruction takes less than a cycle, and loads, multi-register moves, taken branches and
+    // the ADC's waits take more.
+    let cycles: u64 = cycles_line
+        .strip_prefix("cycles_per_tick_estimate=")
+        .expect("the last line names the cycle estimate")
+        .parse()
+        .expect("a whole number of cycles");
+    assert!(cycles > n, "{cycles} cycles for {n} instructions");
+    let c = r.cycles.as_ref().expect("an estimate");
+    assert_eq!(cycles, c.total());
+    assert!(
+        text.contains(&format!(
+            "cycles breakdown: core={} flash_stalls={} adc={} state_fill={}",
+            c.worst.core,
+            c.worst.flash_stalls,
+            c.adc,
+            c.fill.cycles()
+        )),
+        "{text}"
+    );
+    // The log is read whole: the traced tick's instructions agree with the firmware's own
+    // `-icount` count of the same run's ticks (counted to 5 instructions, around the markers'
+    // calls), and every instruction of it is in the model's table.
+    let icount = c.icount_max.expect("the traced run's BENCH tick line");
+    assert!(
+        c.worst.instructions.abs_diff(icount) * 100 <= icount,
+        "log {} against -icount {icount}",
+        c.worst.instructions
+    );
+    assert_eq!(c.worst.unknown, 0, "instructions the model does not know");
+    // The traced ticks hold the whole stroke's dearest (else the traced run must grow).
+    let at = r.worst_at().expect("max_at_tick for the default brush");
+    assert!(
+        at as usize <= c.ticks,
+        "dearest tick {at}, traced {}",
+        c.ticks
+    );
+    assert!(c.fill.instructions > 100 && c.adc > 0, "{c:?}");
     // Fewer substeps never cost more, with either integrator.
     for w in r.ticks.windows(2) {
         if w[0].integrator == w[1].integrator {

@@ -211,6 +211,41 @@ pub enum BenchScope {
     /// press, the start of the drag), then exit: a run short enough to log every executed
     /// instruction for a profile (`scripts/profile-tick`).
     Profile,
+    /// The presets' brush over the same [`PROFILE_TICKS`] ticks, each tick and after it a
+    /// state fill bracketed by the trace markers ([`trace_tick_begin`] and the others), for
+    /// `hil bench`'s cycle estimate, which weighs the instructions QEMU logs between them.
+    Cycles,
+}
+
+/// Trace markers: calls whose entry addresses `hil` looks up by name in the image and finds
+/// in QEMU's log of executed blocks. Each writes its own value, so that no two can be merged
+/// into one body. Ordinary (mangled) functions: an image that never calls them, the Black
+/// Pill's, does not keep them.
+#[inline(never)]
+pub fn trace_tick_begin() {
+    mark(1);
+}
+/// See [`trace_tick_begin`].
+#[inline(never)]
+pub fn trace_tick_end() {
+    mark(2);
+}
+/// See [`trace_tick_begin`].
+#[inline(never)]
+pub fn trace_fill_begin() {
+    mark(3);
+}
+/// See [`trace_tick_begin`].
+#[inline(never)]
+pub fn trace_fill_end() {
+    mark(4);
+}
+/// A store the compiler must keep (a volatile one), so that the markers' calls are kept.
+#[inline(always)]
+fn mark(n: u32) {
+    static mut TRACE_MARK: u32 = 0;
+    // SAFETY: a plain store to a static only the markers touch, on one core.
+    unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(TRACE_MARK), n) };
 }
 
 /// Ticks of the [`BenchScope::Profile`] run.
@@ -255,7 +290,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write, scope: BenchScope) {
         .flat_map(|i| [25u8, 20, 16, 12, 10, 8, 5, 4, 3, 2, 1].map(|n| (i, n)));
     let (profile, ticks) = match scope {
         BenchScope::Full => (None, STROKE_TICKS),
-        BenchScope::Profile => (
+        BenchScope::Profile | BenchScope::Cycles => (
             Some((params.integrator, params.substeps_per_tick)),
             PROFILE_TICKS,
         ),
@@ -275,11 +310,34 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write, scope: BenchScope) {
         // Ticks that drove the motors: all of them, unless a fault (a sensor jump) switched
         // the forces off and the rest of the run went uncounted.
         let mut forces_on = 0u32;
+        let cycles = scope == BenchScope::Cycles;
+        if cycles {
+            // The slot full, as the bench's ticks always find it: the state fill is traced
+            // on its own, after each tick.
+            super::SNAPSHOT.take(|_| ());
+            super::SNAPSHOT.offer(true, |s| fl.snapshot(0, s));
+        }
         for k in 1..=ticks {
             fl.pen.feed(&stroke_pose(k));
             let a = clk.now();
+            // Inside the counter's reads: a device read under `-icount` makes QEMU translate
+            // its block again, which its log would show as instructions run twice.
+            if cycles {
+                trace_tick_begin();
+            }
             fl.tick();
+            if cycles {
+                trace_tick_end();
+            }
             let b = clk.now();
+            if cycles {
+                // The state fill of a tick a frame falls due on (1 in about 8 at 120 Hz),
+                // here after every tick so that its dearest brush state is among them.
+                super::SNAPSHOT.take(|_| ());
+                trace_fill_begin();
+                super::SNAPSHOT.offer(true, |s| fl.snapshot(k, s));
+                trace_fill_end();
+            }
             st.add(k, b.wrapping_sub(a).saturating_sub(overhead));
             contact_max = contact_max.max(fl.core.brush().contacts());
             forces_on += u32::from(fl.enabled);
@@ -298,7 +356,7 @@ pub fn run<C: CycleCounter>(clk: &C, out: &mut impl Write, scope: BenchScope) {
         );
     }
 
-    if scope == BenchScope::Profile {
+    if scope != BenchScope::Full {
         return;
     }
 

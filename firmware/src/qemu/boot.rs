@@ -17,8 +17,10 @@
 //!   (see [`crate::qemu`]'s "Lock-step"). For comparisons with the host's simulator that
 //!   must not depend on how fast QEMU or the host runs. A link timeout is counted in ticks,
 //!   so it cannot fall due while the host is silent: not for the link-cut tests.
-//! * `bench SHIFT`: measures the force loop with interrupts masked and prints `BENCH`
-//!   lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//! * `bench SHIFT [profile|cycles]`: measures the force loop with interrupts masked and
+//!   prints `BENCH` lines (see [`crate::app::bench`]); `SHIFT` is QEMU's `-icount` shift.
+//!   `profile` and `cycles` run the presets' brush alone, short enough to log every
+//!   executed instruction (`cycles` brackets each tick and a state fill with trace markers).
 //! * `arith`: checks the fixed-point operators' inline assembly against their portable
 //!   references on this core, prints `ARITH` lines (see [`crate::app::arith`]) and exits 0
 //!   when every case agrees, 1 otherwise.
@@ -65,7 +67,7 @@ static BOARD_AS_PEN: BoardInfo = BoardInfo {
 enum Mode {
     Run,
     Selftest(u32),
-    /// `bench SHIFT [profile]`.
+    /// `bench SHIFT [profile|cycles]`.
     Bench(u32, bench::BenchScope),
     Arith,
     /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
@@ -120,6 +122,7 @@ fn boot_mode() -> Mode {
             let shift = num(words.next(), 0);
             let scope = match words.next() {
                 Some("profile") => bench::BenchScope::Profile,
+                Some("cycles") => bench::BenchScope::Cycles,
                 _ => bench::BenchScope::Full,
             };
             Mode::Bench(shift, scope)
@@ -169,7 +172,7 @@ pub fn main() -> ! {
     })
 }
 
-/// `bench SHIFT [profile]`: the per-tick counts, interrupts masked, then exit.
+/// `bench SHIFT [profile|cycles]`: the per-tick counts, interrupts masked, then exit.
 #[inline(never)]
 fn run_bench(shift: u32, scope: bench::BenchScope) -> ! {
     let clk = qemu::IcountCounter;

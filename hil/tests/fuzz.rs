@@ -157,8 +157,10 @@ struct Seen {
     recent_accepted: VecDeque<String>,
     /// Host pings (seq) answered.
     pongs: BTreeSet<u32>,
-    /// The last messages sent intact (not poses or guides), what a failure names.
+    /// The last messages sent intact (not poses or guides), and the last parameter writes
+    /// and presets among them: what a failure names.
     recent_sent: VecDeque<String>,
+    recent_writes: VecDeque<String>,
 }
 
 impl Seen {
@@ -284,6 +286,15 @@ impl Seen {
                 HostMsg::Command(c) => format!("{c:?}"),
                 m => fuzz::host_kind(m).to_string(),
             };
+            if matches!(
+                m,
+                HostMsg::SetParam { .. } | HostMsg::Command(Command::ChoosePreset(_))
+            ) {
+                if self.recent_writes.len() == 16 {
+                    self.recent_writes.pop_front();
+                }
+                self.recent_writes.push_back(format!("#{index} {what}"));
+            }
             self.recent_sent.push_back(format!("#{index} {what}"));
         }
         match *m {
@@ -373,7 +384,13 @@ fn await_pong(
                 seen.take(&r.msg);
             }
             Ok(None) => {}
-            Err(e) => return Err(format!("the link failed: {e:#}")),
+            Err(e) => {
+                return Err(format!(
+                    "ping {:#x} (sent after message {}) unanswered: the link failed ({e:#}), \
+                     the pen having last told tick {:?}",
+                    p.seq, p.after_messages, seen.tick
+                ))
+            }
         }
     }
 }
@@ -608,10 +625,11 @@ fn fuzz_pen(image: Image) {
 
     if let Some(f) = &failure {
         panic!(
-            "the {image:?} pen's link stopped answering: {f}\nthe last accepted: {:?}\nthe \
-             last messages sent (poses aside): {:?}\nQEMU exited: {exited:?}\nthe pen's \
-             last log lines:\n{defmt_tail}\nQEMU stdout:\n{out}",
-            seen.recent_accepted, seen.recent_sent
+            "the {image:?} pen's link stopped answering: {f}\nthe last parameter writes \
+             and presets sent: {:?}\nthe last answered as accepted: {:?}\nthe last messages \
+             sent (poses aside): {:?}\nQEMU exited: {exited:?}\nthe pen's last log \
+             lines:\n{defmt_tail}\nQEMU stdout:\n{out}",
+            seen.recent_writes, seen.recent_accepted, seen.recent_sent
         );
     }
     assert!(exited.is_none(), "QEMU exited ({exited:?}):\n{out}");

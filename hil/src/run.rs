@@ -14,6 +14,22 @@ use crate::qemu::{Clock, Guest, Run};
 use crate::selftest::EMULATED_TICK_US;
 use crate::session::{self, Session, StreamLog, StreamOptions, Transport};
 
+/// The `-icount` shift at which QEMU runs the pen's instruction rate: shift N gives every
+/// instruction 2^N ns of virtual time, and the Black Pill's Cortex-M4 at 96 MHz is expected
+/// (issue #48; not yet measured on a board) to retire an instruction every 1.4 to 1.8 cycles
+/// on this firmware's code (64-bit fixed-point arithmetic: multiplies, loads, taken branches
+/// and flash wait states that take more than a cycle), 53 to 69 million a second. Shift 4
+/// (16 ns: 62.5 million a second, 96 MHz at 1.54 cycles an instruction) is the only shift in
+/// that band: shift 3 would be a core at 0.77 cycles an instruction, faster than any M4,
+/// shift 5 one at 3.1. A 1 ms tick then holds 62,500 instructions, and the ~48,000 of the
+/// presets' worst tick (`hil bench`) leave about a fifth for the link. Were the pen nearer
+/// one cycle an instruction (`docs/firmware-cost.md`'s older estimate), this pace is the
+/// stricter one: what fits here fits there.
+pub const PEN_ICOUNT_SHIFT: u32 = 4;
+
+/// The pen's force-loop period (us): its real 1 kHz tick, not [`EMULATED_TICK_US`].
+pub const PEN_TICK_US: u32 = 1000;
+
 /// A firmware image running in QEMU with UART0 on a loopback socket.
 pub struct QemuDevice {
     pub guest: Guest,
@@ -48,7 +64,39 @@ impl QemuDevice {
         qemu_args: &[String],
         timeout: Duration,
     ) -> Result<(Self, TcpStream)> {
-        let tick = format!("tick_us={}", EMULATED_TICK_US << shift);
+        Self::start_clocked(
+            elf,
+            shift,
+            EMULATED_TICK_US << shift,
+            extra,
+            qemu_args,
+            timeout,
+        )
+    }
+
+    /// As [`Self::start`] at the pen's own pace: `-icount shift=`[`PEN_ICOUNT_SHIFT`]`,
+    /// sleep=off` and the pen's 1 ms tick ([`PEN_TICK_US`]), so that a tick holds as many
+    /// instructions as the Black Pill runs in 1 ms and one dearer than that overruns here as
+    /// it would there.
+    pub fn start_paced_like_the_pen(
+        elf: &Path,
+        extra: &[&str],
+        timeout: Duration,
+    ) -> Result<(Self, TcpStream)> {
+        Self::start_clocked(elf, PEN_ICOUNT_SHIFT, PEN_TICK_US, extra, &[], timeout)
+    }
+
+    /// Starts QEMU at `-icount shift=SHIFT,sleep=off` with the force loop ticking every
+    /// `tick_us` of virtual time.
+    pub fn start_clocked(
+        elf: &Path,
+        shift: u32,
+        tick_us: u32,
+        extra: &[&str],
+        qemu_args: &[String],
+        timeout: Duration,
+    ) -> Result<(Self, TcpStream)> {
+        let tick = format!("tick_us={tick_us}");
         let mut args = vec!["run", tick.as_str()];
         args.extend_from_slice(extra);
         let mut run = Run::new(elf, &args, Clock::Deterministic { shift }, timeout);

@@ -12,7 +12,10 @@ use crate::qemu::{Clock, Run};
 /// every tick, damaged frames, commands) can cost more than the million instructions a
 /// virtual millisecond holds at `-icount` shift 0 with a brush set dearer than the presets
 /// (`hil bench`), so emulated runs pace the loop slower; the model still advances 1 ms per
-/// tick.
+/// tick. A tick of 4 ms at shift 0 holds four million instructions, some 64 times the pen's
+/// budget: at this pace no brush the protocol allows overruns, which suits the tests that
+/// compare states or cut the link, and hides what a dear brush does to the pen. The tests
+/// that judge the pen's timing run at its own pace ([`crate::run::PEN_ICOUNT_SHIFT`]).
 pub const EMULATED_TICK_US: u32 = 4000;
 
 /// Runs `selftest TICKS` and returns its summary line.

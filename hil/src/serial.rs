@@ -12,11 +12,13 @@ use crate::session::Transport;
 /// Line rate asked of the port (a USB CDC port ignores it).
 pub const BAUD: u32 = 1_000_000;
 
-/// Opens `path` raw, 8N1, no flow control.
+/// Opens `path` raw, 8N1, no flow control, DTR asserted (as `maobi` opens a pen's port:
+/// firmware images before the pen answered whatever DTR says sent nothing without it).
 pub fn open(path: &Path) -> Result<TTYPort> {
     let name = path.to_string_lossy();
     serialport::new(name.as_ref(), BAUD)
         .timeout(Duration::from_millis(2))
+        .dtr_on_open(true)
         .open_native()
         .with_context(|| format!("cannot open serial port {}", path.display()))
 }

@@ -10,9 +10,9 @@
 //! this file gives it the chip's flash and the pauses a write needs.
 //!
 //! Why two sectors: a sector is erased only when the log moves into it, every 256 saves,
-//! and it then never holds the newest save, so a power loss during the 1-2 s erase (or
-//! during any write) leaves the save in progress or the one before, never nothing. A
-//! single sector would lose its only copy to that erase.
+//! and it then never holds the newest save, so a power loss during the erase (2 s typical,
+//! 4 s at most: see [`PausingFlash`]) or during any write leaves the save in progress or the
+//! one before, never nothing. A single sector would lose its only copy to that erase.
 //!
 //! [`ConfigStore::load`] copies the newest committed slot, which the link task decodes: a
 //! save cut short by a reset was never committed and is skipped (the host was never told
@@ -56,8 +56,15 @@ const _: () = assert!(
         == 512 * 1024
 );
 
-/// The chip's flash, with the watchdog stretched over every erase (1-2 s with the core
-/// stalled, far beyond its 50 ms) and put back after.
+/// The chip's flash, with the watchdog stretched over every erase and put back after.
+///
+/// An erase stalls the core for 2 s typical, 4 s at most per 128 KiB sector (the
+/// STM32F411's datasheet, t_ERASE128KB at program/erase parallelism x8), far beyond the
+/// watchdog's 50 ms; twice that when both configuration sectors are erased in one call (the
+/// boot's reclaim). x8, not the x32 whose 1 s typical / 2 s max an earlier comment quoted:
+/// embassy's erase only adds SER and SNB to `FLASH_CR`, whose PSIZE its writes leave cleared
+/// (their end rewrites the register with PG alone) and reset leaves cleared, and PSIZE 00
+/// is x8. The stretched watchdog (22 s at the fastest LSI, `watchdog::Stretch`) covers both.
 pub struct PausingFlash(Flash<'static, Blocking>);
 
 impl ErrorType for PausingFlash {

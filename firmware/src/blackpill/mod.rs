@@ -252,7 +252,7 @@ fn start() -> (
         c.set_duty_cycle(0);
         c.enable();
     }
-    motors::stop_in_debug();
+    motors::configure_debug_halt();
     let motors = motors::PenMotors {
         pwm,
         dir,

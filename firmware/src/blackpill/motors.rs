@@ -11,14 +11,11 @@
 //! [`motors_off`] writes the registers directly (no driver object, no lock), so the fault
 //! paths (panic, HardFault, the supervisor) can call it from any context, at once.
 //!
-//! A debugger's halt stops the core with every pin as it was: standby high and TIM1 still
-//! running its PWM would keep the motors driven for as long as the halt lasts (a
-//! breakpoint, `probe-rs` flashing with forces on). [`stop_in_debug`] makes the chip stop
-//! TIM1 whenever the core halts, and an advanced timer whose counter the debug halt stops
-//! disables its outputs as if `MOE` were cleared (RM0383, TIM1 "Debug mode"): with
-//! `OSSI` set they are driven to their idle level, low, so every PWM input sits low and the
-//! TB6612 brakes (the bridge's low sides on: no current from the supply) until the core
-//! runs again.
+//! A debugger's halt (a breakpoint, `probe-rs` attaching or flashing with forces on) stops
+//! the core with every pin as it was: standby high, the direction inputs as they were.
+//! What TIM1's PWM does meanwhile is set by [`configure_debug_halt`]: it keeps running at
+//! the duty last commanded, which the channel's `max_duty` caps, so that a halt can never
+//! hold a motor at full duty. Why not stop TIM1 in the halt (`DBG_TIM1_STOP`): see there.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -50,10 +47,38 @@ pub fn motors_off() {
     }
 }
 
-/// TIM1, the only timer with motor outputs, stopped while a debugger halts the core, its
-/// outputs then at their idle level (low). Called once TIM1 is set up.
-pub fn stop_in_debug() {
-    pac::DBGMCU.apb2fzr().modify(|w| w.set_tim1(true));
+/// What TIM1, the only timer with motor outputs, does while a debugger halts the core: it
+/// runs on (`DBG_TIM1_STOP` cleared), each channel at the duty last commanded. Called once
+/// TIM1 is set up.
+///
+/// Why not stop it. `DBGMCU_APB2_FZ.DBG_TIM1_STOP` is, in ST's register description for
+/// the F4 (the SVD, as stm32-metapac carries it), "TIM1 counter stopped when core is
+/// halted": a stopped counter. What the outputs then do is not settled for the F411: the
+/// newer reference manuals (the G4's RM0440 and other families') say that for safety the
+/// outputs of a timer stopped by the debug halt are disabled as if `MOE` were reset, and
+/// then `OSSI` chooses between the idle level (`OISx`) and release to the GPIO; that
+/// sentence could not be found in RM0383 (the F411's), whose TIM1 "Debug mode" paragraph,
+/// as far as it could be read here, says only that the counter continues or stops with
+/// `DBG_TIMx_STOP`, and the chip has not been watched on a scope. If the outputs are only
+/// frozen, a halt that falls inside a pulse (at duty d, with probability d) holds that
+/// channel high: 100% duty for as long as the halt lasts, past the `max_duty` that keeps a
+/// stalled motor's current under the driver's rating (`pen_io`'s power check). Running
+/// on, the PWM stays at the commanded duty, never above `max_duty`: the behaviour that
+/// cannot drive a motor at full duty whichever reading of the manual holds. The motors
+/// then hold the last torque while halted (as the direction and standby pins hold theirs);
+/// resume with the hand on the pen, or halt with forces off.
+///
+/// `OSSI` is set, with every `OISx` at its reset value (low), so that anything that does
+/// clear `MOE` (a break input, should one be wired) drives the PWM inputs low, where the
+/// TB6612 brakes (its low sides on: no current from the supply), rather than releasing them
+/// to float.
+pub fn configure_debug_halt() {
+    pac::DBGMCU.apb2fzr().modify(|w| w.set_tim1(false));
+    pac::TIM1.cr2().modify(|w| {
+        for ch in 0..3 {
+            w.set_ois(ch, false);
+        }
+    });
     pac::TIM1
         .bdtr()
         .modify(|w| w.set_ossi(pac::timer::vals::Ossi::IDLE_LEVEL));

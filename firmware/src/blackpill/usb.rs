@@ -8,12 +8,18 @@
 //! the USB task ([`run`]), which moves them to and from 64-byte bulk packets.
 //!
 //! Receiving waits for room in the receive pipe (USB's flow control then holds the host
-//! back: nothing is dropped). While no terminal holds the port open (DTR low) the bytes the
-//! link sends are discarded, as a UART with nothing attached would: a closed port must not
-//! stall the link task. DTR is the host's "a program has the port open" (CDC-ACM's
-//! SET_CONTROL_LINE_STATE): Linux raises it when a tty is opened, Windows only when the
-//! program asks, so the host asks (`host/src/device/endpoint.rs`, `serial_settings`); a
-//! terminal program that leaves DTR off sees the pen accept commands and answer nothing.
+//! back: nothing is dropped). Sending does not look at DTR (the host's "a program has the
+//! port open", CDC-ACM's SET_CONTROL_LINE_STATE): the pen answers a handshake whatever DTR
+//! says, so a host or terminal that never asserts it (Windows leaves it off unless the
+//! program asks) does not meet a mute pen. The host asserts it anyway
+//! (`host/src/device/endpoint.rs`, `serial_settings`). embassy's `wait_connection` waits for
+//! the USB configuration (the endpoints enabled), not for DTR. While the device is not
+//! configured (unplugged, enumerating) a packet fails at once and is counted as discarded;
+//! while it is configured but no program reads the port, the host does not poll the IN
+//! endpoint, the packet in flight waits, the transmit pipe fills and the link drops frames
+//! as it does on a busy link ([`LinkTransport::write`] never blocks: the link task does not
+//! stall); the next program to open the port reads up to [`TX_CAP`] stale bytes first,
+//! which its decoder skips as it skips any frame before the handshake's answer.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -174,11 +180,7 @@ async fn send(mut tx: Sender<'static, UsbDriver>) {
     let mut packet = [0u8; PACKET];
     loop {
         let n = TX.read(&mut packet).await;
-        if !tx.dtr() {
-            // No terminal has the port open: nobody would read it.
-            TX_DISCARDED.fetch_add(n as u32, Ordering::Relaxed);
-            continue;
-        }
+        // Whatever DTR says (see the module's docs): an error only while not configured.
         if tx.write_packet(&packet[..n]).await.is_err() {
             TX_DISCARDED.fetch_add(n as u32, Ordering::Relaxed);
             continue;
@@ -189,7 +191,7 @@ async fn send(mut tx: Sender<'static, UsbDriver>) {
     }
 }
 
-/// Bytes the link sent that no host read (port closed or unplugged).
+/// Bytes the link sent while the device was not configured (unplugged, enumerating).
 #[allow(dead_code)] // reported by the boot log and the bring-up
 pub fn tx_discarded() -> u32 {
     TX_DISCARDED.load(Ordering::Relaxed)

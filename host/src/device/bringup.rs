@@ -37,6 +37,7 @@ use maobi_shared::protocol::{
 };
 use maobi_shared::{Pose, Quat, Vec3};
 
+use super::client::HandshakeError;
 use super::endpoint::{nothing_to_read_yet, Conn, Endpoint};
 
 /// Sensor reports per second asked for while the check runs.
@@ -329,7 +330,7 @@ impl Wire {
                     conn.shut();
                     std::thread::sleep(RETRY_PAUSE);
                 }
-                Some(Err(e)) => return Err(e.into()),
+                Some(Err(e)) => return Err(no_answer_cause(endpoint, e)),
                 None => return Err("stopped".into()),
             }
         };
@@ -635,6 +636,29 @@ pub fn virtual_motion(start: Pose<f64>) -> Vec<Pose<f64>> {
         }
     }
     poses
+}
+
+/// A handshake's failure as `maobi device check` reports it: a serial port that opened and
+/// sent back not one byte is named for its usual cause, DTR. The Black Pill's firmware
+/// used to send nothing until the host asserted DTR (data terminal ready, CDC-ACM's "a
+/// program has the port open"); today's answers whatever DTR says, and this host asserts it
+/// when it opens a port (`endpoint::serial_settings`), so a silent port means an older
+/// firmware with DTR lost on the way, the firmware not running, or another program on the
+/// port.
+pub(crate) fn no_answer_cause(endpoint: &Endpoint, e: HandshakeError) -> String {
+    match endpoint {
+        Endpoint::Serial(_) if e.silent => format!(
+            "{}: the port opened but the pen sent nothing. A pen whose firmware predates this \
+             host's answers only while the host holds DTR (data terminal ready) asserted; \
+             `maobi` asserts it on open, so DTR was lost on the way (a USB hub or adapter, a \
+             virtual machine's USB passthrough, another program holding the port) or the \
+             firmware is not running: close other programs on the port, replug the pen, \
+             update its firmware (it now answers whatever DTR says), and read its log \
+             (`probe-rs attach`)",
+            e.message
+        ),
+        _ => e.message,
+    }
 }
 
 /// Runs the check against `opts.endpoint`.
@@ -1313,6 +1337,58 @@ fn step_calibrate(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A serial port that opens and answers nothing (a pseudo-terminal nobody serves, as a
+    /// pen that sends only with DTR asserted looks when DTR is lost): the check names DTR;
+    /// a TCP peer that answers nothing is not given that cause.
+    #[cfg(unix)]
+    #[test]
+    fn a_silent_serial_port_is_named_for_dtr() {
+        use serialport::SerialPort;
+        let (_pen, port) = match serialport::TTYPort::pair() {
+            Ok(p) => p,
+            Err(e) => {
+                maobi_testenv::skip(&format!("no pseudo-terminals here ({e})"));
+                return;
+            }
+        };
+        let path = port.name().expect("a pty has a name");
+        drop(port);
+        let endpoint = Endpoint::Serial(path);
+        let e = match Wire::connect(&endpoint, Duration::from_millis(300)) {
+            Ok(_) => panic!("nothing answers on {endpoint}"),
+            Err(e) => e,
+        };
+        assert!(e.contains("not one byte came back"), "{e}");
+        assert!(e.contains("DTR"), "{e}");
+
+        let quiet = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let endpoint = Endpoint::Tcp(quiet.local_addr().unwrap().to_string());
+        let e = match Wire::connect(&endpoint, Duration::from_millis(300)) {
+            Ok(_) => panic!("nothing answers on {endpoint}"),
+            Err(e) => e,
+        };
+        assert!(e.contains("not one byte came back"), "{e}");
+        assert!(!e.contains("DTR"), "{e}");
+    }
+
+    #[test]
+    fn only_a_silent_serial_handshake_is_blamed_on_dtr() {
+        let silent = HandshakeError {
+            message: "no answer".into(),
+            closed: false,
+            silent: true,
+        };
+        let noisy = HandshakeError {
+            silent: false,
+            ..silent.clone()
+        };
+        let serial = Endpoint::Serial("/dev/ttyACM0".into());
+        let tcp = Endpoint::Tcp("127.0.0.1:1".into());
+        assert!(no_answer_cause(&serial, silent.clone()).contains("DTR"));
+        assert_eq!(no_answer_cause(&serial, noisy), "no answer");
+        assert_eq!(no_answer_cause(&tcp, silent), "no answer");
+    }
 
     #[test]
     fn the_virtual_motion_moves_every_axis_in_small_steps_and_comes_back() {

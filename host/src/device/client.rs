@@ -533,6 +533,9 @@ pub(crate) struct HandshakeError {
     /// serves one client at a time (QEMU's UART socket) does that to a client that arrives
     /// before it has seen the previous one leave: another try soon after can succeed.
     pub closed: bool,
+    /// Not one byte came back before the timeout: nothing is listening, or the device
+    /// sends nothing to this host (see `bringup`'s `no_answer_cause`).
+    pub silent: bool,
 }
 
 impl HandshakeError {
@@ -540,6 +543,7 @@ impl HandshakeError {
         HandshakeError {
             message,
             closed: false,
+            silent: false,
         }
     }
 }
@@ -579,33 +583,51 @@ pub(crate) fn handshake(
         return Some(Err(HandshakeError {
             closed: is_closed(&e),
             message: format!("cannot write: {e}"),
+            silent: false,
         }));
     }
     let started = Instant::now();
     let mut rx = vec![0u8; 8192];
+    let mut heard = 0usize;
     loop {
         if stop() {
             return None;
         }
         if started.elapsed() > timeout {
-            return Some(Err(HandshakeError::other(format!(
-                "no answer to the handshake within {} ms: is this a Maobi device?",
-                timeout.as_millis()
-            ))));
+            let ms = timeout.as_millis();
+            return Some(Err(if heard == 0 {
+                HandshakeError {
+                    message: format!(
+                        "no answer to the handshake within {ms} ms: not one byte came back"
+                    ),
+                    closed: false,
+                    silent: true,
+                }
+            } else {
+                HandshakeError::other(format!(
+                    "no answer to the handshake within {ms} ms ({heard} bytes came back, no \
+                     hello among them): is this a Maobi device?"
+                ))
+            }));
         }
         let n = match read_some(conn, &mut rx) {
             Ok(Some(0)) => {
                 return Some(Err(HandshakeError {
                     message: "the device closed the link".into(),
                     closed: true,
+                    silent: false,
                 }))
             }
-            Ok(Some(n)) => n,
+            Ok(Some(n)) => {
+                heard += n;
+                n
+            }
             Ok(None) => continue,
             Err(e) => {
                 return Some(Err(HandshakeError {
                     closed: is_closed(&e),
                     message: format!("read failed: {e}"),
+                    silent: false,
                 }))
             }
         };

@@ -156,11 +156,12 @@ impl Endpoint {
 /// How a pen's serial port is opened: [`SERIAL_BAUD`], reads timing out after [`READ_POLL`],
 /// and DTR asserted on open.
 ///
-/// The pen sends only while the host holds DTR (data terminal ready): that is how a USB
-/// CDC-ACM device knows a program has the port open, and the Black Pill's firmware discards
-/// what it would send until then (`firmware/src/blackpill/usb.rs`), as a UART with nothing
-/// attached would. Linux asserts DTR when a tty is opened; Windows does not, and serialport
-/// leaves it as the system has it unless told: without this the pen never answers there.
+/// DTR (data terminal ready) is how a USB CDC-ACM device knows a program has the port
+/// open. Today's Black Pill firmware answers whatever DTR says
+/// (`firmware/src/blackpill/usb.rs`); earlier images discarded what they would send until
+/// the host asserted it, so the host asserts it for them. Linux asserts DTR when a tty is
+/// opened; Windows does not, and serialport leaves it as the system has it unless told.
+/// A port that answers nothing at all is named for this by `maobi device check`.
 pub fn serial_settings(path: &str) -> serialport::SerialPortBuilder {
     serialport::new(path, SERIAL_BAUD)
         .timeout(READ_POLL)
@@ -191,8 +192,8 @@ impl SerialLines for Box<dyn serialport::SerialPort> {
 /// [`serial_settings`] asks for it on open, which some backends do only on a best-effort
 /// basis), RTS asserted as CDC hosts do, then stale bytes from an earlier session dropped
 /// (they would only count as errors). Each step is best effort: a pseudo-terminal (the
-/// tests' stand-in for a pen) has no modem lines and refuses them, and a port that does
-/// not answer without DTR shows as a handshake that times out.
+/// tests' stand-in for a pen) has no modem lines and refuses them, and an older pen that
+/// does not answer without DTR shows as a handshake that gets not one byte back.
 pub fn prepare_serial(port: &mut impl SerialLines) {
     let _ = port.set_dtr(true);
     let _ = port.set_rts(true);

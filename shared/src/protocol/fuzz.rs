@@ -143,6 +143,97 @@ fn param_number() -> impl Strategy<Value = u8> {
     ]
 }
 
+/// The parameters whose largest value is the dearest tick: the brush's size and its solver's
+/// work per tick (the tick's cost grows with each; `docs/firmware-cost.md`).
+pub const COSTLY_PARAMS: [ParamId; 4] = [
+    ParamId::Layers,
+    ParamId::RingNodes,
+    ParamId::JacobiIterations,
+    ParamId::SubstepsPerTick,
+];
+
+/// A value `p` accepts on its own: across [`ParamId::range`], a whole number where the
+/// parameter is one (`ring_nodes` a power of two), its range's ends drawn often (for
+/// [`COSTLY_PARAMS`] the top is the most expensive tick the pen can be asked for).
+pub fn valid_param_value(p: ParamId) -> BoxedStrategy<f32> {
+    let (min, max, integral) = p.range();
+    let across: BoxedStrategy<f32> = match (p, integral) {
+        (ParamId::RingNodes, _) => prop::sample::select(vec![4.0f32, 8.0, 16.0, 32.0])
+            .prop_filter("in range", move |v| (min..=max).contains(v))
+            .boxed(),
+        (_, true) => ((min as i32)..=(max as i32)).prop_map(|v| v as f32).boxed(),
+        (_, false) => (min..=max).boxed(),
+    };
+    prop_oneof![
+        4 => Just(max),
+        2 => Just(min),
+        5 => across,
+    ]
+    .boxed()
+}
+
+/// A value `p` refuses on its own: out of its range either side, not finite, a fraction
+/// where a whole number is needed, or any bits (which are almost always out of range).
+pub fn invalid_param_value(p: ParamId) -> BoxedStrategy<f32> {
+    let (min, max, integral) = p.range();
+    let span = (max - min).max(1.0);
+    let mut ways: Vec<(u32, BoxedStrategy<f32>)> = vec![
+        (
+            2,
+            (0.0f32..1.0)
+                .prop_map(move |f| max + span * (0.001 + f))
+                .boxed(),
+        ),
+        (
+            2,
+            (0.0f32..1.0)
+                .prop_map(move |f| min - span * (0.001 + f))
+                .boxed(),
+        ),
+        (
+            1,
+            prop::sample::select(vec![f32::NAN, f32::INFINITY, f32::NEG_INFINITY]).boxed(),
+        ),
+        (1, prop::num::f32::ANY.boxed()),
+    ];
+    if integral {
+        ways.push((
+            2,
+            ((min as i32)..(max as i32))
+                .prop_map(|v| v as f32 + 0.5)
+                .boxed(),
+        ));
+    }
+    prop::strategy::Union::new_weighted(ways).boxed()
+}
+
+/// A `SetParam`'s number and value: mostly a parameter that exists with a valid value
+/// ([`valid_param_value`]), some with an invalid one, a few unknown numbers.
+fn set_param() -> impl Strategy<Value = (u8, f32)> {
+    let known = prop::sample::select(ParamId::ALL.to_vec()).prop_flat_map(|p| {
+        prop_oneof![
+            4 => valid_param_value(p),
+            1 => invalid_param_value(p),
+        ]
+        .prop_map(move |v| (p as u8, v))
+    });
+    prop_oneof![
+        8 => known,
+        1 => (any::<u8>(), any_f32()),
+    ]
+}
+
+/// Whether `value` is one `p` accepts on its own (its range, whole where it must be;
+/// `ring_nodes` a power of two): what [`valid_param_value`] draws. Values valid alone may
+/// still be refused together with the others (`Inconsistent`).
+pub fn param_value_valid(p: ParamId, value: f32) -> bool {
+    let (min, max, integral) = p.range();
+    value.is_finite()
+        && (min..=max).contains(&value)
+        && (!integral || value.fract() == 0.0)
+        && (p != ParamId::RingNodes || (value as u32).is_power_of_two())
+}
+
 /// A stored configuration: the default with a few fields set to random values (most stay
 /// valid, some are not); limits included, so accepted ones change the forces' limits.
 pub fn device_config() -> impl Strategy<Value = DeviceConfig> {
@@ -218,8 +309,12 @@ pub fn command() -> impl Strategy<Value = Command> {
         1 => prop_oneof![any::<i64>(), 0i64..(1 << 32)]
             .prop_map(|wetness| Command::DipInk { wetness }),
         1 => prop_oneof![
-            any::<u8>().prop_map(PresetRef::Index),
-            name().prop_map(PresetRef::Name),
+            // Mostly presets that exist (every one, the dearest included), some that do not.
+            3 => (0..crate::presets::PRESETS.len() as u8).prop_map(PresetRef::Index),
+            1 => any::<u8>().prop_map(PresetRef::Index),
+            2 => prop::sample::select(crate::presets::PRESETS.map(|(n, _)| n).to_vec())
+                .prop_map(|n| PresetRef::Name(bounded_str(n))),
+            1 => name().prop_map(PresetRef::Name),
         ]
         .prop_map(Command::ChoosePreset),
         4 => Just(Command::ClearFaults),
@@ -268,7 +363,7 @@ fn host_draw() -> impl Strategy<Value = HostDraw> {
         2 => any::<u32>().prop_map(|seq| HostMsg::Ping { seq }),
         2 => pose_sample().prop_map(HostMsg::Pose),
         1 => param_number().prop_map(|id| HostMsg::GetParam { id }),
-        2 => (param_number(), any_f32()).prop_map(|(id, value)| HostMsg::SetParam { id, value }),
+        6 => set_param().prop_map(|(id, value)| HostMsg::SetParam { id, value }),
         6 => command().prop_map(HostMsg::Command),
         1 => guide_sample().prop_map(HostMsg::Guide),
         1 => Just(HostMsg::GetConfig),
@@ -654,6 +749,10 @@ pub struct Fuzz {
     seq: u32,
     /// Host and device kinds drawn so far.
     host_kinds: BTreeSet<&'static str>,
+    /// Parameters drawn in a `SetParam` with a value valid on its own, and at their range's
+    /// top.
+    params_valid: BTreeSet<u8>,
+    params_at_max: BTreeSet<u8>,
     device_kinds: BTreeSet<&'static str>,
 }
 
@@ -668,6 +767,8 @@ impl Fuzz {
             pos: [0.0, 0.0, 20.0],
             seq: 1,
             host_kinds: BTreeSet::new(),
+            params_valid: BTreeSet::new(),
+            params_at_max: BTreeSet::new(),
             device_kinds: BTreeSet::new(),
         }
     }
@@ -721,6 +822,16 @@ impl Fuzz {
         };
         for m in &out {
             self.host_kinds.insert(host_kind(m));
+            if let HostMsg::SetParam { id, value } = *m {
+                if let Some(p) = ParamId::ALL.into_iter().find(|p| *p as u8 == id) {
+                    if param_value_valid(p, value) {
+                        self.params_valid.insert(id);
+                    }
+                    if value == p.range().1 {
+                        self.params_at_max.insert(id);
+                    }
+                }
+            }
         }
         out
     }
@@ -789,6 +900,18 @@ impl Fuzz {
         &self.host_kinds
     }
 
+    /// The parameters no `SetParam` drawn so far wrote with a valid value, and those never
+    /// written at their range's top: both empty once a stream covers every parameter.
+    pub fn params_not_covered(&self) -> (Vec<ParamId>, Vec<ParamId>) {
+        let missing = |set: &BTreeSet<u8>| -> Vec<ParamId> {
+            ParamId::ALL
+                .into_iter()
+                .filter(|p| !set.contains(&(*p as u8)))
+                .collect()
+        };
+        (missing(&self.params_valid), missing(&self.params_at_max))
+    }
+
     /// Device message kinds drawn so far, of [`DEVICE_KINDS`].
     pub fn device_kinds(&self) -> &BTreeSet<&'static str> {
         &self.device_kinds
@@ -801,4 +924,50 @@ pub fn frame<M: Message>(m: &M) -> Vec<u8> {
     let n = m.encode(&mut buf).expect("a message fits its frame");
     buf.truncate(n);
     buf
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::ParamError;
+    use crate::presets;
+
+    /// The pen fuzz's parameter writes: mostly valid, every parameter covered with a valid
+    /// value and at its most expensive, and what the generator calls valid is what the
+    /// brush's own check accepts (it may still find the whole brush inconsistent).
+    #[test]
+    fn set_params_are_mostly_valid_and_cover_every_parameter() {
+        let mut fz = Fuzz::new(DEFAULT_SEED);
+        let (mut known, mut valid) = (0u32, 0u32);
+        for _ in 0..6000 {
+            for m in fz.host_msgs() {
+                let HostMsg::SetParam { id, value } = m else {
+                    continue;
+                };
+                let Some(p) = ParamId::ALL.into_iter().find(|p| *p as u8 == id) else {
+                    continue;
+                };
+                known += 1;
+                let mut params = presets::LARGE;
+                let r = params.set(p, value);
+                if param_value_valid(p, value) {
+                    valid += 1;
+                    assert!(
+                        matches!(r, Ok(()) | Err(ParamError::Inconsistent { .. })),
+                        "{p} = {value}: {r:?}"
+                    );
+                    let (_, _, integral) = p.range();
+                    assert!(!integral || value.fract() == 0.0, "{p} = {value}");
+                } else {
+                    assert!(r.is_err(), "{p} = {value} accepted but drawn as invalid");
+                }
+            }
+        }
+        assert!(known > 400, "{known} SetParams of known parameters");
+        let share = f64::from(valid) / f64::from(known);
+        assert!(share > 0.6 && share < 0.95, "valid share {share:.2}");
+        let (never_valid, never_max) = fz.params_not_covered();
+        assert!(never_valid.is_empty(), "never valid: {never_valid:?}");
+        assert!(never_max.is_empty(), "never at the top: {never_max:?}");
+    }
 }

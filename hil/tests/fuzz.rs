@@ -432,8 +432,13 @@ fn fuzz_pen(image: Image) {
     println!("fuzz {image:?} seed {seed:#x} (MAOBI_FUZZ_SEED to repeat)");
     let mut fz = Fuzz::new(seed);
 
-    let (mut dev, stream) =
-        QemuDevice::start_paced_like_the_pen(&elf, &["telemetry_ticks=100"], TIMEOUT).unwrap();
+    // The pen's limits (`limits=pen`): at its pace, its command set is what the pen takes.
+    let (mut dev, stream) = QemuDevice::start_paced_like_the_pen(
+        &elf,
+        &["telemetry_ticks=100", "limits=pen"],
+        TIMEOUT,
+    )
+    .unwrap();
     let mut s = Session::new(stream).unwrap();
     let info = s.handshake(HANG_GUARD, &mut vec![]).unwrap();
     let mut seen = Seen {

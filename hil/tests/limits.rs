@@ -2,11 +2,8 @@
 //! hooks), paced like the Black Pill, standing in for the pen (`limits=pen`), writing the
 //! bench stroke itself (`poses=script`: a pose every tick, as a pen with sensors has).
 //!
-//! The pace: `-icount shift=4` gives the emulated core 2^4 ns per instruction, 62,500
-//! instructions per 1 ms tick. The Black Pill's Cortex-M4 runs 96,000 cycles a tick at about
-//! one and a half cycles per instruction (flash wait states, loads, taken branches:
-//! docs/firmware-cost.md), about 64,000 instructions: shift 4 is the nearest pace (shift 3
-//! would give the pen twice its core). The tick is the board's real 1 ms (`tick_us=1000`).
+//! The pace is the pen's ([`hil::run::QemuDevice::start_paced_like_the_pen`]: 62,500
+//! instructions in the board's real 1 ms tick).
 //!
 //! States at 30 Hz: the emulated UART takes an interrupt per byte (the pen's USB one per
 //! 64-byte packet), and at the pen's pace 120 states a second would leave thread mode (the
@@ -20,7 +17,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use hil::firmware;
-use hil::qemu::{Clock, Run};
+use hil::run::QemuDevice;
 use hil::session::Session;
 use maobi_shared::params::{ParamId, TickLimits};
 use maobi_shared::protocol::{
@@ -32,13 +29,11 @@ use maobi_shared::{presets, BrushParams};
 const TIMEOUT: Duration = Duration::from_secs(900);
 /// Only a guard against a hang, far longer than any answer takes on a loaded machine.
 const HANG_GUARD: Duration = Duration::from_secs(120);
-/// The pace of the Black Pill's core (see the module docs).
-const PEN_SHIFT: u32 = 4;
 /// Pen ticks over which the brush's ticks are counted.
 const WINDOW_TICKS: u32 = 3000;
 
 struct Pen {
-    guest: hil::qemu::Guest,
+    guest: QemuDevice,
     s: Session<TcpStream>,
     info: DeviceInfo,
     ping: u32,
@@ -50,24 +45,9 @@ struct Pen {
 impl Pen {
     fn start(args: &[&str]) -> Option<Pen> {
         let elf: PathBuf = firmware::qemu_test_image()?;
-        let mut all = vec![
-            "run",
-            "tick_us=1000",
-            "poses=script",
-            "state_hz=30",
-            "telemetry_ticks=250",
-        ];
+        let mut all = vec!["poses=script", "state_hz=30", "telemetry_ticks=250"];
         all.extend_from_slice(args);
-        let mut run = Run::new(
-            &elf,
-            &all,
-            Clock::Deterministic { shift: PEN_SHIFT },
-            TIMEOUT,
-        );
-        let port = run.listen_uart().unwrap();
-        let guest = run.spawn().unwrap();
-        let stream = TcpStream::connect(("127.0.0.1", port)).unwrap();
-        stream.set_nodelay(true).unwrap();
+        let (guest, stream) = QemuDevice::start_paced_like_the_pen(&elf, &all, TIMEOUT).unwrap();
         let mut s = Session::new(stream).unwrap();
         let info = s.handshake(HANG_GUARD, &mut vec![]).unwrap();
         let mut pen = Pen {
@@ -90,8 +70,12 @@ impl Pen {
         self.s
             .ping(self.ping, HANG_GUARD, &mut vec![])
             .unwrap_or_else(|e| {
-                let log = self.guest.defmt_log();
-                let said = self.guest.stop().map(|(st, out)| format!("{st:?}: {out}"));
+                let log = self.guest.guest.defmt_log();
+                let said = self
+                    .guest
+                    .guest
+                    .stop()
+                    .map(|(st, out)| format!("{st:?}: {out}"));
                 panic!("the link stopped answering: {e}; the pen said: {said:?} {log:?}")
             });
         self.pings_answered += 1;

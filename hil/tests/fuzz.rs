@@ -433,12 +433,9 @@ fn fuzz_pen(image: Image) {
     let mut fz = Fuzz::new(seed);
 
     // The pen's limits (`limits=pen`): at its pace, its command set is what the pen takes.
-    let (mut dev, stream) = QemuDevice::start_paced_like_the_pen(
-        &elf,
-        &["telemetry_ticks=100", "limits=pen"],
-        TIMEOUT,
-    )
-    .unwrap();
+    let (mut dev, stream) =
+        QemuDevice::start_paced_like_the_pen(&elf, &["telemetry_ticks=100", "limits=pen"], TIMEOUT)
+            .unwrap();
     let mut s = Session::new(stream).unwrap();
     let info = s.handshake(HANG_GUARD, &mut vec![]).unwrap();
     let mut seen = Seen {

@@ -18,7 +18,7 @@
 //! while it is configured but no program reads the port, the host does not poll the IN
 //! endpoint, the packet in flight waits, the transmit pipe fills and the link drops frames
 //! as it does on a busy link ([`LinkTransport::write`] never blocks: the link task does not
-//! stall); the next program to open the port reads up to [`TX_CAP`] stale bytes first,
+//! stall); the next program to open the port reads up to `TX_CAP` stale bytes first,
 //! which its decoder skips as it skips any frame before the handshake's answer.
 
 use core::sync::atomic::{AtomicU32, Ordering};

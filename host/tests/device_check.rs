@@ -15,7 +15,8 @@ use maobi::device::{Endpoint, SimDeviceOptions, SimDeviceServer};
 use maobi_shared::kinematics::RawReadings;
 use maobi_shared::protocol::{
     BrushState, Buttons, Capabilities, Command, CommandError, ConfigRejected, ConfigState,
-    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, Faults, HostMsg, Message, SensorReport, Version,
+    DeviceConfig, DeviceInfo, DeviceMsg, DeviceRx, Faults, HostMsg, Message, SensorReport,
+    Telemetry, Version,
 };
 use maobi_shared::{presets, Brush, Fx, Pose, Quat, Vec3};
 
@@ -255,6 +256,22 @@ fn serve_turning_away(pen: Pen, turn_away: usize) -> (String, Arc<Mutex<Pen>>) {
             if last_report.elapsed() >= Duration::from_millis(20) {
                 last_report = Instant::now();
                 tick += 20;
+                // Its timing once a second, as the firmware reports it: a tick well inside
+                // its millisecond.
+                if tick % 1000 == 0 {
+                    let t = Telemetry {
+                        tick,
+                        tick_period_min_us: 998,
+                        tick_period_mean_us: 1000,
+                        tick_period_max_us: 1003,
+                        load_percent: 70,
+                        tick_busy_max_us: 760,
+                        tick_busy_max_cycles: 72_960,
+                        brush_ticks: tick,
+                        ..Telemetry::default()
+                    };
+                    send(&mut s, &DeviceMsg::Telemetry(t));
+                }
             }
             if streaming && tick > last_tick {
                 last_tick = tick;
@@ -391,9 +408,12 @@ fn a_reversed_motor_is_flipped_and_every_step_passes() {
         "3 motor 1 (shoulder)",
         "3 motor 2 (elbow)",
         "4 calibration",
+        "5 tick",
     ] {
         assert_eq!(r.outcome(s), Some(Outcome::Pass), "{s}\n{}", r.table());
     }
+    let tick = &r.steps.last().unwrap().detail;
+    assert!(tick.contains("worst tick busy 760 us (76.0%"), "{tick}");
     let sensors = &r.steps[1].detail;
     assert!(sensors.contains("shoulder: PASS -60 counts"), "{sensors}");
     assert!(sensors.contains("base (yaw): PASS +60 counts"), "{sensors}");

@@ -742,7 +742,7 @@ pub fn run_check(opts: &CheckOptions, op: &mut dyn Operator) -> CheckReport {
 pub const WORST_TICK_PERCENT: f32 = 90.0;
 
 /// Step 5: the force tick's timing from the device's telemetry (sent once a second): its
-/// worst busy time and its overruns since start. A pen with sensors of its own fails on
+/// worst busy time and its overruns since start (skipped for a device that sends none). A pen with sensors of its own fails on
 /// any overrun or a worst tick above [`WORST_TICK_PERCENT`]; a virtual pen's clock is
 /// emulated or the desktop's, so its figures are shown, not judged.
 fn step_tick(
@@ -759,11 +759,11 @@ fn step_tick(
     }) {
         Ok(Some(t)) => t,
         Ok(None) => {
-            report.push(
-                STEP,
-                Outcome::Fail,
-                format!("no telemetry in {wait:?}: the device's link task is not reporting"),
-            );
+            // The pen's firmware reports once a second; a device that sends none (a test's
+            // fake, a bridge) leaves the tick's timing unknown, which is not a fault of its
+            // wiring.
+            let why = format!("no telemetry in {wait:?}: the tick's timing is not known");
+            skip(op, report, STEP, why);
             return;
         }
         Err(e) => {

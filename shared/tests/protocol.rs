@@ -401,7 +401,7 @@ fn every_message_round_trips() {
 
     let devices = device_samples();
     let kinds: std::collections::BTreeSet<_> = devices.iter().map(device_kind).collect();
-    assert_eq!(kinds.len(), 31, "device samples cover {kinds:?}");
+    assert_eq!(kinds.len(), 33, "device samples cover {kinds:?}");
     let mut rx = HostRx::new();
     for m in &devices {
         assert_eq!(decode(&mut rx, &frame(m)), vec![Ok(m.clone())]);
@@ -1129,13 +1129,15 @@ fn protocol_3_variants_are_appended() {
         }),
         [4, 0, 1, 3]
     );
-    // DeviceInfo's config state is its last field.
+    // DeviceInfo's config state comes just before its tick limits (protocol 6: four bytes,
+    // `TickLimits::NONE` here), its last field.
     let info = DeviceInfo::new("p", Version::default(), Capabilities::empty(), 0.0, 0.0);
     let encoded = dev(DeviceMsg::Hello(
         info.clone().with_config(ConfigState::Missing),
     ));
-    assert_eq!(encoded.last(), Some(&1));
-    assert_eq!(dev(DeviceMsg::Hello(info)).last(), Some(&3));
+    let tail = |e: &[u8]| e[e.len() - 5..].to_vec();
+    assert_eq!(tail(&encoded), [1, 100, 24, 32, 16]);
+    assert_eq!(tail(&dev(DeviceMsg::Hello(info))), [3, 100, 24, 32, 16]);
 }
 
 #[test]

@@ -258,7 +258,7 @@ fn serve_turning_away(pen: Pen, turn_away: usize) -> (String, Arc<Mutex<Pen>>) {
                 tick += 20;
                 // Its timing once a second, as the firmware reports it: a tick well inside
                 // its millisecond.
-                if tick % 1000 == 0 {
+                if tick.is_multiple_of(1000) {
                     let t = Telemetry {
                         tick,
                         tick_period_min_us: 998,

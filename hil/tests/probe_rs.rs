@@ -303,6 +303,7 @@ fn a_pen_with_its_own_sensors_gets_link_and_loop_checks() {
                 "pose file",
                 "brush states stream",
                 "force loop holds 1 ms",
+                "no overrun, worst tick within 90%",
                 "decoders clean"
             ]
         );
@@ -311,6 +312,10 @@ fn a_pen_with_its_own_sensors_gets_link_and_loop_checks() {
         assert!(session.checks[3]
             .detail
             .contains(&format!("/1000/{tick_max_us} us")));
+        assert!(session.checks[4].pass, "{}", r.render());
+        assert!(session.checks[4]
+            .detail
+            .contains("worst tick busy 410 us (41.0%"));
         drop(host);
     }
 }

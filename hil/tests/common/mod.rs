@@ -148,6 +148,8 @@ pub fn fake_sensor_pen(mut port: TTYPort, run_for: Duration, tick_max_us: u32) {
                 tick_period_mean_us: 1000,
                 tick_period_max_us: tick_max_us,
                 load_percent: 41,
+                tick_busy_max_us: 410,
+                tick_busy_max_cycles: 39_360,
                 ..Default::default()
             };
             write_msg(&mut port, &DeviceMsg::Telemetry(t));

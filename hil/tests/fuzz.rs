@@ -339,6 +339,15 @@ struct Pings {
     worst_messages: usize,
 }
 
+impl Pings {
+    /// `p` was answered `ticks` after it was sent, with `sent` messages sent by then.
+    fn answered(&mut self, p: &Pending, ticks: u32, sent: usize) {
+        self.answered += 1;
+        self.worst_ticks = self.worst_ticks.max(ticks);
+        self.worst_messages = self.worst_messages.max(sent - p.after_messages);
+    }
+}
+
 /// Waits for `p`'s answer, reading what comes: an error once the pen has ticked
 /// [`PING_BOUND_TICKS`] past it unanswered, or has told nothing for [`HANG_GUARD`].
 fn await_pong(
@@ -480,11 +489,7 @@ fn fuzz_pen(image: Image) {
             if in_flight.len() == PINGS_IN_FLIGHT {
                 let p = in_flight.pop_front().expect("a full window");
                 match await_pong(&mut s, &mut seen, &p, sent) {
-                    Ok(ticks) => {
-                        pings.answered += 1;
-                        pings.worst_ticks = pings.worst_ticks.max(ticks);
-                        pings.worst_messages = pings.worst_messages.max(sent - p.after_messages);
-                    }
+                    Ok(ticks) => pings.answered(&p, ticks, sent),
                     Err(e) => {
                         failure = Some(e);
                         break 'stream;
@@ -505,11 +510,7 @@ fn fuzz_pen(image: Image) {
     if failure.is_none() {
         while let Some(p) = in_flight.pop_front() {
             match await_pong(&mut s, &mut seen, &p, sent) {
-                Ok(ticks) => {
-                    pings.answered += 1;
-                    pings.worst_ticks = pings.worst_ticks.max(ticks);
-                    pings.worst_messages = pings.worst_messages.max(sent - p.after_messages);
-                }
+                Ok(ticks) => pings.answered(&p, ticks, sent),
                 Err(e) => {
                     failure = Some(e);
                     break;

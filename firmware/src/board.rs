@@ -68,7 +68,10 @@ pub struct JointReading {
 /// Joint sensors of a physical pen (read by the force loop once per tick).
 #[cfg_attr(feature = "board-qemu", allow(dead_code))] // as JointReading
 pub trait JointSensors {
-    fn read(&mut self) -> JointReading;
+    /// This tick's reading, or `None` when the hardware did not deliver one in time (the
+    /// Black Pill's ADC scan not ending): the tick then takes no pose, like a virtual pen
+    /// with an empty queue, and the force loop counts the gap.
+    fn read(&mut self) -> Option<JointReading>;
 }
 
 /// Where the force loop gets the handle pose each tick.

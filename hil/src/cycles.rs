@@ -42,16 +42,13 @@ pub const DCACHE_LINES: usize = 8;
 pub const DIVIDE_CYCLES: u32 = 12;
 
 /// The Black Pill's gimbal reads (`firmware/src/blackpill/sensors.rs`): three channels,
-/// each an embassy `blocking_read` at 84 sample cycles.
+/// one injected scan per tick at 84 sample cycles each.
 pub const ADC_CHANNELS: u64 = 3;
 pub const ADC_SAMPLE_CYCLES: u64 = 84;
 /// A 12-bit conversion's own ADC cycles after the sample time (RM0383).
 pub const ADC_CONVERSION_CYCLES: u64 = 12;
 /// ADC clock = PCLK2 (96 MHz) / 4: embassy's prescaler choice for the 36 MHz limit.
 pub const ADC_PRESCALER: u64 = 4;
-/// embassy-stm32 0.6's `adc/v2.rs` switches the ADC on before every read and waits
-/// `blocking_delay_us(3)`: `cortex_m::asm::delay(SYSCLK * 3 us)`.
-pub const ADC_POWER_UP_US: u64 = 3;
 
 /// What an instruction costs, before branches and the flash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -335,24 +332,14 @@ impl Machine {
     }
 }
 
-/// The tick's gimbal reads on the Black Pill, in core cycles: per channel, embassy's ADC
-/// power-up wait (a `subs`/`bne` loop of `SYSCLK * 3 us + 1` turns, weighed with this
-/// model: a taken branch back to an aligned 16-bit target), then the sample and conversion
-/// at the ADC clock. The register accesses around them are not counted.
+/// The tick's gimbal reads on the Black Pill, in core cycles: the injected scan of the three
+/// channels, sample and conversion at the ADC clock, counted whole. The tick reads the
+/// encoders and the buttons while it converts and then waits for its end, so those reads'
+/// instructions are counted twice (in the stream and inside the scan): an estimate on the
+/// high side by a few dozen cycles. The register accesses that start and read the scan are
+/// not counted.
 pub fn adc_cycles() -> u64 {
-    let turns = SYSCLK_HZ * ADC_POWER_UP_US / 1_000_000 + 1;
-    let subs = Insn::plain(0, 2, Kind::Fixed(1));
-    let bne = Insn {
-        branch: Some(Branch::Direct),
-        ..Insn::plain(2, 2, Kind::Fixed(1))
-    };
-    let none = Prev::default();
-    let turn = u64::from(
-        core_cycles(&subs, false, 0, none)
-            + core_cycles(&bne, true, refill(Branch::Direct, false), none),
-    );
-    let convert = (ADC_SAMPLE_CYCLES + ADC_CONVERSION_CYCLES) * ADC_PRESCALER;
-    ADC_CHANNELS * (turns * turn + convert)
+    ADC_CHANNELS * (ADC_SAMPLE_CYCLES + ADC_CONVERSION_CYCLES) * ADC_PRESCALER
 }
 
 const CONDITIONS: [&str; 17] = [
@@ -1223,11 +1210,11 @@ mod tests {
         }
     }
 
-    /// Per channel: 289 turns of subs (1) + taken bne (1 + 1) and (84 + 12) ADC cycles of 4
-    /// core cycles each.
+    /// Per channel (84 + 12) ADC cycles of 4 core cycles each; no power-up wait (the ADC is
+    /// switched on once, at boot).
     #[test]
     fn adc_reads() {
-        assert_eq!(adc_cycles(), 3 * (289 * 3 + 96 * 4));
+        assert_eq!(adc_cycles(), 3 * 96 * 4);
     }
 
     /// The ADC's and the clock's constants here are the Black Pill's configuration's: a
@@ -1241,10 +1228,11 @@ mod tests {
         assert!(sensors.contains(&format!(
             "SampleTime = SampleTime::CYCLES{ADC_SAMPLE_CYCLES};"
         )));
-        assert_eq!(
-            sensors.matches("self.adc.blocking_read(").count() as u64,
-            ADC_CHANNELS
-        );
+        assert!(sensors.contains(&format!("InjectedAdc<'static, ADC1, {ADC_CHANNELS}>")));
+        // One scan per read, and no embassy `blocking_read` (its power-up wait per read is
+        // what the scan removed).
+        assert_eq!(sensors.matches("start_injected_conversions()").count(), 1);
+        assert!(!sensors.contains(".blocking_read("));
         assert!(board.contains(&format!(
             "pub const SYSCLK_HZ: u32 = {}_000_000;",
             SYSCLK_HZ / 1_000_000

@@ -134,8 +134,8 @@ fn fresh_sensors(pen: &Pen<Fx>) -> SensorPen<ScriptedSensors> {
 struct ScriptedSensors(JointReading);
 
 impl JointSensors for ScriptedSensors {
-    fn read(&mut self) -> JointReading {
-        self.0
+    fn read(&mut self) -> Option<JointReading> {
+        Some(self.0)
     }
 }
 

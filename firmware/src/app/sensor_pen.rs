@@ -91,7 +91,7 @@ impl<J: JointSensors> SensorPen<J> {
 
 impl<J: JointSensors> PoseSource for SensorPen<J> {
     fn next_pose(&mut self) -> Option<Pose<Fx>> {
-        let r = self.sensors.read();
+        let r = self.sensors.read()?;
         self.last = r;
         for (j, u) in self.unwrap.iter_mut().enumerate() {
             // The counters are 16 bits wide; the board hands them over as read.

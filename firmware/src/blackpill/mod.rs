@@ -31,6 +31,7 @@ use embassy_stm32::adc::{Adc, AdcChannel};
 use embassy_stm32::flash::Flash;
 use embassy_stm32::gpio::{Input, Level, Output, Pull, Speed};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
+use embassy_stm32::pac::adc::vals::Exten;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::{CountingMode, RoundTo, Timer as LlTimer};
 use embassy_stm32::timer::qei::{self, Qei};
@@ -274,12 +275,17 @@ fn start() -> (
         enc1: Qei::new(pins.enc1.timer, pins.enc1.a, pins.enc1.b, qei_cfg),
         enc2: Qei::new(pins.enc2.timer, pins.enc2.a, pins.enc2.b, qei_cfg),
         enc3: Qei::new(pins.enc3.timer, pins.enc3.a, pins.enc3.b, qei_cfg),
-        adc: Adc::new(pins.gimbal.adc),
-        gimbal: [
-            pins.gimbal.g1.degrade_adc(),
-            pins.gimbal.g2.degrade_adc(),
-            pins.gimbal.g3.degrade_adc(),
-        ],
+        // Switched on once here (its power-up wait paid once); each tick starts one scan.
+        gimbal: Adc::new(pins.gimbal.adc).setup_injected_conversions(
+            [
+                (pins.gimbal.g1.degrade_adc(), sensors::GIMBAL_SAMPLE),
+                (pins.gimbal.g2.degrade_adc(), sensors::GIMBAL_SAMPLE),
+                (pins.gimbal.g3.degrade_adc(), sensors::GIMBAL_SAMPLE),
+            ],
+            sensors::SoftwareStart,
+            Exten::DISABLED,
+            false,
+        ),
         buttons: pins.buttons.map(|pin| Input::new(pin, Pull::Up)),
     };
 

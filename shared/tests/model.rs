@@ -80,11 +80,8 @@ fn elastic_brush_returns_to_rest_within_half_a_second() {
 
 /// After the model tests' 10 mm press and lift ([`common::spring_back`]), every preset is back
 /// within [`SPRUNG_BACK_MM`] of its hanging shape 200 ms after the lift, at every rate it runs:
-/// one substep (the Black Pill's) and its own (the QEMU board's and the desktop's).
-///
-/// Goat hair is the one preset made to creep back instead (`presets.rs`: ties damped beyond
-/// critical when saturated) and does not meet it: it is listed with its measured figure in
-/// [`CREEPS_BACK`], held there so that it cannot grow unseen; `hair.rs` orders the hairs.
+/// one substep (the Black Pill's) and its own (the QEMU board's and the desktop's). Goat hair,
+/// made to creep back (`presets.rs`), is held to it too; `hair.rs` orders the hairs.
 #[test]
 fn every_preset_springs_back_within_a_tenth_of_a_millimetre_in_200_ms() {
     let at_200_ms = common::AFTER_LIFT_MS
@@ -93,10 +90,7 @@ fn every_preset_springs_back_within_a_tenth_of_a_millimetre_in_200_ms() {
         .expect("a reading at 200 ms");
     let mut failures = Vec::new();
     for (name, params) in presets::PRESETS {
-        let bound = CREEPS_BACK
-            .iter()
-            .find(|(p, _)| *p == name)
-            .map_or(SPRUNG_BACK_MM, |(_, b)| *b);
+        let bound = SPRUNG_BACK_MM;
         let mut rates = vec![1, params.substeps_per_tick];
         rates.dedup();
         for rate in rates {
@@ -118,10 +112,6 @@ fn every_preset_springs_back_within_a_tenth_of_a_millimetre_in_200_ms() {
 
 /// How near its hanging shape a brush is 200 ms after a 10 mm press (mm).
 const SPRUNG_BACK_MM: f64 = 0.1;
-
-/// Presets made to creep back, and how near they are held 200 ms after the press (mm): just
-/// above what the test prints for them.
-const CREEPS_BACK: [(&str, f64); 1] = [("goat", 0.12)];
 
 #[test]
 fn plastic_brush_keeps_a_set() {

@@ -19,9 +19,9 @@
 //!    the mass, per free mass i,
 //!
 //!    ```text
-//!    (1 + t_i c_tv + (1 - t_i) c_p P) du_i + sum_j G_j (du_i - du_j)
+//!    (1 + t_i c_tv + (1 - t_i) c_p P + l_i z z^T) du_i + sum_j G_j (du_i - du_j)
 //!        = sum_j [c_k f_j + G_j (u_j - u_i)] + t_i [c_t (VS^t_i - S_i) + c_tv (w_i - u_i)]
-//!          - (1 - t_i) c_p P u_i
+//!          - (1 - t_i) c_p P u_i - l_i u_i,z z
 //!    G_j = c_k (e+ I + (1 - e+) d^ d^T) + c_d I
 //!    ```
 //!
@@ -40,7 +40,13 @@
 //!    in about a millisecond split from the springs it holds back makes the step's result
 //!    depend on the step (`tests/convergence.rs` checks the spring-back of each preset that
 //!    runs one substep per tick within 5% of the converged brush there, which the split
-//!    drag missed). The prescribed
+//!    drag missed). `l_i` is the tie's weight taken where the substep ends near the paper:
+//!    `t_i` grows by `1 / TIE_RAMP_MM` a millimetre of height there, so a tie pulling the
+//!    mass down by `T_z` (its term's vertical part) is a vertical stiffness `l_i = -T_z /
+//!    TIE_RAMP_MM` on the heights `u_z + du_z` the substep adds (zero clear of the ramp,
+//!    and where the tie pulls up; capped where the block would leave the fixed-point
+//!    chain's bound); left where the substep starts, a light mass grazing the paper hops
+//!    on and off it every other substep ([`TIE_RAMP_MM`]). The prescribed
 //!    motion so enters once, and a spine
 //!    moving steadily with its skeleton stays where it hangs. The system is block-tridiagonal
 //!    with symmetric 3x3 blocks, solved exactly in O(N) (`brush/chain_solve.rs`; the
@@ -371,7 +377,10 @@ pub const CONTACT_TOLERANCE_MM: f64 = 1e-4;
 /// switch in different orders (far apart at the tip on the 橫 example, against a budget of
 /// a few micrometres). With the
 /// tie's weight ramping linearly from 0 on the paper to 1 at this height, and the paper drag
-/// ramping the other way, the model is continuous and the two runs stay together.
+/// ramping the other way, the model is continuous and the two runs stay together. The
+/// backward-Euler step takes the weight's growth with the height where the substep ends
+/// (`Brush::backward_euler`): taken where it starts, the ramp is steep enough for a light
+/// mass to hop on and off the paper every other substep (`tests/contact.rs`).
 pub const TIE_RAMP_MM: f64 = 0.05;
 
 /// Per-substep coefficients of one mass's row in the implicit solve (see the module docs).
@@ -433,6 +442,10 @@ struct Implicit<S> {
     c_f: S,
     /// h C_f / m: the paper's drag on a mass lying on it, in the paper's plane.
     c_drag: S,
+    /// The largest vertical stiffness of a tie's weight near the paper: what the diagonal
+    /// block's vertical entry has left below [`MAX_DIAGONAL`] after the mass, its tie and
+    /// its two segments.
+    lift_max: S,
 }
 
 /// Everything derived from the parameters that the substep needs: recomputed by
@@ -1130,17 +1143,34 @@ impl<S: BrushScalar> Brush<S> {
             let w = ties[i];
             let mut own = Vec3::ZERO;
             let mut diag = S::ONE;
-            if w > S::ZERO {
-                // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
-                // where the substep started, its coefficients the layer's for its ink.
-                let (c_t, tv) = c.tie.at(self.layers[i].wetness, S::mul_coef);
-                let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c_t)
-                    + (self.skel_vel[i] - self.vel[i]).scale_coef(tv);
-                (own, diag) = if w < S::ONE {
-                    (tie.scale_coef(w), diag + tv.mul_coef(w))
-                } else {
-                    (tie, diag + tv)
-                };
+            let mut lift = S::ZERO;
+            // The tie in the thesis's form, c_t (VS^t - S) + c_tv (w - u), VS^t the node
+            // where the substep started, its coefficients the layer's for its ink: for a
+            // mass lying on the paper too (weight zero), for its weight's growth below.
+            let (c_t, tv) = c.tie.at(self.layers[i].wetness, S::mul_coef);
+            let tie = ((self.skel[i] - self.skel_vel[i]) - self.spine[i]).scale_coef(c_t)
+                + (self.skel_vel[i] - self.vel[i]).scale_coef(tv);
+            if w >= S::ONE {
+                (own, diag) = (tie, diag + tv);
+            } else {
+                if w > S::ZERO {
+                    (own, diag) = (tie.scale_coef(w), diag + tv.mul_coef(w));
+                }
+                // Near the paper the tie's weight grows with the height, 1 / TIE_RAMP_MM a
+                // millimetre, and where the tie pulls the mass down that is a vertical
+                // stiffness: taken in the system at the height where the substep ends,
+                // w + (u_z + du_z) / ramp, as backward Euler takes every force. Left where
+                // the substep starts, a light mass grazing the paper hops: untied on the
+                // paper the springs lift it, tied it is pulled back into the paper and
+                // untied again, every other substep. Capped where the block's vertical entry
+                // would leave the fixed-point chain's bound (far above what a preset's tie
+                // reaches); a tie pulling up (the brush leaving the paper) only hastens its
+                // own release and stays where the substep starts.
+                let pull = tie.z * self.d.inv_tie_ramp;
+                if pull < S::ZERO {
+                    lift = (S::ZERO - pull).min(c.lift_max);
+                    own.z -= self.vel[i].z * lift;
+                }
             }
             if i + 1 == n {
                 own += self.tip_load.scale(c.c_f);
@@ -1156,7 +1186,7 @@ impl<S: BrushScalar> Brush<S> {
                 own.x -= u.x.mul_coef(drag);
                 own.y -= u.y.mul_coef(drag);
             }
-            solve.row(i, diag, drag, own);
+            solve.row(i, diag, drag, lift, own);
         }
         solve.solve(n);
     }
@@ -1925,6 +1955,9 @@ fn derive<S: Scalar>(p: &BrushParams) -> Derived<S> {
         },
         c_f: S::from_f32(h * h * 1e3 / m),
         c_drag: S::from_f32(h * p.paper_drag / m),
+        lift_max: S::from_f32(
+            (MAX_DIAGONAL - (p.backward_euler_diagonal_bound() - h * p.paper_drag / m)).max(0.0),
+        ),
     };
     Derived {
         #[cfg(feature = "backward-euler")]

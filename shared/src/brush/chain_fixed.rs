@@ -347,7 +347,7 @@ impl SpineChain<Fx> for FixedChain {
     }
 
     #[inline(always)]
-    fn row(&mut self, i: usize, a: Fx, drag: Fx, own: Vec3<Fx>) {
+    fn row(&mut self, i: usize, a: Fx, drag: Fx, lift: Fx, own: Vec3<Fx>) {
         let i = i.clamp(1, MAX_LAYERS - 1);
         let f = BLOCK_FRAC;
         let sat = &mut self.saturated;
@@ -364,15 +364,16 @@ impl SpineChain<Fx> for FixedChain {
             round_shift64(sum, BLOCK_FRAC)
         });
         let (g, g_next) = (self.g_below, self.g_above);
-        // a I + c (x x^T + y y^T) + G_i + G_{i+1}, in the blocks' format (each below the
-        // diagonal's bound).
+        // a I + c (x x^T + y y^T) + l z z^T + G_i + G_{i+1}, in the blocks' format (each
+        // below the diagonal's bound: l is at most c's).
         let a = round_clamp(a.to_bits(), 32 - BLOCK_FRAC, LIMIT);
         let in_plane = a.wrapping_add(round_clamp(drag.to_bits(), 32 - BLOCK_FRAC, LIMIT));
+        let vertical = a.wrapping_add(round_clamp(lift.to_bits(), 32 - BLOCK_FRAC, LIMIT));
         let diag = QSym(core::array::from_fn(|k| {
             let sum = g.0[k].wrapping_add(g_next.0[k]);
             match k {
                 0 | 1 => sum.wrapping_add(in_plane),
-                2 => sum.wrapping_add(a),
+                2 => sum.wrapping_add(vertical),
                 _ => sum,
             }
         }));
@@ -546,7 +547,7 @@ mod tests {
                 let full = term(i + 1) - term(i) + rhs[i];
                 exact.row(i, diag, &g, full);
                 model.row(i, to_fx(diag), &to_fx(g), vfx(full));
-                fixed.row(i, fx(a[i]), Fx::ZERO, vfx(rhs[i]));
+                fixed.row(i, fx(a[i]), Fx::ZERO, Fx::ZERO, vfx(rhs[i]));
             }
             let want = *exact.solve(n);
             let own = *model.solve(n);
@@ -623,7 +624,7 @@ mod tests {
                     rel,
                     ..Segment::BEYOND_TIP
                 });
-                fixed.row(i, fx(1.0), Fx::ZERO, Vec3::new(big, big, big));
+                fixed.row(i, fx(1.0), Fx::ZERO, Fx::ZERO, Vec3::new(big, big, big));
             }
             fixed.solve(n);
             let inside = big.to_f64().abs() < 16.0;

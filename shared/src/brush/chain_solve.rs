@@ -222,9 +222,11 @@ pub trait SpineChain<S> {
     /// right-hand side (tie, load); the chain adds the segments' terms `T_{i+1} - T_i`. Its
     /// blocks are the last two segments given: `G_i` (the coupling to the row before; for
     /// row 1, to the prescribed ferrule, whose term is in `T_1`) and `G_{i+1}`; the
-    /// diagonal block is `a_i I + c_i (x x^T + y y^T) + G_i + G_{i+1}`, `c_i` the paper's
-    /// drag on the mass (in the paper's plane only).
-    fn row(&mut self, i: usize, a: S, drag: S, own: Vec3<S>);
+    /// diagonal block is `a_i I + c_i (x x^T + y y^T) + l_i z z^T + G_i + G_{i+1}`, `c_i`
+    /// the paper's drag on the mass (in the paper's plane only), `l_i` the vertical
+    /// stiffness of its tie's weight near the paper (`Brush::backward_euler`), at most
+    /// `c_i`'s bound.
+    fn row(&mut self, i: usize, a: S, drag: S, lift: S, own: Vec3<S>);
     /// The back substitution after rows `1..n` were eliminated.
     fn solve(&mut self, n: usize);
     /// Then: `du_i` of free mass `i` (`1..n`).
@@ -249,12 +251,13 @@ impl<S: Scalar> SpineChain<S> for ChainSolve<S> {
         self.t_above = s.spring + self.g_above.mul_vec(s.rel);
     }
     #[inline(always)]
-    fn row(&mut self, i: usize, a: S, drag: S, own: Vec3<S>) {
+    fn row(&mut self, i: usize, a: S, drag: S, lift: S, own: Vec3<S>) {
         let (g, g_next) = (self.g_below, self.g_above);
         let rhs = (self.t_above - self.t_below) + own;
         let mut diag = Sym3::iso(a);
         diag.xx += drag;
         diag.yy += drag;
+        diag.zz += lift;
         ChainSolve::row(self, i, diag.add(g).add(g_next), &g, rhs)
     }
     #[inline(always)]

@@ -60,7 +60,7 @@ const _: () = assert!(
 ///
 /// An erase stalls the core for 2 s typical, 4 s at most per 128 KiB sector (the
 /// STM32F411's datasheet, t_ERASE128KB at program/erase parallelism x8), far beyond the
-/// watchdog's 50 ms; twice that when both configuration sectors are erased in one call (the
+/// watchdog's 80 ms; twice that when both configuration sectors are erased in one call (the
 /// boot's reclaim). x8, not the x32 whose 1 s typical / 2 s max an earlier comment quoted:
 /// embassy's erase only adds SER and SNB to `FLASH_CR`, whose PSIZE its writes leave cleared
 /// (their end rewrites the register with PG alone) and reset leaves cleared, and PSIZE 00

@@ -157,7 +157,8 @@ pub fn main() -> ! {
 
     crate::executor::run(move |spawner: Spawner| {
         spawner.spawn(
-            app::supervisor(tick_us, qemu::motors_off, report_stack).expect("one supervisor"),
+            app::supervisor(tick_us, qemu::motors_off, report_stack, report_feed_gap)
+                .expect("one supervisor"),
         );
         match mode {
             #[cfg(feature = "test-hooks")]
@@ -302,6 +303,13 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
 fn report_stack(used: usize) {
     let _ = writeln!(Stdout, "STACK high_water_bytes={used}");
     defmt::info!("stack high-water mark: {=usize} bytes", used);
+}
+
+/// A new longest gap between two watchdog feeds (`app::FEED_GAP_MAX_TICKS`), as plain text
+/// on stdout for the host (`hil`'s watchdog tests) and in the log.
+fn report_feed_gap(ticks: u32) {
+    let _ = writeln!(Stdout, "WATCHDOG feed_gap_max_ticks={ticks}");
+    defmt::info!("longest gap between watchdog feeds: {=u32} ticks", ticks);
 }
 
 /// Micrometres, rounded toward -inf (integer output keeps float formatting out of the image).

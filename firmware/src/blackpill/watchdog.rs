@@ -6,8 +6,10 @@
 //! carriers' standby inputs are pulled low on the TB6612 boards: off). The next boot reports
 //! the watchdog's reset (`Faults::WATCHDOG`).
 //!
-//! [`Stretch`] lengthens it for the one deliberate stall, a configuration-sector erase
-//! (seconds with the core waiting on flash), and puts it back after.
+//! [`Stretch`] lengthens it for the deliberate stalls, a configuration store (thread mode
+//! programs the flash without yielding, so the supervisor cannot check in) and each
+//! configuration-sector erase (seconds with the core waiting on flash), and puts it back
+//! after.
 //!
 //! Once started, the IWDG runs until the next reset: nothing stops it. Only the debug halt
 //! freezes it ([`freeze_in_debug`]), and a fatal boot error feeds it ([`feed_now`], from

@@ -51,6 +51,13 @@ pub const SYSCLK_HZ: u32 = 96_000_000;
 /// The force loop's period.
 pub const TICK_US: u32 = 1000;
 
+// The watchdog's timeout at the fastest LSI still holds the supervisor's check-in margin
+// (`app::WATCHDOG_MIN_TICKS` of these ticks): a live but busy thread mode never trips it.
+const _: () = assert!(
+    watchdog::TIMEOUT_US / watchdog::LSI_FASTEST_KHZ * 32 >= app::WATCHDOG_MIN_TICKS * TICK_US,
+    "the watchdog must allow the supervisor's check-in margin at the fastest LSI"
+);
+
 /// Lights the fault LED from any context (PC13 low).
 pub fn led_on() {
     pins::LED.set_low();

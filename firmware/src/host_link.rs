@@ -186,10 +186,20 @@ pub async fn run<T: LinkTransport, S: ConfigStore>(
     loop {
         link.receive().await;
         link.send_state();
+        // Every other task's turn after each state frame and once a pass. `wait` does not
+        // wait when work is already there (a state due, bytes received), and when thread
+        // mode runs slower than the states fall due (a busy pen's thread mode gets what the
+        // force tick and the link's interrupts leave) that is every pass: without these the
+        // link task would never hand the executor back, the supervisor would never check in,
+        // and the watchdog would reset a pen whose link is merely busy. So the supervisor
+        // waits for one piece of the link's work at most (a message, a state frame), never
+        // for as long as work keeps coming.
+        embassy_futures::yield_now().await;
         link.sensors();
         link.events().await;
         link.telemetry().await;
         link.wait().await;
+        embassy_futures::yield_now().await;
     }
 }
 

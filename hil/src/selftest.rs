@@ -44,7 +44,7 @@ pub fn arith(elf: &Path, timeout: Duration) -> Result<(ExitStatus, String)> {
     Run::new(elf, &["arith"], Clock::Deterministic { shift: 0 }, timeout).output()
 }
 
-/// Runs `crash HOW` (panic, hardfault, stall) and returns QEMU's status and output.
+/// Runs `crash HOW` (panic, hardfault, stall, starve) and returns QEMU's status and output.
 pub fn crash(elf: &Path, how: &str, timeout: Duration) -> Result<(ExitStatus, String)> {
     let tick = format!("tick_us={EMULATED_TICK_US}");
     Run::new(

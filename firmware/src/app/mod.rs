@@ -67,6 +67,45 @@ pub static TICKS: AtomicU32 = AtomicU32::new(0);
 /// the host's next pose). The loop is alive through them, so the supervisor counts them
 /// with [`TICKS`]. Always 0 on a board that never holds a tick.
 pub static HELD_TICKS: AtomicU32 = AtomicU32::new(0);
+/// Force ticks between two looks of the [`supervisor`]: its check-in period.
+pub const SUPERVISOR_TICKS: u32 = 10;
+/// The shortest watchdog timeout a board may set, in force ticks: five of the supervisor's
+/// check-in periods ([`SUPERVISOR_TICKS`]). The force tick feeds the watchdog only after
+/// the supervisor has checked in (`SUPERVISOR_CHECKED_IN`), so two feeds can lie a whole
+/// check-in period apart, plus however long thread mode keeps the supervisor waiting: behind
+/// the link task's turn (the executor is cooperative) and behind every interrupt (the
+/// force tick itself, the link's). The four further periods are that margin, so that a
+/// busy but live thread mode never trips the watchdog; only one that stops running does.
+pub const WATCHDOG_MIN_TICKS: u32 = 5 * SUPERVISOR_TICKS;
+/// Set by the [`supervisor`] (thread mode) each time it runs, taken by the force tick
+/// ([`ForceLoop::tick`], an interrupt), which feeds the watchdog only when it finds it set:
+/// so the watchdog resets the pen when either context stops, the force loop (no tick feeds
+/// it) or thread mode (starved by interrupts, or a task that never yields: no check-in). Set
+/// at boot: the first feed is the boot's, before the executor has run the supervisor.
+static SUPERVISOR_CHECKED_IN: AtomicBool = AtomicBool::new(true);
+/// The most force ticks (taken or held) between two watchdog feeds so far, which
+/// [`WATCHDOG_MIN_TICKS`] must exceed with room to spare (the supervisor reports each new
+/// maximum to its board).
+pub static FEED_GAP_MAX_TICKS: AtomicU32 = AtomicU32::new(0);
+
+/// The supervisor checks in (thread mode): the next force tick may feed the watchdog.
+fn supervisor_checks_in() {
+    SUPERVISOR_CHECKED_IN.store(true, Ordering::Release);
+}
+
+/// Force ticks (taken or held) since the watchdog was last fed: for a board's watchdog
+/// handler to tell which context stopped. About the whole timeout ([`WATCHDOG_MIN_TICKS`])
+/// when the watchdog fires: the force loop ticked on while thread mode never checked in;
+/// far less: the force loop itself stopped (which stops thread mode too, below it).
+static TICKS_UNFED: AtomicU32 = AtomicU32::new(0);
+
+/// Whether the watchdog, firing now, was starved by thread mode rather than by the force
+/// loop: the force loop ticked on unfed for more than half the timeout (`TICKS_UNFED`).
+#[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's watchdog handler
+pub fn thread_mode_starved_the_watchdog() -> bool {
+    TICKS_UNFED.load(Ordering::Relaxed) > WATCHDOG_MIN_TICKS / 2
+}
+
 /// The tick at which the link task last received a valid frame.
 pub static LAST_RX_TICK: AtomicU32 = AtomicU32::new(0);
 /// The link is supervised (after the host's handshake).
@@ -484,7 +523,7 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     /// (brush, forces, guide, output stage), **write the motors** (`Motors::command` or
     /// `disable`), offer the snapshot.
     pub fn tick(&mut self) {
-        self.watchdog.feed();
+        self.feed_watchdog();
         let now = TICKS.load(Ordering::Relaxed).wrapping_add(1);
         TICKS.store(now, Ordering::Relaxed);
 
@@ -589,12 +628,27 @@ impl<P: PoseSource, M: Motors, W: Watchdog> ForceLoop<P, M, W> {
     /// waits for a pose, and the brush advances exactly once per pose.
     #[cfg_attr(not(feature = "board-qemu"), allow(dead_code))] // QEMU's lock-step mode
     pub fn hold(&mut self) {
-        self.watchdog.feed();
+        self.feed_watchdog();
         HELD_TICKS.fetch_add(1, Ordering::Relaxed);
         self.apply_commands();
         let now = TICKS.load(Ordering::Relaxed);
         if SENSORS.offer(false, |s| *s = self.pen.raw_sensors(now)) {
             SNAPSHOT_WAKER.wake();
+        }
+    }
+
+    /// Feeds the watchdog if the supervisor has checked in since the last feed, and takes the
+    /// check-in: every board's only path to its watchdog, so that a stopped thread mode
+    /// resets the pen as a stopped force loop does.
+    fn feed_watchdog(&mut self) {
+        // Only this context writes it: a load and a store, no read-modify-write needed.
+        let unfed = TICKS_UNFED.load(Ordering::Relaxed).saturating_add(1);
+        if SUPERVISOR_CHECKED_IN.swap(false, Ordering::AcqRel) {
+            self.watchdog.feed();
+            FEED_GAP_MAX_TICKS.fetch_max(unfed, Ordering::Relaxed);
+            TICKS_UNFED.store(0, Ordering::Relaxed);
+        } else {
+            TICKS_UNFED.store(unfed, Ordering::Relaxed);
         }
     }
 
@@ -775,21 +829,37 @@ pub static BRUSH_TICKS: AtomicU32 = AtomicU32::new(0);
 /// or it never returns while the watchdog is somehow not firing), `motors_off` runs and the
 /// fault latches. Spawned by every board with its own `motors_off`.
 ///
-/// It looks every 10 ticks (10 ms at 1 kHz; longer when the loop is paced slower under
-/// emulation, so that one deliberately overrun tick reads as an overrun, not a stall).
-/// Every 100 looks it also reads the stack's high-water mark ([`stack`]) and hands each new
-/// maximum to the board's `report_stack`.
+/// It is also thread mode's proof of life: every time it runs it checks in
+/// (`SUPERVISOR_CHECKED_IN`), and the force tick feeds the watchdog only after a check-in.
+/// A thread mode that stops running (a task that never yields, interrupts that leave it no
+/// time) stops the feeding, and the watchdog resets the pen into its safe state.
+///
+/// It looks every [`SUPERVISOR_TICKS`] ticks (10 ms at 1 kHz; longer when the loop is paced
+/// slower under emulation, so that one deliberately overrun tick reads as an overrun, not a
+/// stall). Every 100 looks it also reads the stack's high-water mark ([`stack`]) and hands
+/// each new maximum to the board's `report_stack`, and hands each new longest gap between
+/// two watchdog feeds ([`FEED_GAP_MAX_TICKS`], in ticks) to `report_feed_gap`.
 #[embassy_executor::task]
-pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize)) {
-    let period = embassy_time::Duration::from_micros(u64::from(tick_us) * 10);
+pub async fn supervisor(
+    tick_us: u32,
+    motors_off: fn(),
+    report_stack: fn(usize),
+    report_feed_gap: fn(u32),
+) {
+    supervisor_checks_in();
+    let period =
+        embassy_time::Duration::from_micros(u64::from(tick_us) * u64::from(SUPERVISOR_TICKS));
     let mut last = TICKS
         .load(Ordering::Relaxed)
         .wrapping_add(HELD_TICKS.load(Ordering::Relaxed));
     let mut ticker = embassy_time::Ticker::every(period);
     let mut last_look = embassy_time::Instant::now();
     let mut looks: u32 = 0;
+    let mut feed_gap_reported = 0;
     loop {
         ticker.next().await;
+        // Thread mode runs: the force tick may feed the watchdog again.
+        supervisor_checks_in();
         // After the executor was held up (a flash write), the ticker fires its missed
         // periods back to back: judge once per real period, not on each catch-up.
         let t = embassy_time::Instant::now();
@@ -810,6 +880,11 @@ pub async fn supervisor(tick_us: u32, motors_off: fn(), report_stack: fn(usize))
         if looks % 100 == 1 {
             if let Some(used) = stack::new_high_water() {
                 report_stack(used);
+            }
+            let gap = FEED_GAP_MAX_TICKS.load(Ordering::Relaxed);
+            if gap > feed_gap_reported {
+                feed_gap_reported = gap;
+                report_feed_gap(gap);
             }
         }
     }

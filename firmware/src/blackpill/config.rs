@@ -24,8 +24,8 @@
 //! While flash is being written or erased, the core cannot fetch from it: the force loop's
 //! interrupt waits. Writes happen only with the forces off; [`ConfigStore::store`] turns
 //! the motors off and marks the pause ([`crate::app::MAINTENANCE`]) so that the supervisor
-//! does not take it for a stall, and [`PausingFlash`] stretches the hardware watchdog over
-//! an erase.
+//! does not take it for a stall, and stretches the hardware watchdog over the whole store
+//! ([`PausingFlash`] over every erase, the boot's reclaim included).
 
 use embassy_stm32::flash::{Blocking, Error as FlashError, Flash};
 use embassy_stm32::pac;
@@ -60,7 +60,7 @@ const _: () = assert!(
 ///
 /// An erase stalls the core for 2 s typical, 4 s at most per 128 KiB sector (the
 /// STM32F411's datasheet, t_ERASE128KB at program/erase parallelism x8), far beyond the
-/// watchdog's 50 ms; twice that when both configuration sectors are erased in one call (the
+/// watchdog's 80 ms; twice that when both configuration sectors are erased in one call (the
 /// boot's reclaim). x8, not the x32 whose 1 s typical / 2 s max an earlier comment quoted:
 /// embassy's erase only adds SER and SNB to `FLASH_CR`, whose PSIZE its writes leave cleared
 /// (their end rewrites the register with PG alone) and reset leaves cleared, and PSIZE 00
@@ -142,8 +142,15 @@ impl ConfigStore for FlashConfig {
     /// Saves `image` as the newest slot (erasing a sector first every 256 saves), reads it
     /// back, then commits it. The link task calls this only with the forces off; the
     /// motors are turned off here as well, for the pause.
+    ///
+    /// The watchdog is stretched over the whole store, not only its erases: the link task
+    /// programs and reads back without yielding, so the supervisor cannot check in
+    /// meanwhile and the force tick stops feeding the watchdog, and programming a slot at
+    /// the datasheet's slowest byte time would take most of the watchdog's normal timeout.
+    /// It is back to that timeout, counting afresh, when the store returns.
     fn store(&mut self, image: &[u8]) -> Result<(), StoreError> {
         let _pause = crate::app::Maintenance::begin(super::motors::motors_off);
+        let _long = watchdog::Stretch::begin();
         self.log.store(image).map_err(|e| match e {
             LogError::TooLarge => StoreError::TooLarge,
             LogError::Verify => {

@@ -6,7 +6,7 @@
 //! | link: USB OTG_FS, CDC-ACM (PA11/PA12) | `OTG_FS` | P3 |
 //! | embassy time driver | TIM5 | P4 |
 //! | thread-mode executor: link, USB, supervisor, LED tasks | | thread |
-//! | hardware watchdog (IWDG, fed by the force loop) | resets the chip | |
+//! | hardware watchdog (IWDG, fed by the force loop once the supervisor has checked in) | resets the chip | |
 //!
 //! The force loop reads the sensors and writes the motors inside `ForceLoop::tick` exactly
 //! as on QEMU (`app::run_tick` from the timer interrupt): the board only provides the trait
@@ -51,6 +51,13 @@ use crate::host_link::{self, BoardInfo, LinkParts};
 pub const SYSCLK_HZ: u32 = 96_000_000;
 /// The force loop's period.
 pub const TICK_US: u32 = 1000;
+
+// The watchdog's timeout at the fastest LSI still holds the supervisor's check-in margin
+// (`app::WATCHDOG_MIN_TICKS` of these ticks): a live but busy thread mode never trips it.
+const _: () = assert!(
+    watchdog::TIMEOUT_US / watchdog::LSI_FASTEST_KHZ * 32 >= app::WATCHDOG_MIN_TICKS * TICK_US,
+    "the watchdog must allow the supervisor's check-in margin at the fastest LSI"
+);
 
 /// Lights the fault LED from any context (PC13 low).
 pub fn led_on() {
@@ -166,7 +173,8 @@ pub fn main() -> ! {
     let (usb_parts, link_parts, led) = start();
     crate::executor::run(move |spawner: Spawner| {
         spawner.spawn(
-            app::supervisor(TICK_US, motors::motors_off, report_stack).expect("one supervisor"),
+            app::supervisor(TICK_US, motors::motors_off, report_stack, report_feed_gap)
+                .expect("one supervisor"),
         );
         spawner.spawn(usb_task(usb_parts).expect("one USB task"));
         spawner.spawn(link_task(link_parts).expect("one link task"));
@@ -329,7 +337,7 @@ fn start() -> (
         match kept {
             Some(REASON_PANIC) => defmt::error!("reset by the watchdog after a panic"),
             Some(REASON_HARDFAULT) => defmt::error!("reset by the watchdog after a HardFault"),
-            _ => defmt::error!("reset by the watchdog: the force loop had stopped"),
+            _ => defmt::error!("reset by the watchdog: the force loop or thread mode had stopped"),
         }
         app::latch(maobi_shared::protocol::Faults::WATCHDOG);
     }
@@ -401,6 +409,12 @@ async fn link_task(parts: LinkParts<usb::UsbSerial, config::FlashConfig>) {
 /// stack reserve must be checked against on the board (it has not run on one yet).
 fn report_stack(used: usize) {
     defmt::info!("stack high-water mark: {=usize} bytes", used);
+}
+
+/// A new longest gap between two watchdog feeds (`app::FEED_GAP_MAX_TICKS`), in the defmt
+/// log: the figure `watchdog::TIMEOUT_US` must stay well above on the board.
+fn report_feed_gap(ticks: u32) {
+    defmt::info!("longest gap between watchdog feeds: {=u32} ticks", ticks);
 }
 
 /// The fault LED: steady while a fault is latched; fast blink (5 Hz) without a valid

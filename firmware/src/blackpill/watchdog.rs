@@ -1,9 +1,15 @@
-//! The independent watchdog (IWDG, on the 32 kHz LSI): fed by every force tick; if the
-//! force loop stops for [`TIMEOUT_US`] the chip resets, and a reset leaves every motor pin
-//! an input (the carriers' standby inputs are pulled low on the TB6612 boards: off).
+//! The independent watchdog (IWDG, on the 32 kHz LSI), fed by the force tick only when the
+//! thread-mode supervisor has checked in since the last feed (`app::ForceLoop::tick`, the
+//! same code on every board): if either stops, the force loop (no tick feeds it) or thread
+//! mode (a task that never yields, or interrupts that leave it no time: no check-in), the
+//! chip resets within [`TIMEOUT_US`], and a reset leaves every motor pin an input (the
+//! carriers' standby inputs are pulled low on the TB6612 boards: off). The next boot reports
+//! the watchdog's reset (`Faults::WATCHDOG`).
 //!
-//! [`Stretch`] lengthens it for the one deliberate stall, a configuration-sector erase
-//! (seconds with the core waiting on flash), and puts it back after.
+//! [`Stretch`] lengthens it for the deliberate stalls, a configuration store (thread mode
+//! programs the flash without yielding, so the supervisor cannot check in) and each
+//! configuration-sector erase (seconds with the core waiting on flash), and puts it back
+//! after.
 //!
 //! Once started, the IWDG runs until the next reset: nothing stops it. Only the debug halt
 //! freezes it ([`freeze_in_debug`]), and a fatal boot error feeds it ([`feed_now`], from
@@ -15,9 +21,15 @@ use embassy_stm32::wdg::IndependentWatchdog;
 
 use crate::board::Watchdog;
 
-/// Reset after this long without a tick: 50 ticks at 1 kHz (the LSI is 17-47 kHz, so 29 to
-/// 94 ms in fact: still tens of ticks, and far below what a hand notices).
-pub const TIMEOUT_US: u32 = 50_000;
+/// Reset after this long without a feed: 80 ticks at 1 kHz as embassy sets it up (for a
+/// 32 kHz LSI). The LSI may run anywhere from 17 to 47 kHz, so in fact 54 to 150 ms: at the
+/// fastest, still more than [`crate::app::WATCHDOG_MIN_TICKS`] (five of the supervisor's
+/// check-in periods; checked beside the board's `TICK_US`), so a live but busy thread mode
+/// does not trip it; at the slowest, still far below what a hand notices.
+pub const TIMEOUT_US: u32 = 80_000;
+
+/// The LSI's fastest (kHz, the datasheet's maximum) over the 32 kHz embassy assumes.
+pub(super) const LSI_FASTEST_KHZ: u32 = 47;
 
 pub struct Iwdg(pub(super) IndependentWatchdog<'static, embassy_stm32::peripherals::IWDG>);
 

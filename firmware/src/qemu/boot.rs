@@ -24,8 +24,11 @@
 //! * `arith`: checks the fixed-point operators' inline assembly against their portable
 //!   references on this core, prints `ARITH` lines (see [`crate::app::arith`]) and exits 0
 //!   when every case agrees, 1 otherwise.
-//! * `crash panic|hardfault|stall`: test hooks for the fault paths, only in images built
-//!   with the `test-hooks` feature (`maobi-fw-hooks`); without it the line boots as `run`.
+//! * `crash panic|hardfault|stall|starve`: test hooks for the fault paths, only in images
+//!   built with the `test-hooks` feature (`maobi-fw-hooks`); without it the line boots as
+//!   `run`. `stall`: the force loop never returns from a tick; `starve`: a thread-mode task
+//!   never yields (the interrupts, the force tick among them, run on; the supervisor never
+//!   checks in again).
 
 use core::fmt::Write;
 use core::sync::atomic::Ordering;
@@ -70,7 +73,7 @@ enum Mode {
     /// `bench SHIFT [profile|cycles]`.
     Bench(u32, bench::BenchScope),
     Arith,
-    /// Test hooks: `crash panic|hardfault|stall` after the force loop has started.
+    /// Test hooks: `crash panic|hardfault|stall|starve` after the force loop has started.
     #[cfg(feature = "test-hooks")]
     Crash(&'static str),
 }
@@ -133,6 +136,7 @@ fn boot_mode() -> Mode {
         Some("crash") => Mode::Crash(match words.next() {
             Some("hardfault") => "hardfault",
             Some("stall") => "stall",
+            Some("starve") => "starve",
             _ => "panic",
         }),
         _ => Mode::Run,
@@ -157,7 +161,8 @@ pub fn main() -> ! {
 
     crate::executor::run(move |spawner: Spawner| {
         spawner.spawn(
-            app::supervisor(tick_us, qemu::motors_off, report_stack).expect("one supervisor"),
+            app::supervisor(tick_us, qemu::motors_off, report_stack, report_feed_gap)
+                .expect("one supervisor"),
         );
         match mode {
             #[cfg(feature = "test-hooks")]
@@ -222,8 +227,8 @@ async fn link_task(parts: qemu::Parts, cfg: host_link::LinkConfig) {
     host_link::run(parts, board, board.brush(presets::LARGE), cfg).await
 }
 
-/// Test hooks for the fault paths: motors on, then a panic, a HardFault, or a force loop
-/// that never returns (the watchdog's case).
+/// Test hooks for the fault paths: motors on, then a panic, a HardFault, a force loop that
+/// never returns, or a thread mode that never yields (the watchdog's two cases).
 #[cfg(feature = "test-hooks")]
 #[embassy_executor::task]
 async fn crash(mut parts: qemu::Parts, how: &'static str) {
@@ -238,6 +243,11 @@ async fn crash(mut parts: qemu::Parts, how: &'static str) {
         "stall" => {
             let _ = parts.cmds.enqueue(Command::Stall);
         }
+        "starve" => loop {
+            // Thread mode taken for good: this task never yields, so the executor never
+            // polls the supervisor again, while every interrupt still runs.
+            core::hint::spin_loop();
+        },
         _ => panic!("crash test"),
     }
     Timer::after_millis(1000).await;
@@ -302,6 +312,13 @@ async fn selftest(mut parts: qemu::Parts, ticks: u32) {
 fn report_stack(used: usize) {
     let _ = writeln!(Stdout, "STACK high_water_bytes={used}");
     defmt::info!("stack high-water mark: {=usize} bytes", used);
+}
+
+/// A new longest gap between two watchdog feeds (`app::FEED_GAP_MAX_TICKS`), as plain text
+/// on stdout for the host (`hil`'s watchdog tests) and in the log.
+fn report_feed_gap(ticks: u32) {
+    let _ = writeln!(Stdout, "WATCHDOG feed_gap_max_ticks={ticks}");
+    defmt::info!("longest gap between watchdog feeds: {=u32} ticks", ticks);
 }
 
 /// Micrometres, rounded toward -inf (integer output keeps float formatting out of the image).

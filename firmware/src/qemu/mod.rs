@@ -2,7 +2,7 @@
 //!
 //! | what | where | priority |
 //! |---|---|---|
-//! | watchdog: TIMER1 counting down 20 ms (or 5 tick periods if longer), reloaded by every force tick | 0x4000_1000, IRQ 9 | 0 (highest) |
+//! | watchdog: TIMER1 counting down [`app::WATCHDOG_MIN_TICKS`] tick periods, reloaded by a force tick after the supervisor has checked in | 0x4000_1000, IRQ 9 | 0 (highest) |
 //! | force loop: TIMER0 at 1 kHz | 0x4000_0000, IRQ 8 | 1 |
 //! | link: UART0 RX / TX | 0x4000_4000, IRQ 0 / 1 | 2 |
 //! | embassy time driver: dual timer | 0x4000_2000, IRQ 10 | 3 |
@@ -70,15 +70,9 @@ use crate::app::{self, PoseConsumer, PoseProducer, PoseQueue};
 use crate::board::{CycleCounter, Motors, PoseSource, Watchdog};
 use regs::{rd, timer as t, wr, PCLK_HZ};
 
-/// Shortest watchdog timeout in timer counts (20 ms).
-pub const WATCHDOG_COUNTS: u32 = PCLK_HZ / 50;
-/// The watchdog waits at least this many tick periods: a loop paced slower under emulation
-/// (`tick_us`), or one tick overrun, is not a stopped loop.
-const WATCHDOG_TICKS: u32 = 5;
-
-/// The watchdog timeout in force, in timer counts: [`WATCHDOG_COUNTS`] or
-/// [`WATCHDOG_TICKS`] tick periods, whichever is longer (set by [`start`]).
-static WATCHDOG_RELOAD: AtomicU32 = AtomicU32::new(WATCHDOG_COUNTS);
+/// The watchdog timeout in force, in timer counts: [`app::WATCHDOG_MIN_TICKS`] tick
+/// periods, which hold several of the supervisor's check-in periods (set by [`start`]).
+static WATCHDOG_RELOAD: AtomicU32 = AtomicU32::new(u32::MAX);
 
 /// Lock-step mode (see the module docs), set by [`start`].
 static LOCKSTEP: AtomicBool = AtomicBool::new(false);
@@ -280,8 +274,10 @@ pub fn motors_off() {
 // ---------------------------------------------------------------------------------------
 // Watchdog and force-loop timers
 
-/// TIMER1 as the watchdog: the force loop reloads it every tick; if it ever reaches zero its
-/// interrupt (above the force loop's priority) turns the motors off and stops the machine.
+/// TIMER1 as the watchdog: a force tick reloads it once the supervisor has checked in since
+/// the last reload (`app::ForceLoop::tick`); if it ever reaches zero (the force loop or
+/// thread mode stopped) its interrupt (above the force loop's priority) turns the motors off
+/// and stops the machine, as the Black Pill's IWDG resets the chip.
 pub struct TimerWatchdog {
     _private: (),
 }
@@ -338,7 +334,7 @@ pub fn start(
 ) -> Parts {
     LOCKSTEP.store(lockstep, Ordering::Relaxed);
     let tick_counts = PCLK_HZ / 1_000_000 * tick_us;
-    let watchdog_counts = WATCHDOG_COUNTS.max(tick_counts.saturating_mul(WATCHDOG_TICKS));
+    let watchdog_counts = tick_counts.saturating_mul(app::WATCHDOG_MIN_TICKS);
     WATCHDOG_RELOAD.store(watchdog_counts, Ordering::Relaxed);
     static mut POSES: PoseQueue = PoseQueue::new();
     static mut CMDS: app::CmdQueue = app::CmdQueue::new();
@@ -448,10 +444,16 @@ fn lockstep_tick_ready(fl: &Loop) -> bool {
 fn on_watchdog() -> ! {
     motors_off();
     app::latch(maobi_shared::protocol::Faults::WATCHDOG);
-    semihosting::fatal(
-        "watchdog: the force loop stopped for 20 ms or 5 ticks; motors off",
-        3,
-    )
+    // Which context stopped: the force loop ticking on unfed is a starved thread mode; a
+    // stopped force loop stops thread mode too (it runs below it). Plain text: no
+    // formatting on this path.
+    if app::thread_mode_starved_the_watchdog() {
+        semihosting::fatal(
+            "watchdog: thread mode stopped (the force loop ticked on, no supervisor check-in); motors off",
+            3,
+        )
+    }
+    semihosting::fatal("watchdog: the force loop stopped; motors off", 3)
 }
 
 /// Device interrupts arrive here (no peripheral-access crate): dispatch by number.

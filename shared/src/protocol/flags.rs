@@ -77,8 +77,9 @@ bitflags::bitflags! {
         const LINK_SILENT = 1 << 2;
         /// A parameter write was rejected.
         const PARAM_REJECTED = 1 << 3;
-        /// The force loop stopped: caught by the supervisor task or the watchdog (which
-        /// resets the board).
+        /// The force loop stopped (caught by the supervisor task), or the watchdog reset
+        /// the board: the force loop or thread mode stopped (the firmware feeds it only
+        /// while both run).
         const WATCHDOG = 1 << 4;
         /// The sensors are not calibrated: no configuration, none calibrated, or (a pen with
         /// [`Capabilities::NEEDS_CALIBRATION`]) not since power-on. Not latched: set while it

@@ -590,7 +590,7 @@ fn config_state_says_what_the_handshake_says() {
     assert!(!ConfigState::Corrupt(ConfigError::Truncated).allows_forces());
     assert_eq!(
         ConfigState::Corrupt(ConfigError::UnsupportedVersion { found: 7 }).to_string(),
-        "corrupt: configuration format version 7, this firmware reads 2"
+        "corrupt: configuration format version 7, this firmware reads 2 (and migrates 1)"
     );
 }
 

@@ -380,8 +380,9 @@ pub enum ConfigError {
     Erased,
     /// The first four bytes are not [`CONFIG_MAGIC`]: not a configuration image.
     BadMagic,
-    /// A configuration image of another format version (a firmware update changed the
-    /// layout): write the configuration again.
+    /// A configuration image of a format version this firmware neither reads nor migrates
+    /// (a firmware update changed the layout; format 1 is migrated: [`load`]): write the
+    /// configuration again.
     UnsupportedVersion { found: u16 },
     /// The length field exceeds [`CONFIG_PAYLOAD_MAX`].
     BadLength { len: u16 },
@@ -406,7 +407,8 @@ impl fmt::Display for ConfigError {
             ConfigError::BadMagic => f.write_str("not a configuration image (bad magic)"),
             ConfigError::UnsupportedVersion { found } => write!(
                 f,
-                "configuration format version {found}, this firmware reads {CONFIG_FORMAT_VERSION}"
+                "configuration format version {found}, this firmware reads {CONFIG_FORMAT_VERSION} \
+                 (and migrates 1)"
             ),
             ConfigError::BadLength { len } => write!(
                 f,

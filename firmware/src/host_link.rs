@@ -32,6 +32,13 @@
 //!   validated whole before anything is written, written, read back and decoded, and only then put in
 //!   force (`app::Command::Configure`). `Calibrate` records one raw reading (the pen resting
 //!   in its inkwell) into the configuration and stores it the same way.
+//! * An image of an older format is migrated (`pen_io::load`, in the shared crate): its
+//!   geometry, drive channels, limits and calibration go in force (the brush follows the
+//!   pen), the handshake says `ConfigState::Migrated`, and [`app::CONFIG_OK`] stays off, so
+//!   no force and no nudge, until a `SetConfig` gives what bounds the motor current (each
+//!   winding's resistance, the supply, the driver's rating) and writes a current image.
+//!   `Calibrate` then puts its zeros in force without storing them (the image cannot be
+//!   written without those values); the completing `SetConfig` stores them.
 //! * Bring-up: `StreamSensors` asks the force loop for raw readings
 //!   ([`app::SENSORS`]) every `1000 / rate_hz` ticks and sends them as `Sensors` (dropped and
 //!   counted when the link is busy); `NudgeMotor` hands the force loop a capped torque for a
@@ -441,17 +448,23 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         Ok(())
     }
 
-    /// Reads the store and puts what it holds in force (at start).
+    /// Reads the store and puts what it holds in force (at start). An image of an older
+    /// format is migrated (`pen_io::load`): its kinematics and calibration are in force, its
+    /// state (`ConfigState::Migrated`) keeps the motors off until a `SetConfig`.
     async fn load_config(&mut self) {
         if !self.parts.store.needs_config() {
             self.config_state = ConfigState::NotApplicable;
             self.config = None;
         } else {
             let loaded = self.read_store();
-            self.config_state = ConfigState::of(&loaded);
-            self.config = loaded.ok();
+            self.config_state = ConfigState::of_loaded(&loaded);
+            self.config = loaded.ok().map(|l| *l.config());
             match &self.config_state {
                 ConfigState::Valid => defmt::info!("configuration valid"),
+                ConfigState::Migrated { from } => defmt::warn!(
+                    "configuration migrated from format {=u16}: forces refused until SetConfig gives the winding resistances, supply and driver rating",
+                    from
+                ),
                 _ => defmt::warn!("no valid configuration: forces refused"),
             }
         }
@@ -462,12 +475,12 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         self.publish_readiness();
     }
 
-    /// The store's image, decoded. Not async: the buffer lives on the stack for the call,
-    /// not in the task's future for its lifetime.
-    fn read_store(&mut self) -> Result<DeviceConfig, pen_io::ConfigError> {
+    /// The store's image, read (an older format migrated). Not async: the buffer lives on
+    /// the stack for the call, not in the task's future for its lifetime.
+    fn read_store(&mut self) -> Result<pen_io::Loaded, pen_io::ConfigError> {
         let mut buf = [0u8; CONFIG_IMAGE_MAX];
         let n = self.parts.store.load(&mut buf);
-        pen_io::decode(buf.get(..n).unwrap_or(&[]))
+        pen_io::load(buf.get(..n).unwrap_or(&[]))
     }
 
     /// Encodes `cfg` and writes it to the store (as `read_store`, not async).
@@ -508,7 +521,9 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         let r = self.readiness();
         CONFIG_OK.store(r.allows_forces, Ordering::SeqCst);
         app::NOT_CALIBRATED.store(r.not_calibrated, Ordering::SeqCst);
-        app::CONFIG_VALID.store(self.config.is_some(), Ordering::SeqCst);
+        // A migrated configuration is in force for the kinematics, but not valid.
+        let valid = self.config.is_some() && self.config_state == ConfigState::Valid;
+        app::CONFIG_VALID.store(valid, Ordering::SeqCst);
     }
 
     /// `SetConfig`: refuse while forces are on, validate all of it, then write.
@@ -527,9 +542,9 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
     async fn write_config(&mut self, cfg: DeviceConfig) -> Result<(), ConfigRejected> {
         let stored = self.write_store(&cfg)?;
         let loaded = self.read_store();
-        let ok = stored.is_ok() && loaded.as_ref() == Ok(&cfg);
-        self.config_state = ConfigState::of(&loaded);
-        self.config = loaded.ok();
+        let ok = stored.is_ok() && loaded == Ok(pen_io::Loaded::Current(cfg));
+        self.config_state = ConfigState::of_loaded(&loaded);
+        self.config = loaded.ok().map(|l| *l.config());
         if let Some(c) = self.config {
             critical_section::with(|cs| app::CONFIG.borrow(cs).set(c));
             self.command(Command::Configure).await;
@@ -568,6 +583,16 @@ impl<T: LinkTransport, S: ConfigStore> Link<T, S> {
         // Taken now: they hold until power-off whatever a board's encoders do (in force
         // once the configuration carrying them is).
         self.zeros_since_power_on = Some(zeros);
+        if matches!(self.config_state, ConfigState::Migrated { .. }) {
+            // A migrated configuration cannot be stored (it lacks what bounds the current):
+            // the zeros go in force with it, for the kinematics, and are stored by the
+            // `SetConfig` that completes it (the host keeps the pen's calibration).
+            self.config = Some(cfg);
+            critical_section::with(|cs| app::CONFIG.borrow(cs).set(cfg));
+            self.command(Command::Configure).await;
+            self.publish_readiness();
+            return Ok(());
+        }
         self.write_config(cfg)
             .await
             .map_err(|_| CommandError::StoreFailed)

@@ -12,7 +12,11 @@
 //!   `NOT_CALIBRATED` (not cleared by `ClearFaults`), forces and nudges are refused; a
 //!   `Calibrate` clears it and forces enable; a configuration written without zeros brings
 //!   it back and ends a nudge that was running;
-//! * no image: the virtual pen needs none (`NotApplicable`), as before.
+//! * no image: the virtual pen needs none (`NotApplicable`), as before;
+//! * a format-1 image (built byte for byte, `shared/tests/common/format_1.rs`): migrated,
+//!   the handshake says so and what to set; the pen's geometry, limits and calibration are
+//!   in force (the sensors read its zeros at its inkwell) but forces and nudges are refused
+//!   until a `SetConfig` with the missing values, after which forces enable.
 //!
 //! Needs `qemu-system-arm` (skipped with a message without it, unless `MAOBI_REQUIRE_QEMU`
 //! is set, as in CI).
@@ -30,6 +34,9 @@ use maobi_shared::protocol::{
     DeviceMsg, EventKind, Faults, HostMsg, Nudge, PoseSample, SensorReport,
 };
 use maobi_shared::{Fx, Scalar};
+
+#[path = "../../shared/tests/common/format_1.rs"]
+mod format_1;
 
 const TIMEOUT: Duration = Duration::from_secs(300);
 const ANSWER: Duration = Duration::from_secs(20);
@@ -530,5 +537,150 @@ fn the_configurations_force_limits_are_the_ones_in_force() {
         asked > 1.0 && given > 0.45,
         "asked {asked} N, given {given} N"
     );
+    let _ = std::fs::remove_file(path);
+}
+
+/// A pen updated from a format-1 firmware: its image is migrated, the kinematics and the
+/// calibration work, force waits for the values format 1 lacks.
+#[test]
+fn a_format_1_image_is_migrated_and_force_waits_for_the_missing_values() {
+    use format_1::{image_of, payload_v1, ConfigV1, DriveV1};
+    let Some(elf) = image() else { return };
+    let zeros = RawReadings {
+        encoders: [40, -25, 12],
+        gimbal: [2000, 2100, 1990],
+    };
+    let mut limits = maobi_shared::force::PHANTOM_OMNI;
+    limits.peak_n = 2.5;
+    limits.continuous_n = 0.7;
+    let drive = |zero| DriveV1 {
+        pwm_hz: 25_000,
+        deadband: 0.04,
+        max_duty: 0.95, // format 1's default: over a TB6612's rating with a 2.2 Ohm motor
+        zero,
+    };
+    let old = ConfigV1 {
+        pen: PenConfig::OMNI_LIKE,
+        drive: [drive(0), drive(1), drive(0)],
+        limits,
+        calibration: Some(zeros),
+    };
+    let (dev, mut s, info, path) = boot(&elf, Some(&image_of(1, &payload_v1(&old))));
+    println!("handshake: configuration {}", info.config);
+    assert_eq!(info.config, ConfigState::Migrated { from: 1 });
+    let said = info.config.to_string();
+    assert!(
+        said.starts_with("configuration migrated from format 1: set the motors' winding resistance, supply voltage and driver rating")
+            && said.contains("maobi device config set")
+            && said.ends_with("to enable force"),
+        "{said}"
+    );
+    // The migrated limits are the ones announced (and in force).
+    assert_eq!((info.force_peak_n, info.force_continuous_n), (2.5, 0.7));
+
+    // The migrated configuration is in force and given: everything format 1 had, what it
+    // lacked at zero.
+    let migrated = config(&mut s, HostMsg::GetConfig).expect("the migrated configuration");
+    assert_eq!(migrated.pen, old.pen);
+    assert_eq!(migrated.limits, old.limits);
+    assert_eq!(migrated.calibration, Some(zeros));
+    for (d, o) in migrated.drive.iter().zip(&old.drive) {
+        assert_eq!(
+            (d.pwm_hz, d.deadband, d.max_duty),
+            (o.pwm_hz, o.deadband, o.max_duty)
+        );
+        assert_eq!(d.winding_mohm, 0);
+    }
+    assert_eq!(migrated.drive[1].zero, pen_io::ZeroPolicy::Brake);
+    assert_eq!(
+        (migrated.power.supply_v, migrated.power.driver_current_a),
+        (0.0, 0.0)
+    );
+
+    // No force, no nudge; calibrated (its zeros are stored), so no NOT_CALIBRATED.
+    assert_eq!(
+        command(&mut s, Command::EnableForces),
+        Err(CommandError::ConfigNotValid)
+    );
+    let nudge = Nudge {
+        channel: 0,
+        command_permille: 100,
+        duration_ms: 100,
+    };
+    assert_eq!(
+        command(&mut s, Command::NudgeMotor(nudge.clone())),
+        Err(CommandError::ConfigNotValid)
+    );
+    for st in next_states(&mut s, 10) {
+        assert!(!st.haptics.enabled);
+        assert_eq!(st.haptics.motors, [0; 3]);
+        assert!(
+            !st.faults.contains(Faults::NOT_CALIBRATED),
+            "{:?}",
+            st.faults
+        );
+    }
+
+    // The kinematics and the calibration work: the virtual pen at its inkwell reads the
+    // migrated zeros.
+    s.send(&HostMsg::Pose(PoseSample::new(
+        1,
+        inkwell_pose(),
+        Buttons::empty(),
+    )))
+    .unwrap();
+    assert_eq!(
+        command(&mut s, Command::StreamSensors { rate_hz: 100 }),
+        Ok(())
+    );
+    let r = next_sensors(&mut s);
+    println!("sensors at the inkwell: {r:?}");
+    for k in 0..3 {
+        assert!((r.encoders[k] - zeros.encoders[k]).abs() <= 1, "{r:?}");
+        assert!(
+            (i32::from(r.gimbal[k]) - zeros.gimbal[k]).abs() <= 1,
+            "{r:?}"
+        );
+    }
+    assert_eq!(
+        command(&mut s, Command::StreamSensors { rate_hz: 0 }),
+        Ok(())
+    );
+    // Calibrate works too (in force, not stored: still migrated, still no force).
+    assert_eq!(command(&mut s, Command::Calibrate), Ok(()));
+    let recalibrated = config(&mut s, HostMsg::GetConfig).unwrap();
+    assert_eq!(recalibrated.calibration.unwrap().encoders, r.encoders);
+    assert_eq!(
+        command(&mut s, Command::EnableForces),
+        Err(CommandError::ConfigNotValid)
+    );
+    let again = s.handshake(ANSWER, &mut vec![]).unwrap();
+    assert_eq!(again.config, ConfigState::Migrated { from: 1 });
+
+    // Written back as it is: refused by name, nothing written.
+    match config(&mut s, HostMsg::SetConfig(recalibrated)) {
+        Err(ConfigRejected::Invalid(f)) => assert_eq!(f.field.as_str(), "drive[0].winding_mohm"),
+        other => panic!("{other:?}"),
+    }
+    // With the builder's values (and the duty clamps within the driver's rating): stored as
+    // format 2, valid, forces enable.
+    let mut complete = recalibrated;
+    complete.power = pen_io::PowerConfig::DEFAULT;
+    for d in &mut complete.drive {
+        d.winding_mohm = 2200;
+        d.max_duty = 0.2;
+    }
+    for j in 0..3 {
+        complete.pen.max_current[j] = complete.stall_current_a(j);
+    }
+    assert_eq!(complete.validate(), Ok(()));
+    assert_eq!(config(&mut s, HostMsg::SetConfig(complete)), Ok(complete));
+    let again = s.handshake(ANSWER, &mut vec![]).unwrap();
+    assert_eq!(again.config, ConfigState::Valid);
+    assert_eq!(config(&mut s, HostMsg::GetConfig), Ok(complete));
+    assert_eq!(command(&mut s, Command::EnableForces), Ok(()));
+    assert_eq!(command(&mut s, Command::DisableForces), Ok(()));
+    assert_eq!(command(&mut s, Command::NudgeMotor(nudge)), Ok(()));
+    drop(dev);
     let _ = std::fs::remove_file(path);
 }

@@ -910,10 +910,13 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
         DeviceConfigCmd::Get { pen, output } => {
             let (mut wire, timeout) = connect(pen)?;
             let cfg = read_from_pen(&mut wire, timeout)?;
-            let title = format!(
+            let mut title = format!(
                 "Read from the pen ({}, firmware {}) by `maobi device config get`.",
                 wire.info.board, wire.info.firmware
             );
+            if let maobi_shared::pen_io::ConfigState::Migrated { from } = wire.info.config {
+                title.push_str(&migrated_title(from));
+            }
             write_out(&to_toml(&cfg, &title), output)
         }
         DeviceConfigCmd::Set {
@@ -946,6 +949,18 @@ fn run_device_config(c: &DeviceConfigCmd) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// What `maobi device config get` adds to the title of a configuration migrated from an
+/// older format.
+fn migrated_title(from: u16) -> String {
+    format!(
+        "\nMigrated from configuration format {from}, which lacks what bounds the motor \
+         current:\nset drive.winding_mohm (each motor), power.supply_v and \
+         power.driver_current_a (0 below: not given),\nkeep each drive.max_duty within \
+         the driver's rating (`maobi device config check` says), then\n`maobi device \
+         config set` this file to enable force."
+    )
 }
 
 /// Writes `text` to standard output. A reader that has closed its end (`| head`) wanted no

@@ -41,6 +41,9 @@ struct Pen {
     /// encoders make stored zeros meaningless after a reset, so, as the firmware does, the
     /// pen reports `NOT_CALIBRATED` and refuses nudges until then.
     calibrated_since_power_on: bool,
+    /// The stored image was of this older format, migrated: the handshake says
+    /// `ConfigState::Migrated` (the configuration is in force for the kinematics).
+    migrated_from: Option<u16>,
 }
 
 impl Pen {
@@ -55,6 +58,7 @@ impl Pen {
             poses_received: 0,
             nudges: 0,
             calibrated_since_power_on: false,
+            migrated_from: None,
         }
     }
     /// What the firmware reports beside latched faults (`pen_io::Readiness`).
@@ -78,9 +82,10 @@ impl Pen {
                 0.88,
             );
         }
-        let state = match self.config {
-            Some(_) => ConfigState::Valid,
-            None => ConfigState::Missing,
+        let state = match (self.config, self.migrated_from) {
+            (Some(_), Some(from)) => ConfigState::Migrated { from },
+            (Some(_), None) => ConfigState::Valid,
+            (None, _) => ConfigState::Missing,
         };
         DeviceInfo::new(
             "fake-pen",
@@ -467,6 +472,36 @@ fn a_missing_configuration_is_written_before_anything_moves() {
     assert!(said.iter().any(|l| l.contains("missing (never written)")));
     let cfg = pen.config.unwrap();
     assert!(cfg.calibration.is_some());
+}
+
+#[test]
+fn a_migrated_configuration_stops_the_check_and_says_what_to_set() {
+    let mut old = DeviceConfig::DEFAULT;
+    old.pen.upper_arm_mm = 140.0;
+    old.drive.iter_mut().for_each(|d| d.winding_mohm = 0);
+    let mut pen = Pen::physical(Some(old), [1, 1, 1]);
+    pen.migrated_from = Some(1);
+    let (r, pen, said) = run(pen);
+    assert!(!r.passed(), "{}", r.table());
+    let d = detail(&r, "1 handshake");
+    for part in [
+        "configuration migrated from format 1: set the motors' winding resistance, supply \
+         voltage and driver rating",
+        "to enable force",
+        "stopped",
+        "maobi device config get",
+        "maobi device config set",
+    ] {
+        assert!(d.contains(part), "{part}: {}", r.table());
+    }
+    assert!(
+        said.iter()
+            .any(|l| l.contains("configuration migrated from format 1")),
+        "{said:?}"
+    );
+    // Nothing written over the migrated configuration, nothing moved.
+    assert_eq!(pen.config, Some(old));
+    assert_eq!(pen.nudges, 0);
 }
 
 #[test]

@@ -590,7 +590,7 @@ fn config_state_says_what_the_handshake_says() {
     assert!(!ConfigState::Corrupt(ConfigError::Truncated).allows_forces());
     assert_eq!(
         ConfigState::Corrupt(ConfigError::UnsupportedVersion { found: 7 }).to_string(),
-        "corrupt: configuration format version 7, this firmware reads 2"
+        "corrupt: configuration format version 7, this firmware reads 2 (and migrates 1)"
     );
 }
 
@@ -787,48 +787,7 @@ fn a_configuration_that_would_overload_the_driver_is_refused() {
     ));
 }
 
-/// Format 1's layout, as the firmware before the winding resistance and power wrote it.
-#[derive(serde::Serialize)]
-struct DriveV1 {
-    pwm_hz: u32,
-    deadband: f32,
-    max_duty: f32,
-    zero: ZeroPolicy,
-}
-
-#[derive(serde::Serialize)]
-struct ConfigV1 {
-    pen: PenConfig,
-    drive: [DriveV1; 3],
-    limits: maobi_shared::force::DeviceLimits,
-    calibration: Option<RawReadings>,
-}
-
-#[test]
-fn a_format_1_image_says_so_and_gives_no_force() {
-    let new = calibrated();
-    let old = ConfigV1 {
-        pen: new.pen,
-        drive: new.drive.map(|d| DriveV1 {
-            pwm_hz: d.pwm_hz,
-            deadband: d.deadband,
-            max_duty: 0.95,
-            zero: d.zero,
-        }),
-        limits: new.limits,
-        calibration: new.calibration,
-    };
-    let mut pbuf = [0u8; 512];
-    let payload = postcard::to_slice(&old, &mut pbuf).unwrap().to_vec();
-    let loaded = decode(&forged(1, &payload));
-    assert_eq!(loaded, Err(ConfigError::UnsupportedVersion { found: 1 }));
-    let state = ConfigState::of(&loaded);
-    assert!(!state.allows_forces());
-    assert_eq!(
-        state.to_string(),
-        "corrupt: configuration format version 1, this firmware reads 2"
-    );
-}
+// A format-1 image (migrated): `shared/tests/config_format_1.rs`.
 
 // ---------------------------------------------------------------------------------------
 // The flash accelerator (FLASH_ACR)

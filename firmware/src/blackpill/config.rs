@@ -16,9 +16,10 @@
 //!
 //! [`ConfigStore::load`] copies the newest committed slot, which the link task decodes: a
 //! save cut short by a reset was never committed and is skipped (the host was never told
-//! it succeeded); a committed image that does not decode (damaged since, another format
-//! version) leaves the pen without a configuration and so without forces, and the
-//! handshake says which (`ConfigState`). An older image is never used in place of a bad
+//! it succeeded); a committed image that does not decode (damaged since, a format version
+//! this firmware does not read) leaves the pen without a configuration and so without
+//! forces, and the handshake says which (`ConfigState`). A format-1 image is migrated by
+//! the link task (`pen_io::load`): kinematics and calibration, no force until completed. An older image is never used in place of a bad
 //! committed one: it would bring back a configuration the builder replaced.
 //!
 //! While flash is being written or erased, the core cannot fetch from it: the force loop's

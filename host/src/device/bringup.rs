@@ -872,6 +872,27 @@ fn step_handshake(
             report.push("1 handshake", Outcome::Pass, what);
             true
         }
+        ConfigState::Migrated { .. } => {
+            // Not the reference configuration over it: that would lose the pen's geometry,
+            // limits and calibration, which the migration kept.
+            op.say(&format!(
+                "The pen's stored {}. Its kinematics and calibration are in force; forces \
+                 and motor nudges stay off until then.",
+                info.config
+            ));
+            report.push(
+                "1 handshake",
+                Outcome::Fail,
+                format!(
+                    "{what}: stopped. Read the migrated configuration (`maobi device config \
+                     get -o pen.toml`), set drive.winding_mohm for each motor, power.supply_v \
+                     and power.driver_current_a (0 there: not given) and each drive.max_duty \
+                     within the driver's rating, write it (`maobi device config set \
+                     pen.toml`), then run the check again"
+                ),
+            );
+            false
+        }
         bad @ (ConfigState::Missing | ConfigState::Corrupt(_)) => {
             op.say(&format!(
                 "The pen's stored configuration is {bad}: forces and motor nudges stay off \

@@ -30,15 +30,24 @@
 //! postcard is already the wire protocol's encoding (the same serde derives serve
 //! [`crate::protocol::HostMsg::SetConfig`]); it is compact and bounded. It has no schema
 //! evolution, so any change to [`DeviceConfig`]'s layout increments [`CONFIG_FORMAT_VERSION`].
-//! An image of another version is reported as [`ConfigError::UnsupportedVersion`]: the pen
-//! starts safe (no force) and the builder writes the configuration again.
+//! [`load`] reads the older formats it knows and migrates them to this one
+//! ([`Loaded::Migrated`]); an image of any other version is reported as
+//! [`ConfigError::UnsupportedVersion`]: the pen starts safe (no force) and the builder
+//! writes the configuration again. [`decode`] reads this format only (what [`encode`]
+//! wrote: the pen reads back every save with it).
 //!
-//! * 1: the first format.
+//! * 1: the first format: the pen ([`PenConfig`]), three drive channels (PWM frequency,
+//!   deadband, duty clamp, zero policy), the force limits, the calibration.
 //! * 2: each motor's winding resistance ([`DriveConfig::winding_mohm`]) and the motor supply
-//!   and driver rating ([`PowerConfig`]), which bound the duty. A format-1 image is not
-//!   migrated: it lacks exactly what bounds the motor current, so no migration could put
-//!   it in force without the builder's values (and reading it cost the pen's image more
-//!   flash than its budget had left); the handshake says "format version 1".
+//!   and driver rating ([`PowerConfig`]), which bound the duty. A format-1 image is migrated:
+//!   everything it has is kept (and validated as format 2 validates it), and what it lacks
+//!   is left at zero, "not given" (`winding_mohm` 0, `power.supply_v` and
+//!   `power.driver_current_a` 0.0), which [`DeviceConfig::validate`] refuses by name. The
+//!   pen puts the migrated configuration in force for its kinematics and calibration (the
+//!   brush follows the pen) but gives no force ([`ConfigState::Migrated`], which
+//!   [`Readiness`] never lets drive the motors) until a `SetConfig` with the builder's values
+//!   writes a format-2 image. No migration could supply those values: they bound the motor
+//!   current, and only the builder knows the motors and the supply.
 
 use core::fmt;
 
@@ -64,6 +73,9 @@ const CRC_LEN: usize = 4;
 /// (28); the calibration's option tag (1), three `i64` (10 each) and three `i32` (5 each).
 /// Test `longest_payload_is_the_bound` encodes a config with every varint at its longest.
 pub const CONFIG_PAYLOAD_MAX: usize = 129 + 15 + 3 * 17 + 8 + 28 + 1 + 30 + 15;
+/// Longest postcard encoding of a format-1 payload: as [`CONFIG_PAYLOAD_MAX`] without the
+/// winding resistances (3 bytes a channel) and the power (8 bytes).
+pub const FORMAT_1_PAYLOAD_MAX: usize = CONFIG_PAYLOAD_MAX - 3 * 3 - 8;
 /// Longest image: header, payload and CRC. A flash page for the image needs this much.
 pub const CONFIG_IMAGE_MAX: usize = IMAGE_HEADER_LEN + CONFIG_PAYLOAD_MAX + CRC_LEN;
 /// Capacity of a field's name in [`InvalidField`] (`"drive[2].max_duty"`).
@@ -137,6 +149,27 @@ impl DeviceConfig {
                     max: over.duty_limit,
                 },
             ));
+        }
+        self.limits
+            .validate()
+            .map_err(|e| InvalidField::new("limits.", None, e))
+    }
+
+    /// [`Self::validate`] of what a format-1 image holds: the pen, each channel's PWM
+    /// frequency, deadband and duty clamp, the force limits; not the winding resistances nor
+    /// the power, which that format lacks (a migrated configuration has them at zero).
+    pub fn validate_migrated(&self) -> Result<(), InvalidField> {
+        self.pen
+            .validate()
+            .map_err(|e| InvalidField::new("pen.", None, e))?;
+        for (j, d) in self.drive.iter().enumerate() {
+            // The winding's check is the channel's last: a value that passes it skips it.
+            DriveConfig {
+                winding_mohm: DriveConfig::MIN_WINDING_MOHM,
+                ..*d
+            }
+            .validate()
+            .map_err(|e| InvalidField::new("drive", Some(j), e))?;
         }
         self.limits
             .validate()
@@ -347,8 +380,9 @@ pub enum ConfigError {
     Erased,
     /// The first four bytes are not [`CONFIG_MAGIC`]: not a configuration image.
     BadMagic,
-    /// A configuration image of another format version (a firmware update changed the
-    /// layout): write the configuration again.
+    /// A configuration image of a format version this firmware neither reads nor migrates
+    /// (a firmware update changed the layout; format 1 is migrated: [`load`]): write the
+    /// configuration again.
     UnsupportedVersion { found: u16 },
     /// The length field exceeds [`CONFIG_PAYLOAD_MAX`].
     BadLength { len: u16 },
@@ -373,7 +407,8 @@ impl fmt::Display for ConfigError {
             ConfigError::BadMagic => f.write_str("not a configuration image (bad magic)"),
             ConfigError::UnsupportedVersion { found } => write!(
                 f,
-                "configuration format version {found}, this firmware reads {CONFIG_FORMAT_VERSION}"
+                "configuration format version {found}, this firmware reads {CONFIG_FORMAT_VERSION} \
+                 (and migrates 1)"
             ),
             ConfigError::BadLength { len } => write!(
                 f,
@@ -407,6 +442,12 @@ pub enum ConfigState {
     /// The device has no stored configuration and needs none: a virtual pen (the QEMU board
     /// without a configuration image, a bridge to a commercial device).
     NotApplicable,
+    /// The stored image is of an older format (`from`), migrated ([`Loaded::Migrated`]):
+    /// the pen's geometry, drive channels, limits and calibration are in force (the brush
+    /// follows the pen), forces are refused until a `SetConfig` gives what bounds the motor
+    /// current (each winding's resistance, the supply, the driver's rating). `GetConfig`
+    /// answers with the migrated configuration, those values at zero.
+    Migrated { from: u16 },
 }
 
 impl ConfigState {
@@ -414,6 +455,16 @@ impl ConfigState {
     pub fn of(loaded: &Result<DeviceConfig, ConfigError>) -> Self {
         match loaded {
             Ok(_) => ConfigState::Valid,
+            Err(ConfigError::Erased) => ConfigState::Missing,
+            Err(e) => ConfigState::Corrupt(e.clone()),
+        }
+    }
+
+    /// The state after loading an image: [`load`]'s result.
+    pub fn of_loaded(loaded: &Result<Loaded, ConfigError>) -> Self {
+        match loaded {
+            Ok(Loaded::Current(_)) => ConfigState::Valid,
+            Ok(Loaded::Migrated { from, .. }) => ConfigState::Migrated { from: *from },
             Err(ConfigError::Erased) => ConfigState::Missing,
             Err(e) => ConfigState::Corrupt(e.clone()),
         }
@@ -455,22 +506,30 @@ pub struct Readiness {
 
 impl Readiness {
     /// From the store's state, the configuration in force (`Some` exactly when `state` is
-    /// [`ConfigState::Valid`]) and how long this pen's zeros hold.
+    /// [`ConfigState::Valid`] or [`ConfigState::Migrated`]) and how long this pen's zeros
+    /// hold. A migrated configuration never allows forces; its zeros count as they would
+    /// in a valid one (its kinematics are in force).
     ///
     /// A pen without a stored configuration that needs none ([`ConfigState::NotApplicable`]:
     /// the QEMU board's virtual pen, whose poses come from the host already in the world
     /// frame) is calibrated by construction.
     pub fn of(state: &ConfigState, config: Option<&DeviceConfig>, zeros: ZeroHold) -> Self {
-        let calibrated = match (state, config) {
-            (ConfigState::NotApplicable, _) => true,
-            (ConfigState::Valid, Some(cfg)) if cfg.validate().is_ok() => match zeros {
-                ZeroHold::Stored => cfg.calibration.is_some(),
-                ZeroHold::SincePowerOn(taken) => taken.is_some() && cfg.calibration == taken,
-            },
-            _ => false,
+        let zeros_hold = |cfg: &DeviceConfig| match zeros {
+            ZeroHold::Stored => cfg.calibration.is_some(),
+            ZeroHold::SincePowerOn(taken) => taken.is_some() && cfg.calibration == taken,
+        };
+        let (allows_forces, calibrated) = match (state, config) {
+            (ConfigState::NotApplicable, _) => (true, true),
+            (ConfigState::Valid, Some(cfg)) if cfg.validate().is_ok() => {
+                let held = zeros_hold(cfg);
+                (held, held)
+            }
+            // Kinematics and zeros, never force: what bounds the current is not given.
+            (ConfigState::Migrated { .. }, Some(cfg)) => (false, zeros_hold(cfg)),
+            _ => (false, false),
         };
         Readiness {
-            allows_forces: calibrated,
+            allows_forces,
             not_calibrated: !calibrated,
         }
     }
@@ -483,6 +542,13 @@ impl fmt::Display for ConfigState {
             ConfigState::Missing => f.write_str("missing (never written)"),
             ConfigState::Corrupt(e) => write!(f, "corrupt: {e}"),
             ConfigState::NotApplicable => f.write_str("not applicable (no stored configuration)"),
+            ConfigState::Migrated { from } => write!(
+                f,
+                "configuration migrated from format {from}: set the motors' winding \
+                 resistance, supply voltage and driver rating (drive.winding_mohm, \
+                 power.supply_v, power.driver_current_a: `maobi device config get -o pen.toml`, \
+                 edit, `maobi device config set pen.toml`) to enable force"
+            ),
         }
     }
 }
@@ -519,16 +585,63 @@ pub fn encode(cfg: &DeviceConfig, out: &mut [u8]) -> Result<usize, ConfigError> 
     Ok(body_len + CRC_LEN)
 }
 
-/// Reads an image from the start of `image` (bytes after its end are ignored: a flash page
-/// is larger than the image) and validates it. Never panics, whatever the bytes.
-pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
-    let cfg = decode_unchecked(image)?;
-    cfg.validate().map_err(ConfigError::Invalid)?;
-    Ok(cfg)
+/// What an intact image holds ([`load`]).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum Loaded {
+    /// An image of this format ([`CONFIG_FORMAT_VERSION`]), valid.
+    Current(DeviceConfig),
+    /// An image of the older format `from`, read into this one: everything it has, valid
+    /// ([`DeviceConfig::validate_migrated`]); what it lacks (the winding resistances, the
+    /// power) at zero, so that [`DeviceConfig::validate`] refuses it until the builder gives
+    /// them. Not for the motors: [`ConfigState::Migrated`].
+    Migrated { from: u16, config: DeviceConfig },
 }
 
-/// [`decode`] without the validation: the configuration an intact image holds.
-fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
+impl Loaded {
+    /// The configuration, current or migrated.
+    pub fn config(&self) -> &DeviceConfig {
+        match self {
+            Loaded::Current(c) | Loaded::Migrated { config: c, .. } => c,
+        }
+    }
+}
+
+/// Reads an image of this format from the start of `image` (bytes after its end are
+/// ignored: a flash page is larger than the image) and validates it: what [`encode`] wrote.
+/// An older format is [`ConfigError::UnsupportedVersion`] here: [`load`] migrates it.
+/// Never panics, whatever the bytes.
+pub fn decode(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
+    match load(image)? {
+        Loaded::Current(cfg) => Ok(cfg),
+        Loaded::Migrated { from, .. } => Err(ConfigError::UnsupportedVersion { found: from }),
+    }
+}
+
+/// Reads an image of this format or an older one from the start of `image` and validates
+/// it ([`Loaded`]): what the pen does with its store at start. The same checks, in the same
+/// order, for every format (header, length within the format's bound, CRC, payload decodes
+/// with nothing left over, values valid). Never panics, whatever the bytes.
+pub fn load(image: &[u8]) -> Result<Loaded, ConfigError> {
+    let (version, payload) = intact_payload(image)?;
+    if version == 1 {
+        let cfg = format_1::take(payload)?;
+        cfg.validate_migrated().map_err(ConfigError::Invalid)?;
+        return Ok(Loaded::Migrated {
+            from: 1,
+            config: cfg,
+        });
+    }
+    let cfg = match postcard::take_from_bytes::<DeviceConfig>(payload) {
+        Ok((cfg, [])) => cfg,
+        _ => return Err(ConfigError::Undecodable),
+    };
+    cfg.validate().map_err(ConfigError::Invalid)?;
+    Ok(Loaded::Current(cfg))
+}
+
+/// The format version and the payload of an intact image of a format this firmware reads:
+/// header, length and CRC checked.
+fn intact_payload(image: &[u8]) -> Result<(u16, &[u8]), ConfigError> {
     let header_part = image.get(..IMAGE_HEADER_LEN).unwrap_or(image);
     if !header_part.is_empty() && header_part.iter().all(|&b| b == 0xFF) {
         return Err(ConfigError::Erased);
@@ -544,11 +657,13 @@ fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
         return Err(ConfigError::Truncated);
     }
     let version = u16::from_le_bytes([v0, v1]);
-    if version != CONFIG_FORMAT_VERSION {
-        return Err(ConfigError::UnsupportedVersion { found: version });
-    }
+    let payload_max = match version {
+        CONFIG_FORMAT_VERSION => CONFIG_PAYLOAD_MAX,
+        1 => FORMAT_1_PAYLOAD_MAX,
+        found => return Err(ConfigError::UnsupportedVersion { found }),
+    };
     let len = u16::from_le_bytes([l0, l1]);
-    if usize::from(len) > CONFIG_PAYLOAD_MAX {
+    if usize::from(len) > payload_max {
         return Err(ConfigError::BadLength { len });
     }
     let body_len = IMAGE_HEADER_LEN + usize::from(len);
@@ -570,9 +685,64 @@ fn decode_unchecked(image: &[u8]) -> Result<DeviceConfig, ConfigError> {
         });
     }
     let payload = body.get(IMAGE_HEADER_LEN..).ok_or(ConfigError::Truncated)?;
-    match postcard::take_from_bytes::<DeviceConfig>(payload) {
-        Ok((cfg, [])) => Ok(cfg),
-        _ => Err(ConfigError::Undecodable),
+    Ok((version, payload))
+}
+
+/// Format 1's payload, read to migrate it: postcard's encoding of, in this order, the pen
+/// ([`PenConfig`], unchanged since), three drive channels of four fields (PWM frequency
+/// `u32`, deadband `f32`, duty clamp `f32`, [`crate::pen_io::ZeroPolicy`]: format 2 appended the winding
+/// resistance), the force limits ([`DeviceLimits`], unchanged) and the calibration
+/// (`Option<RawReadings>`, unchanged); format 2 put the power between the drive channels
+/// and the limits. The unchanged parts are read with the deserializers format 2's uses.
+mod format_1 {
+    use postcard::take_from_bytes;
+    use serde::Deserialize;
+
+    use super::{ConfigError, DeviceConfig, PowerConfig};
+    use crate::force::DeviceLimits;
+    use crate::kinematics::{PenConfig, RawReadings};
+    use crate::pen_io::drive::{DriveConfig, ZeroPolicy};
+
+    /// A format-1 drive channel.
+    #[derive(Deserialize)]
+    struct Drive {
+        pwm_hz: u32,
+        deadband: f32,
+        max_duty: f32,
+        zero: ZeroPolicy,
+    }
+
+    /// What bounds the motor current, not given: zero, which validation refuses.
+    const NOT_GIVEN: PowerConfig = PowerConfig {
+        supply_v: 0.0,
+        driver_current_a: 0.0,
+    };
+
+    /// The configuration a format-1 payload holds, the whole payload (nothing left over),
+    /// migrated: the winding resistances and the power at zero.
+    pub(super) fn take(payload: &[u8]) -> Result<DeviceConfig, ConfigError> {
+        let undecodable = |_| ConfigError::Undecodable;
+        let (pen, rest) = take_from_bytes::<PenConfig>(payload).map_err(undecodable)?;
+        let (drive, rest) = take_from_bytes::<[Drive; 3]>(rest).map_err(undecodable)?;
+        let (limits, rest) = take_from_bytes::<DeviceLimits>(rest).map_err(undecodable)?;
+        let (calibration, rest) =
+            take_from_bytes::<Option<RawReadings>>(rest).map_err(undecodable)?;
+        if !rest.is_empty() {
+            return Err(ConfigError::Undecodable);
+        }
+        Ok(DeviceConfig {
+            pen,
+            drive: drive.map(|d| DriveConfig {
+                pwm_hz: d.pwm_hz,
+                deadband: d.deadband,
+                max_duty: d.max_duty,
+                zero: d.zero,
+                winding_mohm: 0,
+            }),
+            power: NOT_GIVEN,
+            limits,
+            calibration,
+        })
     }
 }
 

@@ -41,7 +41,8 @@
 //! older than everything in the other sectors) are never taken for the newest.
 //!
 //! A committed slot whose image does not decode (a bit flipped in flash since, or an image
-//! of another format version after a firmware update) is still the newest: the pen reports
+//! of a format version the firmware does not read, after an update; format 1 is migrated:
+//! [`super::load`]) is still the newest: the pen reports
 //! it as corrupt and refuses forces rather than bring back an older configuration (and
 //! calibration) that the builder had replaced and been told was replaced.
 //!

@@ -10,7 +10,8 @@
 //!   low-pass ([`AdcFilter`]).
 //! * [`config`]: what the pen stores in flash ([`DeviceConfig`]), its validation, and the
 //!   flash image format: magic, format version, length, postcard payload, CRC-32
-//!   ([`encode`], [`decode`], [`ConfigError`]); and the state the handshake reports
+//!   ([`encode`], [`decode`], [`ConfigError`]), older formats migrated ([`load`],
+//!   [`Loaded`]); and the state the handshake reports
 //!   ([`ConfigState`]); whether that configuration lets the pen render forces and whether
 //!   it is calibrated ([`Readiness`], [`ZeroHold`]).
 //!
@@ -42,9 +43,9 @@ pub mod flash_acr;
 
 pub use adc::AdcFilter;
 pub use config::{
-    decode, encode, ConfigError, ConfigState, DeviceConfig, InvalidField, OverCurrent, PowerConfig,
-    Readiness, ZeroHold, CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX, CONFIG_MAGIC, CONFIG_PAYLOAD_MAX,
-    FIELD_LEN, IMAGE_HEADER_LEN,
+    decode, encode, load, ConfigError, ConfigState, DeviceConfig, InvalidField, Loaded,
+    OverCurrent, PowerConfig, Readiness, ZeroHold, CONFIG_FORMAT_VERSION, CONFIG_IMAGE_MAX,
+    CONFIG_MAGIC, CONFIG_PAYLOAD_MAX, FIELD_LEN, FORMAT_1_PAYLOAD_MAX, IMAGE_HEADER_LEN,
 };
 pub use config_log::{ConfigLog, LogError, Region};
 pub use drive::{Direction, DriveConfig, DriveOutput, ZeroPolicy, ZERO_COMMAND};

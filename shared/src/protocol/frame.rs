@@ -27,7 +27,10 @@ use serde::{Deserialize, Serialize};
 /// * 6: the board's tick limits in the handshake (`DeviceInfo::limits`) and the refusals
 ///   that name them (`RejectReason::OverTickLimit`, `CommandError::OverTickLimit`); the
 ///   worst tick's busy time and the overruns in `Telemetry`.
-pub const PROTOCOL_VERSION: u8 = 6;
+/// * 7: `ConfigState::Migrated`, appended: the stored image was of an older configuration
+///   format, read into this one, in force for the kinematics but not for the motors until a
+///   `SetConfig` gives what that format lacks.
+pub const PROTOCOL_VERSION: u8 = 7;
 
 /// The byte that ends every frame. Never appears inside a COBS-stuffed frame. A sender that
 /// (re)opens the link may write one first so the receiver drops any partial frame it holds.

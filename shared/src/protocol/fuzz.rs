@@ -449,6 +449,7 @@ fn config_state() -> impl Strategy<Value = ConfigState> {
         Just(ConfigState::Valid),
         Just(ConfigState::Missing),
         Just(ConfigState::NotApplicable),
+        any::<u16>().prop_map(|from| ConfigState::Migrated { from }),
         prop_oneof![
             Just(ConfigError::Erased),
             Just(ConfigError::BadMagic),

@@ -69,7 +69,9 @@ pub enum HostMsg {
     Guide(GuideSample),
     // Protocol 3: the stored configuration (appended: earlier variants keep their tags).
     /// Reads the configuration in force; answered by [`DeviceMsg::Config`] (an error when
-    /// none is: [`ConfigRejected::NotStored`] with the [`ConfigState`]).
+    /// none is: [`ConfigRejected::NotStored`] with the [`ConfigState`]). A configuration
+    /// migrated from an older format ([`ConfigState::Migrated`], protocol 7) is in force for
+    /// the kinematics and is answered, what that format lacked at zero.
     GetConfig,
     /// Validates `config`, writes it to the pen's store, reads it back and puts it in force;
     /// answered by [`DeviceMsg::Config`] with the configuration now stored, or why not

@@ -54,8 +54,11 @@
 //! [`DeviceInfo::config`] says what the pen knows about its stored configuration
 //! ([`ConfigState`]): `Valid`, `Missing` (erased flash), `Corrupt(`[`ConfigError`]`)` (bad
 //! magic, another format version, truncated, CRC mismatch, undecodable, a value out of
-//! range: see [`crate::pen_io::config`] for the image), or `NotApplicable` (a virtual pen
-//! needs none). While the state does not [allow forces](ConfigState::allows_forces),
+//! range: see [`crate::pen_io::config`] for the image), `NotApplicable` (a virtual pen
+//! needs none), or `Migrated { from }` (protocol 7: an image of an older format, read into
+//! this one; the kinematics and calibration are in force, forces are not until a
+//! `SetConfig` gives each motor's winding resistance, the supply and the driver's rating).
+//! While the state does not [allow forces](ConfigState::allows_forces),
 //! `EnableForces` and `NudgeMotor` are refused with [`CommandError::ConfigNotValid`] and
 //! the motors stay off. `SetConfig` validates the whole configuration before it writes
 //! anything and is refused while forces are enabled; a valid write puts the configuration in

@@ -21,6 +21,8 @@ const DIGESTS: &[(u32, u64)] = &[
     (1, 0xf8f4_0318_0178_30ad),
     (2, 0xed07_44fd_32e4_7560),
     (3, 0x60cc_1aac_554e_9d07),
+    // The tie's weight near the paper taken where the substep ends (contact without hops).
+    (4, 0x74c1_ecea_fb21_8871),
 ];
 
 /// FNV-1a, 64 bits: a digest that any change to the bytes moves.

@@ -54,7 +54,7 @@ pub const MAX_TICKS: u64 = 24 * 3600 * 1000;
 /// says so. Raised with every change to the re-rendered result; `tests/model_version.rs`
 /// keeps a digest of a reference session's re-render for the current version and fails when
 /// the result changes and the version does not.
-pub const MODEL_VERSION: u32 = 3;
+pub const MODEL_VERSION: u32 = 4;
 /// A change to the paper that is not ink.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

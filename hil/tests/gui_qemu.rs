@@ -95,6 +95,19 @@ fn replay(h: &mut Harness<'static, MaobiApp>, poses: &Path) {
 
 /// The firmware in QEMU in lock-step, every tick's state on its UART0 socket; returns the
 /// emulator and the socket's address.
+/// The app's link to a lock-step pen: a silence of the link's usual half second ends a
+/// session (`LINK_TIMEOUT`), and a pen that ticks only on the test's poses is silent for as
+/// long as this machine is busy elsewhere (on a loaded CI machine, both tests' links once
+/// went quiet for more than that at the same moment). What these tests check is that every
+/// state arrives, counted by sequence number, so the silence the link tolerates is the
+/// tests' hang guard, not the wall clock of one frame.
+fn lockstep_link(options: LinkOptions) -> LinkOptions {
+    LinkOptions {
+        silence_limit: Duration::from_secs(60),
+        ..options
+    }
+}
+
 fn lockstep_firmware(elf: &Path) -> (Guest, String) {
     let tick = format!("tick_us={EMULATED_TICK_US}");
     let telemetry = format!("telemetry_ticks={TELEMETRY_TICKS}");
@@ -122,8 +135,11 @@ fn the_app_over_tcp_to_the_qemu_firmware_inks_like_the_built_in_simulator() {
     replay(&mut local, &hook);
 
     let (mut guest, addr) = lockstep_firmware(&elf);
-    let device =
-        LinkDevice::new(LinkOptions::new(Endpoint::Tcp(addr), start_hand(length))).unwrap();
+    let device = LinkDevice::new(lockstep_link(LinkOptions::new(
+        Endpoint::Tcp(addr),
+        start_hand(length),
+    )))
+    .unwrap();
     let mut remote = app(Box::new(device));
     step_until(&mut remote, "connects to QEMU's UART0 socket", |app| {
         app.status().connected
@@ -186,7 +202,7 @@ fn guided_writing_over_tcp_to_the_qemu_firmware() {
     // The pen hangs 10 mm above the paper (the pointer does not move); the moving point runs
     // a 30 mm line in 0.5 s from 5 mm beside it.
     let z = length + 10.0;
-    let mut dev = LinkDevice::new(LinkOptions::new(
+    let mut dev = LinkDevice::new(lockstep_link(LinkOptions::new(
         Endpoint::Tcp(addr),
         HandInput {
             x: 0.0,
@@ -195,7 +211,7 @@ fn guided_writing_over_tcp_to_the_qemu_firmware() {
             tilt_x_deg: 0.0,
             tilt_y_deg: 0.0,
         },
-    ))
+    )))
     .unwrap();
     // QEMU opens its socket when it is ready: the device keeps trying in the background.
     let _ = dev.connect();

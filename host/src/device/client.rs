@@ -81,6 +81,11 @@ pub struct LinkOptions {
     pub start_hand: HandInput,
     /// Preset whose parameters the status shows until the device has reported its own.
     pub preset: String,
+    /// How long without a good frame ends the session: [`LINK_TIMEOUT`], what a pen on a
+    /// cable that comes loose looks like. A test that runs an emulated pen in lock-step
+    /// raises it: that pen is silent while the machine that emulates it is busy elsewhere,
+    /// which says nothing about the link.
+    pub silence_limit: Duration,
 }
 
 impl LinkOptions {
@@ -90,6 +95,7 @@ impl LinkOptions {
             host_name: "maobi-gui".into(),
             start_hand,
             preset: "large".into(),
+            silence_limit: LINK_TIMEOUT,
         }
     }
 }
@@ -766,10 +772,10 @@ fn session(inner: &Inner, opts: &LinkOptions, dec: &mut HostRx) -> End {
         if frames > 0 {
             inner.wake();
         }
-        if last_good.elapsed() > LINK_TIMEOUT {
+        if last_good.elapsed() > opts.silence_limit {
             return End::Lost(format!(
                 "no data from the device for {} ms",
-                LINK_TIMEOUT.as_millis()
+                opts.silence_limit.as_millis()
             ));
         }
     }

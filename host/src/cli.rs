@@ -756,10 +756,10 @@ fn run_bridge(a: &BridgeArgs) -> anyhow::Result<()> {
     // Dropping the model (with the server) stops the scheduler and releases the device.
     server.stop();
     let (mean, max) = shared.callback_cost_us();
-    let (sent, skipped) = shared.state_counts();
+    let (produced, skipped) = shared.state_counts();
     eprintln!(
         "maobi bridge: {} servo ticks, callback {mean:.1} us mean / {max:.1} us max, \
-         {sent} states handed over ({skipped} dropped: no host connected yet, or one too slow)",
+         {produced} states produced ({skipped} of them dropped: no host connected yet, or one too slow)",
         shared.ticks()
     );
     match stopped {

@@ -395,9 +395,23 @@ fn bridge_plays_the_hook_with_the_models_forces_and_streams_its_states() {
     while let Some(s) = shared.take_state() {
         local.insert(s.tick, s);
     }
-    // Every state of the run reached this side (the queue never overflowed).
-    assert_eq!(shared.state_counts().1, 0, "states lost");
-    assert_eq!(local.len() as u64, shared.state_counts().0);
+    // Every state of the run either reached this side or was counted as lost. The servo
+    // never waits for this reader, so how many are lost depends on the machine's load (the
+    // callback skips a state whenever it finds the queue held); the count must be exact.
+    let (produced, lost) = shared.state_counts();
+    assert_eq!(
+        local.len() as u64 + lost,
+        produced,
+        "{} states read, {lost} counted lost, {produced} produced",
+        local.len()
+    );
+    let due = (1..=ticks as u64)
+        .filter(|t| t * 120 / 1000 != (t - 1) * 120 / 1000)
+        .count() as u64;
+    assert!(
+        produced.abs_diff(due) <= 1,
+        "{produced} states produced over {ticks} ticks at 120 Hz ({due} due)"
+    );
     assert_eq!(bridge.stopped(), Some(Stopped::TickLimit(ticks as u32)));
     bridge.shutdown();
     // Two runs of the same poses command the same forces, tick for tick (the records run on

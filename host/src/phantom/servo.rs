@@ -1245,7 +1245,9 @@ impl ServoShared {
         )
     }
 
-    /// States handed over, and states lost (the reader held the queue, or fell behind).
+    /// States the servo loop produced, and of them the ones lost (the reader held the queue
+    /// at that instant, or fell [`STATE_QUEUE`] behind): a reader that drains the queue after
+    /// the loop stops has read exactly the difference.
     pub fn state_counts(&self) -> (u64, u64) {
         (
             self.states.load(Ordering::Relaxed),
@@ -1514,6 +1516,8 @@ impl ServoCtx {
         let Some(state) = self.core.servo_state() else {
             return;
         };
+        // Counted before the handoff, so every state is either read or counted as lost.
+        self.shared.states.fetch_add(1, Ordering::Relaxed);
         match self.shared.states_q.try_lock() {
             Ok(mut q) => {
                 if q.len() >= STATE_QUEUE {
@@ -1522,7 +1526,6 @@ impl ServoCtx {
                 }
                 // Within the reserved capacity: no allocation.
                 q.push_back((state, self.core.guide_frame()));
-                self.shared.states.fetch_add(1, Ordering::Relaxed);
             }
             Err(_) => {
                 self.shared.states_skipped.fetch_add(1, Ordering::Relaxed);

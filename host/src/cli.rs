@@ -245,6 +245,22 @@ pub struct SimDeviceArgs {
     pub state_hz: u32,
 }
 
+/// `maobi gui --face`.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FaceArg {
+    Writing,
+    Laboratory,
+}
+
+impl From<FaceArg> for crate::gui::writing::Face {
+    fn from(f: FaceArg) -> Self {
+        match f {
+            FaceArg::Writing => crate::gui::writing::Face::Writing,
+            FaceArg::Laboratory => crate::gui::writing::Face::Laboratory,
+        }
+    }
+}
+
 #[derive(Debug, Args)]
 pub struct GuiArgs {
     /// The device: `sim` (the built-in simulator), `tcp:HOST:PORT` (the QEMU board, `maobi
@@ -264,6 +280,15 @@ pub struct GuiArgs {
     /// After the replay, save a screenshot of the window here and exit.
     #[arg(long, value_name = "OUT.png")]
     pub screenshot: Option<PathBuf>,
+    /// Where "Save picture" (Ctrl+S) writes the paper as a PNG (default: as last used, else
+    /// out/maobi-canvas.png).
+    #[arg(long, value_name = "OUT.png")]
+    pub picture: Option<PathBuf>,
+    /// The face the app opens with: `writing` (the paper first) or `laboratory` (devices,
+    /// parameters, plots, files); F2 switches (default: the one left open last, else
+    /// `writing`).
+    #[arg(long, value_enum)]
+    pub face: Option<FaceArg>,
     /// Open this session (saved with "Save session") at start: its paper re-rendered, the
     /// built-in simulator going on from where it ended.
     #[arg(long, value_name = "SESSION.maobi.toml", conflicts_with = "replay")]
@@ -637,6 +662,8 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
         replay: a.replay,
         screenshot: a.screenshot,
         session: a.session,
+        picture: a.picture,
+        face: a.face.map(Into::into),
         paper_mm: a.paper_mm.unwrap_or(defaults.paper_mm),
         px_per_mm: a.px_per_mm.unwrap_or(defaults.px_per_mm),
         tablet: a.tablet,

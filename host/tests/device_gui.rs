@@ -164,12 +164,14 @@ fn the_device_chooser_switches_to_tcp_and_keeps_the_paper() {
         ..GuiOptions::default()
     };
     let device = SimDevice::new(SimClock::Stepped(50), "large", start_hand(40.0)).unwrap();
-    let app = MaobiApp::new(
+    let mut app = MaobiApp::new(
         Box::new(device),
         opts.frame(),
         Automation::default(),
         Default::default(),
     );
+    // The device chooser is the laboratory's.
+    app.set_face(maobi::gui::writing::Face::Laboratory);
     let mut h = common::harness(app);
     h.run_steps(2);
     let hook = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/poses/hook.csv");

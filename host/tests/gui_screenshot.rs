@@ -107,20 +107,37 @@ fn screenshot_shows_ink_and_the_brush() {
     let area = |r: [u32; 4]| (r[2].min(w) - r[0]) as u64 * (r[3].min(h) - r[1]) as u64;
 
     let canvas = rect(&layout, "canvas");
+    // The sheet within the view (the view's margin around it is dark, not ink).
+    let s = rect(&layout, "sheet");
+    let sheet = [
+        s[0].max(canvas[0]),
+        s[1].max(canvas[1]),
+        s[2].min(canvas[2]),
+        s[3].min(canvas[3]),
+    ];
     let luma = |p: [i32; 3]| (p[0] * 3 + p[1] * 6 + p[2]) / 10;
-    let paper = count(canvas, &|p| luma(p) > 200);
+    let paper = count(sheet, &|p| luma(p) > 200);
     // Ink is a tone (1 - exp(-ink)), grey where a stroke runs dry, not solid black: a pixel
     // at half the paper's brightness or darker.
-    let ink = count(canvas, &|p| luma(p) < 128);
+    let ink = count(sheet, &|p| luma(p) < 128);
     eprintln!(
-        "canvas {canvas:?}: {paper} paper px, {ink} ink px of {}",
-        area(canvas)
+        "sheet {sheet:?} in the view {canvas:?}: {paper} paper px, {ink} ink px of {}",
+        area(sheet)
     );
     assert!(
-        paper > area(canvas) / 3,
-        "the paper view shows paper: {paper} light pixels"
+        paper > area(sheet) / 2,
+        "the sheet shows paper: {paper} light pixels"
     );
     assert!(ink > 500, "the paper view shows ink: {ink} dark pixels");
+
+    // The app opens in the writing view: the paper's view takes most of the window.
+    let window = rect(&layout, "window");
+    let share = area(canvas) as f64 / area(window) as f64;
+    eprintln!(
+        "window {window:?}: the paper view has {:.1}%",
+        share * 100.0
+    );
+    assert!(share >= 0.7, "the paper view has {share:.3} of the window");
 
     let brush = rect(&layout, "brush");
     let hair = count(brush, &|p| {

@@ -19,6 +19,7 @@ use super::files::{DeviceKind, FileKind, Recent, Settings};
 use super::rerender::{rerender, Rerender};
 use super::session::{CanvasOp, InkLog, Session};
 use super::timeline::{Timeline, TimelineAction};
+use super::writing::{brush_mark, draw_grid, draw_mark, BrushMark, Face, Grid};
 use crate::device::model::HEAD_NAMES;
 use crate::device::{
     serial_ports, BrushChoice, BrushFrame, Device, DeviceCommand, DeviceStatus, Endpoint,
@@ -32,6 +33,8 @@ use crate::tablet::{PressureCurve, Tablet, TabletInfo, TabletStatus};
 
 /// Seconds of history in the live plots.
 const PLOT_SECONDS: f64 = 5.0;
+/// Side of the writing view's brush view (points).
+const BRUSH_VIEW_PT: f32 = 240.0;
 /// Ferrule height above the brush length while the pen is up (mm).
 const HOVER_MM: f64 = 6.0;
 
@@ -199,6 +202,12 @@ pub struct MaobiApp {
     opening: Option<(PathBuf, RerenderSlot)>,
     /// The clock of the simulator an opened session continues on.
     session_clock: SimClock,
+    /// Which face the app shows, the writing view's grid, and whether it shows the brush.
+    face: Face,
+    grid: Grid,
+    show_brush_view: bool,
+    /// What the paper view drew for the brush in the last frame.
+    mark: Option<BrushMark>,
 }
 
 /// Where a background re-render leaves its result.
@@ -289,7 +298,37 @@ impl MaobiApp {
             session_path: "out/maobi-session.maobi.toml".into(),
             opening: None,
             session_clock: SimClock::RealTime,
+            face: Face::default(),
+            grid: Grid::default(),
+            show_brush_view: true,
+            mark: None,
         }
+    }
+
+    /// Which face the app shows.
+    pub fn face(&self) -> Face {
+        self.face
+    }
+
+    /// Shows `face` (the laboratory or the writing view).
+    pub fn set_face(&mut self, face: Face) {
+        self.face = face;
+    }
+
+    /// The grid drawn over the paper.
+    pub fn set_grid(&mut self, grid: Grid) {
+        self.grid = grid;
+    }
+
+    /// What the paper view drew for the brush in the last frame: its hover ring or its
+    /// footprint (see [`super::writing`]).
+    pub fn brush_mark(&self) -> Option<&BrushMark> {
+        self.mark.as_ref()
+    }
+
+    /// Where Ctrl+S saves the picture.
+    pub fn set_picture_path(&mut self, path: &Path) {
+        self.save_path = path.display().to_string();
     }
 
     /// The app drawing its text with the fonts of `source` (tests fix them, so that the
@@ -847,9 +886,11 @@ impl MaobiApp {
             )
         };
         let layout = format!(
-            "canvas {}\nbrush {}\n",
+            "canvas {}\nbrush {}\nsheet {}\nwindow {}\n",
             r(self.paper.view_rect),
-            r(self.brush_rect)
+            r(self.brush_rect),
+            r(self.paper.sheet_rect()),
+            r(ctx.viewport_rect())
         );
         let lpath = layout_path(path);
         std::fs::write(&lpath, layout)
@@ -1019,84 +1060,9 @@ impl MaobiApp {
                 self.restart_ink_log();
             }
             ui.separator();
-            let mut model = self.status.model;
-            egui::ComboBox::from_label("model")
-                .selected_text(model.label())
-                .show_ui(ui, |ui| {
-                    for m in ModelKind::ALL {
-                        ui.selectable_value(&mut model, m, m.label());
-                    }
-                })
-                .response
-                .on_hover_text(
-                    "Liang: the pen's mass-spring brush. Baxter & Lin: spines that find their \
-                     shape by minimising energy, with stiction and the flat, filbert and fan \
-                     heads (desktop only: the built-in simulator)",
-                );
-            if model != self.status.model {
-                match self.device.send(DeviceCommand::Model(model)) {
-                    Ok(()) => {
-                        self.model_choice = model;
-                        self.message = Some((format!("model: {}", model.label()), false));
-                    }
-                    Err(e) => self.message = Some((e.to_string(), true)),
-                }
-            }
-            let mut preset = self.status.preset.clone();
-            egui::ComboBox::from_label("brush")
-                .selected_text(preset.clone())
-                .show_ui(ui, |ui| {
-                    for (name, _) in presets::PRESETS {
-                        ui.selectable_value(&mut preset, name.to_string(), name);
-                    }
-                    if self.status.model == ModelKind::BaxterLin {
-                        for name in HEAD_NAMES {
-                            ui.selectable_value(&mut preset, name.to_string(), name);
-                        }
-                    }
-                });
-            if preset != self.status.preset {
-                match self.device.send(DeviceCommand::Preset(preset.clone())) {
-                    Ok(()) => {
-                        if let Ok(b) = BrushChoice::parse(&preset) {
-                            self.param_edit =
-                                ParamId::ALL.iter().map(|&i| b.params.get(i)).collect();
-                        }
-                        self.message = Some((format!("brush: {preset}"), false));
-                    }
-                    Err(e) => self.message = Some((e.to_string(), true)),
-                }
-            }
-            let mut paper = self.paper.paper().kind;
-            egui::ComboBox::from_label("paper")
-                .selected_text(paper.name())
-                .show_ui(ui, |ui| {
-                    for k in PaperKind::ALL {
-                        ui.selectable_value(&mut paper, k, k.name());
-                    }
-                })
-                .response
-                .on_hover_text(
-                    "sized (熟宣): the ink stays where it fell; raw (生宣): it wicks outward \
-                     along the fibres. Changing it starts a fresh sheet",
-                );
-            self.set_paper(paper);
-            let l = ui.label("ink load");
-            ui.add(
-                egui::DragValue::new(&mut self.ink_load)
-                    .range(0.0..=1.0)
-                    .speed(0.01)
-                    .fixed_decimals(2),
-            )
-            .labelled_by(l.id)
-            .on_hover_text("How wet a dip leaves the brush (0: dry, 1: fully loaded)");
-            if ui.button("Dip ink").clicked() {
-                let load = self.ink_load;
-                self.message = Some(match self.device.send(DeviceCommand::Dip(load)) {
-                    Ok(()) => (format!("dipped: ink load {load:.2}"), false),
-                    Err(e) => (format!("cannot dip: {e}"), true),
-                });
-            }
+            self.brush_controls(ui);
+            self.paper_controls(ui);
+            self.dip_controls(ui);
             let enabled = self.status.forces_enabled;
             let out = self.latest.as_ref().map(|f| f.output);
             if ui
@@ -1114,21 +1080,7 @@ impl MaobiApp {
                 }
             }
             ui.separator();
-            if ui
-                .add_enabled(
-                    self.paper.undo_depth() > 0,
-                    egui::Button::new("Undo stroke"),
-                )
-                .clicked()
-            {
-                self.undo();
-            }
-            if ui.button("Clear").clicked() {
-                self.clear();
-            }
-            if ui.button("Fit").clicked() {
-                self.paper.fit();
-            }
+            self.edit_buttons(ui);
             ui.toggle_value(&mut self.show_timeline, "Strokes")
                 .on_hover_text("The stroke editor: keyframes, timeline, play, guided writing");
             if ui.button("1:1").clicked() {
@@ -1224,6 +1176,132 @@ impl MaobiApp {
                 ui.visuals().text_color()
             };
             ui.label(RichText::new(m).color(c));
+        }
+    }
+
+    /// The brush model and the preset (or Baxter & Lin's head): both faces' toolbars.
+    fn brush_controls(&mut self, ui: &mut egui::Ui) {
+        let mut model = self.status.model;
+        egui::ComboBox::from_label("model")
+            .selected_text(model.label())
+            .show_ui(ui, |ui| {
+                for m in ModelKind::ALL {
+                    ui.selectable_value(&mut model, m, m.label());
+                }
+            })
+            .response
+            .on_hover_text(
+                "Liang: the pen's mass-spring brush. Baxter & Lin: spines that find their \
+                 shape by minimising energy, with stiction and the flat, filbert and fan \
+                 heads (desktop only: the built-in simulator)",
+            );
+        if model != self.status.model {
+            match self.device.send(DeviceCommand::Model(model)) {
+                Ok(()) => {
+                    self.model_choice = model;
+                    self.message = Some((format!("model: {}", model.label()), false));
+                }
+                Err(e) => self.message = Some((e.to_string(), true)),
+            }
+        }
+        let mut preset = self.status.preset.clone();
+        egui::ComboBox::from_label("brush")
+            .selected_text(preset.clone())
+            .show_ui(ui, |ui| {
+                for (name, _) in presets::PRESETS {
+                    ui.selectable_value(&mut preset, name.to_string(), name);
+                }
+                if self.status.model == ModelKind::BaxterLin {
+                    for name in HEAD_NAMES {
+                        ui.selectable_value(&mut preset, name.to_string(), name);
+                    }
+                }
+            });
+        if preset != self.status.preset {
+            match self.device.send(DeviceCommand::Preset(preset.clone())) {
+                Ok(()) => {
+                    if let Ok(b) = BrushChoice::parse(&preset) {
+                        self.param_edit = ParamId::ALL.iter().map(|&i| b.params.get(i)).collect();
+                    }
+                    self.message = Some((format!("brush: {preset}"), false));
+                }
+                Err(e) => self.message = Some((e.to_string(), true)),
+            }
+        }
+    }
+
+    /// The paper's kind (sized or raw): both faces' toolbars.
+    fn paper_controls(&mut self, ui: &mut egui::Ui) {
+        let mut paper = self.paper.paper().kind;
+        egui::ComboBox::from_label("paper")
+            .selected_text(paper.name())
+            .show_ui(ui, |ui| {
+                for k in PaperKind::ALL {
+                    ui.selectable_value(&mut paper, k, k.name());
+                }
+            })
+            .response
+            .on_hover_text(
+                "sized (熟宣): the ink stays where it fell; raw (生宣): it wicks outward \
+                 along the fibres. Changing it starts a fresh sheet",
+            );
+        self.set_paper(paper);
+    }
+
+    /// The ink load and the dip (D): both faces' toolbars.
+    fn dip_controls(&mut self, ui: &mut egui::Ui) {
+        let l = ui.label("ink load");
+        ui.add(
+            egui::DragValue::new(&mut self.ink_load)
+                .range(0.0..=1.0)
+                .speed(0.01)
+                .fixed_decimals(2),
+        )
+        .labelled_by(l.id)
+        .on_hover_text("How wet a dip leaves the brush (0: dry, 1: fully loaded)");
+        if ui
+            .button("Dip ink")
+            .on_hover_text("Load the brush with ink (D)")
+            .clicked()
+        {
+            self.dip();
+        }
+    }
+
+    /// Dips the brush to the ink load set.
+    pub fn dip(&mut self) {
+        let load = self.ink_load;
+        self.message = Some(match self.device.send(DeviceCommand::Dip(load)) {
+            Ok(()) => (format!("dipped: ink load {load:.2}"), false),
+            Err(e) => (format!("cannot dip: {e}"), true),
+        });
+    }
+
+    /// Undo (Ctrl+Z), clear (Ctrl+N) and fit (F): both faces' toolbars.
+    fn edit_buttons(&mut self, ui: &mut egui::Ui) {
+        if ui
+            .add_enabled(
+                self.paper.undo_depth() > 0,
+                egui::Button::new("Undo stroke"),
+            )
+            .on_hover_text("Ctrl+Z")
+            .clicked()
+        {
+            self.undo();
+        }
+        if ui
+            .button("Clear")
+            .on_hover_text("A fresh sheet (Ctrl+N)")
+            .clicked()
+        {
+            self.clear();
+        }
+        if ui
+            .button("Fit")
+            .on_hover_text("The whole paper in the view (F)")
+            .clicked()
+        {
+            self.paper.fit();
         }
     }
 
@@ -1604,6 +1682,9 @@ impl MaobiApp {
         self.session_path = s.session_path.clone();
         self.recent = s.recent.clone();
         self.recent.prune_missing();
+        self.face = s.face;
+        self.grid = s.grid;
+        self.show_brush_view = s.show_brush_view;
         if keep_tablet {
             return;
         }
@@ -1639,6 +1720,9 @@ impl MaobiApp {
             replay_path: self.replay_path.clone(),
             session_path: self.session_path.clone(),
             recent: self.recent.clone(),
+            face: self.face,
+            grid: self.grid,
+            show_brush_view: self.show_brush_view,
         }
     }
 
@@ -1844,6 +1928,37 @@ impl MaobiApp {
         self.pump();
         let drawing = self.status.replaying || self.latest.as_ref().is_some_and(|f| f.replaying);
 
+        self.shortcuts(&ctx);
+        let pointer = match self.face {
+            Face::Laboratory => self.laboratory(ui),
+            Face::Writing => self.writing(ui),
+        };
+        self.hand_input(&ctx, pointer);
+        self.finish_open(&ctx);
+        self.automation(&ctx);
+
+        let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
+        // The ink of this frame's device frames has been uploaded (in `paper.show`): how
+        // long the oldest of them waited since it arrived.
+        if let Some(o) = self.times.oldest_inked.take() {
+            self.times.ink_latency.push(o.elapsed().as_secs_f64() * 1e3);
+        }
+        if let Some(iv) = interval {
+            push(
+                &mut self.times.recent,
+                [self.started.elapsed().as_secs_f64(), iv],
+            );
+            if drawing {
+                self.times.replay_interval.push(iv);
+                self.times.replay_ui.push(ui_ms);
+            }
+        }
+        // A live view: ~60 frames per second while connected.
+        ctx.request_repaint_after(Duration::from_millis(15));
+    }
+    /// The laboratory: devices, parameters, plots, file fields, the stroke editor, the
+    /// paper in the middle. The paper's pointer this frame.
+    fn laboratory(&mut self, ui: &mut egui::Ui) -> super::canvas::PaperPointer {
         egui::Panel::top("toolbar").show(ui, |ui| self.toolbar(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.status_bar(ui));
         if self.show_timeline {
@@ -1879,6 +1994,7 @@ impl MaobiApp {
             let (_, p) = self.paper.show(ui);
             pointer = p;
             self.overlay(ui);
+            self.paper_marks(ui);
             if self.show_timeline {
                 let anchor = self.latest.as_ref().and_then(|f| f.guide.map(|g| g.anchor));
                 if self
@@ -1890,28 +2006,176 @@ impl MaobiApp {
                 }
             }
         });
-        self.hand_input(&ctx, pointer);
-        self.finish_open(&ctx);
-        self.automation(&ctx);
+        pointer
+    }
 
-        let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
-        // The ink of this frame's device frames has been uploaded (in `paper.show`): how
-        // long the oldest of them waited since it arrived.
-        if let Some(o) = self.times.oldest_inked.take() {
-            self.times.ink_latency.push(o.elapsed().as_secs_f64() * 1e3);
+    /// The writing view: the paper as large as the window allows, one row of tools, a
+    /// compact status line and a small brush view over the paper's corner.
+    fn writing(&mut self, ui: &mut egui::Ui) -> super::canvas::PaperPointer {
+        egui::Panel::top("toolbar").show(ui, |ui| self.writing_toolbar(ui));
+        egui::Panel::bottom("status").show(ui, |ui| self.writing_status(ui));
+        let mut pointer = super::canvas::PaperPointer::default();
+        egui::CentralPanel::default()
+            .frame(egui::Frame::NONE)
+            .show(ui, |ui| {
+                let (_, p) = self.paper.show(ui);
+                pointer = p;
+                self.paper_marks(ui);
+            });
+        self.brush_rect = egui::Rect::NOTHING;
+        if self.show_brush_view {
+            let view = self.paper.view_rect;
+            egui::Area::new(egui::Id::unique("brush view"))
+                .fixed_pos(view.right_top() + egui::vec2(-BRUSH_VIEW_PT - 28.0, 12.0))
+                .order(egui::Order::Foreground)
+                .show(ui.ctx(), |ui| {
+                    egui::Frame::popup(ui.style()).show(ui, |ui| {
+                        ui.set_max_size(egui::vec2(BRUSH_VIEW_PT, BRUSH_VIEW_PT));
+                        ui.allocate_ui(egui::vec2(BRUSH_VIEW_PT, BRUSH_VIEW_PT), |ui| {
+                            self.brush_rect =
+                                brush_view::show(ui, &mut self.orbit, self.latest.as_ref());
+                        });
+                    });
+                });
         }
-        if let Some(iv) = interval {
-            push(
-                &mut self.times.recent,
-                [self.started.elapsed().as_secs_f64(), iv],
-            );
-            if drawing {
-                self.times.replay_interval.push(iv);
-                self.times.replay_ui.push(ui_ms);
+        pointer
+    }
+
+    /// The grid and the brush's mark over the paper (both faces).
+    fn paper_marks(&mut self, ui: &egui::Ui) {
+        let painter = ui.painter_at(self.paper.view_rect);
+        draw_grid(&painter, &self.paper, self.grid);
+        let length = self.status.params.length_mm as f64;
+        self.mark = self.latest.as_ref().and_then(|f| brush_mark(f, length));
+        if let Some(m) = &self.mark {
+            draw_mark(&painter, &self.paper, m, length);
+        }
+    }
+
+    /// The writing view's one row: the face switch, brush, ink, paper, grid, edits, picture.
+    fn writing_toolbar(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal_wrapped(|ui| {
+            if ui
+                .button("Laboratory")
+                .on_hover_text("Devices, parameters, plots, files, recordings, sessions, the stroke editor (F2)")
+                .clicked()
+            {
+                self.face = Face::Laboratory;
+            }
+            ui.separator();
+            self.brush_controls(ui);
+            ui.separator();
+            self.dip_controls(ui);
+            ui.separator();
+            self.paper_controls(ui);
+            egui::ComboBox::from_label("grid")
+                .selected_text(self.grid.label())
+                .show_ui(ui, |ui| {
+                    for g in Grid::ALL {
+                        ui.selectable_value(&mut self.grid, g, g.label());
+                    }
+                })
+                .response
+                .on_hover_text("A practice grid over the paper, not in the picture (G)");
+            ui.separator();
+            self.edit_buttons(ui);
+            if ui
+                .button("Save picture")
+                .on_hover_text(format!("The paper as a PNG to {} (Ctrl+S)", self.save_path))
+                .clicked()
+            {
+                self.save_picture(ui.ctx());
+            }
+            if let Some(p) = browse_save(ui, FileKind::Png, &self.save_path) {
+                self.file_action(FileKind::Png, &p, &ui.ctx().clone());
+            }
+            ui.separator();
+            ui.toggle_value(&mut self.show_brush_view, "Brush view")
+                .on_hover_text("The brush in 3D over the paper's corner (B)");
+        });
+        if let Some((m, err)) = &self.message {
+            let c = if *err {
+                Color32::from_rgb(230, 80, 70)
+            } else {
+                ui.visuals().text_color()
+            };
+            ui.label(RichText::new(m).color(c));
+        }
+    }
+
+    /// The writing view's status line: the device, and only what needs the writer's eye
+    /// (faults, a recording, a missing font).
+    fn writing_status(&mut self, ui: &mut egui::Ui) {
+        let s = &self.status;
+        ui.horizontal(|ui| {
+            ui.label(RichText::new(s.name.clone()).strong());
+            if !s.connected {
+                ui.label(RichText::new("disconnected").color(Color32::from_rgb(230, 80, 70)));
+            }
+            if !s.faults.is_empty() {
+                ui.label(RichText::new(s.faults.join("; ")).color(Color32::from_rgb(230, 80, 70)));
+            }
+            if s.replaying {
+                ui.label("replaying");
+            }
+            if self.recorder.is_some() {
+                ui.label(RichText::new("REC").color(Color32::from_rgb(230, 60, 60)));
+            }
+            if let Some(Err(m)) = &self.fonts {
+                ui.label(RichText::new("no CJK font").color(Color32::from_rgb(220, 180, 60)))
+                    .on_hover_text(m);
+            }
+        });
+    }
+
+    /// Saves the paper to the picture path (Ctrl+S, "Save picture").
+    pub fn save_picture(&mut self, ctx: &egui::Context) {
+        let path = PathBuf::from(&self.save_path);
+        self.file_action(FileKind::Png, &path, ctx);
+    }
+
+    /// The keyboard shortcuts of both faces, unless a text field has the keyboard.
+    fn shortcuts(&mut self, ctx: &egui::Context) {
+        use egui::{Key, KeyboardShortcut, Modifiers};
+        if ctx.egui_wants_keyboard_input() {
+            return;
+        }
+        let ctrl = |k| KeyboardShortcut::new(Modifiers::COMMAND, k);
+        let plain = |k| KeyboardShortcut::new(Modifiers::NONE, k);
+        let fired = |s: KeyboardShortcut| ctx.input_mut(|i| i.consume_shortcut(&s));
+        if fired(ctrl(Key::Z)) {
+            self.undo();
+        }
+        if fired(KeyboardShortcut::new(
+            Modifiers::COMMAND | Modifiers::SHIFT,
+            Key::S,
+        )) {
+            if let Some(p) = FileKind::Png.pick_save(&self.save_path) {
+                self.file_action(FileKind::Png, &p, ctx);
             }
         }
-        // A live view: ~60 frames per second while connected.
-        ctx.request_repaint_after(Duration::from_millis(15));
+        if fired(ctrl(Key::S)) {
+            self.save_picture(ctx);
+        }
+        if fired(ctrl(Key::N)) {
+            self.clear();
+        }
+        if fired(plain(Key::F2)) {
+            self.face = self.face.other();
+        }
+        if fired(plain(Key::D)) {
+            self.dip();
+        }
+        if fired(plain(Key::F)) {
+            self.paper.fit();
+        }
+        if fired(plain(Key::B)) {
+            self.show_brush_view = !self.show_brush_view;
+        }
+        if fired(plain(Key::G)) {
+            let i = Grid::ALL.iter().position(|g| *g == self.grid).unwrap_or(0);
+            self.grid = Grid::ALL[(i + 1) % Grid::ALL.len()];
+        }
     }
 }
 

@@ -242,6 +242,16 @@ impl PaperView {
         self.zoom = 1.0 / ctx.pixels_per_point();
     }
 
+    /// The sheet's rectangle on screen in the last frame (the paper itself, within
+    /// [`Self::view_rect`]; larger than it when zoomed in).
+    pub fn sheet_rect(&self) -> Rect {
+        let (w, h) = (self.frame.width as f32, self.frame.height as f32);
+        Rect::from_min_max(
+            self.to_screen(self.view_rect, Vec2::ZERO),
+            self.to_screen(self.view_rect, Vec2::new(w, h)),
+        )
+    }
+
     /// Paper mm to screen.
     pub fn mm_to_screen(&self, x: f64, y: f64) -> Pos2 {
         let p = self.frame.to_px(x, y);

@@ -181,6 +181,11 @@ pub struct Settings {
     pub replay_path: String,
     pub session_path: String,
     pub recent: Recent,
+    /// The face the app was left in (the writing view or the laboratory), the writing view's
+    /// grid, and whether it showed the brush.
+    pub face: crate::gui::writing::Face,
+    pub grid: crate::gui::writing::Grid,
+    pub show_brush_view: bool,
 }
 
 impl Default for Settings {
@@ -200,6 +205,9 @@ impl Default for Settings {
             replay_path: "examples/poses/hook.csv".into(),
             session_path: "out/maobi-session.maobi.toml".into(),
             recent: Recent::default(),
+            face: Default::default(),
+            grid: Default::default(),
+            show_brush_view: true,
         }
     }
 }

@@ -19,9 +19,10 @@ use skrifa::MetadataProvider as _;
 pub const FONT_ENV: &str = "MAOBI_CJK_FONT";
 
 /// Every CJK character the app puts on screen: the eight strokes of 永 (永字八法: 側 勒 努 趯
-/// 策 掠 啄 磔), the papers (熟宣, 生宣) and the brush presets' names (大楷, 小楷, 狼毫, 羊毫,
-/// 兼毫). A CJK font must draw all of them to be used.
-pub const CJK_TEXT: &str = "永側勒努趯策掠啄磔熟宣生大楷小狼毫羊兼";
+/// 策 掠 啄 磔), the papers (熟宣, 生宣), the brush presets' names (大楷, 小楷, 狼毫, 羊毫,
+/// 兼毫) and the practice grids (米字格, 田字格, 九宫格). A CJK font must draw all of them to
+/// be used.
+pub const CJK_TEXT: &str = "永側勒努趯策掠啄磔熟宣生大楷小狼毫羊兼米字格田九宫";
 
 /// CJK font families to ask the platform for, best first: the common ones on Linux
 /// distributions, macOS and Windows.

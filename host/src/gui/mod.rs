@@ -1,5 +1,5 @@
-//! The desktop GUI (eframe over glow): the paper with its ink, the brush in 3D, live plots,
-//! controls and a status bar, over a [`Device`](crate::device::Device) (the built-in
+//! The desktop GUI (eframe over glow) with two faces: the writing view (the paper first) and
+//! the laboratory (the paper with the brush in 3D, live plots, controls and a status bar), over a [`Device`](crate::device::Device) (the built-in
 //! simulator, a device over the wire protocol or the Phantom: see [`crate::device`]).
 //!
 //! * [`choice`]: which device the GUI opens ([`DeviceChoice`]) and opening it.
@@ -7,6 +7,7 @@
 //! * [`brush_view`]: the brush in 3D.
 //! * [`app`]: the application and its automation (`--replay`, `--screenshot`).
 //! * [`files`]: file dialogs, recent files and the settings kept between runs.
+//! * [`writing`]: the writing view's faces, grid and the brush's mark over the paper.
 //! * [`timeline`]: the stroke editor (keyframed strokes on a timeline, guided writing).
 //! * [`session`]: session files (`.maobi.toml`): the device's journal and the paper's history.
 //! * [`rerender`]: a session run again through the built-in device onto a fresh paper.
@@ -20,6 +21,7 @@ pub mod fonts;
 pub mod rerender;
 pub mod session;
 pub mod timeline;
+pub mod writing;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -57,6 +59,10 @@ pub struct GuiOptions {
     pub screenshot: Option<PathBuf>,
     /// A session file to open at start.
     pub session: Option<PathBuf>,
+    /// Where "Save picture" (Ctrl+S) writes (`None`: as last used).
+    pub picture: Option<PathBuf>,
+    /// The face to open with (`None`: the one left open last, else the writing view).
+    pub face: Option<writing::Face>,
     /// The paper's kind at start.
     pub paper_kind: crate::paper::PaperKind,
     /// Paper size (mm, square, centred on the origin) and resolution.
@@ -94,6 +100,8 @@ impl Default for GuiOptions {
             replay: None,
             screenshot: None,
             session: None,
+            picture: None,
+            face: None,
             paper_mm: 200.0,
             px_per_mm: 10.0,
             tablet: None,
@@ -171,6 +179,8 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
     let brush = opts.brush.clone();
     let model = opts.model;
     let paper_kind = opts.paper_kind;
+    let picture = opts.picture.clone();
+    let face = opts.face;
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let automation = Automation {
         replay: opts.replay.clone(),
@@ -252,6 +262,12 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
             }
             if let Some(p) = &phantom {
                 app.choose_phantom(p.hd_lib.as_deref());
+            }
+            if let Some(p) = &picture {
+                app.set_picture_path(p);
+            }
+            if let Some(f) = face {
+                app.set_face(f);
             }
             Ok(Box::new(app))
         }),

@@ -42,7 +42,10 @@ pub fn app_over(
         px_per_mm,
         ..GuiOptions::default()
     };
-    MaobiApp::new(device, opts.frame(), automation, Default::default())
+    // The laboratory: these tests drive its controls (the writing view has its own tests).
+    let mut app = MaobiApp::new(device, opts.frame(), automation, Default::default());
+    app.set_face(maobi::gui::writing::Face::Laboratory);
+    app
 }
 
 /// `app` in a 1400 x 900 kittest harness.

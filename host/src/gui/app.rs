@@ -47,7 +47,14 @@ pub struct Automation {
     pub screenshot: Option<PathBuf>,
     /// Open this session at start (the screenshot waits for its re-render).
     pub session: Option<PathBuf>,
+    /// Keep the views' rectangles and the face in this file, rewritten when they change
+    /// ([`LAYOUT_ENV`]): how a driver of the real window (xdotool in CI) finds the paper and
+    /// the controls. It drives nothing itself, so it does not make the run an automated one.
+    pub layout: Option<PathBuf>,
 }
+
+/// Environment variable naming the file [`Automation::layout`] keeps.
+pub const LAYOUT_ENV: &str = "MAOBI_LAYOUT";
 
 impl Automation {
     /// Something at start drives the app (a replay, a screenshot, a session).
@@ -208,6 +215,10 @@ pub struct MaobiApp {
     show_brush_view: bool,
     /// What the paper view drew for the brush in the last frame.
     mark: Option<BrushMark>,
+    /// Screen rectangle of the first parameter's editor in the last frame (the laboratory).
+    param_rect: egui::Rect,
+    /// The layout last written to [`Automation::layout`].
+    layout_written: String,
 }
 
 /// Where a background re-render leaves its result.
@@ -302,6 +313,8 @@ impl MaobiApp {
             grid: Grid::default(),
             show_brush_view: true,
             mark: None,
+            param_rect: egui::Rect::NOTHING,
+            layout_written: String::new(),
         }
     }
 
@@ -875,8 +888,20 @@ impl MaobiApp {
         wr.write_image_data(&bytes)?;
         wr.finish()?;
         // Where the views are, in the screenshot's pixels, for the checker.
+        let lpath = layout_path(path);
+        std::fs::write(&lpath, self.layout(ctx))
+            .with_context(|| format!("cannot write {}", lpath.display()))?;
+        Ok(())
+    }
+
+    /// Where the views are, in the window's pixels, a line each (`name x0 y0 x1 y1`), and
+    /// the face shown (`face writing` or `face laboratory`).
+    pub fn layout(&self, ctx: &egui::Context) -> String {
         let ppp = ctx.pixels_per_point();
         let r = |r: egui::Rect| {
+            if !r.is_positive() {
+                return "none".to_string();
+            }
             format!(
                 "{} {} {} {}",
                 (r.min.x * ppp).round(),
@@ -885,17 +910,42 @@ impl MaobiApp {
                 (r.max.y * ppp).round()
             )
         };
-        let layout = format!(
-            "canvas {}\nbrush {}\nsheet {}\nwindow {}\n",
+        let laboratory = self.face == Face::Laboratory;
+        format!(
+            "face {}\ncanvas {}\nbrush {}\nsheet {}\nwindow {}\nparam {}\n",
+            if laboratory { "laboratory" } else { "writing" },
             r(self.paper.view_rect),
             r(self.brush_rect),
             r(self.paper.sheet_rect()),
-            r(ctx.viewport_rect())
-        );
-        let lpath = layout_path(path);
-        std::fs::write(&lpath, layout)
-            .with_context(|| format!("cannot write {}", lpath.display()))?;
-        Ok(())
+            r(ctx.viewport_rect()),
+            r(if laboratory {
+                self.param_rect
+            } else {
+                egui::Rect::NOTHING
+            }),
+        )
+    }
+
+    /// Rewrites [`Automation::layout`]'s file when the layout changed.
+    fn keep_layout(&mut self, ctx: &egui::Context) {
+        let Some(path) = self.automation.layout.clone() else {
+            return;
+        };
+        let text = self.layout(ctx);
+        if text == self.layout_written {
+            return;
+        }
+        // Whole or not at all: write beside it and rename, so a reader never sees half.
+        let mut tmp = path.clone().into_os_string();
+        tmp.push(".new");
+        let done = std::fs::write(&tmp, &text).and_then(|()| std::fs::rename(&tmp, &path));
+        match done {
+            Ok(()) => self.layout_written = text,
+            Err(e) => {
+                log::warn!("cannot keep the layout in {}: {e}", path.display());
+                self.automation.layout = None;
+            }
+        }
     }
 }
 
@@ -1349,6 +1399,9 @@ impl MaobiApp {
                             dv.custom_formatter(|v, _| format!("{}", v as f32))
                         };
                         let r = ui.add_enabled(reads(id), dv).labelled_by(label.id);
+                        if i == 0 {
+                            self.param_rect = r.rect;
+                        }
                         if r.changed() {
                             changed = Some((id, self.param_edit[i]));
                         }
@@ -1936,6 +1989,7 @@ impl MaobiApp {
         self.hand_input(&ctx, pointer);
         self.finish_open(&ctx);
         self.automation(&ctx);
+        self.keep_layout(&ctx);
 
         let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
         // The ink of this frame's device frames has been uploaded (in `paper.show`): how
@@ -2159,6 +2213,10 @@ impl MaobiApp {
         }
         if fired(ctrl(Key::N)) {
             self.clear();
+        }
+        if fired(ctrl(Key::Q)) {
+            // eframe keeps the settings and runs `on_exit` on the way out.
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         if fired(plain(Key::F2)) {
             self.face = self.face.other();

@@ -186,6 +186,9 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         replay: opts.replay.clone(),
         screenshot: opts.screenshot.clone(),
         session: opts.session.clone(),
+        layout: std::env::var_os(app::LAYOUT_ENV)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from),
     };
     let automated = automation.is_active();
     let given = Given {

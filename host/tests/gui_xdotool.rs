@@ -1,0 +1,501 @@
+//! The app as a user meets it, in a real window under a virtual X display, driven by the
+//! pointer and the keyboard through xdotool: start with no settings (the writing view), write
+//! a stroke with the pointer, undo it, write again, save the picture with Ctrl+S, open the
+//! laboratory (F2) and change a parameter, quit (Ctrl+Q), start again: the laboratory is back.
+//! Each step's screenshot (`xwd` of the display) goes to `out/gui-session/`, and ink and
+//! layout are checked from those pictures; the app tells where its views are through
+//! `MAOBI_LAYOUT` (`gui::app::Automation::layout`).
+//!
+//! Nothing here waits a fixed time for the app: every step goes on when the screen or the
+//! layout file shows its effect, so a loaded machine is slower, never wrong. Needs Debian's
+//! `xvfb`, `xauth`, `xdotool` and `x11-apps` (xwd); without them it skips, or fails where
+//! every test must run (`CI=true`, or `MAOBI_REQUIRE_GUI` set).
+
+use std::io::{BufRead, BufReader, Read};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// How long any one step may take to show on screen before the test gives up (a hang
+/// guard, not a pace: steps go on as soon as their effect shows).
+const HANG_GUARD: Duration = Duration::from_secs(120);
+
+/// A virtual X display (`xvfb-run -a`), stopped with its process group when dropped.
+struct Display {
+    child: Child,
+    display: String,
+    xauthority: String,
+}
+
+impl Display {
+    fn start() -> Display {
+        let mut child = Command::new("xvfb-run")
+            .args(["-a", "-s", "-screen 0 1600x1000x24 -nolisten tcp"])
+            .args([
+                "sh",
+                "-c",
+                "echo \"$DISPLAY $XAUTHORITY\"; exec sleep 100000",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .process_group(0)
+            .spawn()
+            .expect("xvfb-run starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let mut it = line.split_whitespace();
+        let display = it.next().expect("xvfb-run names its display").to_string();
+        let xauthority = it.next().unwrap_or_default().to_string();
+        Display {
+            child,
+            display,
+            xauthority,
+        }
+    }
+
+    fn command(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("DISPLAY", &self.display)
+            .env("XAUTHORITY", &self.xauthority);
+        c
+    }
+
+    /// Runs xdotool with `args`, which must succeed.
+    fn xdotool(&self, args: &[&str]) {
+        let out = self.command("xdotool").args(args).output().unwrap();
+        assert!(
+            out.status.success(),
+            "xdotool {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
+    /// The whole screen.
+    fn screenshot(&self) -> Image {
+        let out = self
+            .command("xwd")
+            .args(["-root", "-silent"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "xwd failed");
+        Image::from_xwd(&out.stdout)
+    }
+}
+
+impl Drop for Display {
+    fn drop(&mut self) {
+        // SAFETY: a signal to the process group this test started.
+        unsafe { libc::kill(-(self.child.id() as i32), libc::SIGTERM) };
+        let _ = self.child.wait();
+    }
+}
+
+/// An RGB picture of the screen.
+struct Image {
+    w: usize,
+    h: usize,
+    rgb: Vec<[u8; 3]>,
+}
+
+impl Image {
+    /// X's window dump (ZPixmap, 24 or 32 bits per pixel, true colour).
+    fn from_xwd(b: &[u8]) -> Image {
+        let field = |i: usize| u32::from_be_bytes(b[i * 4..i * 4 + 4].try_into().unwrap());
+        let header = field(0) as usize;
+        assert_eq!(field(2), 2, "a ZPixmap");
+        let (w, h) = (field(4) as usize, field(5) as usize);
+        let lsb_first = field(7) == 0;
+        let bpp = field(11) as usize;
+        let line = field(12) as usize;
+        let masks = [field(14), field(15), field(16)];
+        let colours = field(19) as usize;
+        assert!(bpp == 32 || bpp == 24, "{bpp} bits per pixel");
+        let data = &b[header + colours * 12..];
+        let mut rgb = Vec::with_capacity(w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let at = y * line + x * bpp / 8;
+                let mut px = [0u8; 4];
+                px[..bpp / 8].copy_from_slice(&data[at..at + bpp / 8]);
+                let v = if lsb_first {
+                    u32::from_le_bytes(px)
+                } else {
+                    u32::from_be_bytes(px) >> (32 - bpp)
+                };
+                let ch = |m: u32| ((v & m) >> m.trailing_zeros()) as u8;
+                rgb.push([ch(masks[0]), ch(masks[1]), ch(masks[2])]);
+            }
+        }
+        Image { w, h, rgb }
+    }
+
+    fn save(&self, path: &Path) {
+        let f = std::fs::File::create(path).unwrap();
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), self.w as u32, self.h as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().unwrap();
+        wr.write_image_data(&self.rgb.concat()).unwrap();
+    }
+
+    /// Pixels in `r` for which `f` holds.
+    fn count(&self, r: [u32; 4], f: impl Fn([u8; 3]) -> bool) -> usize {
+        let mut n = 0;
+        for y in r[1] as usize..(r[3] as usize).min(self.h) {
+            for x in r[0] as usize..(r[2] as usize).min(self.w) {
+                n += f(self.rgb[y * self.w + x]) as usize;
+            }
+        }
+        n
+    }
+}
+
+/// Ink: a neutral tone, dark (the brush's marks over the paper are coloured).
+fn is_ink(p: [u8; 3]) -> bool {
+    let (lo, hi) = (p.iter().min().unwrap(), p.iter().max().unwrap());
+    let luma = (p[0] as u32 * 3 + p[1] as u32 * 6 + p[2] as u32) / 10;
+    luma < 140 && hi - lo < 30
+}
+
+/// Paper: light and warm.
+fn is_paper(p: [u8; 3]) -> bool {
+    p[0] > 200 && p[1] > 190 && p[2] > 170 && p[0] >= p[2]
+}
+
+/// The rectangle `name` of a layout file, if it has one.
+fn rect(layout: &str, name: &str) -> Option<[u32; 4]> {
+    let line = layout.lines().find(|l| l.split(' ').next() == Some(name))?;
+    let v: Vec<u32> = line
+        .split_whitespace()
+        .skip(1)
+        .filter_map(|s| s.parse::<f64>().ok().map(|v| v.max(0.0) as u32))
+        .collect();
+    (v.len() == 4).then(|| [v[0], v[1], v[2], v[3]])
+}
+
+/// The sheet of a layout, within the paper's view (zoomed in, it is larger than the view).
+fn sheet_of(layout: &str) -> [u32; 4] {
+    let (s, c) = (
+        rect(layout, "sheet").unwrap(),
+        rect(layout, "canvas").unwrap(),
+    );
+    [
+        s[0].max(c[0]),
+        s[1].max(c[1]),
+        s[2].min(c[2]),
+        s[3].min(c[3]),
+    ]
+}
+
+/// One run of the app on `display`, with its settings under `home`.
+struct App {
+    child: Child,
+    layout: PathBuf,
+    log: PathBuf,
+}
+
+impl App {
+    fn start(display: &Display, home: &Path, picture: &Path) -> App {
+        let layout = home.join("layout");
+        let _ = std::fs::remove_file(&layout);
+        let log = home.join("app.log");
+        let child = display
+            .command(env!("CARGO_BIN_EXE_maobi"))
+            .arg("gui")
+            .arg("--picture")
+            .arg(picture)
+            .env("MAOBI_LAYOUT", &layout)
+            .env("XDG_CONFIG_HOME", home.join("config"))
+            .env("XDG_DATA_HOME", home.join("data"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("maobi gui starts");
+        App { child, layout, log }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Waits until the layout file satisfies `done`; its text.
+    fn layout_until(&mut self, what: &str, done: impl Fn(&str) -> bool) -> String {
+        let start = Instant::now();
+        loop {
+            if let Ok(t) = std::fs::read_to_string(&self.layout) {
+                if done(&t) {
+                    return t;
+                }
+            }
+            if let Ok(Some(s)) = self.child.try_wait() {
+                panic!("the app exited ({s}) waiting for {what}:\n{}", self.log());
+            }
+            assert!(
+                start.elapsed() < HANG_GUARD,
+                "no {what} after {HANG_GUARD:?}:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl Drop for App {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Steps until `done` holds for a screenshot; the last screenshot.
+fn screen_until(d: &Display, what: &str, mut done: impl FnMut(&Image) -> bool) -> Image {
+    let start = Instant::now();
+    loop {
+        let img = d.screenshot();
+        if done(&img) {
+            return img;
+        }
+        if start.elapsed() > HANG_GUARD {
+            let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../out/gui-session");
+            img.save(&dir.join("failed.png"));
+            panic!("no {what} after {HANG_GUARD:?} (the screen: out/gui-session/failed.png)");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The footprint's outline the writing view draws while the brush touches.
+fn is_footprint(p: [u8; 3]) -> bool {
+    p[0] > 150 && p[1] < 90 && p[2] < 90
+}
+
+/// Writes a stroke with the pointer: presses at `from`, moves right a few pixels at a time
+/// and lets go once the screen shows `ink_px` ink pixels in `sheet` (and the pointer has
+/// moved at least 150 px), whatever the machine's pace.
+fn write_stroke(d: &Display, sheet: [u32; 4], from: (u32, u32), ink_px: usize) -> Image {
+    let (x, y) = from;
+    d.xdotool(&["mousemove", &x.to_string(), &y.to_string()]);
+    d.xdotool(&["mousedown", "1"]);
+    let start = Instant::now();
+    let mut step = 0u32;
+    loop {
+        step += 1;
+        let at = (x + 4 * step).min(sheet[2] - 10);
+        d.xdotool(&["mousemove", &at.to_string(), &y.to_string()]);
+        if step.is_multiple_of(10) {
+            let img = d.screenshot();
+            if step >= 40 && img.count(sheet, is_ink) >= ink_px {
+                d.xdotool(&["mouseup", "1"]);
+                // The stroke ends when the brush has left the paper.
+                screen_until(d, "the brush lifted", |img| {
+                    img.count(sheet, is_footprint) == 0
+                });
+                return img;
+            }
+        }
+        assert!(
+            start.elapsed() < HANG_GUARD,
+            "no ink under the pointer after {HANG_GUARD:?}"
+        );
+    }
+}
+
+fn tools_available() -> bool {
+    ["xvfb-run", "xdotool", "xwd"].iter().all(|t| {
+        Command::new("sh")
+            .args(["-c", &format!("command -v {t}")])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
+}
+
+#[test]
+fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
+    if !tools_available() {
+        maobi_testenv::skip_unless_required(
+            &["MAOBI_REQUIRE_GUI"],
+            "no xvfb-run, xdotool or xwd to drive the app's window with (apt-get install xvfb \
+             xauth xdotool x11-apps libgl1-mesa-dri libegl1 libgl1 libxkbcommon-x11-0)",
+        );
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let shots = root.join("out/gui-session");
+    let _ = std::fs::remove_dir_all(&shots);
+    std::fs::create_dir_all(&shots).unwrap();
+    let home = Path::new(env!("CARGO_TARGET_TMPDIR")).join("gui_xdotool");
+    // No settings: a first start.
+    let _ = std::fs::remove_dir_all(&home);
+    std::fs::create_dir_all(&home).unwrap();
+    let picture = home.join("picture.png");
+    let shot = |img: &Image, name: &str| img.save(&shots.join(name));
+
+    let d = Display::start();
+    let mut app = App::start(&d, &home, &picture);
+
+    // Without a window manager X leaves the keyboard's focus nowhere: give it the window.
+    let id = d
+        .command("xdotool")
+        .args(["search", "--sync", "--onlyvisible", "--name", "^Maobi$"])
+        .output()
+        .unwrap();
+    let id = String::from_utf8_lossy(&id.stdout);
+    let id = id
+        .lines()
+        .next()
+        .expect("the app's window")
+        .trim()
+        .to_string();
+    d.xdotool(&["windowfocus", &id]);
+
+    // 1. The writing view, its paper most of the window.
+    let layout = app.layout_until("the writing view", |t| {
+        t.contains("face writing") && rect(t, "sheet").is_some()
+    });
+    let canvas = rect(&layout, "canvas").unwrap();
+    let window = rect(&layout, "window").unwrap();
+    let sheet = sheet_of(&layout);
+    let area = |r: [u32; 4]| ((r[2] - r[0]) * (r[3] - r[1])) as f64;
+    let paper_px = |img: &Image| img.count(sheet, is_paper);
+    let start = screen_until(&d, "the paper on screen", |img| {
+        paper_px(img) as f64 > 0.9 * area(sheet)
+    });
+    shot(&start, "01-writing-view.png");
+    let share = area(canvas) / area(window);
+    eprintln!(
+        "writing view: paper view {canvas:?} {:.1}% of the window {window:?}",
+        share * 100.0
+    );
+    assert!(share >= 0.7, "the paper view has {share:.3} of the window");
+    assert_eq!(start.count(sheet, is_ink), 0, "a blank sheet");
+    // The laboratory shows the paper smaller, where its layout says.
+    let laboratory_on_screen = |layout: &str, img: &Image| {
+        let lab = sheet_of(layout);
+        area(lab) < 0.9 * area(sheet) && img.count(lab, is_paper) as f64 > 0.9 * area(lab)
+    };
+
+    // 2. A stroke with the pointer.
+    let mid = ((sheet[0] + sheet[2]) / 2, (sheet[1] + sheet[3]) / 2);
+    let first = write_stroke(&d, sheet, (mid.0 - 150, mid.1 - 80), 400);
+    shot(&first, "02-stroke.png");
+
+    // 3. Ctrl+Z takes it back.
+    d.xdotool(&["key", "ctrl+z"]);
+    let undone = screen_until(&d, "the stroke undone", |img| img.count(sheet, is_ink) < 20);
+    shot(&undone, "03-undone.png");
+
+    // 4. Another stroke, saved with Ctrl+S where --picture says.
+    let second = write_stroke(&d, sheet, (mid.0 - 150, mid.1 + 80), 400);
+    shot(&second, "04-second-stroke.png");
+    d.xdotool(&["key", "ctrl+s"]);
+    let start_wait = Instant::now();
+    let saved = loop {
+        if let Some(img) = std::fs::read(&picture).ok().and_then(|b| {
+            let mut r = png::Decoder::new(std::io::Cursor::new(b))
+                .read_info()
+                .ok()?;
+            let mut buf = vec![0; r.output_buffer_size()?];
+            let info = r.next_frame(&mut buf).ok()?;
+            buf.truncate(info.buffer_size());
+            Some((info, buf))
+        }) {
+            break img;
+        }
+        assert!(
+            start_wait.elapsed() < HANG_GUARD,
+            "Ctrl+S wrote no picture at {}:\n{}",
+            picture.display(),
+            app.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let (info, buf) = saved;
+    let channels = info.color_type.samples();
+    let dark = buf
+        .chunks(channels)
+        .filter(|p| match p {
+            [r, g, b, ..] => (*r as u32 * 3 + *g as u32 * 6 + *b as u32) / 10 < 140,
+            [grey, ..] => *grey < 140,
+            [] => false,
+        })
+        .count();
+    eprintln!("picture {}x{}: {dark} ink px", info.width, info.height);
+    assert!(
+        dark > 100,
+        "the saved picture has the stroke: {dark} ink px"
+    );
+
+    // 5. F2: the laboratory, where a parameter is dragged to a new value.
+    d.xdotool(&["key", "F2"]);
+    let layout = app.layout_until("the laboratory", |t| {
+        t.contains("face laboratory") && rect(t, "param").is_some()
+    });
+    let param = rect(&layout, "param").unwrap();
+    let before = screen_until(&d, "the laboratory on screen", |img| {
+        laboratory_on_screen(&layout, img)
+    });
+    shot(&before, "05-laboratory.png");
+    // The panel says what a change did, in green, above the parameters (where the first
+    // one is until then): nothing yet.
+    let message = [0, window[1], param[2], param[3]];
+    let is_ok_message = |p: [u8; 3]| p[1] > 150 && p[1] as i32 - p[0] as i32 > 60 && p[2] < 150;
+    assert_eq!(before.count(message, is_ok_message), 0, "no message yet");
+    // Drag the first parameter's value to the right until the panel reports the new value.
+    let (px, py) = ((param[0] + param[2]) / 2, (param[1] + param[3]) / 2);
+    d.xdotool(&["mousemove", &px.to_string(), &py.to_string()]);
+    d.xdotool(&["mousedown", "1"]);
+    let start_wait = Instant::now();
+    let mut dx = 0;
+    let after = loop {
+        dx += 10;
+        d.xdotool(&["mousemove", &(px + dx).to_string(), &py.to_string()]);
+        let img = d.screenshot();
+        if img.count(message, is_ok_message) > 20 {
+            break img;
+        }
+        if start_wait.elapsed() > HANG_GUARD {
+            img.save(&shots.join("failed.png"));
+            panic!("dragging the parameter changed nothing (out/gui-session/failed.png)");
+        }
+        if dx >= 300 {
+            // Back to the start of the drag, still held: egui keeps counting.
+            dx = 0;
+        }
+    };
+    d.xdotool(&["mouseup", "1"]);
+    shot(&after, "06-parameter-changed.png");
+
+    // 6. Ctrl+Q quits, keeping the settings.
+    d.xdotool(&["key", "ctrl+q"]);
+    let start_wait = Instant::now();
+    let status = loop {
+        if let Some(s) = app.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(start_wait.elapsed() < HANG_GUARD, "Ctrl+Q did not quit");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(
+        status.success(),
+        "the app quit with {status}:\n{}",
+        app.log()
+    );
+
+    // 7. Started again, it comes back in the laboratory.
+    let mut again = App::start(&d, &home, &picture);
+    let layout = again.layout_until("the laboratory again", |t| {
+        t.contains("face laboratory") && rect(t, "sheet").is_some()
+    });
+    let back = screen_until(&d, "the laboratory on screen again", |img| {
+        laboratory_on_screen(&layout, img)
+    });
+    shot(&back, "07-reopened.png");
+    let mut log = String::new();
+    std::fs::File::open(&again.log)
+        .map(|mut f| f.read_to_string(&mut log))
+        .ok();
+    assert!(!log.contains("panicked"), "{log}");
+}

@@ -11,7 +11,9 @@
 //! * [`session`]: session files (`.maobi.toml`): the device's journal and the paper's history.
 //! * [`rerender`]: a session run again through the built-in device onto a fresh paper.
 //! * [`icon`]: the window's icon, drawn in code.
+//! * [`about`]: the About window: the version, the build, and the licences.
 
+pub mod about;
 pub mod app;
 pub mod brush_view;
 pub mod canvas;

@@ -104,7 +104,14 @@ enum Backend {
 }
 
 fn main() -> Result<()> {
+    // The host library's diagnostics (`log`) reach stderr at the level RUST_LOG asks for;
+    // without it, warnings and errors only. The reports below stay on stdout, unchanged.
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("warn")).init();
     let cli = Cli::parse();
+    log::debug!(
+        "hil {}",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" ")
+    );
     let timeout = Duration::from_secs(cli.timeout);
     if let Cmd::Run {
         backend: Backend::Serial,

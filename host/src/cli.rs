@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::{ArgGroup, Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressFinish, ProgressStyle};
 use maobi_shared::baxter_lin::brush::BaxterLinBrush;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::{presets, BrushParams, BrushScalar, Fx, ParamId};
@@ -14,7 +15,9 @@ use crate::device::{BrushChoice, ModelKind};
 use crate::offline::{simulate, ScalarKind};
 use crate::paper::{PaperKind, PaperSpec};
 use crate::poses::PoseTrack;
-use crate::render::{paper_frame, render, render_baxter_lin, write_png, RenderStats};
+use crate::render::{
+    paper_frame, render_baxter_lin_with_progress, render_with_progress, write_png, RenderStats,
+};
 use crate::strokes::Character;
 use crate::trace::{time_decimals, BaxterLinTraceWriter, TraceWriter};
 
@@ -1004,18 +1007,40 @@ fn write_stdout(text: &str) -> anyhow::Result<()> {
     }
 }
 
+/// A progress bar on stderr for `total` ticks of long work (`what`: "rendering f.csv"), with
+/// the ticks done and an ETA; hidden (drawing nothing at all) when stderr is not a terminal,
+/// so a log file or a pipe gets only the command's summary line.
+fn tick_bar(total: usize, what: String) -> ProgressBar {
+    use std::io::IsTerminal as _;
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    // Cleared when dropped too: an error's message then starts a clean line.
+    let bar = ProgressBar::with_draw_target(Some(total as u64), ProgressDrawTarget::stderr())
+        .with_finish(ProgressFinish::AndClear);
+    // The template is a constant: were it ever wrong, a plain bar still shows progress.
+    let style = ProgressStyle::with_template(
+        "{msg} {wide_bar} {human_pos}/{human_len} ticks, {elapsed} gone, ETA {eta}",
+    )
+    .unwrap_or_else(|_| ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar.set_message(what);
+    bar
+}
+
 /// `maobi render --session`: the session's own paper, re-rendered through the model.
 fn render_session(path: &Path, out: &Path, started: Instant) -> anyhow::Result<()> {
     let session = crate::gui::session::Session::load(path)?;
-    let mut shown = -1i64;
+    let ticks = session.journal.ticks;
+    let bar = tick_bar(
+        ticks as usize,
+        format!("maobi render: re-rendering {}", path.display()),
+    );
     let r = crate::gui::rerender::rerender(&session, |f| {
-        let pct = (f * 100.0) as i64;
-        if pct / 10 > shown / 10 {
-            shown = pct;
-            eprint!("\rmaobi render: re-rendering {}: {pct:3}%", path.display());
-        }
-    })?;
-    eprintln!();
+        bar.set_position((f * ticks as f64).round() as u64)
+    });
+    bar.finish_and_clear();
+    let r = r?;
     if let Some(note) = &r.model_note {
         eprintln!("maobi render: warning: {}: {note}", path.display());
     }
@@ -1103,15 +1128,19 @@ fn trace_baxter_lin(
     let mut w =
         BaxterLinTraceWriter::new(file, &brush, time_decimals(t0)).with_context(write_err)?;
     w.write_tick(t0, &first, &brush).with_context(write_err)?;
+    let bar = tick_bar(track.ticks(), format!("maobi trace: {}", out.display()));
     let mut ticks = 1;
+    bar.set_position(ticks);
     for pose in poses {
         brush.tick(&pose);
         let t = t0 + ticks as f64 * crate::poses::TICK_S;
         w.write_tick(t, &pose, &brush).with_context(write_err)?;
         ticks += 1;
+        bar.set_position(ticks);
     }
+    bar.finish_and_clear();
     w.finish().with_context(write_err)?;
-    Ok(ticks)
+    Ok(ticks as usize)
 }
 
 /// Where a trace goes: the file `out`, or standard output for `-`.
@@ -1185,9 +1214,13 @@ fn trace_as<S: BrushScalar>(
     let write_err = || format!("cannot write {}", out.display());
     let mut w = TraceWriter::new(file, params.layers as usize, time_decimals(track.start()))
         .with_context(write_err)?;
+    let bar = tick_bar(track.ticks(), format!("maobi trace: {}", out.display()));
     let ticks = simulate::<S>(params, track, |tick| {
+        bar.set_position(tick.k as u64 + 1);
         w.write_tick(tick).with_context(write_err)
-    })?;
+    });
+    bar.finish_and_clear();
+    let ticks = ticks?;
     w.finish().with_context(write_err)?;
     Ok(ticks)
 }
@@ -1212,6 +1245,20 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
     let track = &loaded.track;
     let paper = PaperSpec::new(a.paper.or(loaded.paper).unwrap_or_default());
     log::debug!("the {} brush: {params:?}", a.brush.describe());
+    let bar = tick_bar(
+        track.ticks(),
+        format!("maobi render: {}", a.output.display()),
+    );
+    // Every tick moves the bar; after the last one the paper dries, which the bar says.
+    let progress = |done: usize, total: usize| {
+        bar.set_position(done as u64);
+        if done == total {
+            bar.set_message(format!(
+                "maobi render: {}: the paper dries",
+                a.output.display()
+            ));
+        }
+    };
     let (canvas, stats, scalar): (_, RenderStats, _) = match (a.model, a.brush.brush.shape) {
         (ModelKind::Liang, _) => {
             warn_if_never_touches("render", &loaded, &a.brush, a.model, &params);
@@ -1221,10 +1268,14 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
             let (canvas, stats) = match scalar {
                 ScalarKind::Fixed => {
                     check_scalar::<Fx>(&params, &a.brush.describe())?;
-                    render::<Fx>(params, track, frame, paper)?
+                    render_with_progress::<Fx>(params, track, frame, paper, progress)?
                 }
-                ScalarKind::F32 => render::<f32>(params, track, frame, paper)?,
-                ScalarKind::F64 => render::<f64>(params, track, frame, paper)?,
+                ScalarKind::F32 => {
+                    render_with_progress::<f32>(params, track, frame, paper, progress)?
+                }
+                ScalarKind::F64 => {
+                    render_with_progress::<f64>(params, track, frame, paper, progress)?
+                }
             };
             (canvas, stats, scalar)
         }
@@ -1240,10 +1291,12 @@ fn run_render(a: &RenderArgs) -> anyhow::Result<()> {
                 ..params
             };
             let frame = paper_frame(track, &margin, a.px_per_mm)?;
-            let (canvas, stats) = render_baxter_lin(make, track, frame, paper)?;
+            let (canvas, stats) =
+                render_baxter_lin_with_progress(make, track, frame, paper, progress)?;
             (canvas, stats, ScalarKind::F64)
         }
     };
+    bar.finish_and_clear();
     write_png(&canvas, &a.output)?;
     eprintln!(
         "maobi render: {} ticks ({} inking, {:.1} us/tick stamping, {:.1} us/tick paper, {} drying steps) of the {} brush in {} on {} paper, {} x {} px at {} px/mm, ink {:.2}%, wrote {} in {:.2} s",

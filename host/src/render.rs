@@ -557,9 +557,25 @@ pub fn render<S: maobi_shared::BrushScalar>(
     frame: Frame,
     paper: PaperSpec,
 ) -> anyhow::Result<(Canvas, RenderStats)> {
+    render_with_progress::<S>(params, track, frame, paper, |_, _| {})
+}
+
+/// [`render`], calling `progress(done, total)` after every tick with the ticks inked so far
+/// and the track's ticks in all (the last call has `done == total`; the paper then dries).
+/// The library prints nothing: the caller shows the progress, or not. It never changes the
+/// result.
+pub fn render_with_progress<S: maobi_shared::BrushScalar>(
+    params: BrushParams,
+    track: &PoseTrack,
+    frame: Frame,
+    paper: PaperSpec,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<(Canvas, RenderStats)> {
     let mut run = PaperRun::new(frame, paper, params.layers as usize - 1);
+    let total = track.ticks();
     let ticks = simulate::<S>(params, track, |tick| {
         run.tick(&Geometry::of(tick.brush));
+        progress(run.ticks, total);
         Ok(())
     })?;
     debug_assert_eq!(ticks, run.ticks);
@@ -575,14 +591,29 @@ pub fn render_baxter_lin(
     frame: Frame,
     paper: PaperSpec,
 ) -> anyhow::Result<(Canvas, RenderStats)> {
+    render_baxter_lin_with_progress(make, track, frame, paper, |_, _| {})
+}
+
+/// [`render_baxter_lin`], calling `progress(done, total)` after every tick as
+/// [`render_with_progress`] does.
+pub fn render_baxter_lin_with_progress(
+    make: impl FnOnce(Pose<f64>) -> Result<BaxterLinBrush, SpineParamError>,
+    track: &PoseTrack,
+    frame: Frame,
+    paper: PaperSpec,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<(Canvas, RenderStats)> {
     let mut run = PaperRun::new(frame, paper, baxter_lin::brush::LEVELS - 1);
+    let total = track.ticks();
     let mut poses = track.resample();
     let first = poses.next().context("the pose track is empty")?;
     let mut brush = make(first).map_err(|e| anyhow::anyhow!("Baxter & Lin's spine: {e}"))?;
     run.tick(&brush.geometry());
+    progress(run.ticks, total);
     for pose in poses {
         brush.tick(&pose);
         run.tick(&brush.geometry());
+        progress(run.ticks, total);
     }
     Ok(run.finish())
 }
@@ -669,6 +700,48 @@ mod tests {
         );
         assert!(centroid_mm[1].abs() < 1.0, "{centroid_mm:?}");
         assert_eq!(c.at(0, 0), 0.0);
+    }
+
+    /// The counts a render reports: one a tick, each one more, the last the total.
+    fn assert_counts(calls: &[(usize, usize)], ticks: usize) {
+        assert_eq!(calls.len(), ticks);
+        for (i, &(done, total)) in calls.iter().enumerate() {
+            assert_eq!((done, total), (i + 1, ticks), "call {i}");
+        }
+    }
+
+    #[test]
+    fn progress_counts_every_tick_and_leaves_the_image_alone() {
+        let p = presets::by_name("large").unwrap();
+        let q = [(5.0f64).to_radians().cos(), (5.0f64).to_radians().sin()];
+        let t = track(&format!(
+            "t,x,y,z,qw,qx,qy,qz\n0,0,0,45,{c},0,{s},0\n0.08,0,0,30,{c},0,{s},0\n",
+            c = q[0],
+            s = q[1]
+        ));
+        let f = paper_frame(&t, &p, 4.0).unwrap();
+
+        let (plain, plain_stats) = render::<Fx>(p, &t, f, PaperSpec::default()).unwrap();
+        let mut calls = Vec::new();
+        let (c, stats) =
+            render_with_progress::<Fx>(p, &t, f, PaperSpec::default(), |d, n| calls.push((d, n)))
+                .unwrap();
+        assert_counts(&calls, stats.ticks);
+        assert_eq!(stats.ticks, t.ticks());
+        assert!(plain_stats.stamps > 0);
+        assert_eq!(c.to_gray8(), plain.to_gray8());
+
+        let make = |pose| BaxterLinBrush::of_preset(&p, pose);
+        let (plain, _) = render_baxter_lin(make, &t, f, PaperSpec::default()).unwrap();
+        let mut calls = Vec::new();
+        let (c, stats) =
+            render_baxter_lin_with_progress(make, &t, f, PaperSpec::default(), |d, n| {
+                calls.push((d, n))
+            })
+            .unwrap();
+        assert_counts(&calls, stats.ticks);
+        assert_eq!(stats.ticks, t.ticks());
+        assert_eq!(c.to_gray8(), plain.to_gray8());
     }
 
     #[test]

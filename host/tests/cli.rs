@@ -1108,3 +1108,38 @@ fn absurd_inputs_and_outputs_are_refused_not_crashed() {
         assert!(!e.contains("panicked"), "{e}");
     }
 }
+
+/// Progress bars are for a person at a terminal: with stderr a pipe (a log, CI, this test)
+/// `render` and `trace`, of either model, print their summary line and nothing else.
+#[test]
+fn no_progress_bar_when_stderr_is_not_a_terminal() {
+    let p = example("press_lift.csv");
+    let png = Temp::new("quiet.png");
+    let csv = Temp::new("quiet.csv");
+    for model in ["liang", "baxter-lin"] {
+        for (cmd, out) in [("render", &png), ("trace", &csv)] {
+            let o = Command::new(env!("CARGO_BIN_EXE_maobi"))
+                .args([cmd, "--poses", &p, "--model", model, "-o", out.path()])
+                .args(if cmd == "render" {
+                    &["--px-per-mm", "4"][..]
+                } else {
+                    &[]
+                })
+                .env_remove("RUST_LOG")
+                .output()
+                .expect("run maobi");
+            let e = stderr(&o);
+            assert!(o.status.success(), "{cmd} {model}: {e}");
+            let lines: Vec<&str> = e.lines().collect();
+            assert_eq!(lines.len(), 1, "{cmd} {model}: the summary alone: {e:?}");
+            assert!(
+                lines[0].starts_with(&format!("maobi {cmd}: ")),
+                "{cmd} {model}: {e:?}"
+            );
+            for bar in ['\r', '\x1b', '█', '░', '▏', '#'] {
+                assert!(!e.contains(bar), "{cmd} {model}: {bar:?} in {e:?}");
+            }
+            assert!(!e.contains("ETA"), "{cmd} {model}: {e:?}");
+        }
+    }
+}

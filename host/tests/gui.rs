@@ -244,3 +244,39 @@ fn a_replay_the_brush_cannot_reach_says_so() {
         .query_by_label_contains("the brush never reaches the paper")
         .is_none());
 }
+
+/// The About window, on its own (the app's menu opens it): the version, Maobi's licence,
+/// the CJK font the fonts' setup installed (here the tests' own), and the bundled fonts'
+/// licences; its close button closes it.
+#[test]
+fn the_about_window_shows_the_version_licences_and_font() {
+    use maobi::gui::about::{about_window, BUNDLED, LICENCE, VERSION};
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(900.0, 700.0))
+        .build_ui_state(
+            |ui, open: &mut bool| {
+                if maobi::gui::fonts::installed(ui.ctx()).is_none() {
+                    let _ = maobi::gui::fonts::setup(ui.ctx(), &common::test_fonts());
+                }
+                about_window(ui.ctx(), open);
+            },
+            true,
+        );
+    h.run();
+    h.get_by_label(&format!("Maobi {VERSION}"));
+    h.get_by_label_contains(&format!("licensed under {LICENCE}"));
+    h.get_by_label_contains("CJK text: test font (face 0)");
+    for b in BUNDLED {
+        h.get_by_label(b.name);
+        assert!(
+            h.query_all_by_label(b.licence).next().is_some(),
+            "{}: {}",
+            b.name,
+            b.licence
+        );
+    }
+    h.get_by_label("Close window").click();
+    h.run();
+    assert!(!*h.state(), "the close button closes it");
+    assert!(h.query_by_label(&format!("Maobi {VERSION}")).is_none());
+}

@@ -255,6 +255,9 @@ fn maobi_render_session_writes_the_apps_paper() {
     println!("{err}");
     assert!(out.status.success(), "{err}");
     assert!(err.contains("2 strokes"), "{err}");
+    // stderr is a pipe here: no progress bar, the summary line alone.
+    assert_eq!(err.lines().count(), 1, "{err:?}");
+    assert!(!err.contains('\r') && !err.contains("ETA"), "{err:?}");
     let want = h.state().paper().canvas().to_gray8();
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()));
     let mut r = dec.read_info().unwrap();

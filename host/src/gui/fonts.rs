@@ -9,7 +9,7 @@
 //! the source. Tests fix the font set ([`FontSource::Fixed`]) so that what a test draws does
 //! not depend on the machine's fonts.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use skrifa::raw::FileRef;
@@ -53,6 +53,8 @@ pub struct CjkFont {
     pub origin: String,
     data: Arc<Vec<u8>>,
     index: u32,
+    /// The file it was read from, if it came from one.
+    file: Option<PathBuf>,
 }
 
 impl std::fmt::Debug for CjkFont {
@@ -90,6 +92,7 @@ impl CjkFont {
             origin,
             data: Arc::new(data),
             index,
+            file: None,
         })
     }
 
@@ -97,7 +100,16 @@ impl CjkFont {
     pub fn from_file(path: &Path) -> Result<CjkFont, String> {
         let data =
             std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-        CjkFont::from_bytes(path.display().to_string(), data)
+        let font = CjkFont::from_bytes(path.display().to_string(), data)?;
+        Ok(CjkFont {
+            file: Some(path.to_path_buf()),
+            ..font
+        })
+    }
+
+    /// The file the font was read from (`None`: it was given as bytes).
+    pub fn file(&self) -> Option<&Path> {
+        self.file.as_deref()
     }
 
     /// The face's index in its file.
@@ -166,14 +178,21 @@ pub fn find_cjk_font(first: Option<&Path>) -> Result<CjkFont, String> {
                 .then(|| (data.to_vec(), index))
         });
         if let Some(Some((data, index))) = font {
-            let origin = db
-                .face(id)
+            let face = db.face(id);
+            let origin = face
                 .and_then(|f| f.families.first())
                 .map_or_else(|| "a system font".to_string(), |(name, _)| name.clone());
+            let file = face.and_then(|f| match &f.source {
+                fontdb::Source::File(path) | fontdb::Source::SharedFile(path, _) => {
+                    Some(path.clone())
+                }
+                fontdb::Source::Binary(_) => None,
+            });
             return Ok(CjkFont {
                 origin,
                 data: Arc::new(data),
                 index,
+                file,
             });
         }
     }
@@ -200,11 +219,46 @@ pub fn definitions(cjk: Option<&CjkFont>) -> egui::FontDefinitions {
     fonts
 }
 
+/// The CJK font [`setup`] installed, as the About window tells it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CjkReport {
+    /// This font: its name (or path), its face in the file, and the file it came from.
+    Found {
+        origin: String,
+        face: u32,
+        file: Option<PathBuf>,
+    },
+    /// A fixed font set without one was asked for (tests).
+    NoneAsked,
+    /// None was found: why.
+    Missing(String),
+}
+
+/// Where [`setup`] keeps its [`CjkReport`] in the context's memory.
+fn report_id() -> egui::Id {
+    egui::Id::unique("maobi::gui::fonts::CjkReport")
+}
+
+/// What the last [`setup`] on `ctx` installed for CJK text (`None`: it has not run).
+pub fn installed(ctx: &egui::Context) -> Option<CjkReport> {
+    ctx.data(|d| d.get_temp(report_id()))
+}
+
 /// Installs the fonts of `source` in `ctx`. `Err` says why CJK names will show as boxes (for
 /// the status line); the missing-glyph policy stays as it is (a test's panics on tofu).
 pub fn setup(ctx: &egui::Context, source: &FontSource) -> Result<(), String> {
     let cjk = source.cjk_font();
     ctx.set_fonts(definitions(cjk.as_ref().ok().and_then(Option::as_ref)));
+    let report = match &cjk {
+        Ok(Some(font)) => CjkReport::Found {
+            origin: font.origin.clone(),
+            face: font.index,
+            file: font.file.clone(),
+        },
+        Ok(None) => CjkReport::NoneAsked,
+        Err(e) => CjkReport::Missing(e.clone()),
+    };
+    ctx.data_mut(|d| d.insert_temp(report_id(), report));
     match cjk {
         // A fixed set without one was asked for: nothing to report.
         Ok(_) => Ok(()),

@@ -11,13 +11,17 @@
 //! * [`timeline`]: the stroke editor (keyframed strokes on a timeline, guided writing).
 //! * [`session`]: session files (`.maobi.toml`): the device's journal and the paper's history.
 //! * [`rerender`]: a session run again through the built-in device onto a fresh paper.
+//! * [`icon`]: the window's icon, drawn in code.
+//! * [`about`]: the About window: the version, the build, and the licences.
 
+pub mod about;
 pub mod app;
 pub mod brush_view;
 pub mod canvas;
 pub mod choice;
 pub mod files;
 pub mod fonts;
+pub mod icon;
 pub mod rerender;
 pub mod session;
 pub mod timeline;
@@ -200,6 +204,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         renderer: eframe::Renderer::Glow,
         viewport: egui::ViewportBuilder::default()
             .with_title("Maobi")
+            .with_icon(icon::icon())
             .with_inner_size([1400.0, 900.0]),
         // An automated run (CI's screenshots) starts and ends the same everywhere.
         persist_window: !automated,

@@ -447,7 +447,7 @@ impl Device for FallbackDevice {
 }
 
 /// `maobi --device phantom`: the Phantom, connected; or, when libHD or the device cannot be
-/// used, the built-in simulator with the reason in its status (also printed to stderr).
+/// used, the built-in simulator with the reason in its status (also logged as a warning).
 pub fn gui_device(
     hd_lib: Option<PathBuf>,
     model: ModelKind,
@@ -463,7 +463,9 @@ pub fn gui_device(
         Ok(()) => Ok(Box::new(d)),
         Err(e) => {
             let why = format!("Phantom unavailable, using the built-in simulator: {e}");
-            eprintln!("maobi: {why}");
+            // A warning (shown by default): the app opens on the simulator, and whoever
+            // launched it from a shell sees why the Phantom is not the one answering.
+            log::warn!("{why}");
             let mut sim = SimDevice::with_model(SimClock::RealTime, model, brush, hand)?;
             if let Some(w) = wake {
                 sim.on_frames(w);

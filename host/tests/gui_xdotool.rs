@@ -243,6 +243,34 @@ impl App {
     }
 }
 
+impl App {
+    /// Waits until the screen shows the layout the app reports, the same before and after
+    /// the screenshot (egui settles its panels over the first frames of a face), and both
+    /// satisfy `done`; that layout and screenshot.
+    fn settled(
+        &mut self,
+        d: &Display,
+        what: &str,
+        done: impl Fn(&str, &Image) -> bool,
+    ) -> (String, Image) {
+        let start = Instant::now();
+        loop {
+            let before = self.layout_until(what, |t| rect(t, "sheet").is_some());
+            let img = d.screenshot();
+            let after = std::fs::read_to_string(&self.layout).unwrap_or_default();
+            if before == after && done(&before, &img) {
+                return (before, img);
+            }
+            if start.elapsed() > HANG_GUARD {
+                let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../out/gui-session");
+                img.save(&dir.join("failed.png"));
+                panic!("no {what} after {HANG_GUARD:?} (out/gui-session/failed.png):\n{after}");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
 impl Drop for App {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -351,18 +379,16 @@ fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
         .to_string();
     d.xdotool(&["windowfocus", &id]);
 
-    // 1. The writing view, its paper most of the window.
-    let layout = app.layout_until("the writing view", |t| {
-        t.contains("face writing") && rect(t, "sheet").is_some()
+    // 1. The writing view, its paper most of the window: the layout the screen shows.
+    let (layout, start) = app.settled(&d, "the writing view", |t, img| {
+        let sheet = sheet_of(t);
+        let area = ((sheet[2] - sheet[0]) * (sheet[3] - sheet[1])) as usize;
+        t.contains("face writing") && img.count(sheet, is_paper) * 10 > area * 9
     });
     let canvas = rect(&layout, "canvas").unwrap();
     let window = rect(&layout, "window").unwrap();
     let sheet = sheet_of(&layout);
     let area = |r: [u32; 4]| ((r[2] - r[0]) * (r[3] - r[1])) as f64;
-    let paper_px = |img: &Image| img.count(sheet, is_paper);
-    let start = screen_until(&d, "the paper on screen", |img| {
-        paper_px(img) as f64 > 0.9 * area(sheet)
-    });
     shot(&start, "01-writing-view.png");
     let share = area(canvas) / area(window);
     eprintln!(
@@ -430,13 +456,10 @@ fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
 
     // 5. F2: the laboratory, where a parameter is dragged to a new value.
     d.xdotool(&["key", "F2"]);
-    let layout = app.layout_until("the laboratory", |t| {
-        t.contains("face laboratory") && rect(t, "param").is_some()
+    let (layout, before) = app.settled(&d, "the laboratory", |t, img| {
+        t.contains("face laboratory") && rect(t, "param").is_some() && laboratory_on_screen(t, img)
     });
     let param = rect(&layout, "param").unwrap();
-    let before = screen_until(&d, "the laboratory on screen", |img| {
-        laboratory_on_screen(&layout, img)
-    });
     shot(&before, "05-laboratory.png");
     // The panel says what a change did, in green, above the parameters (where the first
     // one is until then): nothing yet.
@@ -486,11 +509,8 @@ fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
 
     // 7. Started again, it comes back in the laboratory.
     let mut again = App::start(&d, &home, &picture);
-    let layout = again.layout_until("the laboratory again", |t| {
-        t.contains("face laboratory") && rect(t, "sheet").is_some()
-    });
-    let back = screen_until(&d, "the laboratory on screen again", |img| {
-        laboratory_on_screen(&layout, img)
+    let (_, back) = again.settled(&d, "the laboratory again", |t, img| {
+        t.contains("face laboratory") && laboratory_on_screen(t, img)
     });
     shot(&back, "07-reopened.png");
     let mut log = String::new();

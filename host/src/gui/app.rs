@@ -219,6 +219,8 @@ pub struct MaobiApp {
     param_rect: egui::Rect,
     /// The layout last written to [`Automation::layout`].
     layout_written: String,
+    /// The About window is open.
+    show_about: bool,
 }
 
 /// Where a background re-render leaves its result.
@@ -315,6 +317,7 @@ impl MaobiApp {
             mark: None,
             param_rect: egui::Rect::NOTHING,
             layout_written: String::new(),
+            show_about: false,
         }
     }
 
@@ -1136,6 +1139,16 @@ impl MaobiApp {
             if ui.button("1:1").clicked() {
                 self.paper.actual_size(ui.ctx());
             }
+            ui.separator();
+            if ui
+                .button("Writing view")
+                .on_hover_text("The paper first, the tools in one row (F2)")
+                .clicked()
+            {
+                self.face = Face::Writing;
+            }
+            ui.toggle_value(&mut self.show_about, "About")
+                .on_hover_text("The version, the licences and the fonts (F1)");
         });
         ui.horizontal_wrapped(|ui| {
             self.recent_menu(ui);
@@ -1986,6 +1999,7 @@ impl MaobiApp {
             Face::Laboratory => self.laboratory(ui),
             Face::Writing => self.writing(ui),
         };
+        super::about::about_window(&ctx, &mut self.show_about);
         self.hand_input(&ctx, pointer);
         self.finish_open(&ctx);
         self.automation(&ctx);
@@ -2179,6 +2193,10 @@ impl MaobiApp {
                 ui.label(RichText::new("no CJK font").color(Color32::from_rgb(220, 180, 60)))
                     .on_hover_text(m);
             }
+            ui.with_layout(egui::Layout::right_to_left(egui::Align::Center), |ui| {
+                ui.toggle_value(&mut self.show_about, "About")
+                    .on_hover_text("The version, the licences and the fonts (F1)");
+            });
         });
     }
 
@@ -2217,6 +2235,9 @@ impl MaobiApp {
         if fired(ctrl(Key::Q)) {
             // eframe keeps the settings and runs `on_exit` on the way out.
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        if fired(plain(Key::F1)) {
+            self.show_about = !self.show_about;
         }
         if fired(plain(Key::F2)) {
             self.face = self.face.other();

@@ -1232,6 +1232,11 @@ impl MaobiApp {
                 self.browse_open(ui, FileKind::Session, &current);
             }
         });
+        self.message_line(ui);
+    }
+
+    /// The last general message under the toolbar (errors in red): both faces.
+    fn message_line(&self, ui: &mut egui::Ui) {
         if let Some((m, err)) = &self.message {
             let c = if *err {
                 Color32::from_rgb(230, 80, 70)
@@ -2161,14 +2166,7 @@ impl MaobiApp {
             ui.toggle_value(&mut self.show_brush_view, "Brush view")
                 .on_hover_text("The brush in 3D over the paper's corner (B)");
         });
-        if let Some((m, err)) = &self.message {
-            let c = if *err {
-                Color32::from_rgb(230, 80, 70)
-            } else {
-                ui.visuals().text_color()
-            };
-            ui.label(RichText::new(m).color(c));
-        }
+        self.message_line(ui);
     }
 
     /// The writing view's status line: the device, and only what needs the writer's eye

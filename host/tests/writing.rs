@@ -7,6 +7,7 @@ use egui_kittest::Harness;
 use maobi::device::builtin::{SimClock, SimDevice};
 use maobi::device::{BrushFrame, Device, DeviceCommand, HandInput, ModelKind};
 use maobi::gui::app::{Automation, MaobiApp};
+use maobi::gui::files::{FileKind, Purpose};
 use maobi::gui::writing::{brush_mark, BrushMark, Face, Grid, HOVER_REACH_MM};
 use maobi::gui::{start_hand, GuiOptions};
 
@@ -218,4 +219,41 @@ fn shortcuts_write_undo_save_dip_and_switch_faces() {
     again.restore(&left, false);
     assert_eq!(again.face(), Face::Laboratory);
     assert_eq!(again.settings().grid, Grid::Mi);
+}
+
+#[test]
+fn a_file_button_asks_for_a_dialog_after_the_frame_and_its_answer_is_acted_on() {
+    let mut h = common::harness_sized(writing_app(), 1600.0, 1000.0);
+    h.run_steps(2);
+    // The "…" beside "Save picture" asks; nothing is shown inside the frame (no window
+    // here: the app shows it after the frame, on the window, on a thread of its own).
+    h.get_by_label("…").click();
+    h.run_steps(1);
+    let asked = h
+        .state()
+        .pending_dialog()
+        .cloned()
+        .expect("a dialog asked for");
+    assert_eq!(asked.purpose, Purpose::Save(FileKind::Png));
+    assert_eq!(asked.current, h.state().settings().png_path);
+    // Ctrl+Shift+S asks for the same.
+    key(
+        &mut h,
+        egui::Modifiers::COMMAND | egui::Modifiers::SHIFT,
+        egui::Key::S,
+    );
+    assert_eq!(
+        h.state().pending_dialog().map(|d| d.purpose),
+        Some(Purpose::Save(FileKind::Png))
+    );
+    // The answer saves the picture there and remembers the path.
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("writing");
+    std::fs::create_dir_all(&dir).unwrap();
+    let png = dir.join("chosen.png");
+    let _ = std::fs::remove_file(&png);
+    let ctx = h.ctx.clone();
+    h.state_mut()
+        .file_chosen(Purpose::Save(FileKind::Png), &png, &ctx);
+    assert!(png.exists(), "saved where the dialog said");
+    assert_eq!(h.state().settings().png_path, png.display().to_string());
 }

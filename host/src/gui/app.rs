@@ -15,7 +15,7 @@ use maobi_shared::{presets, ParamId};
 use super::brush_view::{self, Orbit};
 use super::canvas::PaperView;
 use super::choice::{make_device, start_hand, DeviceChoice};
-use super::files::{DeviceKind, FileKind, Recent, Settings};
+use super::files::{DeviceKind, DialogRequest, FileKind, Purpose, Recent, RunningDialog, Settings};
 use super::rerender::{rerender, Rerender};
 use super::session::{CanvasOp, InkLog, Session};
 use super::timeline::{Timeline, TimelineAction};
@@ -221,6 +221,9 @@ pub struct MaobiApp {
     layout_written: String,
     /// The About window is open.
     show_about: bool,
+    /// A file dialog this frame asked for, and the one on screen ([`super::files`]).
+    dialog_request: Option<DialogRequest>,
+    dialog: Option<RunningDialog>,
 }
 
 /// Where a background re-render leaves its result.
@@ -318,6 +321,8 @@ impl MaobiApp {
             param_rect: egui::Rect::NOTHING,
             layout_written: String::new(),
             show_about: false,
+            dialog_request: None,
+            dialog: None,
         }
     }
 
@@ -593,6 +598,15 @@ impl MaobiApp {
 
     /// Carries out what the stroke editor asked for.
     pub fn timeline_action(&mut self, a: TimelineAction) {
+        if let TimelineAction::ChooseFile { save, current } = &a {
+            let purpose = if *save {
+                Purpose::Save(FileKind::Stroke)
+            } else {
+                Purpose::Open(FileKind::Stroke)
+            };
+            self.ask_file(purpose, current);
+            return;
+        }
         if let TimelineAction::Play(t) | TimelineAction::Guide(t) = &a {
             if let Some(mut w) = self.never_reaches_paper(t) {
                 if let Some(c) = self.timeline.character() {
@@ -606,6 +620,7 @@ impl MaobiApp {
             TimelineAction::Pause => (DeviceCommand::StopReplay, "pause"),
             TimelineAction::Guide(t) => (DeviceCommand::Guide(Some(Arc::new(t))), "guide"),
             TimelineAction::StopGuide => (DeviceCommand::Guide(None), "stop guiding"),
+            TimelineAction::ChooseFile { .. } => return,
         };
         if let Err(e) = self.device.send(cmd) {
             self.timeline.message = Some((format!("cannot {what}: {e}"), true));
@@ -1160,9 +1175,8 @@ impl MaobiApp {
                 let path = PathBuf::from(&self.save_path);
                 self.file_action(FileKind::Png, &path, &ui.ctx().clone());
             }
-            if let Some(p) = browse_save(ui, FileKind::Png, &self.save_path) {
-                self.file_action(FileKind::Png, &p, &ui.ctx().clone());
-            }
+            let current = self.save_path.clone();
+            self.browse_save(ui, FileKind::Png, &current);
             ui.separator();
             let l = ui.label("pose recording");
             ui.add(egui::TextEdit::singleline(&mut self.record_path).desired_width(180.0))
@@ -1180,10 +1194,8 @@ impl MaobiApp {
                     let p = PathBuf::from(&self.record_path);
                     self.start_recording(&p);
                 }
-                if let Some(p) = browse_save(ui, FileKind::Poses, &self.record_path) {
-                    self.record_path = p.display().to_string();
-                    self.start_recording(&p);
-                }
+                let current = self.record_path.clone();
+                self.browse_save(ui, FileKind::Poses, &current);
             }
             ui.separator();
             let l = ui.label("pose file");
@@ -1213,10 +1225,8 @@ impl MaobiApp {
                 let p = PathBuf::from(&self.session_path);
                 self.save_session_reporting(&p);
             }
-            if let Some(p) = browse_save(ui, FileKind::Session, &self.session_path) {
-                self.session_path = p.display().to_string();
-                self.save_session_reporting(&p);
-            }
+            let current = self.session_path.clone();
+            self.browse_save(ui, FileKind::Session, &current);
             if self.opening.is_some() {
                 ui.spinner();
             } else if ui
@@ -1849,10 +1859,79 @@ impl MaobiApp {
             .on_hover_text(format!("Choose a {} to open", kind.label()))
             .clicked()
         {
-            if let Some(p) = kind.pick_open(current) {
-                let ctx = ui.ctx().clone();
-                self.file_action(kind, &p, &ctx);
+            self.ask_file(Purpose::Open(kind), current);
+        }
+    }
+
+    /// A "…" button that asks the platform's dialog where to save a file of `kind`, starting
+    /// from `current`.
+    fn browse_save(&mut self, ui: &mut egui::Ui, kind: FileKind, current: &str) {
+        if ui
+            .button("…")
+            .on_hover_text(format!("Choose where to save the {}", kind.label()))
+            .clicked()
+        {
+            self.ask_file(Purpose::Save(kind), current);
+        }
+    }
+
+    /// Asks for a file dialog, shown after this frame ([`Self::show_file_dialog`]).
+    fn ask_file(&mut self, purpose: Purpose, current: &str) {
+        if self.dialog.is_some() {
+            self.message = Some(("a file dialog is already open".into(), true));
+            return;
+        }
+        self.dialog_request = Some(DialogRequest {
+            purpose,
+            current: current.to_string(),
+        });
+    }
+
+    /// The file dialog asked for in the frame just drawn, if any, on its own thread and on
+    /// `parent` (the window; none in tests without one), so that the window keeps drawing.
+    pub fn show_file_dialog(&mut self, ctx: &egui::Context, parent: Option<&eframe::Frame>) {
+        let Some(req) = self.dialog_request.take() else {
+            return;
+        };
+        match req.show(parent, ctx.clone()) {
+            Ok(d) => self.dialog = Some(d),
+            Err(e) => self.message = Some((format!("cannot open a file dialog: {e}"), true)),
+        }
+    }
+
+    /// What a file dialog asked for: the file it is for, once answered.
+    pub fn pending_dialog(&self) -> Option<&DialogRequest> {
+        self.dialog_request.as_ref()
+    }
+
+    /// Acts on the file dialog's answer once it has one.
+    fn take_dialog_answer(&mut self, ctx: &egui::Context) {
+        let Some(answer) = self.dialog.as_ref().and_then(RunningDialog::answered) else {
+            return;
+        };
+        let Some(d) = self.dialog.take() else { return };
+        if let Some(path) = answer {
+            self.file_chosen(d.purpose, &path, ctx);
+        }
+    }
+
+    /// A file chosen (in a dialog) for `purpose`.
+    pub fn file_chosen(&mut self, purpose: Purpose, path: &Path, ctx: &egui::Context) {
+        match purpose {
+            Purpose::Open(kind) | Purpose::Save(kind @ FileKind::Png) => {
+                self.file_action(kind, path, ctx)
             }
+            Purpose::Save(FileKind::Poses) => {
+                self.record_path = path.display().to_string();
+                self.start_recording(path);
+            }
+            Purpose::Save(FileKind::Session) => {
+                self.session_path = path.display().to_string();
+                self.save_session_reporting(path);
+            }
+            Purpose::Save(FileKind::Stroke) => self.timeline.save_to(path),
+            // Nothing saves a tablet recording.
+            Purpose::Save(FileKind::TabletRecording) => {}
         }
     }
 
@@ -1999,6 +2078,7 @@ impl MaobiApp {
         self.pump();
         let drawing = self.status.replaying || self.latest.as_ref().is_some_and(|f| f.replaying);
 
+        self.take_dialog_answer(&ctx);
         self.shortcuts(&ctx);
         let pointer = match self.face {
             Face::Laboratory => self.laboratory(ui),
@@ -2159,9 +2239,8 @@ impl MaobiApp {
             {
                 self.save_picture(ui.ctx());
             }
-            if let Some(p) = browse_save(ui, FileKind::Png, &self.save_path) {
-                self.file_action(FileKind::Png, &p, &ui.ctx().clone());
-            }
+            let current = self.save_path.clone();
+            self.browse_save(ui, FileKind::Png, &current);
             ui.separator();
             ui.toggle_value(&mut self.show_brush_view, "Brush view")
                 .on_hover_text("The brush in 3D over the paper's corner (B)");
@@ -2220,9 +2299,8 @@ impl MaobiApp {
             Modifiers::COMMAND | Modifiers::SHIFT,
             Key::S,
         )) {
-            if let Some(p) = FileKind::Png.pick_save(&self.save_path) {
-                self.file_action(FileKind::Png, &p, ctx);
-            }
+            let current = self.save_path.clone();
+            self.ask_file(Purpose::Save(FileKind::Png), &current);
         }
         if fired(ctrl(Key::S)) {
             self.save_picture(ctx);
@@ -2257,8 +2335,10 @@ impl MaobiApp {
 }
 
 impl eframe::App for MaobiApp {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         self.frame_ui(ui);
+        let ctx = ui.ctx().clone();
+        self.show_file_dialog(&ctx, Some(frame));
     }
 
     /// Keeps the settings for the next run, except from automated runs (`--replay`,
@@ -2280,16 +2360,6 @@ impl eframe::App for MaobiApp {
         }
         self.device.disconnect();
     }
-}
-
-/// A "…" button that asks the system's dialog where to save a file of `kind`, starting from
-/// `current`; the path chosen, if any.
-fn browse_save(ui: &mut egui::Ui, kind: FileKind, current: &str) -> Option<PathBuf> {
-    ui.button("…")
-        .on_hover_text(format!("Choose where to save the {}", kind.label()))
-        .clicked()
-        .then(|| kind.pick_save(current))
-        .flatten()
 }
 
 fn write_recording(r: &Recorder) -> anyhow::Result<usize> {

@@ -4,8 +4,13 @@
 //!
 //! The text fields beside each button stay: they are what automation and tests type into,
 //! and what a user without a dialog service (a bare X server, a remote shell) still has.
+//!
+//! A dialog never freezes the window: a frame asks for one ([`DialogRequest`]), the app shows
+//! it after the frame with its window as the dialog's parent (so it sits on the window), on
+//! a thread of its own ([`RunningDialog`]), and a later frame takes the answer.
 
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 
@@ -77,16 +82,75 @@ impl FileKind {
         }
         d
     }
+}
 
-    /// Asks for a file to open, starting where `current` points; `None` if cancelled or no
-    /// dialog service answered.
-    pub fn pick_open(self, current: &str) -> Option<PathBuf> {
-        self.dialog(current).pick_file()
+/// What a file chosen in a dialog is for.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Purpose {
+    /// To open as its kind.
+    Open(FileKind),
+    /// To save the paper, a recording, the session or the strokes to.
+    Save(FileKind),
+}
+
+/// A file dialog a frame asked for: shown after the frame, when the window is at hand.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DialogRequest {
+    pub purpose: Purpose,
+    /// The file field's text: where the dialog starts.
+    pub current: String,
+}
+
+impl DialogRequest {
+    /// Shows the platform's dialog on its own thread, modal to `parent` when there is one;
+    /// `ctx` is woken when it is answered. An error if no thread could be started.
+    pub fn show(
+        self,
+        parent: Option<&eframe::Frame>,
+        ctx: egui::Context,
+    ) -> std::io::Result<RunningDialog> {
+        let kind = match self.purpose {
+            Purpose::Open(k) | Purpose::Save(k) => k,
+        };
+        let mut dialog = kind.dialog(&self.current);
+        if let Some(w) = parent {
+            dialog = dialog.set_parent(w);
+        }
+        let answer = Arc::new(Mutex::new(None));
+        let slot = answer.clone();
+        let save = matches!(self.purpose, Purpose::Save(_));
+        std::thread::Builder::new()
+            .name("file dialog".into())
+            .spawn(move || {
+                let path = if save {
+                    dialog.save_file()
+                } else {
+                    dialog.pick_file()
+                };
+                if let Ok(mut s) = slot.lock() {
+                    *s = Some(path);
+                }
+                ctx.request_repaint();
+            })?;
+        Ok(RunningDialog {
+            purpose: self.purpose,
+            answer,
+        })
     }
+}
 
-    /// Asks where to save, starting from `current`.
-    pub fn pick_save(self, current: &str) -> Option<PathBuf> {
-        self.dialog(current).save_file()
+/// A file dialog on screen, the window drawing on meanwhile.
+#[derive(Debug)]
+pub struct RunningDialog {
+    pub purpose: Purpose,
+    /// `Some(path)` once answered (`None` inside: cancelled, or no dialog service).
+    answer: Arc<Mutex<Option<Option<PathBuf>>>>,
+}
+
+impl RunningDialog {
+    /// The answer, once the dialog has closed.
+    pub fn answered(&self) -> Option<Option<PathBuf>> {
+        self.answer.lock().ok().and_then(|mut a| a.take())
     }
 }
 

@@ -20,7 +20,6 @@ use std::path::{Path, PathBuf};
 use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke as Line, Vec2};
 
 use super::canvas::PaperView;
-use super::files::FileKind;
 use crate::device::BrushFrame;
 use crate::poses::PoseTrack;
 use crate::strokes::{rows_to_csv, Character, StrokeFile};
@@ -34,6 +33,12 @@ pub enum TimelineAction {
     /// Guided writing along this track.
     Guide(PoseTrack),
     StopGuide,
+    /// Choose a stroke file in the platform's dialog, starting from this path: to open
+    /// (`save` false) or to save the strokes to.
+    ChooseFile {
+        save: bool,
+        current: String,
+    },
 }
 
 /// A keyframe being dragged: file stroke, keyframe, and what is being dragged.
@@ -373,6 +378,11 @@ impl Timeline {
     }
 
     /// The panel (below the paper).
+    /// Saves the strokes to `p`, saying how it went in the editor's message line.
+    pub fn save_to(&mut self, p: &Path) {
+        self.save_reporting(p);
+    }
+
     fn save_reporting(&mut self, p: &Path) {
         self.message = Some(match self.save(p) {
             Ok(()) => (format!("saved {}", p.display()), false),
@@ -402,11 +412,10 @@ impl Timeline {
                 .on_hover_text("Choose a stroke file to open")
                 .clicked()
             {
-                if let Some(p) = FileKind::Stroke.pick_open(&self.path) {
-                    if let Err(e) = self.open(&p) {
-                        self.message = Some((format!("{e:#}"), true));
-                    }
-                }
+                action = Some(TimelineAction::ChooseFile {
+                    save: false,
+                    current: self.path.clone(),
+                });
             }
             let save = egui::Button::new(if self.dirty {
                 "Save strokes*"
@@ -422,9 +431,10 @@ impl Timeline {
                 .on_hover_text("Choose where to save the strokes")
                 .clicked()
             {
-                if let Some(p) = FileKind::Stroke.pick_save(&self.path) {
-                    self.save_reporting(&p);
-                }
+                action = Some(TimelineAction::ChooseFile {
+                    save: true,
+                    current: self.path.clone(),
+                });
             }
             ui.separator();
             let have = self.character.is_some();

@@ -1396,6 +1396,26 @@ pub enum StrokeCommand {
     Sample(StrokeSampleArgs),
     /// Fit a pose CSV with the fewest keyframes within a tolerance; writes a stroke file.
     Fit(StrokeFitArgs),
+    /// A character's strokes, in their writing order, as a stroke file for a brush: each along
+    /// the median of Make Me a Hanzi's stroke, pressed to the outline's width there.
+    FromChar(StrokeFromCharArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct StrokeFromCharArgs {
+    /// The character (its data: $MAOBI_HANZI_DATA, else the installed set, else the shipped
+    /// practice set of 101 characters).
+    #[arg(value_name = "CHARACTER")]
+    pub character: String,
+    /// Output stroke file (TOML).
+    #[arg(short = 'o', long = "output", value_name = "STROKE.toml")]
+    pub output: PathBuf,
+    /// The character's size on the paper (mm square).
+    #[arg(long, value_name = "MM", default_value = "80", value_parser = parse_positive)]
+    pub size_mm: f64,
+    /// The brush it is written for (preset: large, small, wolf, goat, mixed).
+    #[arg(long, value_name = "PRESET", default_value = "large")]
+    pub brush: String,
 }
 
 #[derive(Debug, Args)]
@@ -1452,6 +1472,32 @@ fn run_stroke(c: &StrokeCommand) -> anyhow::Result<()> {
                 ch.duration(),
                 csv.lines().count() - 1,
                 a.rate,
+                a.output.display()
+            );
+        }
+        StrokeCommand::FromChar(a) => {
+            let params = presets::find(&a.brush).map_err(|e| anyhow::anyhow!("--brush: {e}"))?;
+            let hanzi = crate::hanzi::load(&a.character)?;
+            let curve = crate::hanzi::WidthCurve::measure(&params)?;
+            let text = crate::hanzi::stroke_file(&hanzi, &a.brush, &params, a.size_mm, &curve)?;
+            // What it wrote must be a stroke file that loads.
+            let ch = Character::from_toml(&a.output.display().to_string(), &text)?;
+            std::fs::write(&a.output, &text)
+                .with_context(|| format!("cannot write {}", a.output.display()))?;
+            let (lo, hi) = (curve.points()[0], curve.points()[curve.points().len() - 1]);
+            eprintln!(
+                "maobi stroke from-char: {} from {}, {} strokes, {} mm square, {:.1} s, {} brush \
+                 (width {:.1}-{:.1} mm at depth {:.1}-{:.1} mm), wrote {}",
+                hanzi.ch,
+                hanzi.source,
+                hanzi.strokes().len(),
+                a.size_mm,
+                ch.duration(),
+                a.brush,
+                lo.1,
+                hi.1,
+                lo.0,
+                hi.0,
                 a.output.display()
             );
         }

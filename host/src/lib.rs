@@ -17,6 +17,7 @@
 pub mod cli;
 pub mod device;
 pub mod gui;
+pub mod hanzi;
 pub mod offline;
 pub mod paper;
 pub mod phantom;

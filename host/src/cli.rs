@@ -46,6 +46,9 @@ pub enum Command {
     /// Keyframed stroke files: sample one to poses, or fit poses with one.
     #[command(subcommand)]
     Stroke(StrokeCommand),
+    /// Score a written character against the master's, stroke by stroke: order, shape,
+    /// position, size, direction, speed and press, each a named figure, and a stated total.
+    Score(ScoreArgs),
     /// Open the desktop GUI with the built-in simulated device (the default command).
     Gui(GuiArgs),
     /// Run the simulated brush behind the wire protocol on a TCP port (a stand-in for the
@@ -609,6 +612,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Some(Command::Trace(a)) => run_trace(&a),
         Some(Command::Render(a)) => run_render(&a),
         Some(Command::Stroke(c)) => run_stroke(&c),
+        Some(Command::Score(a)) => run_score(&a),
         Some(Command::SimDevice(a)) => {
             let server = crate::device::SimDeviceServer::spawn(
                 &a.listen,
@@ -1445,6 +1449,79 @@ pub struct StrokeFitArgs {
     /// Output stroke file (TOML).
     #[arg(short = 'o', long = "output", value_name = "STROKE.toml")]
     pub output: PathBuf,
+}
+
+#[derive(Debug, Args)]
+#[command(group(ArgGroup::new("written").required(true).args(["session", "poses", "stroke"])))]
+pub struct ScoreArgs {
+    /// The character written (the master's: Make Me a Hanzi's data, see `stroke from-char`).
+    #[arg(long = "char", value_name = "CHARACTER")]
+    pub character: String,
+    /// The writing: a session saved from the app (its brush is the session's).
+    #[arg(long, value_name = "FILE")]
+    pub session: Option<PathBuf>,
+    /// The writing: a pose recording (t,x,y,z,qw,qx,qy,qz).
+    #[arg(long, value_name = "FILE.csv")]
+    pub poses: Option<PathBuf>,
+    /// The writing: a stroke file.
+    #[arg(long, value_name = "FILE.toml")]
+    pub stroke: Option<PathBuf>,
+    /// The brush that wrote `--poses` or `--stroke` (preset), and the master's.
+    #[arg(long, value_name = "PRESET", default_value = "large")]
+    pub brush: String,
+    /// The master's size on the paper (mm square), centred on the origin.
+    #[arg(long, value_name = "MM", default_value = "80", value_parser = parse_positive)]
+    pub size_mm: f64,
+    /// Print the report as JSON (`total`, and `figures` by name) instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Do not append the attempt to the history file.
+    #[arg(long)]
+    pub no_history: bool,
+}
+
+fn run_score(a: &ScoreArgs) -> anyhow::Result<()> {
+    let hanzi = crate::hanzi::load(&a.character)?;
+    let (track, params, brush, source) = if let Some(path) = &a.session {
+        let session = crate::gui::session::Session::load(path)?;
+        let j = &session.journal;
+        (
+            crate::score::journal_track(j)
+                .with_context(|| format!("{}: its poses", path.display()))?,
+            j.params,
+            j.preset.clone(),
+            path.display().to_string(),
+        )
+    } else {
+        let params = presets::find(&a.brush).map_err(|e| anyhow::anyhow!("--brush: {e}"))?;
+        let loaded = load_track(a.poses.as_deref(), a.stroke.as_deref(), None)?;
+        let source = a
+            .poses
+            .as_ref()
+            .or(a.stroke.as_ref())
+            .map(|p| p.display().to_string());
+        (
+            loaded.track,
+            params,
+            a.brush.clone(),
+            source.unwrap_or_default(),
+        )
+    };
+    let master = crate::score::Master::new(hanzi, &brush, params, a.size_mm)?;
+    let report = master
+        .score(&track)
+        .with_context(|| format!("scoring {source}"))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&report.to_json())?);
+    } else {
+        print!("{}", report.to_text());
+    }
+    if !a.no_history {
+        let path = crate::score::history_path()?;
+        crate::score::append_history(&path, &report, &source)?;
+        eprintln!("maobi score: appended to {}", path.display());
+    }
+    Ok(())
 }
 
 fn run_stroke(c: &StrokeCommand) -> anyhow::Result<()> {

@@ -24,6 +24,7 @@ pub mod phantom;
 pub mod poses;
 pub mod raster;
 pub mod render;
+pub mod score;
 pub mod strokes;
 pub mod tablet;
 pub mod trace;

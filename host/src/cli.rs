@@ -290,6 +290,11 @@ pub struct GuiArgs {
     /// out/maobi-canvas.png).
     #[arg(long, value_name = "OUT.png")]
     pub picture: Option<PathBuf>,
+    /// Open the practice panel on this character (the master written by the device's brush).
+    /// With `--replay`, the replay is the attempt: it is recorded and scored, and
+    /// `--screenshot` waits for the score.
+    #[arg(long, value_name = "CHARACTER")]
+    pub practice: Option<String>,
     /// The face the app opens with: `writing` (the paper first) or `laboratory` (devices,
     /// parameters, plots, files); F2 switches (default: the one left open last, else
     /// `writing`).
@@ -671,6 +676,7 @@ fn gui_options(a: GuiArgs) -> crate::gui::GuiOptions {
         session: a.session,
         picture: a.picture,
         face: a.face.map(Into::into),
+        practice: a.practice,
         paper_mm: a.paper_mm.unwrap_or(defaults.paper_mm),
         px_per_mm: a.px_per_mm.unwrap_or(defaults.px_per_mm),
         tablet: a.tablet,

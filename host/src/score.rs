@@ -250,6 +250,8 @@ pub struct Master {
     outlines: Vec<HanziStroke>,
     outline_masks: Vec<Vec<bool>>,
     own: Vec<WrittenStroke>,
+    text: String,
+    track: PoseTrack,
 }
 
 impl Master {
@@ -282,6 +284,7 @@ impl Master {
             .collect();
         let track = Character::from_toml("the master's strokes", text)?.track("the master")?;
         let own = written_strokes(&track, &params, frame)?;
+        let text = text.to_string();
         if own.len() != outlines.len() {
             anyhow::bail!(
                 "the master's own writing of {} came out as {} strokes, not its {}",
@@ -298,7 +301,24 @@ impl Master {
             outlines,
             outline_masks,
             own,
+            text,
+            track,
         })
+    }
+
+    /// The master's stroke file (as `maobi stroke from-char` writes it).
+    pub fn stroke_text(&self) -> &str {
+        &self.text
+    }
+
+    /// The master's writing as a pose track: what "Watch" replays and "Guide me" leads along.
+    pub fn track(&self) -> &PoseTrack {
+        &self.track
+    }
+
+    /// The master's strokes in paper millimetres (outlines and medians).
+    pub fn outlines(&self) -> &[HanziStroke] {
+        &self.outlines
     }
 
     fn stroke_name(&self, k: usize) -> String {

@@ -147,3 +147,13 @@ fn every_shipped_character_written_from_its_medians_lies_on_its_own_outline() {
     let below: Vec<_> = figures.iter().filter(|(_, f)| *f < LEAST_OVERLAP).collect();
     assert!(below.is_empty(), "below {LEAST_OVERLAP}: {below:?}");
 }
+
+#[test]
+fn the_app_s_fonts_draw_every_shipped_character() {
+    for (ch, _) in hanzi::SHIPPED {
+        assert!(
+            maobi::gui::fonts::CJK_TEXT.contains(ch),
+            "{ch} is not in CJK_TEXT"
+        );
+    }
+}

@@ -47,6 +47,10 @@ pub struct Automation {
     pub screenshot: Option<PathBuf>,
     /// Open this session at start (the screenshot waits for its re-render).
     pub session: Option<PathBuf>,
+    /// Practise this character at start: the panel open, the master loaded; the replay (if
+    /// any) starts once it is, recorded as the attempt and scored; the screenshot waits for
+    /// the score.
+    pub practice: Option<String>,
     /// Keep the views' rectangles and the face in this file, rewritten when they change
     /// ([`LAYOUT_ENV`]): how a driver of the real window (xdotool in CI) finds the paper and
     /// the controls. It drives nothing itself, so it does not make the run an automated one.
@@ -175,6 +179,8 @@ pub struct MaobiApp {
     automation: Automation,
     shot: Option<Shot>,
     replay_started: bool,
+    /// Whether the automation's practice character was loaded.
+    practice_started: bool,
     outcome: Arc<Mutex<Outcome>>,
     /// Frames seen from replays.
     replay_frames: u64,
@@ -198,6 +204,8 @@ pub struct MaobiApp {
     /// The stroke editor (keyframed strokes on a timeline) and whether it is shown.
     timeline: Timeline,
     show_timeline: bool,
+    /// Copying a master's character: the panel, the master, the attempt and its score.
+    practice: super::practice::Practice,
     /// Where the fonts come from, and the outcome of setting them up (on the first frame,
     /// when there is a context).
     font_source: super::fonts::FontSource,
@@ -294,6 +302,7 @@ impl MaobiApp {
             shot,
             automation,
             replay_started: false,
+            practice_started: false,
             outcome,
             status,
             replay_frames: 0,
@@ -308,6 +317,7 @@ impl MaobiApp {
             ink_load: 1.0,
             timeline: Timeline::default(),
             show_timeline: false,
+            practice: Default::default(),
             font_source: Default::default(),
             fonts: None,
             ink_log: InkLog::default(),
@@ -627,6 +637,32 @@ impl MaobiApp {
         }
     }
 
+    /// The practice panel's state.
+    pub fn practice(&self) -> &super::practice::Practice {
+        &self.practice
+    }
+
+    pub fn practice_mut(&mut self) -> &mut super::practice::Practice {
+        &mut self.practice
+    }
+
+    /// Carries out what the practice panel asked of the device.
+    pub fn practice_action(&mut self, a: super::practice::PracticeAction) {
+        use super::practice::PracticeAction as A;
+        let (cmd, what) = match a {
+            A::Watch(t) => (DeviceCommand::Replay(t), "watch"),
+            A::Guide(t) => (DeviceCommand::Guide(Some(t)), "guide"),
+            A::StopGuide => (DeviceCommand::Guide(None), "stop guiding"),
+            A::Clear => {
+                self.clear();
+                return;
+            }
+        };
+        if let Err(e) = self.device.send(cmd) {
+            self.practice.message = Some((format!("cannot {what}: {e}"), true));
+        }
+    }
+
     /// Arrival-to-ink latency so far.
     pub fn ink_latency(&self) -> InkLatency {
         let v = &self.times.ink_latency;
@@ -738,6 +774,7 @@ impl MaobiApp {
         }
         for (i, f) in frames.iter().enumerate() {
             self.paper.ink(f);
+            self.practice.frame(f.tick, f.pose);
             self.ink_log.inked(f.tick);
             if f.replaying {
                 self.replay_frames += 1;
@@ -783,6 +820,36 @@ impl MaobiApp {
     }
 
     fn automation(&mut self, ctx: &egui::Context) {
+        if !self.practice_started {
+            self.practice_started = true;
+            if let Some(ch) = self.automation.practice.clone() {
+                self.face = Face::Writing;
+                self.practice.open = true;
+                self.practice.input = ch.clone();
+                let (preset, params) = (self.status.preset.clone(), self.status.params);
+                self.practice.load(&ch, &preset, params);
+            }
+        }
+        let practising = self.automation.practice.is_some();
+        if practising && !self.replay_started {
+            if self.practice.busy() {
+                return;
+            }
+            if self.practice.master().is_none() {
+                let msg = self
+                    .practice
+                    .message
+                    .clone()
+                    .map(|m| m.0)
+                    .unwrap_or_default();
+                self.replay_started = true;
+                self.fail(ctx, format!("--practice: {msg}"));
+                return;
+            }
+            if self.automation.replay.is_some() {
+                self.practice.start_writing();
+            }
+        }
         if !self.replay_started {
             self.replay_started = true;
             if let Some(p) = self.automation.session.clone() {
@@ -795,9 +862,16 @@ impl MaobiApp {
                 }
             }
         }
-        let replay_done = (self.automation.replay.is_none()
+        let mut replay_done = (self.automation.replay.is_none()
             || (self.status.replays_done > 0 && !self.status.replaying))
             && self.opening.is_none();
+        if practising && replay_done && self.automation.replay.is_some() {
+            // The replay was the attempt: score it, and wait for the score.
+            if self.practice.is_writing() {
+                self.practice.score();
+            }
+            replay_done = !self.practice.busy();
+        }
         let Some(shot) = self.shot.take() else { return };
         self.shot = Some(match shot {
             Shot::Waiting(k) if !replay_done => Shot::Waiting(k),
@@ -1247,14 +1321,7 @@ impl MaobiApp {
 
     /// The last general message under the toolbar (errors in red): both faces.
     fn message_line(&self, ui: &mut egui::Ui) {
-        if let Some((m, err)) = &self.message {
-            let c = if *err {
-                Color32::from_rgb(230, 80, 70)
-            } else {
-                ui.visuals().text_color()
-            };
-            ui.label(RichText::new(m).color(c));
-        }
+        super::message_label(ui, &self.message);
     }
 
     /// The brush model and the preset (or Baxter & Lin's head): both faces' toolbars.
@@ -2076,6 +2143,7 @@ impl MaobiApp {
         self.times.prev_begin = self.times.last;
         self.times.last = Some(begin);
         self.pump();
+        self.practice.poll();
         let drawing = self.status.replaying || self.latest.as_ref().is_some_and(|f| f.replaying);
 
         self.take_dialog_answer(&ctx);
@@ -2089,6 +2157,9 @@ impl MaobiApp {
         self.finish_open(&ctx);
         self.automation(&ctx);
         self.keep_layout(&ctx);
+        if self.practice.busy() {
+            ctx.request_repaint_after(Duration::from_millis(50));
+        }
 
         let ui_ms = begin.elapsed().as_secs_f64() * 1e3;
         // The ink of this frame's device frames has been uploaded (in `paper.show`): how
@@ -2167,6 +2238,22 @@ impl MaobiApp {
     fn writing(&mut self, ui: &mut egui::Ui) -> super::canvas::PaperPointer {
         egui::Panel::top("toolbar").show(ui, |ui| self.writing_toolbar(ui));
         egui::Panel::bottom("status").show(ui, |ui| self.writing_status(ui));
+        if self.practice.open {
+            let guiding = self.latest.as_ref().is_some_and(|f| f.guide.is_some());
+            let (preset, params) = (self.status.preset.clone(), self.status.params);
+            let mut action = None;
+            egui::Panel::right("practice")
+                .resizable(true)
+                .default_size(300.0)
+                .show(ui, |ui| {
+                    egui::ScrollArea::vertical().show(ui, |ui| {
+                        action = self.practice.ui(ui, &preset, params, guiding);
+                    });
+                });
+            if let Some(a) = action {
+                self.practice_action(a);
+            }
+        }
         let mut pointer = super::canvas::PaperPointer::default();
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)
@@ -2198,6 +2285,7 @@ impl MaobiApp {
     fn paper_marks(&mut self, ui: &egui::Ui) {
         let painter = ui.painter_at(self.paper.view_rect);
         draw_grid(&painter, &self.paper, self.grid);
+        super::practice::draw(&painter, &self.paper, &self.practice);
         let length = self.status.params.length_mm as f64;
         self.mark = self.latest.as_ref().and_then(|f| brush_mark(f, length));
         if let Some(m) = &self.mark {
@@ -2242,6 +2330,8 @@ impl MaobiApp {
             let current = self.save_path.clone();
             self.browse_save(ui, FileKind::Png, &current);
             ui.separator();
+            ui.toggle_value(&mut self.practice.open, "Practice")
+                .on_hover_text("Copy a master's character: trace or copy it, watch it, be guided, write, score (P)");
             ui.toggle_value(&mut self.show_brush_view, "Brush view")
                 .on_hover_text("The brush in 3D over the paper's corner (B)");
         });
@@ -2326,6 +2416,11 @@ impl MaobiApp {
         }
         if fired(plain(Key::B)) {
             self.show_brush_view = !self.show_brush_view;
+        }
+        if fired(plain(Key::P)) {
+            // The practice panel lives in the writing view.
+            self.practice.open = self.face == Face::Laboratory || !self.practice.open;
+            self.face = Face::Writing;
         }
         if fired(plain(Key::G)) {
             let i = Grid::ALL.iter().position(|g| *g == self.grid).unwrap_or(0);

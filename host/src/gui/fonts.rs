@@ -22,7 +22,12 @@ pub const FONT_ENV: &str = "MAOBI_CJK_FONT";
 /// 策 掠 啄 磔), the papers (熟宣, 生宣), the brush presets' names (大楷, 小楷, 狼毫, 羊毫,
 /// 兼毫) and the practice grids (米字格, 田字格, 九宫格). A CJK font must draw all of them to
 /// be used.
-pub const CJK_TEXT: &str = "永側勒努趯策掠啄磔熟宣生大楷小狼毫羊兼米字格田九宫";
+pub const CJK_TEXT: &str = concat!(
+    "永側勒努趯策掠啄磔熟宣生大楷小狼毫羊兼米字格田九宫描紅臨摹收筆",
+    // The practice set's characters (`crate::hanzi::SHIPPED`), which the practice panel shows.
+    "的一是不了在人有我他这个们中来上大为和国地到以说时要就出会可也你对生能而子那得于着下自之年过发后",
+    "作里用道行所然家种事成方多经么去法学如都同现当没动面起看定天分还进好小部其些主样理心她本前开但因只从想实"
+);
 
 /// CJK font families to ask the platform for, best first: the common ones on Linux
 /// distributions, macOS and Windows.

@@ -22,6 +22,7 @@ pub mod choice;
 pub mod files;
 pub mod fonts;
 pub mod icon;
+pub mod practice;
 pub mod rerender;
 pub mod session;
 pub mod timeline;
@@ -67,6 +68,8 @@ pub struct GuiOptions {
     pub picture: Option<PathBuf>,
     /// The face to open with (`None`: the one left open last, else the writing view).
     pub face: Option<writing::Face>,
+    /// Practise this character at start (`maobi gui --practice`).
+    pub practice: Option<String>,
     /// The paper's kind at start.
     pub paper_kind: crate::paper::PaperKind,
     /// Paper size (mm, square, centred on the origin) and resolution.
@@ -106,6 +109,7 @@ impl Default for GuiOptions {
             session: None,
             picture: None,
             face: None,
+            practice: None,
             paper_mm: 200.0,
             px_per_mm: 10.0,
             tablet: None,
@@ -119,6 +123,19 @@ impl GuiOptions {
     /// The paper's frame: `paper_mm` square centred on the origin.
     pub fn frame(&self) -> Frame {
         paper_frame(self.paper_mm, self.px_per_mm)
+    }
+}
+
+/// A status message under a panel's controls: `message` is its text and whether it reports
+/// an error (then red). The app's message line, the stroke editor's and the practice panel's.
+pub fn message_label(ui: &mut egui::Ui, message: &Option<(String, bool)>) {
+    if let Some((m, error)) = message {
+        let c = if *error {
+            egui::Color32::from_rgb(230, 80, 70)
+        } else {
+            ui.visuals().text_color()
+        };
+        ui.label(egui::RichText::new(m).color(c));
     }
 }
 
@@ -190,6 +207,7 @@ pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
         replay: opts.replay.clone(),
         screenshot: opts.screenshot.clone(),
         session: opts.session.clone(),
+        practice: opts.practice.clone(),
         layout: std::env::var_os(app::LAYOUT_ENV)
             .filter(|v| !v.is_empty())
             .map(PathBuf::from),

@@ -17,7 +17,7 @@
 
 use std::path::{Path, PathBuf};
 
-use egui::{Color32, Pos2, Rect, RichText, Sense, Stroke as Line, Vec2};
+use egui::{Color32, Pos2, Rect, Sense, Stroke as Line, Vec2};
 
 use super::canvas::PaperView;
 use crate::device::BrushFrame;
@@ -492,14 +492,7 @@ impl Timeline {
                 ));
             }
         });
-        if let Some((m, err)) = &self.message {
-            let c = if *err {
-                Color32::from_rgb(230, 80, 70)
-            } else {
-                ui.visuals().text_color()
-            };
-            ui.label(RichText::new(m).color(c));
-        }
+        super::message_label(ui, &self.message);
         if self.character.is_some() {
             self.strip(ui);
             self.kinetic_view(ui);

@@ -1118,6 +1118,55 @@ fn the_servo_loop_leads_a_relaxed_hand_along_a_stroke() {
     assert!(core.guide_frame().is_none());
 }
 
+/// "Stay in the lane" in the servo loop (no libHD: `ServoCore::step` is the callback's model),
+/// the stylus held still: inside the tube the guide gives nothing, 6 mm off the path it pulls
+/// back with k (d - r) in the paper plane, and let go it fades out and stops.
+#[test]
+fn the_servo_loop_keeps_the_lane() {
+    use maobi::phantom::servo::ServoCommand;
+    let map = Mapping::default();
+    let params = presets::by_name("large").unwrap();
+    let mut core = ServoCore::new(params, PHANTOM_OMNI, map, true).unwrap();
+    let at = |x: f64, y: f64| {
+        let (p, q) = map.to_device(Pose::new(
+            maobi_shared::Vec3::from_f64([x, y, 50.0]),
+            Quat::IDENTITY,
+        ));
+        transform_of_pose(p, q)
+    };
+    for _ in 0..100 {
+        core.step(&at(0.0, 1.0), 0);
+    }
+    let line: Vec<[f64; 2]> = (0..=40).map(|i| [i as f64 - 20.0, 0.0]).collect();
+    let lane = maobi_shared::guide::Lane::new(vec![line], 2.0);
+    core.apply(ServoCommand::Lane(Some(Box::new(lane))));
+    assert!(core.guiding());
+    let mut largest: f64 = 0.0;
+    for _ in 0..500 {
+        core.step(&at(0.0, 1.0), 0);
+        let g = core.guide_frame().expect("the lane reports");
+        largest = g.force.iter().fold(largest, |m, f| m.max(f.abs()));
+    }
+    let mut held = [0.0; 3];
+    for _ in 0..500 {
+        core.step(&at(0.0, 6.0), 0);
+        held = core.guide_frame().unwrap().force;
+    }
+    eprintln!("Phantom servo loop, lane 2 mm: inside {largest:e} N at most; 6 mm off {held:?} N");
+    assert_eq!(largest, 0.0);
+    let k = DEFAULT_GUIDE.stiffness_n_per_m as f64 * 1e-3;
+    assert!(
+        (held[1] + 4.0 * k).abs() < 1e-3 && held[0].abs() < 1e-3,
+        "{held:?}"
+    );
+    assert!(held[2].abs() < 1e-3, "{held:?}");
+    core.apply(ServoCommand::Lane(None));
+    for _ in 0..400 {
+        core.step(&at(0.0, 6.0), 0);
+    }
+    assert!(!core.guiding() && core.guide_frame().is_none());
+}
+
 /// `maobi --device phantom`: the GUI's guided writing reaches the servo loop; with the
 /// stand-in's stylus held still 5 mm beside a line, the frames carry the moving point and
 /// the stray, and the forces the stand-in recorded pull toward the line within the guide's

@@ -55,6 +55,24 @@ fn practise_yong_watch_it_written_and_score_the_attempt() {
     assert_eq!(m.outlines().len(), 5);
     h.get_by_label_contains("5 strokes, from the shipped practice set");
 
+    // The lane around the master's strokes: the device keeps it until it is left.
+    h.get_by_label("Stay in the lane").click();
+    h.step();
+    h.step();
+    assert!(h.state().practice().lane_on);
+    assert!(
+        h.state().latest().is_some_and(|f| f.guide.is_some()),
+        "the device keeps the lane"
+    );
+    h.get_by_label("Leave the lane").click();
+    for _ in 0..20 {
+        h.step();
+    }
+    assert!(
+        h.state().latest().is_some_and(|f| f.guide.is_none()),
+        "and lets go"
+    );
+
     // Write, and let the device write the master's 永 (as a writer's hand would).
     h.get_by_label("Write").click();
     h.step();

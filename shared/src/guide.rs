@@ -448,6 +448,134 @@ impl<P> GuidePlay<P> {
     }
 }
 
+/// Stay in the lane: a virtual fixture around a stroke's path in the paper plane. The hand
+/// feels nothing while its ferrule is within `radius_mm` of the path (x-y), and outside it the
+/// guide's spring-damper pulls it back toward the tube's wall, in the paper plane only.
+///
+/// It feeds the same [`GuideStream`] as guided writing, with the moving point put where the
+/// force must come from: the hand itself inside the tube (no stretch, no relative velocity:
+/// exactly zero force), else the point of the tube's wall nearest the hand, at the hand's
+/// height. The path is fixed, so the wall point is a function of the hand's position: the
+/// spring's potential `k (d - r)^2 / 2` is the hand's alone and the fixture passive; the
+/// stream accounts the wall point's motion as a source all the same (its work over a closed
+/// path is zero), and the passivity audit (`tests/guide.rs`) holds it to the guide's
+/// tolerance.
+///
+/// `pieces` are the path's pieces (mm, x-y; a piece of one point is a dot), each a polyline:
+/// no segment joins one piece to the next (the brush lifted between them). Geometry in `f64`:
+/// the fixture runs where the host runs the force loop (the built-in pen, the Phantom).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lane<P, Q> {
+    pieces: P,
+    radius_mm: f64,
+    on: bool,
+    /// The stream has a moving point from this fixture: its first sample only places it
+    /// (the stream takes a first point's step as zero, which against a moving hand would
+    /// be a damping force), and the fade-in starts with the second.
+    primed: bool,
+    piece: core::marker::PhantomData<Q>,
+}
+
+impl<P, Q> Lane<P, Q>
+where
+    P: AsRef<[Q]>,
+    Q: AsRef<[[f64; 2]]>,
+{
+    /// The fixture around `pieces` with a tube `radius_mm` wide on each side, on from the
+    /// next tick.
+    pub fn new(pieces: P, radius_mm: f64) -> Self {
+        Lane {
+            pieces,
+            radius_mm: radius_mm.max(0.0),
+            on: true,
+            primed: false,
+            piece: core::marker::PhantomData,
+        }
+    }
+
+    pub fn radius_mm(&self) -> f64 {
+        self.radius_mm
+    }
+
+    /// The nearest point of the path to `xy` (mm) and its distance, if the path has a point.
+    pub fn nearest(&self, xy: [f64; 2]) -> Option<([f64; 2], f64)> {
+        let mut best: Option<([f64; 2], f64)> = None;
+        let mut consider = |p: [f64; 2]| {
+            let d = libm::hypot(p[0] - xy[0], p[1] - xy[1]);
+            if best.is_none_or(|(_, b)| d < b) {
+                best = Some((p, d));
+            }
+        };
+        for piece in self.pieces.as_ref() {
+            let pts = piece.as_ref();
+            if let [only] = pts {
+                consider(*only);
+            }
+            for w in pts.windows(2) {
+                let (a, b) = (w[0], w[1]);
+                let ab = [b[0] - a[0], b[1] - a[1]];
+                let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+                let t = if len2 > 0.0 {
+                    (((xy[0] - a[0]) * ab[0] + (xy[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                consider([a[0] + ab[0] * t, a[1] + ab[1] * t]);
+            }
+        }
+        best
+    }
+
+    /// Where the guide's moving point goes for a hand at `hand` (mm): the hand itself within
+    /// the tube (or with no path), else the tube's wall nearest it, at the hand's height.
+    pub fn anchor(&self, hand: [f64; 3]) -> [f64; 3] {
+        match self.nearest([hand[0], hand[1]]) {
+            Some((p, d)) if d > self.radius_mm => {
+                let f = self.radius_mm / d;
+                [
+                    p[0] + (hand[0] - p[0]) * f,
+                    p[1] + (hand[1] - p[1]) * f,
+                    hand[2],
+                ]
+            }
+            _ => hand,
+        }
+    }
+
+    /// Lets go: the point reached is held while the guide fades out.
+    pub fn stop(&mut self) {
+        self.on = false;
+    }
+
+    /// This tick's sample for a guide now in the state `stream`, the hand at `hand` (`None`:
+    /// no new pose this tick, no sample); `None` once stopped and faded out.
+    pub fn next_sample<S: Scalar>(
+        &mut self,
+        hand: Option<[f64; 3]>,
+        stream: &GuideStream<S>,
+    ) -> Option<GuideInput<S>> {
+        if self.on {
+            let primed = self.primed;
+            return hand.map(|h| {
+                self.primed = true;
+                GuideInput {
+                    anchor: Vec3::from_f64(self.anchor(h)),
+                    on: primed,
+                }
+            });
+        }
+        match stream.anchor() {
+            Some(anchor) if stream.active() => Some(GuideInput { anchor, on: false }),
+            _ => None,
+        }
+    }
+
+    /// Whether the fixture is done: stopped, and the guide faded out.
+    pub fn done<S: Scalar>(&self, stream: &GuideStream<S>) -> bool {
+        !self.on && !stream.active()
+    }
+}
+
 /// `v` scaled down to length `max` if it is longer.
 fn clamp_norm<S: Scalar>(v: Vec3<S>, max: S) -> Vec3<S> {
     let n2 = v.norm2();

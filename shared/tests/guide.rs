@@ -231,3 +231,103 @@ fn a_resisting_hand_gets_no_more_than_the_limits_and_the_audit_holds() {
     println!("resisting, Omni limits: peak command {:.3} N", r.peak_cmd);
     assert!(r.peak_cmd <= PHANTOM_OMNI.peak_n as f64 + 1e-6);
 }
+
+/// "Stay in the lane" (`guide::Lane`) on the firmware's loop: the stroke's path in the paper
+/// plane as the fixture's one piece (every millimetre of it), a writer's random presses,
+/// drags and lifts around it. Returns (ticks inside the tube after the fade-in and the
+/// largest guide force on them, ticks well outside and the smallest share of the force
+/// pointing back toward the path on them, the audit's worst violation, the energy the wall
+/// point's motion was credited with). A tick inside counts from the second in a row: on the
+/// tick the hand enters, the damper still takes the step it made from the wall.
+fn lane_run(seed: u64, radius_mm: f64, ticks: usize) -> (usize, f64, usize, f64, f64, f64) {
+    use maobi_shared::guide::{GuideInput, GuideStream, Lane};
+    let s = stroke();
+    let (t0, t1) = s.domain();
+    let path: Vec<[f64; 2]> = (0..=((t1 - t0) * 1e3) as usize)
+        .map(|k| s.pose_at(t0 + k as f64 * 1e-3).0)
+        .filter(|p| p[2] <= 40.0)
+        .map(|p| [p[0], p[1]])
+        .collect();
+    let mut lane = Lane::new(vec![path], radius_mm);
+    let (p0, q0) = s.pose_at(t0);
+    let rot = Quat::from_f64(q0);
+    let mut brush = Brush::<Fx>::new(presets::LARGE, Pose::new(Vec3::from_f64(p0), rot)).unwrap();
+    let mut model = ForceModel::<Fx>::new(DEFAULT_FORCES).unwrap();
+    let big = DeviceLimits {
+        peak_n: 20.0,
+        continuous_n: 20.0,
+        ..PHANTOM_OMNI
+    };
+    let mut stage = OutputStage::<Fx>::new(big).unwrap();
+    stage.enable();
+    let mut stream = GuideStream::<Fx>::new(DEFAULT_GUIDE).unwrap();
+    let mut hand = SimHand::new(HandParams::WRITER, p0);
+    let mut script = Script::new(seed, p0, (30.0, 48.0));
+    script.xy_range = 20.0;
+    let mut cmd = [0.0; 3];
+    let mut last_hand = Vec3::<Fx>::from_f64(p0);
+    let (mut sourced, mut best, mut worst) = (0.0, f64::MIN, 0.0f64);
+    let (mut inside, mut inside_max) = (0usize, 0.0f64);
+    let (mut outside, mut outside_min) = (0usize, f64::INFINITY);
+    let fade = (DEFAULT_GUIDE.fade_s as f64 * 1e3) as usize;
+    let mut was_inside = false;
+    for k in 0..ticks {
+        let (target, push) = script.tick();
+        hand.tick_with_push(target, cmd, push);
+        let x = hand.stylus();
+        let p = Vec3::<Fx>::from_f64(x);
+        brush.tick(Pose::new(p, rot));
+        let forces = model.tick(&brush, p);
+        let sample: Option<GuideInput<Fx>> = lane.next_sample(Some(x), &stream);
+        let g = stream.tick(sample, p, p - last_hand);
+        let c = stage.apply_with_source(forces.total + g.force, p - last_hand, g.source_mj);
+        sourced += g.source_mj.to_f64() * 1e-3;
+        last_hand = p;
+        cmd = c.to_f64();
+        let f = g.force.to_f64();
+        let fn_ = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+        let (near, d) = lane.nearest([x[0], x[1]]).unwrap();
+        let now_inside = d <= radius_mm;
+        if k > fade {
+            if now_inside && was_inside {
+                inside += 1;
+                inside_max = inside_max.max(fn_);
+            } else if d > radius_mm + 1.0 {
+                outside += 1;
+                // The share of the force pointing back toward the path, in the paper plane.
+                let to = [near[0] - x[0], near[1] - x[1]];
+                let back = (f[0] * to[0] + f[1] * to[1]) / (fn_.max(1e-12) * d);
+                outside_min = outside_min.min(back);
+            }
+        }
+        was_inside = now_inside;
+        let stored = hand.stylus_kinetic_energy()
+            + stored_energy(&brush, &model, p)
+            + stream
+                .guide()
+                .stored_energy(stream.anchor().unwrap_or(p), p);
+        if k < 600 {
+            continue;
+        }
+        let phi = hand.energy_in() + sourced - stored;
+        best = best.max(phi);
+        worst = worst.max(best - phi);
+    }
+    (inside, inside_max, outside, outside_min, worst, sourced)
+}
+
+#[test]
+fn the_lane_is_force_free_inside_restores_outside_and_passes_the_audit() {
+    let radius = 2.0;
+    let (inside, inside_max, outside, outside_min, worst, sourced) = lane_run(31, radius, 30_000);
+    println!(
+        "lane, {radius} mm: {inside} ticks inside the tube, largest guide force there {inside_max:e} N; \
+         {outside} ticks more than 1 mm outside, the force's smallest share back toward the path \
+         {outside_min:.3}; largest energy created over any window {worst:.2e} J (tolerance \
+         {TOLERANCE_J:e}); the wall point credited {sourced:.4} J"
+    );
+    assert!(inside > 1000 && outside > 1000, "{inside} / {outside}");
+    assert_eq!(inside_max, 0.0, "no force at all inside the tube");
+    assert!(outside_min > 0.5, "restoring outside: {outside_min}");
+    assert!(worst <= TOLERANCE_J, "{worst:e} J");
+}

@@ -135,6 +135,33 @@ pub enum DeviceCommand {
     /// (played in real time from the next tick) with `maobi_shared::guide`'s fading
     /// spring-damper; `None` stops it (fading out).
     Guide(Option<Arc<PoseTrack>>),
+    /// Stay in the lane: no force while the ferrule is within the radius (mm) of this pose
+    /// track's path on the paper (where it presses), a spring-damper back toward it outside
+    /// (`maobi_shared::guide::Lane`, through the guide's stream); `None` lets go (fading
+    /// out). Guided writing and the lane replace each other.
+    Lane(Option<(Arc<PoseTrack>, f64)>),
+}
+
+/// Why a device refuses [`DeviceCommand::Lane`]: the fixture needs the hand's position every
+/// tick where the force loop runs, which the host has only when it runs the loop itself.
+pub const LANE_HOST_ONLY: &str = "\"Stay in the lane\" runs where the host runs the force \
+     loop (the built-in pen, the Phantom); a pen over the link cannot take it yet: use \
+     \"Guide me\"";
+
+/// The tube's radius range for [`DeviceCommand::Lane`] (mm).
+pub const LANE_RADIUS_MM: std::ops::RangeInclusive<f64> = 0.5..=20.0;
+
+/// Refuses a lane radius outside [`LANE_RADIUS_MM`] (every device that keeps a lane).
+pub fn check_lane_radius(r: f64) -> Result<(), DeviceError> {
+    if LANE_RADIUS_MM.contains(&r) {
+        Ok(())
+    } else {
+        Err(DeviceError::Rejected(format!(
+            "the lane's radius {r} mm is outside {} ..= {} mm",
+            LANE_RADIUS_MM.start(),
+            LANE_RADIUS_MM.end()
+        )))
+    }
 }
 
 impl DeviceCommand {
@@ -159,6 +186,7 @@ impl DeviceCommand {
             DeviceCommand::Dip(w) if !(0.0..=1.0).contains(w) => Err(DeviceError::Rejected(
                 format!("wetness {w} is outside 0 ..= 1"),
             )),
+            DeviceCommand::Lane(Some((_, r))) => check_lane_radius(*r),
             _ => Ok(()),
         }
     }

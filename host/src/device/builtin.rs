@@ -234,6 +234,18 @@ impl SimCore {
             }
             // Hold the point reached and fade out.
             DeviceCommand::Guide(None) => self.model.stop_guide(),
+            DeviceCommand::Lane(Some((track, radius_mm))) => {
+                let head = self.params().length_mm as f64;
+                let pieces = super::lane::pieces(&track, head);
+                if pieces.is_empty() {
+                    return Err(DeviceError::Rejected(
+                        "the stroke never presses the paper: no lane to keep".into(),
+                    ));
+                }
+                self.model
+                    .lane(maobi_shared::guide::Lane::new(pieces, radius_mm));
+            }
+            DeviceCommand::Lane(None) => self.model.stop_guide(),
         }
         Ok(())
     }

@@ -387,6 +387,9 @@ impl Device for LinkDevice {
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
         cmd.validate(&self.params)?;
         cmd.check_tick_limits(&self.params, &self.limits)?;
+        if let DeviceCommand::Lane(_) = cmd {
+            return Err(DeviceError::Rejected(super::api::LANE_HOST_ONLY.into()));
+        }
         if let DeviceCommand::Model(m) = cmd {
             // The pen runs Liang's model: nothing to send.
             return m
@@ -1060,6 +1063,8 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                     }
                     None
                 }
+                // Refused by `send`.
+                DeviceCommand::Lane(_) => None,
                 DeviceCommand::Guide(None) => {
                     // Hold the point reached and fade out.
                     if let Some(g) = &mut guide {

@@ -29,6 +29,7 @@ pub mod client;
 pub mod config_file;
 pub mod endpoint;
 pub mod journal;
+pub mod lane;
 pub mod model;
 pub mod server;
 pub mod sim_model;

@@ -14,6 +14,7 @@ use maobi_shared::{BrushParams, ForceLoop, Fx, ParamId, Pose, Scalar, Vec3};
 use std::time::Instant;
 
 use super::api::{BrushFrame, DeviceError, GuideFrame};
+use super::lane::HostLane;
 use super::model::{BrushChoice, ModelKind};
 
 /// The part of a tick every model reports, in the units a [`super::BrushFrame`] carries.
@@ -63,6 +64,7 @@ pub enum SimModel {
     Liang {
         fl: ForceLoop<Fx>,
         play: Option<GuidePlay<Vec<Vec3<Fx>>>>,
+        lane: Option<HostLane>,
     },
     /// Baxter & Lin's brush of `brush`'s head, its loop and the stroke its guide plays.
     BaxterLin {
@@ -70,6 +72,7 @@ pub enum SimModel {
         brush: BrushChoice,
         params: BrushParams,
         play: Option<GuidePlay<Vec<Vec3<f64>>>>,
+        lane: Option<HostLane>,
     },
 }
 
@@ -94,7 +97,11 @@ impl SimModel {
                     )));
                 }
                 ForceLoop::new(params, pose.cast(), DEFAULT_FORCES, limits, guide)
-                    .map(|fl| SimModel::Liang { fl, play: None })
+                    .map(|fl| SimModel::Liang {
+                        fl,
+                        play: None,
+                        lane: None,
+                    })
                     .map_err(|e| rejected(&e))
             }
             ModelKind::BaxterLin => {
@@ -106,6 +113,7 @@ impl SimModel {
                     brush: brush.clone(),
                     params,
                     play: None,
+                    lane: None,
                 })
             }
         }
@@ -130,24 +138,49 @@ impl SimModel {
     /// Guided writing: the guide plays `points` (one per tick) from the next tick.
     pub fn guide(&mut self, points: Vec<Vec3<f64>>) {
         match self {
-            SimModel::Liang { play, .. } => {
+            SimModel::Liang { play, lane, .. } => {
                 *play = Some(GuidePlay::new(points.iter().map(|p| p.cast()).collect()));
+                *lane = None;
             }
-            SimModel::BaxterLin { play, .. } => *play = Some(GuidePlay::new(points)),
+            SimModel::BaxterLin { play, lane, .. } => {
+                *play = Some(GuidePlay::new(points));
+                *lane = None;
+            }
+        }
+    }
+
+    /// Stay in the lane: the guide keeps the hand near `lane`'s path from the next tick
+    /// (replacing guided writing).
+    pub fn lane(&mut self, new: HostLane) {
+        match self {
+            SimModel::Liang { play, lane, .. } => {
+                *play = None;
+                *lane = Some(new);
+            }
+            SimModel::BaxterLin { play, lane, .. } => {
+                *play = None;
+                *lane = Some(new);
+            }
         }
     }
 
     /// Stops guided writing: the point reached is held while the guide fades out.
     pub fn stop_guide(&mut self) {
         match self {
-            SimModel::Liang { play, .. } => {
+            SimModel::Liang { play, lane, .. } => {
                 if let Some(p) = play {
                     p.stop();
                 }
+                if let Some(l) = lane {
+                    l.stop();
+                }
             }
-            SimModel::BaxterLin { play, .. } => {
+            SimModel::BaxterLin { play, lane, .. } => {
                 if let Some(p) = play {
                     p.stop();
+                }
+                if let Some(l) = lane {
+                    l.stop();
                 }
             }
         }
@@ -156,8 +189,8 @@ impl SimModel {
     /// Guided writing is on (or fading out).
     pub fn guiding(&self) -> bool {
         match self {
-            SimModel::Liang { play, .. } => play.is_some(),
-            SimModel::BaxterLin { play, .. } => play.is_some(),
+            SimModel::Liang { play, lane, .. } => play.is_some() || lane.is_some(),
+            SimModel::BaxterLin { play, lane, .. } => play.is_some() || lane.is_some(),
         }
     }
 
@@ -238,30 +271,44 @@ impl SimModel {
     /// under `gate`, the guide fed from its play.
     pub fn tick(&mut self, pose: Option<Pose<f64>>, gate: Gate) -> ModelTick {
         match self {
-            SimModel::Liang { fl, play } => {
-                let guide = GuidePlay::next_sample_of(play, fl.guide());
+            SimModel::Liang { fl, play, lane } => {
+                let guide = match lane {
+                    Some(l) => l.next_sample(pose.map(|p| p.pos.to_f64()), fl.guide()),
+                    None => GuidePlay::next_sample_of(play, fl.guide()),
+                };
                 let out = fl.tick(TickIn {
                     pose: pose.map(|p| p.cast()),
                     guide,
                     gate,
                 });
-                ModelTick {
+                let tick = ModelTick {
                     command: out.command.to_f64(),
                     force_total: out.forces.total.to_f64(),
                     force_normal: out.forces.normal.to_f64(),
                     depth_mm: out.forces.depth_mm.to_f64(),
                     faults: out.faults,
-                    guide: play
-                        .as_ref()
-                        .and_then(|_| GuideFrame::of(fl.guide(), &out.guide)),
+                    guide: (play.is_some() || lane.is_some())
+                        .then(|| GuideFrame::of(fl.guide(), &out.guide))
+                        .flatten(),
+                };
+                // A lane let go is done once its guide has faded out.
+                if lane.as_ref().is_some_and(|l| l.done(fl.guide())) {
+                    *lane = None;
                 }
+                tick
             }
-            SimModel::BaxterLin { lp, play, .. } => {
-                let guide = GuidePlay::next_sample_of(play, lp.guide());
+            SimModel::BaxterLin { lp, play, lane, .. } => {
+                let guide = match lane {
+                    Some(l) => l.next_sample(pose.map(|p| p.pos.to_f64()), lp.guide()),
+                    None => GuidePlay::next_sample_of(play, lp.guide()),
+                };
                 let out = lp.tick(TickIn { pose, guide, gate });
-                let guide = play
-                    .as_ref()
-                    .and_then(|_| GuideFrame::of(lp.guide(), &out.guide));
+                let guide = (play.is_some() || lane.is_some())
+                    .then(|| GuideFrame::of(lp.guide(), &out.guide))
+                    .flatten();
+                if lane.as_ref().is_some_and(|l| l.done(lp.guide())) {
+                    *lane = None;
+                }
                 ModelTick::of_baxter_lin(out.command, out.force, out.faults, guide)
             }
         }

@@ -653,12 +653,15 @@ impl MaobiApp {
             A::Watch(t) => (DeviceCommand::Replay(t), "watch"),
             A::Guide(t) => (DeviceCommand::Guide(Some(t)), "guide"),
             A::StopGuide => (DeviceCommand::Guide(None), "stop guiding"),
+            A::Lane(t, r) => (DeviceCommand::Lane(Some((t, r))), "keep the lane"),
+            A::StopLane => (DeviceCommand::Lane(None), "leave the lane"),
             A::Clear => {
                 self.clear();
                 return;
             }
         };
         if let Err(e) = self.device.send(cmd) {
+            self.practice.lane_on = false;
             self.practice.message = Some((format!("cannot {what}: {e}"), true));
         }
     }

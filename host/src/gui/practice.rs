@@ -54,6 +54,9 @@ pub enum PracticeAction {
     /// Lead the hand along the master's writing.
     Guide(Arc<PoseTrack>),
     StopGuide,
+    /// Keep the hand within this many millimetres of the master's path (a virtual fixture).
+    Lane(Arc<PoseTrack>, f64),
+    StopLane,
     /// Clear the paper for a new attempt.
     Clear,
 }
@@ -64,6 +67,9 @@ pub struct Practice {
     /// The character field.
     pub input: String,
     pub view: ModelView,
+    /// "Stay in the lane": on, and the tube's radius (mm).
+    pub lane_on: bool,
+    pub lane_mm: f64,
     master: Option<Arc<Master>>,
     loading: Option<(String, Receiver<anyhow::Result<Master>>)>,
     /// The attempt's frames while "Write" is on: (tick, hand pose).
@@ -83,6 +89,8 @@ impl Default for Practice {
             open: false,
             input: "永".into(),
             view: ModelView::Trace,
+            lane_on: false,
+            lane_mm: 2.0,
             master: None,
             loading: None,
             writing: None,
@@ -277,6 +285,34 @@ impl Practice {
                     action = Some(PracticeAction::Guide(Arc::new(m.track().clone())));
                 }
             }
+            if self.lane_on {
+                if ui.button("Leave the lane").clicked() {
+                    self.lane_on = false;
+                    action = Some(PracticeAction::StopLane);
+                }
+            } else if ui
+                .add_enabled(ready, egui::Button::new("Stay in the lane"))
+                .on_hover_text(
+                    "No force while the pen is within the lane around the master's strokes; \
+                     a spring back toward them outside",
+                )
+                .clicked()
+            {
+                if let Some(m) = &self.master {
+                    self.lane_on = true;
+                    action = Some(PracticeAction::Lane(
+                        Arc::new(m.track().clone()),
+                        self.lane_mm,
+                    ));
+                }
+            }
+            let lane = ui.label("lane mm");
+            ui.add(
+                egui::DragValue::new(&mut self.lane_mm)
+                    .range(crate::device::api::LANE_RADIUS_MM)
+                    .speed(0.1),
+            )
+            .labelled_by(lane.id);
             if self.writing.is_some() {
                 if ui.button("Stop writing").clicked() {
                     self.stop_writing();

@@ -405,6 +405,19 @@ impl Device for PhantomDevice {
                 self.servo(ServoCommand::Guide(Some(points)))
             }
             DeviceCommand::Guide(None) => self.servo(ServoCommand::Guide(None)),
+            DeviceCommand::Lane(Some((track, radius_mm))) => {
+                crate::device::api::check_lane_radius(radius_mm)?;
+                let head = self.params.length_mm as f64;
+                let pieces = crate::device::lane::pieces(&track, head);
+                if pieces.is_empty() {
+                    return Err(rejected(
+                        "the stroke never presses the paper: no lane to keep".into(),
+                    ));
+                }
+                let lane = maobi_shared::guide::Lane::new(pieces, radius_mm);
+                self.servo(ServoCommand::Lane(Some(Box::new(lane))))
+            }
+            DeviceCommand::Lane(None) => self.servo(ServoCommand::Lane(None)),
         }
     }
 }

@@ -56,6 +56,7 @@ use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use crate::device::lane::HostLane;
 use maobi_shared::baxter_lin::force_loop::BaxterLinHand;
 use maobi_shared::baxter_lin::head::HeadShape;
 use maobi_shared::baxter_lin::local_force::{LocalForceModel, LocalForceParams};
@@ -331,6 +332,9 @@ pub enum ServoCommand {
     /// force loop's guide pulls the stylus toward it inside the output stage. `None` stops it:
     /// the point reached is held while the guide fades out.
     Guide(Option<GuidePoints>),
+    /// Stay in the lane around a stroke's path ([`crate::device::lane`]), replacing guided
+    /// writing; `None` lets go (the guide fades out).
+    Lane(Option<Box<HostLane>>),
 }
 
 /// A guide stroke's moving point, one per servo tick, in the paper frame (mm).
@@ -438,6 +442,8 @@ pub struct ServoCore {
     /// Guided writing: the stroke being played into the loop's guide, and this tick's
     /// figures for the state.
     guide_play: Option<GuidePlay<GuidePoints>>,
+    /// "Stay in the lane", while it is on (or its guide fades out).
+    lane: Option<Box<HostLane>>,
     guide_frame: Option<GuideFrame>,
 }
 
@@ -509,6 +515,7 @@ impl ServoCore {
             tick: 0,
             command: Vec3::ZERO,
             guide_play: None,
+            lane: None,
             guide_frame: None,
         })
     }
@@ -604,11 +611,21 @@ impl ServoCore {
             ServoCommand::Guide(Some(points)) => {
                 if !points.is_empty() {
                     self.guide_play = Some(GuidePlay::new(points));
+                    self.lane = None;
                 }
             }
             ServoCommand::Guide(None) => {
                 if let Some(play) = &mut self.guide_play {
                     play.stop();
+                }
+            }
+            ServoCommand::Lane(Some(lane)) => {
+                self.guide_play = None;
+                self.lane = Some(lane);
+            }
+            ServoCommand::Lane(None) => {
+                if let Some(l) = &mut self.lane {
+                    l.stop();
                 }
             }
         }
@@ -636,12 +653,13 @@ impl ServoCore {
     /// Drops the guidance at once (faults, a new brush): no guide force from this tick.
     fn cut_guide(&mut self) {
         self.guide_play = None;
+        self.lane = None;
         self.guide_frame = None;
     }
 
     /// Guided writing is on (or fading out).
     pub fn guiding(&self) -> bool {
-        self.guide_play.is_some()
+        self.guide_play.is_some() || self.lane.is_some()
     }
 
     /// Guided writing at the last tick, while it is on.
@@ -743,16 +761,21 @@ impl ServoCore {
         let tick = self.tick;
         let (faults, guide_frame, command) = match &mut self.model {
             ServoModel::Liang(fl) => {
-                let guide = GuidePlay::next_sample_of(&mut self.guide_play, fl.guide());
+                let guide = match &mut self.lane {
+                    Some(l) => l.next_sample(Some(paper.pos.to_f64()), fl.guide()),
+                    None => GuidePlay::next_sample_of(&mut self.guide_play, fl.guide()),
+                };
                 let out = fl.tick(TickIn {
                     pose: Some(pose),
                     guide,
                     gate,
                 });
-                let frame = self
-                    .guide_play
-                    .as_ref()
-                    .and_then(|_| GuideFrame::of(fl.guide(), &out.guide));
+                let frame = (self.guide_play.is_some() || self.lane.is_some())
+                    .then(|| GuideFrame::of(fl.guide(), &out.guide))
+                    .flatten();
+                if self.lane.as_ref().is_some_and(|l| l.done(fl.guide())) {
+                    self.lane = None;
+                }
                 (out.faults, frame, out.command.to_f64())
             }
             ServoModel::BaxterLin(b) => {
@@ -768,11 +791,14 @@ impl ServoCore {
                 } else {
                     gate
                 };
-                let guide = GuidePlay::next_sample_of_as(
-                    &mut self.guide_play,
-                    b.hand.guide(),
-                    Vec3::cast::<f64>,
-                );
+                let guide = match &mut self.lane {
+                    Some(l) => l.next_sample(Some(pose.pos.to_f64()), b.hand.guide()),
+                    None => GuidePlay::next_sample_of_as(
+                        &mut self.guide_play,
+                        b.hand.guide(),
+                        Vec3::cast::<f64>,
+                    ),
+                };
                 let out = b.hand.tick(
                     TickIn {
                         pose: Some(pose),
@@ -783,10 +809,12 @@ impl ServoCore {
                 );
                 b.pose = Some(pose);
                 b.force = out.force;
-                let frame = self
-                    .guide_play
-                    .as_ref()
-                    .and_then(|_| GuideFrame::of(b.hand.guide(), &out.guide));
+                let frame = (self.guide_play.is_some() || self.lane.is_some())
+                    .then(|| GuideFrame::of(b.hand.guide(), &out.guide))
+                    .flatten();
+                if self.lane.as_ref().is_some_and(|l| l.done(b.hand.guide())) {
+                    self.lane = None;
+                }
                 (out.faults, frame, out.command.to_f64())
             }
         };

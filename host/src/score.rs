@@ -50,7 +50,10 @@ pub const WEIGHTS: [(&str, f64); 7] = [
 ];
 
 /// Points along each path at which two paths and two press profiles are compared.
-const SAMPLES: usize = 32;
+pub const SAMPLES: usize = 32;
+
+/// Ticks either side over which a written stroke's speed is taken.
+const SPEED_SPAN: usize = 5;
 
 /// The eight strokes of 永 as 永字八法 names them, in the five strokes of its writing order
 /// (Make Me a Hanzi's): the dot; the horizontal, vertical and hook in one; the rising stroke
@@ -77,6 +80,22 @@ impl WrittenStroke {
     /// Mean speed along the path while inking (mm/s).
     pub fn speed_mm_s(&self) -> f64 {
         self.length_mm() / (self.end_s - self.start_s).max(1e-3)
+    }
+
+    /// The speed (mm/s) at each inking tick: over [`SPEED_SPAN`] ticks either side.
+    pub fn speeds_mm_s(&self) -> Vec<f64> {
+        let n = self.path.len();
+        (0..n)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(SPEED_SPAN), (i + SPEED_SPAN).min(n - 1));
+                if b > a {
+                    let len: f64 = self.path[a..=b].windows(2).map(|w| dist(w[0], w[1])).sum();
+                    len / ((b - a) as f64 * crate::poses::TICK_S)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
     }
 }
 
@@ -164,6 +183,13 @@ pub struct StrokeReport {
     pub speed_ratio: f64,
     /// RMS press difference along the stroke (mm).
     pub press_rms_mm: f64,
+    /// Along the master's median ([`SAMPLES`] points, start to end): the press (mm) and the
+    /// speed (mm/s) where the written stroke passed each point, and the master's own. Empty
+    /// where the stroke is missing.
+    pub press_mm: Vec<f64>,
+    pub master_press_mm: Vec<f64>,
+    pub speed_mm_s: Vec<f64>,
+    pub master_speed_mm_s: Vec<f64>,
     /// The stroke's score: its shape, direction and press scores' mean (0 where missing).
     pub score: f64,
 }
@@ -407,6 +433,10 @@ impl Master {
                     direction_cos: f64::NAN,
                     speed_ratio: f64::NAN,
                     press_rms_mm: f64::NAN,
+                    press_mm: Vec::new(),
+                    master_press_mm: Vec::new(),
+                    speed_mm_s: Vec::new(),
+                    master_speed_mm_s: Vec::new(),
                     score: 0.0,
                 });
                 continue;
@@ -433,8 +463,8 @@ impl Master {
             let own = &self.own[j];
             let speed_ratio = w.speed_mm_s() / own.speed_mm_s().max(1e-9);
             let (wp, mp) = (
-                press_along(m, &w.path, &w.press, offset),
-                press_along(m, &own.path, &own.press, [0.0, 0.0]),
+                along_median(m, &w.path, &w.press, offset),
+                along_median(m, &own.path, &own.press, [0.0, 0.0]),
             );
             let press_rms_mm = (wp
                 .iter()
@@ -461,6 +491,10 @@ impl Master {
                 direction_cos,
                 speed_ratio,
                 press_rms_mm,
+                speed_mm_s: along_median(m, &w.path, &w.speeds_mm_s(), offset),
+                master_speed_mm_s: along_median(m, &own.path, &own.speeds_mm_s(), [0.0, 0.0]),
+                press_mm: wp,
+                master_press_mm: mp,
                 score: (shape + direction + press) / 3.0,
             });
         }
@@ -600,20 +634,20 @@ fn resample(path: &[[f64; 2]]) -> Vec<[f64; 2]> {
     out
 }
 
-/// The press along the master's resampled median `median`: at each of its points, the press
-/// where the stroke's path (moved back by `offset`) came nearest to it. The same poses at any
-/// speed give the same profile.
-fn press_along(
+/// A per-tick value (the press, the speed) along the master's resampled median `median`: at
+/// each of its points, the value where the stroke's path (moved back by `offset`) came
+/// nearest to it. The same poses at any speed give the same press profile.
+fn along_median(
     median: &[[f64; 2]],
     path: &[[f64; 2]],
-    press: &[f64],
+    values: &[f64],
     offset: [f64; 2],
 ) -> Vec<f64> {
     median
         .iter()
         .map(|m| {
             path.iter()
-                .zip(press)
+                .zip(values)
                 .map(|(p, d)| (dist([p[0] - offset[0], p[1] - offset[1]], *m), *d))
                 .min_by(|a, b| a.0.total_cmp(&b.0))
                 .map_or(0.0, |(_, d)| d)

@@ -115,6 +115,15 @@ fn practise_yong_watch_it_written_and_score_the_attempt() {
         h.get_by_label(name);
     }
     h.get_by_label_contains("4 啄:");
+    h.get_by_label("press (mm) along each stroke");
+    h.get_by_label("speed (mm/s) along each stroke");
+    // The attempt is the master's own writing: its profiles are the master's.
+    for s in &r.strokes {
+        for (a, b) in s.press_mm.iter().zip(&s.master_press_mm) {
+            assert!((a - b).abs() < 1e-9, "{a} {b}");
+        }
+        assert_eq!(s.speed_mm_s.len(), maobi::score::SAMPLES);
+    }
 }
 
 #[test]

@@ -407,6 +407,47 @@ fn report_ui(ui: &mut egui::Ui, r: &Report) {
     if !r.extra.is_empty() {
         ui.label(format!("{} extra stroke(s)", r.extra.len()));
     }
+    profile_plot(ui, r, "press (mm) along each stroke", |s| {
+        (&s.press_mm, &s.master_press_mm)
+    });
+    profile_plot(ui, r, "speed (mm/s) along each stroke", |s| {
+        (&s.speed_mm_s, &s.master_speed_mm_s)
+    });
+}
+
+/// A profile along every written stroke against the master's, the strokes side by side
+/// (stroke k from k - 1 to k on the x axis).
+fn profile_plot(
+    ui: &mut egui::Ui,
+    r: &Report,
+    title: &str,
+    series: impl Fn(&score::StrokeReport) -> (&Vec<f64>, &Vec<f64>),
+) {
+    ui.label(title);
+    let line = |k: usize, v: &[f64]| -> Vec<[f64; 2]> {
+        let n = v.len().max(2) - 1;
+        v.iter()
+            .enumerate()
+            .map(|(i, y)| [k as f64 + i as f64 / n as f64, *y])
+            .collect()
+    };
+    egui_plot::Plot::new(title)
+        .height(90.0)
+        .allow_scroll(false)
+        .allow_drag(false)
+        .show(ui, |p| {
+            for (k, s) in r.strokes.iter().enumerate() {
+                let (written, master) = series(s);
+                p.line(
+                    egui_plot::Line::new("master", line(k, master))
+                        .color(Color32::from_rgb(200, 60, 40)),
+                );
+                p.line(
+                    egui_plot::Line::new("attempt", line(k, written))
+                        .color(Color32::from_rgb(90, 150, 230)),
+                );
+            }
+        });
 }
 
 /// A score's colour: red at 0, amber at 0.5, green at 1.

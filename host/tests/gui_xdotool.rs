@@ -6,6 +6,10 @@
 //! layout are checked from those pictures; the app tells where its views are through
 //! `MAOBI_LAYOUT` (`gui::app::Automation::layout`).
 //!
+//! A second session practises 永 (`maobi gui --practice 永`): Write, the five strokes written
+//! with the pointer along the master's medians, Score; the report's figures come back through
+//! the layout file and the screen (`out/gui-practice/practice-scored.png`).
+//!
 //! Nothing here waits a fixed time for the app: every step goes on when the screen or the
 //! layout file shows its effect, so a loaded machine is slower, never wrong. Needs Debian's
 //! `xvfb`, `xauth`, `xdotool` and `x11-apps` (xwd); without them it skips, or fails where
@@ -20,6 +24,11 @@ use std::time::{Duration, Instant};
 /// How long any one step may take to show on screen before the test gives up (a hang
 /// guard, not a pace: steps go on as soon as their effect shows).
 const HANG_GUARD: Duration = Duration::from_secs(120);
+
+/// One display at a time: `xvfb-run -a` picks a free display number racily, and two runs
+/// started together can land on the same display (each test's app then draws on the other's
+/// screen).
+static ONE_DISPLAY: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// A virtual X display (`xvfb-run -a`), stopped with its process group when dropped.
 struct Display {
@@ -141,6 +150,21 @@ impl Image {
         wr.write_image_data(&self.rgb.concat()).unwrap();
     }
 
+    /// The part of the picture in `r`.
+    fn crop(&self, r: [u32; 4]) -> Image {
+        let (x0, y0) = (r[0] as usize, r[1] as usize);
+        let (x1, y1) = ((r[2] as usize).min(self.w), (r[3] as usize).min(self.h));
+        let mut rgb = Vec::with_capacity((x1 - x0) * (y1 - y0));
+        for y in y0..y1 {
+            rgb.extend_from_slice(&self.rgb[y * self.w + x0..y * self.w + x1]);
+        }
+        Image {
+            w: x1 - x0,
+            h: y1 - y0,
+            rgb,
+        }
+    }
+
     /// Pixels in `r` for which `f` holds.
     fn count(&self, r: [u32; 4], f: impl Fn([u8; 3]) -> bool) -> usize {
         let mut n = 0;
@@ -176,17 +200,19 @@ fn rect(layout: &str, name: &str) -> Option<[u32; 4]> {
     (v.len() == 4).then(|| [v[0], v[1], v[2], v[3]])
 }
 
-/// The sheet of a layout, within the paper's view (zoomed in, it is larger than the view).
+/// The sheet of a layout, within the paper's view (zoomed in, it is larger than the view),
+/// less a pixel on each side: the sheet's rectangle is rounded to whole pixels, and where
+/// its edge falls mid-pixel the column or row there shows the view's border, not paper.
 fn sheet_of(layout: &str) -> [u32; 4] {
     let (s, c) = (
         rect(layout, "sheet").unwrap(),
         rect(layout, "canvas").unwrap(),
     );
     [
-        s[0].max(c[0]),
-        s[1].max(c[1]),
-        s[2].min(c[2]),
-        s[3].min(c[3]),
+        s[0].max(c[0]) + 1,
+        s[1].max(c[1]) + 1,
+        s[2].min(c[2]) - 1,
+        s[3].min(c[3]) - 1,
     ]
 }
 
@@ -199,6 +225,11 @@ struct App {
 
 impl App {
     fn start(display: &Display, home: &Path, picture: &Path) -> App {
+        App::start_with(display, home, picture, &[])
+    }
+
+    /// [`App::start`] with more arguments to `maobi gui`.
+    fn start_with(display: &Display, home: &Path, picture: &Path, args: &[&str]) -> App {
         let layout = home.join("layout");
         let _ = std::fs::remove_file(&layout);
         let log = home.join("app.log");
@@ -207,7 +238,9 @@ impl App {
             .arg("gui")
             .arg("--picture")
             .arg(picture)
+            .args(args)
             .env("MAOBI_LAYOUT", &layout)
+            .env("MAOBI_SCORE_HISTORY", home.join("scores.csv"))
             .env("XDG_CONFIG_HOME", home.join("config"))
             .env("XDG_DATA_HOME", home.join("data"))
             .stdout(Stdio::null())
@@ -340,27 +373,35 @@ fn tools_available() -> bool {
     })
 }
 
-#[test]
-fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
+/// A session's folders, both emptied: its screenshots (`shots`, under the repository) and the
+/// app's home (no settings: a first start); `None` (skipped) without the tools.
+fn session_dirs(shots: &str, home: &str) -> Option<(PathBuf, PathBuf)> {
     if !tools_available() {
         maobi_testenv::skip_unless_required(
             &["MAOBI_REQUIRE_GUI"],
             "no xvfb-run, xdotool or xwd to drive the app's window with (apt-get install xvfb \
              xauth xdotool x11-apps libgl1-mesa-dri libegl1 libgl1 libxkbcommon-x11-0)",
         );
-        return;
+        return None;
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let shots = root.join("out/gui-session");
-    let _ = std::fs::remove_dir_all(&shots);
-    std::fs::create_dir_all(&shots).unwrap();
-    let home = Path::new(env!("CARGO_TARGET_TMPDIR")).join("gui_xdotool");
-    // No settings: a first start.
-    let _ = std::fs::remove_dir_all(&home);
-    std::fs::create_dir_all(&home).unwrap();
+    let shots = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(shots);
+    let home = Path::new(env!("CARGO_TARGET_TMPDIR")).join(home);
+    for dir in [&shots, &home] {
+        let _ = std::fs::remove_dir_all(dir);
+        std::fs::create_dir_all(dir).unwrap();
+    }
+    Some((shots, home))
+}
+
+#[test]
+fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
+    let Some((shots, home)) = session_dirs("out/gui-session", "gui_xdotool") else {
+        return;
+    };
     let picture = home.join("picture.png");
     let shot = |img: &Image, name: &str| img.save(&shots.join(name));
 
+    let _one = ONE_DISPLAY.lock().unwrap_or_else(|e| e.into_inner());
     let d = Display::start();
     let mut app = App::start(&d, &home, &picture);
 
@@ -518,4 +559,151 @@ fn a_user_writes_undoes_saves_tunes_and_comes_back_to_the_laboratory() {
         .map(|mut f| f.read_to_string(&mut log))
         .ok();
     assert!(!log.contains("panicked"), "{log}");
+}
+
+/// The practice session: the master's 永 loaded at start, Write, each of its five strokes
+/// written with the pointer along its median (the button held down the stroke, let go
+/// between strokes until the brush has left the paper), Score; the report is checked from the
+/// layout file (the panel's state line) and kept as a screenshot.
+#[test]
+fn a_writer_practises_yong_with_the_pointer_and_scores_it() {
+    let Some((shots, home)) = session_dirs("out/gui-practice", "gui_xdotool_practice") else {
+        return;
+    };
+    let picture = home.join("picture.png");
+
+    let _one = ONE_DISPLAY.lock().unwrap_or_else(|e| e.into_inner());
+    let d = Display::start();
+    let mut app = App::start_with(
+        &d,
+        &home,
+        &picture,
+        &["--practice", "永", "--face", "writing"],
+    );
+    let (layout, _) = app.settled(&d, "the master's 永 loaded", |t, _| {
+        t.contains("practice ready") && rect(t, "practice_write").is_some()
+    });
+    let click = |r: [u32; 4]| {
+        let (x, y) = ((r[0] + r[2]) / 2, (r[1] + r[3]) / 2);
+        d.xdotool(&["mousemove", &x.to_string(), &y.to_string()]);
+        d.xdotool(&["click", "1"]);
+    };
+    click(rect(&layout, "practice_write").unwrap());
+    let layout = app.layout_until("Write pressed", |t| t.contains("practice writing"));
+
+    // Paper millimetres to the screen, from the sheet's rectangle and its extent in mm.
+    let sheet = rect(&layout, "sheet").unwrap();
+    let canvas = rect(&layout, "canvas").unwrap();
+    let mm: Vec<f64> = layout
+        .lines()
+        .find_map(|l| l.strip_prefix("paper_mm "))
+        .expect("the layout gives the paper's extent")
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let to_screen = |p: [f64; 2]| -> (u32, u32) {
+        let fx = (p[0] - mm[0]) / (mm[2] - mm[0]);
+        let fy = (mm[1] - p[1]) / (mm[1] - mm[3]);
+        (
+            (sheet[0] as f64 + fx * (sheet[2] - sheet[0]) as f64).round() as u32,
+            (sheet[1] as f64 + fy * (sheet[3] - sheet[1]) as f64).round() as u32,
+        )
+    };
+    // The hand (the brush's ferrule, mm) where the layout says it is now.
+    let hand_at = |t: &str| -> Option<[f64; 2]> {
+        let v: Vec<f64> = t
+            .lines()
+            .find_map(|l| l.strip_prefix("hand "))?
+            .split_whitespace()
+            .filter_map(|v| v.parse().ok())
+            .collect();
+        (v.len() == 3).then(|| [v[0], v[1]])
+    };
+    // The pixel a point lands on, back in mm: where the hand can be expected to arrive.
+    let to_mm = |p: (u32, u32)| -> [f64; 2] {
+        let fx = (p.0 as f64 - sheet[0] as f64) / (sheet[2] - sheet[0]) as f64;
+        let fy = (p.1 as f64 - sheet[1] as f64) / (sheet[3] - sheet[1]) as f64;
+        [mm[0] + fx * (mm[2] - mm[0]), mm[1] - fy * (mm[1] - mm[3])]
+    };
+    let px_mm = (mm[2] - mm[0]) / (sheet[2] - sheet[0]) as f64;
+    let arrive = |app: &mut App, p: (u32, u32), what: &str| {
+        let want = to_mm(p);
+        app.layout_until(what, |t| {
+            hand_at(t).is_some_and(|h| (h[0] - want[0]).hypot(h[1] - want[1]) <= px_mm)
+        });
+    };
+    let view = sheet_of(&layout);
+    let yong = maobi::hanzi::load_from(None, "永").unwrap();
+    for (k, stroke) in yong.to_mm(maobi::gui::practice::SIZE_MM).iter().enumerate() {
+        // The median every pixel and a half, as a hand would draw it.
+        let mut pts = vec![to_screen(stroke.median[0])];
+        for w in stroke.median.windows(2) {
+            let (a, b) = (to_screen(w[0]), to_screen(w[1]));
+            let len = ((b.0 as f64 - a.0 as f64).hypot(b.1 as f64 - a.1 as f64) / 1.5).ceil();
+            for i in 1..=len as u32 {
+                let f = i as f64 / len;
+                pts.push((
+                    (a.0 as f64 + (b.0 as f64 - a.0 as f64) * f).round() as u32,
+                    (a.1 as f64 + (b.1 as f64 - a.1 as f64) * f).round() as u32,
+                ));
+            }
+        }
+        for p in &pts {
+            assert!(
+                p.0 > canvas[0] && p.0 < canvas[2] && p.1 > canvas[1] && p.1 < canvas[3],
+                "stroke {} runs off the paper's view at {p:?}",
+                k + 1
+            );
+        }
+        // The hand travels to the stroke's start lifted, and presses there.
+        let (x, y) = pts[0];
+        d.xdotool(&["mousemove", &x.to_string(), &y.to_string()]);
+        arrive(&mut app, pts[0], "the hand at the stroke's start");
+        d.xdotool(&["mousedown", "1"]);
+        for (x, y) in &pts[1..] {
+            d.xdotool(&["mousemove", &x.to_string(), &y.to_string()]);
+        }
+        arrive(&mut app, pts[pts.len() - 1], "the hand at the stroke's end");
+        d.xdotool(&["mouseup", "1"]);
+        // Between strokes the brush leaves the paper.
+        app.layout_until("the brush lifted after a stroke", |t| {
+            !t.contains("mark touching")
+        });
+    }
+    let layout = app.layout_until("the panel's Score", |t| rect(t, "practice_score").is_some());
+    click(rect(&layout, "practice_score").unwrap());
+    let layout = app.layout_until("the score", |t| t.contains("practice scored"));
+    let figures: Vec<f64> = layout
+        .lines()
+        .find_map(|l| l.strip_prefix("practice scored "))
+        .unwrap()
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let (total, order, matched) = (figures[0], figures[1], figures[2]);
+    // On screen, the master's strokes take their scores' colours (red to amber to green,
+    // saturated, where the paper had faint red outlines) once the report is drawn.
+    let scored = |p: [u8; 3]| p[2] < 90 && p[1] > 120;
+    let img = screen_until(&d, "the report on screen", |img| {
+        img.count(view, scored) > 50
+    });
+    // The window alone, as the README shows it.
+    img.crop(rect(&layout, "window").unwrap())
+        .save(&shots.join("practice-scored.png"));
+    eprintln!(
+        "practised 永 with the pointer: total {total:.3}, order {order:.3}, {matched} of 5 strokes \
+         matched (out/gui-practice/practice-scored.png)"
+    );
+    assert!(
+        matched >= 4.0,
+        "{matched} of the master's 5 strokes matched:\n{layout}"
+    );
+    assert!(total > 0.2 && total <= 1.0, "total {total}");
+    let history = std::fs::read_to_string(home.join("scores.csv")).unwrap();
+    assert_eq!(
+        history.lines().count(),
+        2,
+        "the attempt appended:\n{history}"
+    );
+    assert!(!app.log().contains("panicked"), "{}", app.log());
 }

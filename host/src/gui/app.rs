@@ -1006,8 +1006,24 @@ impl MaobiApp {
             )
         };
         let laboratory = self.face == Face::Laboratory;
+        let f = self.paper.frame();
+        let practice = if self.practice.open && !laboratory {
+            self.practice.layout(r)
+        } else {
+            String::new()
+        };
+        // Where the hand is (the last frame's ferrule, mm) and whether the brush touches.
+        let hand = self.latest.as_ref().map_or("none".to_string(), |f| {
+            let p = f.pose.pos.to_f64();
+            format!("{:.3} {:.3} {:.3}", p[0], p[1], p[2])
+        });
+        let mark = match &self.mark {
+            Some(BrushMark::Touching { .. }) => "touching",
+            Some(BrushMark::Above { .. }) => "above",
+            None => "none",
+        };
         format!(
-            "face {}\ncanvas {}\nbrush {}\nsheet {}\nwindow {}\nparam {}\n",
+            "face {}\ncanvas {}\nbrush {}\nsheet {}\nwindow {}\nparam {}\npaper_mm {} {} {} {}\nhand {hand}\nmark {mark}\n{practice}",
             if laboratory { "laboratory" } else { "writing" },
             r(self.paper.view_rect),
             r(self.brush_rect),
@@ -1018,6 +1034,10 @@ impl MaobiApp {
             } else {
                 egui::Rect::NOTHING
             }),
+            f.x0_mm,
+            f.y_top_mm,
+            f.x0_mm + f.width as f64 / f.px_per_mm,
+            f.y_top_mm - f.height as f64 / f.px_per_mm,
         )
     }
 

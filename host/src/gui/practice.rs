@@ -81,6 +81,9 @@ pub struct Practice {
     /// The character's totals over attempts, oldest first (from the history file).
     history: Vec<f64>,
     pub message: Option<(String, bool)>,
+    /// Where the Write and Score buttons were last drawn (for [`Practice::layout`]).
+    write_rect: egui::Rect,
+    score_rect: egui::Rect,
 }
 
 impl Default for Practice {
@@ -99,6 +102,8 @@ impl Default for Practice {
             report: None,
             history: Vec::new(),
             message: None,
+            write_rect: egui::Rect::NOTHING,
+            score_rect: egui::Rect::NOTHING,
         }
     }
 }
@@ -107,6 +112,34 @@ impl Practice {
     /// The master loaded, if one is.
     pub fn master(&self) -> Option<&Master> {
         self.master.as_deref()
+    }
+
+    /// The panel's lines of the app's layout file (`gui::app::Automation::layout`), for a
+    /// program driving the window: its state (`practice none`, `loading`, `ready`, `writing`
+    /// or `scored TOTAL ORDER MATCHED`, the last two the order figure's score and the master
+    /// strokes matched) and the Write and Score buttons' rectangles (`r` formats one).
+    pub fn layout(&self, r: impl Fn(egui::Rect) -> String) -> String {
+        let state = if self.loading.is_some() || self.scoring.is_some() {
+            "loading".to_string()
+        } else if self.writing.is_some() {
+            "writing".to_string()
+        } else if let Some(rep) = &self.report {
+            format!(
+                "scored {:.4} {:.4} {}",
+                rep.total,
+                rep.figure("order").map_or(0.0, |f| f.score),
+                rep.strokes.iter().filter(|s| s.written.is_some()).count()
+            )
+        } else if self.master.is_some() {
+            "ready".to_string()
+        } else {
+            "none".to_string()
+        };
+        format!(
+            "practice {state}\npractice_write {}\npractice_score {}\n",
+            r(self.write_rect),
+            r(self.score_rect)
+        )
     }
 
     /// Whether a master is being made or an attempt scored.
@@ -314,25 +347,29 @@ impl Practice {
             )
             .labelled_by(lane.id);
             if self.writing.is_some() {
-                if ui.button("Stop writing").clicked() {
+                let stop = ui.button("Stop writing");
+                self.write_rect = stop.rect;
+                if stop.clicked() {
                     self.stop_writing();
                 }
-            } else if ui
-                .add_enabled(ready, egui::Button::new("Write"))
-                .on_hover_text("Clears the paper and records your attempt")
-                .clicked()
-            {
-                action = Some(PracticeAction::Clear);
-                self.start_writing();
+            } else {
+                let write = ui
+                    .add_enabled(ready, egui::Button::new("Write"))
+                    .on_hover_text("Clears the paper and records your attempt");
+                self.write_rect = write.rect;
+                if write.clicked() {
+                    action = Some(PracticeAction::Clear);
+                    self.start_writing();
+                }
             }
-            if ui
+            let score = ui
                 .add_enabled(
                     ready && (self.writing.is_some() || !self.attempt.is_empty()),
                     egui::Button::new("Score"),
                 )
-                .on_hover_text("Your attempt against the master's, figure by figure")
-                .clicked()
-            {
+                .on_hover_text("Your attempt against the master's, figure by figure");
+            self.score_rect = score.rect;
+            if score.clicked() {
                 self.score();
             }
         });

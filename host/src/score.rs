@@ -82,7 +82,7 @@ impl WrittenStroke {
         self.length_mm() / (self.end_s - self.start_s).max(1e-3)
     }
 
-    /// The speed (mm/s) at each inking tick: over [`SPEED_SPAN`] ticks either side.
+    /// The speed (mm/s) at each inking tick: over five ticks either side.
     pub fn speeds_mm_s(&self) -> Vec<f64> {
         let n = self.path.len();
         (0..n)

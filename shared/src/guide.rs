@@ -463,7 +463,9 @@ impl<P> GuidePlay<P> {
 ///
 /// `pieces` are the path's pieces (mm, x-y; a piece of one point is a dot), each a polyline:
 /// no segment joins one piece to the next (the brush lifted between them). Geometry in `f64`:
-/// the fixture runs where the host runs the force loop (the built-in pen, the Phantom).
+/// the fixture runs on the host, which has the hand's position every tick where it runs the
+/// force loop (the built-in pen, the Phantom) or supplies the poses (a virtual pen, the
+/// sample riding with its pose).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Lane<P, Q> {
     pieces: P,

@@ -138,15 +138,19 @@ pub enum DeviceCommand {
     /// Stay in the lane: no force while the ferrule is within the radius (mm) of this pose
     /// track's path on the paper (where it presses), a spring-damper back toward it outside
     /// (`maobi_shared::guide::Lane`, through the guide's stream); `None` lets go (fading
-    /// out). Guided writing and the lane replace each other.
+    /// out). Guided writing and the lane replace each other. The built-in pen, the Phantom
+    /// and a virtual pen over the link keep it ([`LANE_NEEDS_THE_POSE`]).
     Lane(Option<(Arc<PoseTrack>, f64)>),
 }
 
-/// Why a device refuses [`DeviceCommand::Lane`]: the fixture needs the hand's position every
-/// tick where the force loop runs, which the host has only when it runs the loop itself.
-pub const LANE_HOST_ONLY: &str = "\"Stay in the lane\" runs where the host runs the force \
-     loop (the built-in pen, the Phantom); a pen over the link cannot take it yet: use \
-     \"Guide me\"";
+/// Why a pen refuses [`DeviceCommand::Lane`]: the fixture's wall point is computed from the
+/// hand's position every tick, which the host has only where it supplies the poses (a
+/// virtual pen) or runs the force loop itself (the built-in pen, the Phantom).
+pub const LANE_NEEDS_THE_POSE: &str = "\"Stay in the lane\" over the link needs a virtual-pen \
+     device (the QEMU board, the sim-device); a pen with its own sensors cannot take it yet";
+
+/// Why a lane is refused whatever the device: its stroke has no path on the paper.
+pub const LANE_NO_PATH: &str = "the stroke never presses the paper: no lane to keep";
 
 /// The tube's radius range for [`DeviceCommand::Lane`] (mm).
 pub const LANE_RADIUS_MM: std::ops::RangeInclusive<f64> = 0.5..=20.0;

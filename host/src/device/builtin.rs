@@ -238,9 +238,7 @@ impl SimCore {
                 let head = self.params().length_mm as f64;
                 let pieces = super::lane::pieces(&track, head);
                 if pieces.is_empty() {
-                    return Err(DeviceError::Rejected(
-                        "the stroke never presses the paper: no lane to keep".into(),
-                    ));
+                    return Err(DeviceError::Rejected(super::api::LANE_NO_PATH.into()));
                 }
                 self.model
                     .lane(maobi_shared::guide::Lane::new(pieces, radius_mm));

@@ -387,9 +387,6 @@ impl Device for LinkDevice {
     fn send(&mut self, cmd: DeviceCommand) -> Result<(), DeviceError> {
         cmd.validate(&self.params)?;
         cmd.check_tick_limits(&self.params, &self.limits)?;
-        if let DeviceCommand::Lane(_) = cmd {
-            return Err(DeviceError::Rejected(super::api::LANE_HOST_ONLY.into()));
-        }
         if let DeviceCommand::Model(m) = cmd {
             // The pen runs Liang's model: nothing to send.
             return m
@@ -403,6 +400,11 @@ impl Device for LinkDevice {
         if !connected && !matches!(cmd, DeviceCommand::Hand(_)) {
             return Err(DeviceError::NotConnected);
         }
+        let virtual_pen = self
+            .inner
+            .shared()
+            .capabilities
+            .contains(Capabilities::VIRTUAL_PEN);
         match &cmd {
             DeviceCommand::SetParam(id, v) => {
                 let _ = self.params.set(*id, *v);
@@ -410,13 +412,7 @@ impl Device for LinkDevice {
             DeviceCommand::Replay(track) if track.rows().is_empty() => {
                 return Err(DeviceError::Rejected("the pose file is empty".into()));
             }
-            DeviceCommand::Replay(_)
-                if !self
-                    .inner
-                    .shared()
-                    .capabilities
-                    .contains(Capabilities::VIRTUAL_PEN) =>
-            {
+            DeviceCommand::Replay(_) if !virtual_pen => {
                 return Err(DeviceError::Rejected(
                     "this device reads its own sensors: replaying poses needs a virtual-pen \
                      device (the QEMU board, the sim-device, the Phantom bridge)"
@@ -431,20 +427,21 @@ impl Device for LinkDevice {
             DeviceCommand::Guide(Some(track)) if track.rows().is_empty() => {
                 return Err(DeviceError::Rejected("the stroke is empty".into()));
             }
-            DeviceCommand::Guide(Some(_))
-                if !self
-                    .inner
-                    .shared()
-                    .capabilities
-                    .contains(Capabilities::VIRTUAL_PEN) =>
-            {
-                // The moving point rides with the virtual pen's pose samples.
-                return Err(DeviceError::Rejected(
-                    "guided writing over the link needs a virtual-pen device (the QEMU \
-                     board, the sim-device); a pen with its own sensors does not take the \
-                     moving point yet"
+            DeviceCommand::Lane(Some(_)) | DeviceCommand::Guide(Some(_)) if !virtual_pen => {
+                // The moving point (the lane's wall point) rides with the virtual pen's
+                // pose samples.
+                return Err(DeviceError::Rejected(match cmd {
+                    DeviceCommand::Lane(_) => super::api::LANE_NEEDS_THE_POSE.into(),
+                    _ => "guided writing over the link needs a virtual-pen device (the QEMU \
+                          board, the sim-device); a pen with its own sensors does not take \
+                          the moving point yet"
                         .into(),
-                ));
+                }));
+            }
+            DeviceCommand::Lane(Some((track, _)))
+                if super::lane::pieces(track, self.params.length_mm as f64).is_empty() =>
+            {
+                return Err(DeviceError::Rejected(super::api::LANE_NO_PATH.into()));
             }
             _ => {}
         }
@@ -1014,6 +1011,9 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
     let mut syncing: Option<Instant> = None;
     // Guided writing: the stroke being played and the device's guide as mirrored here.
     let mut guide: Option<GuidePlay<Vec<Vec3<Fx>>>> = None;
+    // "Stay in the lane": its wall point is computed from each pose as it is sent, so the
+    // device's guide gets exactly the hand's position inside the tube.
+    let mut lane: Option<super::lane::HostLane> = None;
     // The device's guide, fed what the device gets: the samples sent and the poses they ride
     // with (the virtual pen's hand is the pose sent), so its gain and force are the device's.
     // The shared defaults are valid (tested in maobi-shared).
@@ -1060,11 +1060,25 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
                         track.resample().map(|p| p.pos.cast::<Fx>()).collect();
                     if !points.is_empty() {
                         guide = Some(GuidePlay::new(points));
+                        lane = None;
                     }
                     None
                 }
-                // Refused by `send`.
-                DeviceCommand::Lane(_) => None,
+                DeviceCommand::Lane(Some((track, radius_mm))) => {
+                    let head = inner.shared().status.params.length_mm as f64;
+                    lane = Some(maobi_shared::guide::Lane::new(
+                        super::lane::pieces(&track, head),
+                        radius_mm,
+                    ));
+                    guide = None;
+                    None
+                }
+                DeviceCommand::Lane(None) => {
+                    if let Some(l) = &mut lane {
+                        l.stop();
+                    }
+                    None
+                }
                 DeviceCommand::Guide(None) => {
                     // Hold the point reached and fade out.
                     if let Some(g) = &mut guide {
@@ -1217,7 +1231,10 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
             hand = pose;
             let pos: Vec3<Fx> = pose.pos.cast();
             // The moving point for this tick goes just before its pose.
-            let g = guide.as_mut().and_then(|g| g.next_sample(mirror.stream()));
+            let g = match &mut lane {
+                Some(l) => l.next_sample(Some(pose.pos.to_f64()), mirror.stream()),
+                None => guide.as_mut().and_then(|g| g.next_sample(mirror.stream())),
+            };
             if let Some(g) = g {
                 let n = encode(
                     &HostMsg::Guide(GuideSample::new(seq, g.anchor, g.on)),
@@ -1235,6 +1252,9 @@ fn run_writer(inner: &Inner, cmds: Receiver<DeviceCommand>, start: HandInput) {
             }
             if g.is_none() && !mirror.stream().active() {
                 guide = None;
+            }
+            if lane.as_ref().is_some_and(|l| l.done(mirror.stream())) {
+                lane = None;
             }
             let sample = PoseSample::new(seq, pose.cast(), Buttons::empty());
             seq = seq.wrapping_add(1);

@@ -410,9 +410,7 @@ impl Device for PhantomDevice {
                 let head = self.params.length_mm as f64;
                 let pieces = crate::device::lane::pieces(&track, head);
                 if pieces.is_empty() {
-                    return Err(rejected(
-                        "the stroke never presses the paper: no lane to keep".into(),
-                    ));
+                    return Err(rejected(crate::device::api::LANE_NO_PATH.into()));
                 }
                 let lane = maobi_shared::guide::Lane::new(pieces, radius_mm);
                 self.servo(ServoCommand::Lane(Some(Box::new(lane))))

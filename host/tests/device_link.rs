@@ -996,6 +996,28 @@ fn guided_writing_streams_the_moving_point_and_frames_show_the_stray() {
     assert!((far - 30.0).abs() < 1e-6, "{far}");
 }
 
+/// Polls `dev` until the frames seen so far satisfy `done`; all of them. Fails, naming
+/// `what`, after [`HANG_GUARD`].
+fn frames_until(
+    dev: &mut dyn Device,
+    what: &str,
+    mut done: impl FnMut(&[BrushFrame]) -> bool,
+) -> Vec<BrushFrame> {
+    let end = Instant::now() + HANG_GUARD;
+    let mut all = Vec::new();
+    let mut frames = Vec::new();
+    loop {
+        frames.clear();
+        dev.poll(&mut frames);
+        all.append(&mut frames);
+        if done(&all) {
+            return all;
+        }
+        assert!(Instant::now() < end, "{what}: not within {HANG_GUARD:?}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 /// "Stay in the lane" over the link: the writer computes the tube's wall point from each pose
 /// it sends (the virtual pen's hand is the pose sent), so inside the lane the device's guide
 /// gives exactly nothing, and 6 mm off the path it pulls back with k (d - r); let go, it
@@ -1008,44 +1030,25 @@ fn the_lane_rides_with_the_poses_over_the_link() {
     dev.send(DeviceCommand::EnableForces(true)).unwrap();
     let z = length() + 10.0;
     let mut paper = Paper::new();
-    move_hand(
-        &mut dev,
-        &mut paper,
-        HandInput {
-            y: 1.0,
-            z,
-            ..hand(0.0, 0.0)
-        },
-    );
+    let at = |y: f64| HandInput {
+        y,
+        z,
+        ..hand(0.0, 0.0)
+    };
+    move_hand(&mut dev, &mut paper, at(1.0));
     // A line pressed 3 mm along x through the origin.
-    let touch = length();
-    let csv = format!(
-        "t,x,y,z,qw,qx,qy,qz\n0,-20,0,{},1,0,0,0\n1,20,0,{},1,0,0,0\n",
-        touch - 3.0,
-        touch - 3.0
-    );
+    let pressed = length() - 3.0;
+    let csv = format!("t,x,y,z,qw,qx,qy,qz\n0,-20,0,{pressed},1,0,0,0\n1,20,0,{pressed},1,0,0,0\n");
     let track = PoseTrack::from_reader("line.csv", csv.as_bytes()).unwrap();
     dev.send(DeviceCommand::Lane(Some((Arc::new(track), 2.0))))
         .unwrap();
-    // Inside, 1 mm off the path: wait until the guide has faded in fully, then 300 states.
-    let mut frames = Vec::new();
-    let mut inside: Vec<BrushFrame> = Vec::new();
-    let end = Instant::now() + HANG_GUARD;
-    while inside
-        .iter()
-        .filter(|f| f.guide.is_some_and(|g| g.gain >= 1.0))
-        .count()
-        < 300
-    {
-        frames.clear();
-        dev.poll(&mut frames);
-        inside.extend(frames.iter().cloned());
-        assert!(
-            Instant::now() < end,
-            "the lane fades in: not within {HANG_GUARD:?}"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    // Inside, 1 mm off the path: 300 states at full gain.
+    let full = |fs: &[BrushFrame]| {
+        fs.iter()
+            .filter(|f| f.guide.is_some_and(|g| g.gain >= 1.0))
+            .count()
+    };
+    let inside = frames_until(&mut dev, "the lane faded in", |fs| full(fs) >= 300);
     let largest = inside
         .iter()
         .filter_map(|f| f.guide)
@@ -1054,48 +1057,19 @@ fn the_lane_rides_with_the_poses_over_the_link() {
     println!("over the link, inside a 2 mm lane: largest guide force {largest:e} N");
     assert_eq!(largest, 0.0);
     // Out to 6 mm: the pull back.
-    move_hand(
-        &mut dev,
-        &mut paper,
-        HandInput {
-            y: 6.0,
-            z,
-            ..hand(0.0, 0.0)
-        },
-    );
+    move_hand(&mut dev, &mut paper, at(6.0));
     let k = DEFAULT_GUIDE.stiffness_n_per_m as f64 * 1e-3;
-    let mut held = [0.0; 3];
-    let end = Instant::now() + HANG_GUARD;
-    while (held[1] + 4.0 * k).abs() > 1e-3 {
-        frames.clear();
-        dev.poll(&mut frames);
-        if let Some(g) = frames.iter().rev().find_map(|f| f.guide) {
-            held = g.force;
-        }
-        assert!(
-            Instant::now() < end,
-            "no pull of {} N back: {held:?}",
-            4.0 * k
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    let pulled = |f: &BrushFrame| f.guide.is_some_and(|g| (g.force[1] + 4.0 * k).abs() < 1e-3);
+    let out = frames_until(&mut dev, "the pull back from 6 mm", |fs| {
+        fs.iter().any(pulled)
+    });
+    let held = out.iter().find(|f| pulled(f)).unwrap().guide.unwrap().force;
     println!("over the link, 6 mm off the path: {held:?} N");
     assert!(held[0].abs() < 1e-3 && held[2].abs() < 1e-9, "{held:?}");
     // Let go: the guide fades out and the frames stop carrying it.
     dev.send(DeviceCommand::Lane(None)).unwrap();
-    let end = Instant::now() + HANG_GUARD;
-    let mut quiet = 0;
-    while quiet < 300 {
-        frames.clear();
-        dev.poll(&mut frames);
-        for f in &frames {
-            quiet = if f.guide.is_some() { 0 } else { quiet + 1 };
-        }
-        assert!(
-            Instant::now() < end,
-            "the lane lets go: not within {HANG_GUARD:?}"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    frames_until(&mut dev, "the lane let go", |fs| {
+        fs.len() > 300 && fs[fs.len() - 300..].iter().all(|f| f.guide.is_none())
+    });
     dev.disconnect();
 }

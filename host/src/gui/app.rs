@@ -1344,7 +1344,7 @@ impl MaobiApp {
 
     /// The last general message under the toolbar (errors in red): both faces.
     fn message_line(&self, ui: &mut egui::Ui) {
-        super::message_label(ui, &self.message);
+        super::message::label(ui, &self.message);
     }
 
     /// The brush model and the preset (or Baxter & Lin's head): both faces' toolbars.

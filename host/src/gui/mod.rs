@@ -22,6 +22,7 @@ pub mod choice;
 pub mod files;
 pub mod fonts;
 pub mod icon;
+pub mod message;
 pub mod practice;
 pub mod rerender;
 pub mod session;
@@ -123,19 +124,6 @@ impl GuiOptions {
     /// The paper's frame: `paper_mm` square centred on the origin.
     pub fn frame(&self) -> Frame {
         paper_frame(self.paper_mm, self.px_per_mm)
-    }
-}
-
-/// A status message under a panel's controls: `message` is its text and whether it reports
-/// an error (then red). The app's message line, the stroke editor's and the practice panel's.
-pub fn message_label(ui: &mut egui::Ui, message: &Option<(String, bool)>) {
-    if let Some((m, error)) = message {
-        let c = if *error {
-            egui::Color32::from_rgb(230, 80, 70)
-        } else {
-            ui.visuals().text_color()
-        };
-        ui.label(egui::RichText::new(m).color(c));
     }
 }
 

@@ -376,7 +376,7 @@ impl Practice {
         if self.writing.is_some() {
             ui.label(RichText::new("recording your attempt").color(Color32::from_rgb(200, 40, 30)));
         }
-        super::message_label(ui, &self.message);
+        super::message::label(ui, &self.message);
         if let Some(r) = &self.report {
             ui.separator();
             report_ui(ui, r);

@@ -492,7 +492,7 @@ impl Timeline {
                 ));
             }
         });
-        super::message_label(ui, &self.message);
+        super::message::label(ui, &self.message);
         if self.character.is_some() {
             self.strip(ui);
             self.kinetic_view(ui);

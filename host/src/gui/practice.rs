@@ -71,6 +71,9 @@ pub struct Practice {
     pub lane_on: bool,
     pub lane_mm: f64,
     master: Option<Arc<Master>>,
+    /// The master's outlines flattened to polylines (mm), each stroke's rings: flattened once
+    /// when the master arrives, drawn every frame.
+    rings: Vec<Vec<Vec<[f64; 2]>>>,
     loading: Option<(String, Receiver<anyhow::Result<Master>>)>,
     /// The attempt's frames while "Write" is on: (tick, hand pose).
     writing: Option<Vec<(u64, Pose<f64>)>>,
@@ -95,6 +98,7 @@ impl Default for Practice {
             lane_on: false,
             lane_mm: 2.0,
             master: None,
+            rings: Vec::new(),
             loading: None,
             writing: None,
             attempt: Vec::new(),
@@ -228,6 +232,11 @@ impl Practice {
                             false,
                         ));
                         self.history = read_history(&m.hanzi.ch.to_string());
+                        self.rings = m
+                            .outlines()
+                            .iter()
+                            .map(|s| outline_rings(&s.outline))
+                            .collect();
                         self.master = Some(Arc::new(m));
                     }
                     Err(e) => self.message = Some((format!("{ch}: {e:#}"), true)),
@@ -501,20 +510,20 @@ pub fn score_color(s: f64) -> Color32 {
 /// Draws the master's outlines over the paper: faint red before a score, each stroke in the
 /// colour of its score after one.
 pub fn draw(painter: &egui::Painter, paper: &PaperView, practice: &Practice) {
-    let Some(m) = practice.master() else {
+    if practice.master.is_none() {
         return;
-    };
+    }
     let dx = match practice.view {
         ModelView::Hidden => return,
         ModelView::Trace => 0.0,
         ModelView::Beside => BESIDE_MM,
     };
-    for (k, st) in m.outlines().iter().enumerate() {
+    for (k, rings) in practice.rings.iter().enumerate() {
         let color = match &practice.report {
             Some(r) => score_color(r.strokes.get(k).map_or(0.0, |s| s.score)),
             None => Color32::from_rgba_unmultiplied(200, 40, 30, 140),
         };
-        for ring in outline_rings(&st.outline) {
+        for ring in rings {
             let pts: Vec<egui::Pos2> = ring
                 .iter()
                 .map(|p| paper.mm_to_screen(p[0] + dx, p[1]))
